@@ -1,0 +1,52 @@
+"""Options and helpers shared by the commands: output flags, progress bars, option types."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from typing import Any, Callable
+
+import click
+
+overwrite_option = click.option("--overwrite", is_flag=True, help="Replace existing output files.")
+
+
+def progress_factory(quiet: bool = False) -> Callable[..., Any]:
+    """Return a tqdm progress factory writing to stderr (a no-op one when quiet)."""
+    if quiet:
+        from roodi_toolkit.progress import null_progress
+
+        return null_progress
+    from tqdm import tqdm
+
+    return functools.partial(tqdm, file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5)
+
+
+quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bars.")
+
+
+def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:
+    """Parse 'a,b,c' into n floats or raise a click.BadParameter naming the option."""
+    parts = [p for p in text.replace(" ", "").split(",") if p]
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        raise click.BadParameter(f"expected {n} comma-separated numbers, got {text!r}", param_hint=name) from None
+    if len(values) != n:
+        raise click.BadParameter(f"expected {n} comma-separated numbers, got {len(values)}", param_hint=name)
+    return values
+
+
+def parse_size(text: str, name: str = "--size") -> tuple[int, int]:
+    """Parse 'WxH' (or a single number for a square) into (width, height)."""
+    t = text.lower().strip()
+    try:
+        if "x" in t:
+            w, h = (int(v) for v in t.split("x", 1))
+        else:
+            w = h = int(t)
+    except ValueError:
+        raise click.BadParameter(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}", param_hint=name) from None
+    if w <= 0 or h <= 0 or w > 16384 or h > 16384:
+        raise click.BadParameter(f"size must be between 1 and 16384 pixels, got {text!r}", param_hint=name)
+    return w, h

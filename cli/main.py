@@ -1,0 +1,104 @@
+"""Entry point of the ``roodi-toolkit`` command.
+
+Conventions every command follows: exit 0 on success; 1 with one line on stderr for a ``RoodiError`` (or any other
+failure); 2 for usage errors; no traceback unless ``--debug`` (accepted anywhere on the line); outputs are written
+atomically, never over an input, and over an existing file only with ``--overwrite``.
+
+Commands are imported only when run (or when ``--help`` lists them), so ``roodi-toolkit info`` stays fast; command
+modules import heavy libraries inside their functions.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from typing import Sequence
+
+import click
+
+from roodi_toolkit._version import __version__
+
+# name -> "module:attribute" of a click.Command. One line per command.
+COMMANDS: dict[str, str] = {
+    "info": "roodi_toolkit.cli.cmd_info:info",
+    "plugins": "roodi_toolkit.cli.cmd_plugins:plugins",
+}
+
+EPILOG = "Add --debug anywhere for a full traceback on errors. Docs: README.md."
+
+
+class LazyGroup(click.Group):
+    """A click group that imports each command's module on first use."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        target = COMMANDS.get(name)
+        if target is None:
+            return None
+        module_name, attr = target.split(":")
+        return getattr(importlib.import_module(module_name), attr)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 110},
+             epilog=EPILOG)
+@click.version_option(__version__, "--version", prog_name="roodi-toolkit")
+def app() -> None:
+    """roodi-toolkit: take one object out of a 3D Gaussian Splatting scene as a clean, standalone 3DGS model.
+
+    \b
+    Examples:
+      roodi-toolkit info scene.ply
+      roodi-toolkit prune in.ply out.ply --floaters-out floaters.ply
+      roodi-toolkit plugins
+    """
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI and return its exit code (also used as the console script)."""
+    from roodi_toolkit.errors import RoodiError
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    args = [a for a in args if a != "--debug"]
+    try:
+        app.main(args=args, prog_name="roodi-toolkit", standalone_mode=False)
+        return 0
+    except click.exceptions.Exit as exc:  # --help / --version
+        return int(exc.exit_code or 0)
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    except click.ClickException as exc:  # usage errors: bad option, missing argument, bad value
+        if debug:
+            raise
+        exc.show()
+        return int(exc.exit_code) if exc.exit_code else 2
+    except RoodiError as exc:
+        if debug:
+            raise
+        click.echo(f"error: {_one_line(str(exc))}", err=True)
+        return 1
+    except KeyboardInterrupt:
+        click.echo("interrupted", err=True)
+        return 130
+    except MemoryError:
+        if debug:
+            raise
+        click.echo("error: out of memory; try a smaller input or fewer views", err=True)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - the last line of defence against tracebacks
+        if debug:
+            raise
+        click.echo(f"error: unexpected {type(exc).__name__}: {_one_line(str(exc))} (rerun with --debug for the "
+                   "traceback and please report it)", err=True)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
