@@ -1,0 +1,31 @@
+"""``roodi-toolkit plugins``: every registered renderer, inpainter and segmenter, and whether it loads."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+
+@click.command(epilog="Example:\n\n\b\n  roodi-toolkit plugins\n"
+               "  ROODI_PLUGINS='inpainters:mine=my_pkg.inpaint:Mine' roodi-toolkit plugins")
+@click.option("--json", "as_json", is_flag=True, help="Print machine-readable JSON.")
+def plugins(as_json: bool) -> None:
+    """List plugins with their group, origin and status (a broken plugin is shown with its error)."""
+    from roodi_toolkit.plugins import check_all, short_group
+
+    statuses = check_all()
+    rows = [{"group": short_group(s.spec.group), "name": s.spec.name, "origin": s.spec.origin,
+             "target": s.spec.target, "status": "ok" if s.ok else "error", "error": s.error} for s in statuses]
+    if as_json:
+        click.echo(json.dumps(rows, indent=2))
+        return
+    if not rows:
+        click.echo("no plugins registered")
+        return
+    widths = [max(len(r[k]) for r in rows + [{"group": "group", "name": "name", "origin": "origin"}])
+              for k in ("group", "name", "origin")]
+    click.echo(f"{'group':<{widths[0]}}  {'name':<{widths[1]}}  {'origin':<{widths[2]}}  status")
+    for r in rows:
+        status = "ok" if r["status"] == "ok" else f"error: {r['error']}"
+        click.echo(f"{r['group']:<{widths[0]}}  {r['name']:<{widths[1]}}  {r['origin']:<{widths[2]}}  {status}")
