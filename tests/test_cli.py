@@ -1,0 +1,87 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from plyfile import PlyData
+
+from roodi_toolkit import write_ply
+from roodi_toolkit.cli.main import COMMANDS, app
+
+from .conftest import make_cloud
+
+
+def test_version_and_help(run_cli):
+    from roodi_toolkit import __version__
+
+    res = run_cli("--version")
+    assert res.exit_code == 0 and __version__ in res.stdout
+    res = run_cli("--help")
+    assert res.exit_code == 0
+    for name in COMMANDS:
+        assert name in res.stdout
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_every_command_help_shows_an_example(run_cli, name):
+    res = run_cli(name, "--help")
+    assert res.exit_code == 0, res.stderr
+    assert "Example" in res.stdout and f"roodi-toolkit {name}" in res.stdout
+
+
+def test_usage_errors_exit_2(run_cli):
+    assert run_cli("no-such-command").exit_code == 2
+    res = run_cli("info")
+    assert res.exit_code == 2 and "Missing argument" in res.stderr
+    assert run_cli("info", "x.ply", "--bogus").exit_code == 2
+
+
+def test_info_table_and_json_on_gsplat_style_file(tmp_path, run_cli):
+    from .test_ply import reference_columns, write_with_plyfile
+
+    cols = reference_columns(40, 3, seed=2, normals=False)
+    cols["x"][:] = np.linspace(-1, 2, 40, dtype=np.float32)
+    cols["opacity"][:] = 0.0  # sigmoid(0) = 0.5
+    cols["opacity"][:3] = -10.0  # below 1/255
+    cols["scale_0"][:] = np.log(0.25)
+    cols["scale_1"][:] = np.log(0.5)
+    cols["scale_2"][:] = np.log(0.125)
+    cols["rot_0"][5] = cols["rot_1"][5] = cols["rot_2"][5] = cols["rot_3"][5] = 0.0
+    cols["y"][7] = np.nan
+    path = tmp_path / "gs.ply"
+    write_with_plyfile(path, cols)
+    res = run_cli("info", path, "--json")
+    assert res.exit_code == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert d["count"] == 40 and d["sh_degree"] == 3
+    assert d["file"]["variant"] == "gsplat" and d["has_normals"] is False
+    assert d["bbox"]["min"][0] == pytest.approx(-1) and d["bbox"]["max"][0] == pytest.approx(2)
+    assert d["opacity"]["median"] == pytest.approx(0.5) and d["opacity"]["below_1_255"] == 3
+    assert d["scale_max_axis"]["median"] == pytest.approx(0.5) and d["scale_min_axis"]["median"] == pytest.approx(0.125)
+    assert d["nonfinite_rows"] == 1 and d["zero_norm_quats"] == 1
+    table = run_cli("info", path)
+    assert table.exit_code == 0 and "gsplat" in table.stdout and "NaN/Inf rows    1" in table.stdout
+
+
+def test_debug_shows_traceback_only_when_asked(tmp_path):
+    exe = [sys.executable, "-m", "roodi_toolkit.cli.main"]
+    res = subprocess.run(exe + ["info", str(tmp_path / "missing.ply")], capture_output=True, text=True)
+    assert res.returncode == 1 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
+    res = subprocess.run(exe + ["info", str(tmp_path / "missing.ply"), "--debug"], capture_output=True, text=True)
+    assert res.returncode == 1 and "Traceback" in res.stderr and "PlyError" in res.stderr
+
+
+def test_console_script_is_installed(tmp_path):
+    import shutil
+
+    exe = shutil.which("roodi-toolkit") or str(__import__("pathlib").Path(sys.executable).parent / "roodi-toolkit")
+    res = subprocess.run([exe, "--version"], capture_output=True, text=True)
+    assert res.returncode == 0 and "roodi-toolkit" in res.stdout
+
+
+def test_cli_is_not_a_top_level_module():
+    import importlib.util
+
+    assert importlib.util.find_spec("cli") is None or "roodi" not in str(importlib.util.find_spec("cli").origin)
+    assert app.name == "app"

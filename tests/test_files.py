@@ -1,0 +1,53 @@
+import pytest
+
+from roodi_toolkit.errors import OutputError, RoodiError
+from roodi_toolkit.files import atomic_path, check_output, prepare_output_dir, read_json, write_json
+
+
+def test_atomic_path_replaces_only_on_success(tmp_path):
+    dest = tmp_path / "out.txt"
+    dest.write_text("old")
+    with pytest.raises(RuntimeError):
+        with atomic_path(dest) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("boom")
+    assert dest.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.txt"]
+    with atomic_path(dest) as tmp:
+        tmp.write_text("new")
+    assert dest.read_text() == "new"
+
+
+def test_check_output_policy(tmp_path):
+    src = tmp_path / "in.ply"
+    src.write_text("x")
+    with pytest.raises(OutputError, match="same file as the input"):
+        check_output(src, overwrite=True, inputs=[src])
+    with pytest.raises(OutputError, match="--overwrite"):
+        check_output(src, overwrite=False)
+    assert check_output(src, overwrite=True) == src
+    with pytest.raises(OutputError, match="does not exist"):
+        check_output(tmp_path / "nope" / "o.ply", overwrite=False)
+    with pytest.raises(OutputError, match="is a folder"):
+        check_output(tmp_path, overwrite=True)
+
+
+def test_output_dir_policy(tmp_path):
+    out = tmp_path / "o"
+    prepare_output_dir(out, overwrite=False)
+    (out / "f").write_text("x")
+    with pytest.raises(OutputError, match="not empty"):
+        prepare_output_dir(out, overwrite=False)
+    prepare_output_dir(out, overwrite=True)
+
+
+def test_json_roundtrip_and_errors(tmp_path):
+    import numpy as np
+
+    p = write_json({"a": np.float32(1.5), "b": np.arange(3)}, tmp_path / "a.json")
+    assert read_json(p) == {"a": 1.5, "b": [0, 1, 2]}
+    (tmp_path / "bad.json").write_text("{oops")
+    with pytest.raises(RoodiError, match="malformed"):
+        read_json(tmp_path / "bad.json")
+    with pytest.raises(RoodiError, match="not found"):
+        read_json(tmp_path / "none.json")
