@@ -134,7 +134,7 @@ def look_at(eye: Sequence[float], target: Sequence[float], up: Sequence[float] =
 
     Example:
         >>> w2c = look_at([0, -2, 0], [0, 0, 0])
-        >>> np.round(w2c[:3, :3] @ np.array([0.0, 2.0, 0.0]) + w2c[:3, 3], 6).tolist()  # target is 2 ahead on z
+        >>> np.round(w2c[:3, :3] @ np.zeros(3) + w2c[:3, 3], 6).tolist()  # the target is 2 ahead on +z
         [0.0, 0.0, 2.0]
     """
     eye = np.asarray(eye, dtype=np.float64)

@@ -87,7 +87,7 @@ class GaussianCloud:
     Example:
         >>> cloud = GaussianCloud.from_activated(np.zeros((2, 3)), scales=np.full((2, 3), 0.1),
         ...                                      opacities=np.array([0.5, 0.9]), rgb=np.full((2, 3), 0.5))
-        >>> len(cloud), cloud.sh_degree, np.round(cloud.opacities, 3).tolist()
+        >>> len(cloud), cloud.sh_degree, [round(float(o), 3) for o in cloud.opacities]
         (2, 0, [0.5, 0.9])
     """
 
