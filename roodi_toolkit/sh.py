@@ -34,7 +34,7 @@ def sh_bases(degree: int, dirs: Tensor) -> Tensor:
         dirs: unit vectors. [..., 3]
 
     Example:
-        >>> sh_bases(1, torch.tensor([[0.0, 0.0, 1.0]])).tolist()
+        >>> sh_bases(1, torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)).tolist()
         [[0.28209479177387814, -0.0, 0.4886025119029199, -0.0]]
     """
     n = num_sh_bases(degree)
