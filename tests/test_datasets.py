@@ -1,0 +1,299 @@
+"""Tests of the posed-image loaders and the COLMAP reader/writer, on fixtures written here."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from roodi_toolkit.cameras import Camera, look_at, orbit_cameras
+from roodi_toolkit.datasets import (
+    ColmapCamera,
+    ColmapPoints,
+    Dataset,
+    colmap_model_from_cameras,
+    detect_format,
+    estimate_bounds,
+    load_blender,
+    load_cameras,
+    load_colmap,
+    load_dataset,
+    qvec_to_rotmat,
+    read_colmap_model,
+    rotmat_to_qvec,
+    write_blender_transforms,
+    write_colmap_model,
+)
+from roodi_toolkit.errors import DatasetError, RoodiError
+from roodi_toolkit.files import write_image
+
+W, H = 16, 12
+
+
+def _cams(n: int, width: int = W, height: int = H) -> list[Camera]:
+    cams = orbit_cameras([0.1, -0.2, 0.3], 3.0, n, elevation_deg=25.0, width=width, height=height, fov_x_deg=60.0)
+    return [Camera(c.world_to_camera, c.K, c.width, c.height, name=f"r_{i}") for i, c in enumerate(cams)]
+
+
+def _rgba(seed: int, width: int = W, height: int = H) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = rng.integers(0, 256, size=(height, width, 4), dtype=np.uint8)
+    img[0, 0, 3] = 0  # one fully transparent pixel
+    img[0, 1, 3] = 255
+    return img
+
+
+def _blender_fixture(root: Path, n_train: int = 3, n_test: int = 2, *, masks: bool = False,
+                     drop_ext: bool = True) -> dict[str, list]:
+    (root / "train").mkdir(parents=True)
+    (root / "test").mkdir()
+    out: dict[str, list] = {}
+    for split, n, off in (("train", n_train, 0), ("test", n_test, 100)):
+        cams = _cams(n)
+        imgs = [_rgba(off + i) for i in range(n)]
+        extra = []
+        for i, (c, img) in enumerate(zip(cams, imgs)):
+            write_image(img, root / split / f"{c.name}.png")
+            if masks:
+                write_image(np.full((H, W), i + 1, np.uint8), root / split / f"{c.name}_mask.png")
+                extra.append({"mask_path": f"{split}/{c.name}_mask.png"})
+        paths = [f"./{split}/{c.name}" + ("" if drop_ext else ".png") for c in cams]
+        write_blender_transforms(root / f"transforms_{split}.json", cams, paths, frame_extra=extra or None)
+        out[split] = [cams, imgs]
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------ Blender
+
+
+def test_blender_round_trip_cameras_images_and_splits(tmp_path: Path) -> None:
+    fx = _blender_fixture(tmp_path)
+    ds = load_dataset(tmp_path)
+    assert isinstance(ds, Dataset) and ds.format == "blender"
+    assert ds.splits == ["train"] * 3 + ["test"] * 2
+    assert ds.images.shape == (5, H, W, 3) and ds.images.dtype == torch.float32
+    assert ds.alphas is not None and ds.alphas.shape == (5, H, W)
+    cams = fx["train"][0] + fx["test"][0]
+    imgs = fx["train"][1] + fx["test"][1]
+    for c_loaded, c_ref in zip(ds.cameras, cams):
+        np.testing.assert_allclose(c_loaded.world_to_camera, c_ref.world_to_camera, atol=1e-9)
+        np.testing.assert_allclose(c_loaded.K, c_ref.K, atol=1e-9)
+        assert c_loaded.name == c_ref.name
+    # RGBA composited on the default white background
+    ref = imgs[0].astype(np.float32) / 255.0
+    expected = ref[..., :3] * ref[..., 3:] + (1.0 - ref[..., 3:])
+    np.testing.assert_allclose(ds.images[0].numpy(), expected, atol=1e-6)
+    np.testing.assert_allclose(ds.images[0, 0, 0].numpy(), [1.0, 1.0, 1.0])
+    assert ds.train_indices == [0, 1, 2] and ds.test_indices == [3, 4]
+    assert len(ds.split("test")) == 2 and ds.split("test").cameras[0].name == cams[3].name
+
+
+def test_blender_background_downscale_and_masks(tmp_path: Path) -> None:
+    _blender_fixture(tmp_path, masks=True, drop_ext=False)
+    black = load_blender(tmp_path, background=(0, 0, 0), splits=["train"])
+    assert len(black) == 3 and black.background == (0.0, 0.0, 0.0)
+    np.testing.assert_allclose(black.images[0, 0, 0].numpy(), [0.0, 0.0, 0.0])
+    assert black.masks is not None and black.masks.dtype == torch.int64
+    assert black.masks[1].unique().tolist() == [2]
+    half = load_blender(tmp_path, downscale=2, splits=["train"])
+    assert half.images.shape == (3, H // 2, W // 2, 3) and half.masks.shape == (3, H // 2, W // 2)
+    full = load_blender(tmp_path, splits=["train"])
+    np.testing.assert_allclose(half.cameras[0].K[:2], full.cameras[0].K[:2] / 2)
+    # area averaging: each output pixel is the mean of a 2x2 block
+    np.testing.assert_allclose(half.images[0, 1, 2].numpy(), full.images[0, 2:4, 4:6].mean(dim=(0, 1)).numpy(),
+                               atol=1e-6)
+
+
+def test_blender_original_nerf_synthetic_keys_only(tmp_path: Path) -> None:
+    # the original files carry camera_angle_x and frames only; images stored without extension in file_path
+    (tmp_path / "train").mkdir()
+    c2w = np.array([[1, 0, 0, 0], [0, 0, -1, -4], [0, 1, 0, 0.5], [0, 0, 0, 1]], float)  # looks along +y
+    write_image(np.zeros((8, 10, 3), np.uint8), tmp_path / "train" / "r_0.png")
+    (tmp_path / "transforms_train.json").write_text(json.dumps(
+        {"camera_angle_x": 0.8, "frames": [{"file_path": "./train/r_0", "rotation": 0.1,
+                                            "transform_matrix": c2w.tolist()}]}))
+    cams = load_cameras(tmp_path)
+    assert (cams[0].width, cams[0].height) == (10, 8)
+    np.testing.assert_allclose(cams[0].K[0, 0], 5.0 / math.tan(0.4))
+    uv, z = cams[0].project(np.array([[0.0, 0.0, 0.5]]))  # a point straight ahead projects on the centre
+    np.testing.assert_allclose(uv[0], [5.0, 4.0], atol=1e-9)
+    np.testing.assert_allclose(z, [4.0])
+    ds = load_dataset(tmp_path / "transforms_train.json")
+    assert ds.alphas is None and ds.images.shape == (1, 8, 10, 3)
+
+
+@pytest.mark.parametrize("case, needle", [
+    ("malformed", "malformed"),
+    ("no_frames", "frames"),
+    ("no_angle", "camera_angle_x"),
+    ("missing_image", "not found"),
+    ("sizes", "same size"),
+    ("bad_matrix", "transform_matrix"),
+])
+def test_blender_errors_name_file_and_problem(tmp_path: Path, case: str, needle: str) -> None:
+    _blender_fixture(tmp_path, n_train=2, n_test=1)
+    tf = tmp_path / "transforms_train.json"
+    meta = json.loads(tf.read_text())
+    if case == "malformed":
+        tf.write_text(tf.read_text()[:-10])
+    elif case == "no_frames":
+        del meta["frames"]
+        tf.write_text(json.dumps(meta))
+    elif case == "no_angle":
+        for k in ("camera_angle_x", "fl_x"):
+            del meta[k]
+        tf.write_text(json.dumps(meta))
+    elif case == "missing_image":
+        (tmp_path / "train" / "r_1.png").unlink()
+    elif case == "sizes":
+        write_image(np.zeros((H + 2, W, 3), np.uint8), tmp_path / "train" / "r_1.png")
+    elif case == "bad_matrix":
+        meta["frames"][0]["transform_matrix"] = [[1, 0], [0, 1]]
+        tf.write_text(json.dumps(meta))
+    with pytest.raises(DatasetError) as exc:
+        load_dataset(tmp_path)
+    msg = str(exc.value)
+    assert needle in msg
+    assert "transforms_train.json" in msg or "r_1" in msg
+
+
+def test_detect_format_errors(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match="not found"):
+        detect_format(tmp_path / "nope")
+    with pytest.raises(DatasetError, match="no dataset found"):
+        load_dataset(tmp_path)
+    with pytest.raises(DatasetError, match="downscale"):
+        _blender_fixture(tmp_path / "d")
+        load_dataset(tmp_path / "d", downscale=0.5)
+
+
+# ------------------------------------------------------------------------------------------------------- COLMAP
+
+
+def test_quaternion_round_trip() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        q = q if q[0] >= 0 else -q
+        R = qvec_to_rotmat(q)
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(rotmat_to_qvec(R), q, atol=1e-9)
+    # a 180-degree rotation (w = 0) is where naive trace-based conversions fail
+    np.testing.assert_allclose(np.abs(rotmat_to_qvec(np.diag([1.0, -1.0, -1.0]))), [0, 1, 0, 0], atol=1e-12)
+
+
+def _colmap_fixture(root: Path, n: int = 10, *, binary: bool, model: str = "PINHOLE") -> tuple[list[Camera], object]:
+    cams = _cams(n)
+    rng = np.random.default_rng(1)
+    pts = ColmapPoints(np.arange(1, 41), rng.normal(size=(40, 3)), rng.integers(0, 256, (40, 3)),
+                       rng.uniform(0, 1, 40), [rng.integers(1, n + 1, size=(k % 4, 2)) for k in range(40)])
+    names = [f"img_{i:02d}.png" for i in range(n)]
+    m = colmap_model_from_cameras(cams, names, pts, model=model)
+    first = next(iter(m.images.values()))
+    first.xys = rng.uniform(0, W, size=(3, 2))
+    first.point3d_ids = np.array([1, -1, 7])
+    sparse = root / "sparse" / "0"
+    sparse.mkdir(parents=True)
+    write_colmap_model(m, sparse, binary=binary)
+    (root / "images").mkdir()
+    for i, name in enumerate(names):
+        write_image(_rgba(i)[..., :3], root / "images" / name)
+    return cams, m
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_colmap_write_read_round_trip(tmp_path: Path, binary: bool) -> None:
+    cams, model = _colmap_fixture(tmp_path, binary=binary)
+    ext = ".bin" if binary else ".txt"
+    assert (tmp_path / "sparse" / "0" / f"images{ext}").is_file()
+    back = read_colmap_model(tmp_path / "sparse" / "0")
+    assert back.cameras.keys() == model.cameras.keys()
+    for k, cam in model.cameras.items():
+        assert back.cameras[k].model == cam.model and back.cameras[k].width == cam.width
+        np.testing.assert_array_equal(back.cameras[k].params, cam.params)
+    for k, img in model.images.items():
+        b = back.images[k]
+        assert b.name == img.name and b.camera_id == img.camera_id
+        np.testing.assert_array_equal(b.qvec_wxyz, img.qvec_wxyz)
+        np.testing.assert_array_equal(b.tvec, img.tvec)
+        np.testing.assert_array_equal(b.xys, img.xys)
+        np.testing.assert_array_equal(b.point3d_ids, img.point3d_ids)
+    np.testing.assert_array_equal(back.points.xyz, model.points.xyz)
+    np.testing.assert_array_equal(back.points.rgb, model.points.rgb)
+    for a, b in zip(back.points.tracks, model.points.tracks):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_colmap_binary_and_text_load_the_same_dataset(tmp_path: Path) -> None:
+    cams, _ = _colmap_fixture(tmp_path / "b", binary=True)
+    _colmap_fixture(tmp_path / "t", binary=False)
+    db, dt = load_dataset(tmp_path / "b"), load_dataset(tmp_path / "t")
+    assert db.format == dt.format == "colmap"
+    torch.testing.assert_close(db.images, dt.images)
+    for a, b, ref in zip(db.cameras, dt.cameras, cams):
+        np.testing.assert_allclose(a.world_to_camera, ref.world_to_camera, atol=1e-12)
+        np.testing.assert_allclose(b.world_to_camera, ref.world_to_camera, atol=1e-12)
+        np.testing.assert_allclose(a.K, ref.K)
+    # 3DGS split: sorted by name, every 8th (index % 8 == 0) is a test view
+    assert db.names == [f"img_{i:02d}" for i in range(10)]
+    assert db.test_indices == [0, 8] and len(db.train_indices) == 8
+    assert db.points is not None and db.points.shape == (40, 3) and db.point_colors.dtype == np.uint8
+    assert np.all(db.bounds[0] < db.points.mean(axis=0)) and np.all(db.bounds[1] > db.points.mean(axis=0))
+    ref = _rgba(3)[..., :3].astype(np.float32) / 255
+    np.testing.assert_allclose(db.images[3].numpy(), ref, atol=1e-6)
+    assert len(load_colmap(tmp_path / "b", test_every=0).test_indices) == 0
+    assert len(load_cameras(tmp_path / "t" / "sparse" / "0")) == 10
+
+
+def test_colmap_simple_pinhole_and_downscale(tmp_path: Path) -> None:
+    cams, _ = _colmap_fixture(tmp_path, n=3, binary=True, model="SIMPLE_PINHOLE")
+    ds = load_colmap(tmp_path, downscale=2)
+    assert read_colmap_model(tmp_path / "sparse" / "0").cameras[1].model == "SIMPLE_PINHOLE"
+    assert ds.images.shape == (3, H // 2, W // 2, 3)
+    np.testing.assert_allclose(ds.cameras[0].K[0, 0], cams[0].K[0, 0] / 2)
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_colmap_refuses_other_camera_models_by_name(tmp_path: Path, binary: bool) -> None:
+    _, model = _colmap_fixture(tmp_path, n=2, binary=binary)
+    model.cameras[1] = ColmapCamera(1, "OPENCV", W, H, np.array([10.0, 10.0, 8.0, 6.0, 0.1, 0.0, 0.0, 0.0]))
+    write_colmap_model(model, tmp_path / "sparse" / "0", binary=binary)
+    with pytest.raises(DatasetError, match="OPENCV"):
+        load_dataset(tmp_path)
+
+
+def test_colmap_errors(tmp_path: Path) -> None:
+    _colmap_fixture(tmp_path / "trunc", n=2, binary=True)
+    f = tmp_path / "trunc" / "sparse" / "0" / "images.bin"
+    f.write_bytes(f.read_bytes()[:40])
+    with pytest.raises(DatasetError, match="images.bin.*ends early"):
+        load_dataset(tmp_path / "trunc")
+    _colmap_fixture(tmp_path / "missing", n=2, binary=False)
+    (tmp_path / "missing" / "images" / "img_01.png").unlink()
+    with pytest.raises(DatasetError, match="img_01.png.*not found"):
+        load_dataset(tmp_path / "missing")
+    _colmap_fixture(tmp_path / "model", n=2, binary=False)
+    (tmp_path / "model" / "sparse" / "0" / "cameras.txt").write_text("1 WEIRD 4 4 1 2 3\n")
+    with pytest.raises(DatasetError, match="cameras.txt: line 1: unknown COLMAP camera model 'WEIRD'"):
+        load_dataset(tmp_path / "model")
+    _colmap_fixture(tmp_path / "sizes", n=2, binary=True)
+    write_image(np.zeros((H, W + 1, 3), np.uint8), tmp_path / "sizes" / "images" / "img_01.png")
+    with pytest.raises(DatasetError, match="same size"):
+        load_dataset(tmp_path / "sizes")
+
+
+def test_errors_are_roodi_errors() -> None:
+    assert issubclass(DatasetError, RoodiError)
+
+
+def test_estimate_bounds_from_cameras_contains_the_focus() -> None:
+    cams = [Camera(look_at(eye, [0.5, 0.0, 0.2]), np.array([[10.0, 0, 8], [0, 10, 6], [0, 0, 1]]), W, H)
+            for eye in ([3, 0, 1], [-2, 1, 1], [0, -3, 2], [0.5, 3, 0.5])]
+    b = estimate_bounds(cams)
+    assert np.all(b[0] < [0.5, 0.0, 0.2]) and np.all(b[1] > [0.5, 0.0, 0.2])
+    assert np.all(b[1] - b[0] < 6)
