@@ -732,7 +732,11 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
     built = []
     for k in kinds:
         glossy = bool(rng.uniform() < P.glossy_fraction)
-        built.append(BUILDERS[k](rng, glossy))
+        parts = BUILDERS[k](rng, glossy)
+        lowest = min(float(p.vertices[:, 2].min()) for p in parts)
+        for p in parts:  # stand exactly on z = 0 (no part sinks into the ground or floats above it)
+            p.vertices = p.vertices - np.array([0.0, 0.0, lowest])
+        built.append(parts)
 
     # placement: large things first keep the rejection sampling short; targets then occluders near the centre
     placed: list[dict[str, Any]] = []  # x, y, r, h, z, table
