@@ -272,7 +272,8 @@ def w2_sq_neighbors(means: np.ndarray, shapes: GaussianShapes, neighbors: np.nda
         means: ``[N, 3]`` centres.
         shapes: per-Gaussian shapes of all N Gaussians (:func:`gaussian_shapes`).
         neighbors: ``[R, K]`` neighbour indices into the N Gaussians.
-        dist2: ``[R, K]`` squared centre distances, if known (recomputed from ``means`` otherwise).
+        dist2: ``[R, K]`` squared centre distances, if known; used for float32 shapes only (float64 recomputes
+            them from ``means`` so the result keeps float64 accuracy).
         rows: ``[R]`` index of the Gaussian each row belongs to (default ``arange(N)``, R = N).
         chunk_rows: rows per chunk; bounds the temporary memory to about 60 arrays of chunk_rows * K values.
         threads: worker threads (numpy releases the GIL inside its loops).
@@ -290,7 +291,7 @@ def w2_sq_neighbors(means: np.ndarray, shapes: GaussianShapes, neighbors: np.nda
         stop = min(n_rows, start + chunk_rows)
         nb = neighbors[start:stop]
         own = rows[start:stop]
-        if dist2 is None:
+        if dist2 is None or dtype != np.float32:
             diff = means[nb].astype(dtype) - means[own][:, None, :].astype(dtype)
             d2 = np.einsum("rkc,rkc->rk", diff, diff)
         else:
