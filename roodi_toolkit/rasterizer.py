@@ -296,6 +296,8 @@ def rasterize_dense_reference(
     w2c, Kt = _camera_tensors(world_to_camera, K, dtype, means.device)
     means2d, conic, depths, in_range = _project_reference(means, quats_wxyz, log_scales, w2c, Kt, width, height,
                                                           near, far, eps2d)
+    if means2d.requires_grad:
+        means2d.retain_grad()
     opac = torch.sigmoid(opacity_logits)
     stacked, bg = _colors_and_background(means, colors, features, depths, w2c, background, sh_degree, dtype)
     r0, r1 = (0, height) if rows is None else rows
