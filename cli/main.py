@@ -22,6 +22,7 @@ from roodi_toolkit._version import __version__
 COMMANDS: dict[str, str] = {
     "info": "roodi_toolkit.cli.cmd_info:info",
     "plugins": "roodi_toolkit.cli.cmd_plugins:plugins",
+    "prune": "roodi_toolkit.cli.cmd_prune:prune",
     "make-scene": "roodi_toolkit.cli.cmd_make_scene:make_scene",
 }
 
