@@ -23,6 +23,7 @@ COMMANDS: dict[str, str] = {
     "info": "roodi_toolkit.cli.cmd_info:info",
     "plugins": "roodi_toolkit.cli.cmd_plugins:plugins",
     "prune": "roodi_toolkit.cli.cmd_prune:prune",
+    "render": "roodi_toolkit.cli.cmd_render:render",
     "make-scene": "roodi_toolkit.cli.cmd_make_scene:make_scene",
 }
 

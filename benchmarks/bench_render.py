@@ -1,0 +1,173 @@
+"""Benchmark: the tiled CPU renderer against the dense reference, forward and forward+backward.
+
+Prints, for 10k, 100k and 300k Gaussians at 128x128, 256x256 and 512x512, the median times of the tiled renderer
+(``rasterize``), of the dense reference (``rasterize_dense_reference``: every Gaussian at every pixel) and their
+ratios, plus the peak memory of the tiled renderer. Every configuration runs in its own process so that peak memory
+(the rise of the peak resident set size over the loaded scene) is its own.
+
+The dense reference holds N x pixels pairs, so it is run in bands of image rows (forward and backward per band, the
+gradients accumulated: the same work, bounded memory). Its cost per row does not depend on the content (every
+Gaussian is evaluated at every pixel), so where the whole image would take longer than ``--dense-budget`` seconds,
+it is timed on evenly spaced bands and scaled to the full image; the output marks those figures "extrapolated".
+
+Scene: :func:`scene.scene_cloud` (Gaussians on the surfaces of a ground disc, spheres and boxes, sized to cover the
+surfaces about once; median footprint a few pixels at 256x256), camera at (3, -3, 2) looking at (0, 0, 0.3) with a
+50 degree horizontal field of view, SH degree 3, float32, loss = sum of RGB + expected depth.
+
+Run: ``.venv/bin/python benchmarks/bench_render.py`` (``--quick`` for a smoke run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _setup(n: int, size: int):
+    import torch
+
+    sys.path.insert(0, str(HERE))
+    from scene import scene_cloud
+
+    from roodi_toolkit.cameras import intrinsics_from_fov, look_at
+
+    scene = scene_cloud(n)
+    w2c = torch.tensor(look_at([3.0, -3.0, 2.0], [0.0, 0.0, 0.3]), dtype=torch.float32)
+    K = torch.tensor(intrinsics_from_fov(math.radians(50.0), size, size), dtype=torch.float32)
+    params = {k: v.clone().requires_grad_() for k, v in scene.items()}
+    return params, w2c, K
+
+
+def _args(params):
+    return (params["means"], params["quats_wxyz"], params["log_scales"], params["opacity_logits"], params["sh"])
+
+
+def run_fast(n: int, size: int, repeats: int, tile_size: int) -> dict:
+    import torch
+
+    from roodi_toolkit.rasterizer import rasterize
+
+    params, w2c, K = _setup(n, size)
+    base = _rss_mb()
+    fwd, both = [], []
+    for _ in range(repeats + 1):  # the first run warms up and is dropped
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            out = rasterize(*_args(params), w2c, K, size, size, tile_size=tile_size)
+        fwd.append(time.perf_counter() - t0)
+        for p in params.values():
+            p.grad = None
+        t0 = time.perf_counter()
+        out = rasterize(*_args(params), w2c, K, size, size, tile_size=tile_size)
+        (out.rgb.sum() + out.depth.sum()).backward()
+        both.append(time.perf_counter() - t0)
+    return {"fwd": statistics.median(fwd[1:]), "both": statistics.median(both[1:]),
+            "peak_mb": _peak_mb() - base, "visible": int(out.visible.sum()),
+            "mean_radius_px": float(out.radii[out.visible].float().mean()),
+            "coverage": float(out.alpha.detach().mean())}
+
+
+def run_dense(n: int, size: int, budget: float) -> dict:
+    import torch
+
+    from roodi_toolkit.rasterizer import rasterize_dense_reference
+
+    params, w2c, K = _setup(n, size)
+    band = max(1, (1 << 22) // (n * size))  # rows per band: about 4M (pixel, Gaussian) pairs
+    bands = [(r, min(size, r + band)) for r in range(0, size, band)]
+
+    def one(b, backward):
+        if backward:
+            out = rasterize_dense_reference(*_args(params), w2c, K, size, size, rows=b)
+            (out.rgb.sum() + out.depth.sum()).backward()
+        else:
+            with torch.no_grad():
+                rasterize_dense_reference(*_args(params), w2c, K, size, size, rows=b)
+
+    result = {}
+    for key, backward in (("fwd", False), ("both", True)):
+        one(bands[len(bands) // 2], backward)  # warm-up
+        t0 = time.perf_counter()
+        done = 0
+        # evenly spaced bands until the budget is spent (all of them if it allows)
+        order = sorted(range(len(bands)), key=lambda i: (bin(i)[::-1], i)) if len(bands) > 1 else [0]
+        rows = 0
+        for i in order:
+            one(bands[i], backward)
+            done += 1
+            rows += bands[i][1] - bands[i][0]
+            if time.perf_counter() - t0 > budget:
+                break
+        elapsed = time.perf_counter() - t0
+        result[key] = elapsed * size / rows
+        result[key + "_extrapolated"] = done < len(bands)
+        result[key + "_fraction"] = rows / size
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--one", nargs=3, metavar=("KIND", "N", "SIZE"), help=argparse.SUPPRESS)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--dense-budget", type=float, default=8.0,
+                    help="seconds of measured dense time per configuration before extrapolating (default 8)")
+    ap.add_argument("--tile-size", type=int, default=4)
+    ap.add_argument("--quick", action="store_true", help="10k Gaussians at 128x128 only")
+    args = ap.parse_args()
+    if args.one:
+        kind, n, size = args.one[0], int(args.one[1]), int(args.one[2])
+        res = run_fast(n, size, args.repeats, args.tile_size) if kind == "fast" else run_dense(n, size,
+                                                                                                args.dense_budget)
+        print(json.dumps(res))
+        return
+
+    import torch
+
+    ns = [10_000] if args.quick else [10_000, 100_000, 300_000]
+    sizes = [128] if args.quick else [128, 256, 512]
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, tile {args.tile_size}px, "
+          f"median of {args.repeats} runs after one warm-up")
+    header = (f"{'N':>7} {'size':>7} | {'fwd s':>7} {'f+b s':>7} {'peak MB':>8} {'r px':>5} {'cover':>5} | "
+              f"{'dense fwd':>10} {'dense f+b':>10} | {'x fwd':>7} {'x f+b':>7}")
+    print(header)
+    print("-" * len(header))
+    for n in ns:
+        for size in sizes:
+            def sub(kind):
+                cmd = [sys.executable, __file__, "--one", kind, str(n), str(size), "--repeats", str(args.repeats),
+                       "--dense-budget", str(args.dense_budget), "--tile-size", str(args.tile_size)]
+                return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
+
+            fast, dense = sub("fast"), sub("dense")
+            mark = lambda k: "*" if dense[k + "_extrapolated"] else " "  # noqa: E731
+            print(f"{n:>7} {size:>3}x{size:<3} | {fast['fwd']:7.3f} {fast['both']:7.3f} {fast['peak_mb']:8.0f} "
+                  f"{fast['mean_radius_px']:5.1f} {fast['coverage']:5.2f} | {dense['fwd']:9.1f}{mark('fwd')} "
+                  f"{dense['both']:9.1f}{mark('both')} | {dense['fwd'] / fast['fwd']:7.0f} "
+                  f"{dense['both'] / fast['both']:7.0f}", flush=True)
+    print("* dense time extrapolated from evenly spaced row bands (its cost per row does not depend on the content);"
+          f" budget {args.dense_budget:g} s measured per figure")
+    print("peak MB: rise of the peak RSS over the loaded scene (tiled renderer, forward + backward); r px: mean "
+          "footprint half-width of visible Gaussians; cover: mean rendered alpha")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,78 @@
+"""``roodi-toolkit render``: images, depth or alpha of a 3DGS PLY from an orbit or a dataset's cameras."""
+
+from __future__ import annotations
+
+import click
+
+from .common import overwrite_option, parse_floats, parse_size, progress_factory, quiet_option
+
+EPILOG = """Examples:
+
+\b
+  roodi-toolkit render scene.ply renders/ --orbit 8 --elevation 30
+  roodi-toolkit render scene.ply depth/ --orbit 4 --what depth --size 640x480
+  roodi-toolkit render scene.ply views/ --cameras dataset/transforms_test.json
+  roodi-toolkit render scene.ply views/ --cameras colmap_scene/ --renderer gsplat
+"""
+
+
+@click.command(epilog=EPILOG)
+@click.argument("ply", type=click.Path(dir_okay=False, path_type=str))
+@click.argument("out_dir", type=click.Path(file_okay=False, path_type=str))
+@click.option("--cameras", "cameras_path", type=click.Path(path_type=str),
+              help="Render a dataset's cameras: a Blender transforms_*.json, a Blender folder or a COLMAP folder.")
+@click.option("--orbit", type=click.IntRange(min=1), default=None,
+              help="Render N views on a circle around the cloud (default 8 when --cameras is not given).")
+@click.option("--elevation", type=float, default=20.0, show_default=True, help="Orbit elevation in degrees.")
+@click.option("--radius", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Orbit radius in scene units (default: frame the central 95% of the cloud).")
+@click.option("--fov", type=click.FloatRange(1, 179), default=50.0, show_default=True,
+              help="Orbit horizontal field of view in degrees.")
+@click.option("--up", default="0,0,1", show_default=True, help="Orbit up axis as x,y,z.")
+@click.option("--size", "size_text", default=None,
+              help="Image size WxH (orbit default 512x512; dataset cameras are rescaled to it).")
+@click.option("--what", type=click.Choice(["rgb", "depth", "alpha"]), default="rgb", show_default=True,
+              help="rgb: colour PNG; depth: 16-bit PNG + coloured preview (scale in render.json); alpha: 8-bit PNG.")
+@click.option("--background", default="0,0,0", show_default=True, help="Background colour r,g,b in [0, 1].")
+@click.option("--renderer", default="torch", show_default=True,
+              help="Renderer plugin: torch (built-in, CPU) or an installed one such as gsplat (CUDA).")
+@overwrite_option
+@quiet_option
+def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, elevation: float,
+           radius: float | None, fov: float, up: str, size_text: str | None, what: str, background: str,
+           renderer: str, overwrite: bool, quiet: bool) -> None:
+    """Render PLY into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
+    from roodi_toolkit.errors import ConfigError
+    from roodi_toolkit.files import prepare_output_dir
+    from roodi_toolkit.ply import read_ply
+    from roodi_toolkit.render_views import framing_orbit, render_views
+    from roodi_toolkit.renderers import get_renderer
+
+    bg = parse_floats(background, 3, "--background")
+    if not all(0.0 <= v <= 1.0 for v in bg):
+        raise click.BadParameter(f"colour components must be in [0, 1], got {background!r}", param_hint="--background")
+    up_axis = parse_floats(up, 3, "--up")
+    size = parse_size(size_text) if size_text else None
+    if cameras_path and orbit is not None:
+        raise click.UsageError("give either --cameras or --orbit, not both")
+
+    backend = get_renderer(renderer)  # fail on a missing plugin before reading anything
+    cloud = read_ply(ply)
+    cloud.require_finite(ply)
+    if cameras_path:
+        from roodi_toolkit.datasets import load_cameras
+
+        cams = load_cameras(cameras_path)
+        if size is not None:
+            cams = [c.with_size(*size) for c in cams]
+    else:
+        if up_axis == (0.0, 0.0, 0.0):
+            raise ConfigError("--up must not be the zero vector")
+        w, h = size or (512, 512)
+        cams = framing_orbit(cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
+                             fov_x_deg=fov, up=up_axis)
+    out = prepare_output_dir(out_dir, overwrite=overwrite)
+    record = render_views(cloud, cams, out, what=what, renderer=backend, background=bg,
+                          progress=progress_factory(quiet))
+    if not quiet:
+        click.echo(f"wrote {len(record['views'])} {what} view(s) to {out}", err=True)
