@@ -1,0 +1,87 @@
+"""The :class:`GsplatRenderer`: roodi-toolkit's renderer interface on top of ``gsplat.rasterization``.
+
+gsplat is imported lazily, inside :meth:`GsplatRenderer.available` and :meth:`GsplatRenderer.render`, so that this
+plugin loads (and ``roodi-toolkit plugins`` lists it) on machines without gsplat or CUDA.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Optional, Sequence
+
+import torch
+
+from roodi_toolkit.cameras import Camera
+from roodi_toolkit.errors import PluginError
+from roodi_toolkit.renderers import GaussianTensors, Renderer, RenderOutput
+
+INSTALL_HINT = "install it with `pip install gsplat` (or `pip install roodi-gsplat[cuda]`) on a machine with CUDA"
+
+
+def _import_gsplat() -> Any:
+    try:
+        import gsplat
+    except ImportError as exc:
+        raise PluginError(f"the gsplat renderer needs the gsplat package ({exc}); {INSTALL_HINT}") from None
+    return gsplat
+
+
+class GsplatRenderer(Renderer):
+    """Render with gsplat's CUDA rasterizer in 3DGS "classic" mode (the conventions of the built-in renderer)."""
+
+    name = "gsplat"
+
+    def __init__(self, *, device: str = "cuda", packed: bool = False, tile_size: int = 16) -> None:
+        self.device = torch.device(device)
+        self.packed = packed
+        self.tile_size = tile_size
+
+    @classmethod
+    def available(cls) -> tuple[bool, str]:
+        try:
+            _import_gsplat()
+        except PluginError as exc:
+            return False, str(exc)
+        if not torch.cuda.is_available():
+            return False, "gsplat rasterizes only on CUDA GPUs and torch sees none; use --renderer torch on CPUs"
+        return True, ""
+
+    def render(self, gaussians: GaussianTensors, camera: Camera, *, background: Optional[Sequence[float]] = None,
+               sh_degree: Optional[int] = None) -> RenderOutput:
+        gsplat = _import_gsplat()
+        src_device = gaussians.means.device
+        dev = self.device
+        g = {k: (None if v is None else v.to(dev)) for k, v in gaussians.tensors().items()}
+        dtype = g["means"].dtype
+        viewmats = torch.as_tensor(camera.world_to_camera, dtype=dtype, device=dev)[None]
+        Ks = torch.as_tensor(camera.K, dtype=dtype, device=dev)[None]
+        colors = g["colors"]
+        if colors.ndim == 3:
+            degree = {1: 0, 4: 1, 9: 2, 16: 3}[colors.shape[1]] if sh_degree is None else sh_degree
+        else:
+            degree = None
+        bg = None if background is None else torch.as_tensor(background, dtype=dtype, device=dev).reshape(1, 3)
+        common = dict(means=g["means"], quats=g["quats_wxyz"], scales=torch.exp(g["log_scales"]),
+                      opacities=torch.sigmoid(g["opacity_logits"]), viewmats=viewmats, Ks=Ks, width=camera.width,
+                      height=camera.height, near_plane=camera.near, far_plane=camera.far, eps2d=0.3,
+                      packed=self.packed, tile_size=self.tile_size, rasterize_mode="classic")
+        if bg is not None:
+            bg = torch.cat([bg, torch.zeros(1, 1, dtype=dtype, device=dev)], dim=1)  # no background on depth
+        render, alpha, meta = gsplat.rasterization(colors=colors, sh_degree=degree, backgrounds=bg,
+                                                   render_mode="RGB+ED", **common)
+        features = None
+        if g["features"] is not None:
+            features, _, _ = gsplat.rasterization(colors=g["features"], sh_degree=None, render_mode="RGB", **common)
+            features = features[0].to(src_device)
+        means2d = meta["means2d"]
+        if means2d.requires_grad:
+            means2d.retain_grad()  # densification reads its gradient after backward
+        radii = meta["radii"][0]
+        if radii.ndim == 1:  # gsplat < 1.5 returns one radius per Gaussian
+            radii = radii[:, None].expand(-1, 2)
+        depths = meta["depths"][0]
+        out = RenderOutput(rgb=render[0, ..., :3].to(src_device), alpha=alpha[0].to(src_device),
+                           depth=render[0, ..., 3:4].to(src_device), features=features,
+                           means2d=means2d.detach()[0].to(src_device), radii=radii.to(src_device).int(),
+                           depths=depths.to(src_device), visible=(radii > 0).any(-1).to(src_device),
+                           grad_source=means2d)
+        return out
