@@ -5,10 +5,11 @@ Prints, for 10k, 100k and 300k Gaussians at 128x128, 256x256 and 512x512, the me
 ratios, plus the peak memory of the tiled renderer. Every configuration runs in its own process so that peak memory
 (the rise of the peak resident set size over the loaded scene) is its own.
 
-The dense reference holds N x pixels pairs, so it is run in bands of image rows (forward and backward per band, the
-gradients accumulated: the same work, bounded memory). Its cost per row does not depend on the content (every
-Gaussian is evaluated at every pixel), so where the whole image would take longer than ``--dense-budget`` seconds,
-it is timed on evenly spaced bands and scaled to the full image; the output marks those figures "extrapolated".
+The dense reference holds N x pixels pairs, so it is run in pieces of the image of about 16M pairs (forward and
+backward per piece, the gradients accumulated: the same work, bounded memory; the projection that every piece
+repeats is counted once). Its cost per pixel does not depend on the content (every Gaussian is evaluated at every
+pixel), so where the whole image would take longer than ``--dense-budget`` seconds, it is timed on evenly spread
+pieces and scaled to the full image; the output marks those figures "extrapolated".
 
 Scene: :func:`scene.scene_cloud` (Gaussians on the surfaces of a ground disc, spheres and boxes, sized to cover the
 surfaces about once; median footprint a few pixels at 256x256), camera at (3, -3, 2) looking at (0, 0, 0.3) with a
@@ -86,41 +87,60 @@ def run_fast(n: int, size: int, repeats: int, tile_size: int) -> dict:
             "coverage": float(out.alpha.detach().mean())}
 
 
-def run_dense(n: int, size: int, budget: float) -> dict:
+def run_dense(n: int, size: int, budget: float, pairs_per_piece: int = 1 << 24) -> dict:
+    """Time the dense reference over the whole image, in pieces of about ``pairs_per_piece`` (pixel, Gaussian) pairs.
+
+    Each piece recomputes the projection and SH of all N Gaussians; that overhead (timed on a 1-pixel piece) is
+    counted once, not once per piece, so the figure is what one dense pass over the image costs.
+    """
     import torch
 
     from roodi_toolkit.rasterizer import rasterize_dense_reference
 
     params, w2c, K = _setup(n, size)
-    band = max(1, (1 << 22) // (n * size))  # rows per band: about 4M (pixel, Gaussian) pairs
-    bands = [(r, min(size, r + band)) for r in range(0, size, band)]
+    px = max(1, pairs_per_piece // n)  # pixels per piece
+    pieces = []
+    for start in range(0, size * size, px):  # row-major runs of pixels, split into rectangles within a row
+        stop = min(size * size, start + px)
+        while start < stop:
+            r, c = divmod(start, size)
+            c_end = min(size, c + (stop - start))
+            pieces.append(((r, r + 1), (c, c_end)))
+            start += c_end - c
 
-    def one(b, backward):
+    def one(piece, backward):
+        rows, cols = piece
         if backward:
-            out = rasterize_dense_reference(*_args(params), w2c, K, size, size, rows=b)
+            out = rasterize_dense_reference(*_args(params), w2c, K, size, size, rows=rows, cols=cols)
             (out.rgb.sum() + out.depth.sum()).backward()
         else:
             with torch.no_grad():
-                rasterize_dense_reference(*_args(params), w2c, K, size, size, rows=b)
+                rasterize_dense_reference(*_args(params), w2c, K, size, size, rows=rows, cols=cols)
 
     result = {}
     for key, backward in (("fwd", False), ("both", True)):
-        one(bands[len(bands) // 2], backward)  # warm-up
+        one(pieces[len(pieces) // 2], backward)  # warm-up
+        overhead = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            one(((0, 1), (0, 1)), backward)
+            overhead.append(time.perf_counter() - t0)
+        overhead = statistics.median(overhead)
+        stride = max(1, len(pieces) // 64)
+        order = [i for k in range(stride) for i in range(k, len(pieces), stride)]  # evenly spread first
         t0 = time.perf_counter()
-        done = 0
-        # evenly spaced bands until the budget is spent (all of them if it allows)
-        order = sorted(range(len(bands)), key=lambda i: (bin(i)[::-1], i)) if len(bands) > 1 else [0]
-        rows = 0
+        pixels = done = 0
         for i in order:
-            one(bands[i], backward)
+            one(pieces[i], backward)
             done += 1
-            rows += bands[i][1] - bands[i][0]
+            pixels += pieces[i][1][1] - pieces[i][1][0]
             if time.perf_counter() - t0 > budget:
                 break
         elapsed = time.perf_counter() - t0
-        result[key] = elapsed * size / rows
-        result[key + "_extrapolated"] = done < len(bands)
-        result[key + "_fraction"] = rows / size
+        per_pixel = max(elapsed - done * overhead, 0.0) / pixels
+        result[key] = per_pixel * size * size + overhead
+        result[key + "_extrapolated"] = done < len(pieces)
+        result[key + "_fraction"] = pixels / (size * size)
     return result
 
 
@@ -145,7 +165,8 @@ def main() -> None:
     ns = [10_000] if args.quick else [10_000, 100_000, 300_000]
     sizes = [128] if args.quick else [128, 256, 512]
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, tile {args.tile_size}px, "
-          f"median of {args.repeats} runs after one warm-up")
+          f"median of {args.repeats} runs after one warm-up; load average at start "
+          f"{' '.join(f'{v:.1f}' for v in os.getloadavg())}")
     header = (f"{'N':>7} {'size':>7} | {'fwd s':>7} {'f+b s':>7} {'peak MB':>8} {'r px':>5} {'cover':>5} | "
               f"{'dense fwd':>10} {'dense f+b':>10} | {'x fwd':>7} {'x f+b':>7}")
     print(header)
@@ -163,8 +184,9 @@ def main() -> None:
                   f"{fast['mean_radius_px']:5.1f} {fast['coverage']:5.2f} | {dense['fwd']:9.1f}{mark('fwd')} "
                   f"{dense['both']:9.1f}{mark('both')} | {dense['fwd'] / fast['fwd']:7.0f} "
                   f"{dense['both'] / fast['both']:7.0f}", flush=True)
-    print("* dense time extrapolated from evenly spaced row bands (its cost per row does not depend on the content);"
-          f" budget {args.dense_budget:g} s measured per figure")
+    print("* dense time extrapolated from evenly spread pieces of the image (its cost per pixel does not depend on "
+          f"the content); budget {args.dense_budget:g} s measured per figure; projection counted once")
+    print(f"load average at end {' '.join(f'{v:.1f}' for v in os.getloadavg())} (other processes share the cores)")
     print("peak MB: rise of the peak RSS over the loaded scene (tiled renderer, forward + backward); r px: mean "
           "footprint half-width of visible Gaussians; cover: mean rendered alpha")
 

@@ -284,12 +284,13 @@ def rasterize_dense_reference(
     sh_degree: Optional[int] = None,
     eps2d: float = EPS2D,
     rows: Optional[tuple[int, int]] = None,
+    cols: Optional[tuple[int, int]] = None,
 ) -> RasterOutput:
     """Return the rendering computed the slow way: every Gaussian at every pixel, plain autograd, from the equations.
 
     Memory and time grow as N x H x W; meant for tests and as the benchmark baseline. Arguments as
-    :func:`rasterize`, plus ``rows=(start, stop)`` to render only that band of image rows (the outputs are then
-    ``[stop - start, W, ...]``), which lets a caller bound memory by rendering in bands.
+    :func:`rasterize`, plus ``rows=(start, stop)`` and ``cols=(start, stop)`` to render only that window of the image
+    (the outputs are then ``[rows, cols, ...]``), which lets a caller bound memory by rendering in pieces.
     """
     _check_inputs(means, quats_wxyz, log_scales, opacity_logits, colors, features, width, height, near, far)
     dtype = means.dtype
@@ -301,9 +302,10 @@ def rasterize_dense_reference(
     opac = torch.sigmoid(opacity_logits)
     stacked, bg = _colors_and_background(means, colors, features, depths, w2c, background, sh_degree, dtype)
     r0, r1 = (0, height) if rows is None else rows
+    c0, c1 = (0, width) if cols is None else cols
     order = torch.sort(torch.where(in_range, depths, torch.full_like(depths, math.inf)).detach(), stable=True)[1]
     order = order[in_range[order]]
-    ys, xs = torch.meshgrid(torch.arange(r0, r1, dtype=dtype) + 0.5, torch.arange(width, dtype=dtype) + 0.5,
+    ys, xs = torch.meshgrid(torch.arange(r0, r1, dtype=dtype) + 0.5, torch.arange(c0, c1, dtype=dtype) + 0.5,
                             indexing="ij")
     pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1)  # [P, 2]
     d = pix[:, None, :] - means2d[order][None, :, :]  # [P, M, 2]
@@ -316,8 +318,8 @@ def rasterize_dense_reference(
     weights = alpha * t_excl * keep
     t_final = torch.prod(torch.where(keep, 1.0 - alpha, torch.ones_like(alpha)), dim=1)
     render = weights @ stacked[order] + t_final[:, None] * bg
-    render = render.reshape(r1 - r0, width, -1)
-    alpha_img = (1.0 - t_final).reshape(r1 - r0, width, 1)
+    render = render.reshape(r1 - r0, c1 - c0, -1)
+    alpha_img = (1.0 - t_final).reshape(r1 - r0, c1 - c0, 1)
     radii = torch.zeros(means.shape[0], 2, dtype=torch.int32)
     visible = in_range & (opac >= ALPHA_MIN)
     return _split_output(render, alpha_img, 0 if features is None else features.shape[1], means2d, radii, depths,

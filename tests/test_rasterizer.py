@@ -76,11 +76,13 @@ def test_matches_dense_reference_values_and_gradients(sh_k, tile_size, chunk):
     torch.testing.assert_close(fast.means2d_grad(), dense.means2d_grad(), atol=1e-5, rtol=0)
 
 
-def test_dense_reference_row_bands_tile_the_image():
+def test_dense_reference_windows_tile_the_image():
     scene = random_scene(n=60)
     full = call(rasterize_dense_reference, scene)
     bands = [call(rasterize_dense_reference, scene, rows=(a, b)) for a, b in ((0, 10), (10, 29))]
     torch.testing.assert_close(torch.cat([b.rgb for b in bands]), full.rgb)
+    window = call(rasterize_dense_reference, scene, rows=(3, 9), cols=(5, 20))
+    torch.testing.assert_close(window.rgb, full.rgb[3:9, 5:20])
 
 
 def test_memory_bound_and_tile_size_do_not_change_the_result():
