@@ -34,6 +34,8 @@ from .wasserstein import gaussian_shapes, w2_sq_neighbors
 DISTANCES = ("w2", "euclidean")
 NEIGHBORS = ("centre", "w2")
 RULES = ("robust", "paper", "clip")
+EXTRA_CANDIDATES = 8
+"""Neighbours kept beyond K, so re-evaluating a Gaussian without its flagged neighbours needs no new search."""
 MAD_TO_SIGMA = 1.4826
 """Scale factor that makes the median absolute deviation a consistent estimate of a normal's sigma."""
 
@@ -221,9 +223,15 @@ class NeighborDistances:
         self.index = CentreIndex(self.means)
         if config.neighbors == "w2":
             self.neighbors, dist = knn_w2(self.means, self.shapes, self.k, index=self.index, progress=progress)
+            self.candidates = None
         else:
-            self.neighbors, dist2 = self.index.knn_all(self.k, progress=progress)
-            dist = self._distances(self.neighbors, dist2, np.arange(len(self.means)))
+            # K + EXTRA_CANDIDATES neighbours: re-evaluating without flagged ones then rarely needs a new search
+            extra = min(EXTRA_CANDIDATES, len(self.means) - 1 - self.k)
+            self.candidates, self.candidate_dist2 = self.index.knn_all(self.k + extra, progress=progress)
+            self.neighbors = self.candidates[:, :self.k]
+            dist = self._distances(self.neighbors, self.candidate_dist2[:, :self.k], np.arange(len(self.means)))
+            self._candidate_dist = np.full(self.candidates.shape, np.nan, dtype=dist.dtype)
+            self._candidate_dist[:, :self.k] = dist
         self.mean = dist.mean(axis=1, dtype=np.float64)
 
     def _distances(self, neighbors: np.ndarray, dist2: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -247,16 +255,30 @@ class NeighborDistances:
         affected = np.flatnonzero(flagged[self.neighbors].any(axis=1))
         if affected.size == 0:
             return mean
-        sub = CentreIndex(self.means[survivors])
         if self.config.neighbors == "w2":
-            mean[affected] = self._w2_neighbors_among(survivors, sub, affected)
+            mean[affected] = self._w2_neighbors_among(survivors, CentreIndex(self.means[survivors]), affected)
             return mean
-        # the own index in survivor numbering (or -1 for flagged rows, which are not in the tree)
-        position = np.full(len(self.means), -1, dtype=np.int64)
-        position[survivors] = np.arange(len(survivors))
-        idx, dist2 = sub.query(self.means[affected], self.k + 1)
-        idx, dist2 = _drop_self(idx, dist2, position[affected])
-        mean[affected] = self._distances(survivors[idx], dist2, affected).mean(axis=1, dtype=np.float64)
+        # the K nearest unflagged among the stored K + EXTRA_CANDIDATES (exact while at most EXTRA are flagged)
+        cand = self.candidates[affected]
+        missing = np.isnan(self._candidate_dist[affected, self.k:]).any(axis=1)
+        if missing.any():
+            rows = affected[missing]
+            self._candidate_dist[rows, self.k:] = self._distances(
+                self.candidates[rows, self.k:], self.candidate_dist2[rows, self.k:], rows)
+        usable = ~flagged[cand]
+        enough = usable.sum(axis=1) >= self.k
+        rank = np.cumsum(usable, axis=1)
+        take = usable & (rank <= self.k)
+        values = np.where(take, self._candidate_dist[affected], 0).sum(axis=1, dtype=np.float64)
+        mean[affected[enough]] = values[enough] / self.k
+        rest = affected[~enough]
+        if rest.size:  # many flagged nearby: search the unflagged Gaussians again
+            sub = CentreIndex(self.means[survivors])
+            position = np.full(len(self.means), -1, dtype=np.int64)
+            position[survivors] = np.arange(len(survivors))
+            idx, dist2 = sub.query(self.means[rest], self.k + 1)
+            idx, dist2 = _drop_self(idx, dist2, position[rest])
+            mean[rest] = self._distances(survivors[idx], dist2, rest).mean(axis=1, dtype=np.float64)
         return mean
 
     def _w2_neighbors_among(self, survivors: np.ndarray, sub: CentreIndex, rows: np.ndarray) -> np.ndarray:
