@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "plugins": "roodi_toolkit.cli.cmd_plugins:plugins",
     "prune": "roodi_toolkit.cli.cmd_prune:prune",
     "render": "roodi_toolkit.cli.cmd_render:render",
+    "train": "roodi_toolkit.cli.cmd_train:train",
     "make-scene": "roodi_toolkit.cli.cmd_make_scene:make_scene",
 }
 

@@ -171,3 +171,41 @@ def copy_file(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
     with atomic_path(dst) as tmp:
         shutil.copyfile(src, tmp)
     return Path(dst)
+
+
+def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 110) -> Path:
+    """Save a matplotlib figure atomically (format from the extension) and close it."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+    finally:
+        plt.close(fig)
+    return Path(path)
+
+
+def save_checkpoint(obj: Any, path: str | os.PathLike) -> Path:
+    """Write a checkpoint (tensors, numbers, strings, lists, dicts only) atomically with ``torch.save``."""
+    import torch
+
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
+    return Path(path)
+
+
+def load_checkpoint(path: str | os.PathLike) -> Any:
+    """Read a checkpoint written by :func:`save_checkpoint` with ``torch.load(weights_only=True)`` (no code runs)."""
+    import pickle
+
+    import torch
+
+    from .errors import RoodiError
+
+    p = Path(path)
+    if not p.is_file():
+        raise RoodiError(f"{p}: checkpoint not found")
+    try:
+        return torch.load(p, map_location="cpu", weights_only=True)
+    except (RuntimeError, pickle.UnpicklingError, EOFError, OSError, ValueError) as exc:
+        raise RoodiError(f"{p}: cannot read checkpoint ({' '.join(str(exc).split())[:200]})") from None

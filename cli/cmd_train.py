@@ -1,0 +1,60 @@
+"""``roodi-toolkit train``: a 3DGS model of a whole scene, on the CPU, with MCMC densification."""
+
+from __future__ import annotations
+
+import click
+
+from .common import overwrite_option, progress_factory, quiet_option
+
+EXAMPLE = """Example:
+
+\b
+  roodi-toolkit make-scene scenes/bedroom --preset bedroom --size 128x128
+  roodi-toolkit train scenes/bedroom models/bedroom --iterations 3000
+  roodi-toolkit train scenes/bedroom models/bedroom --iterations 6000 --resume   # continue a run
+"""
+
+
+@click.command(epilog=EXAMPLE)
+@click.argument("data_dir", type=click.Path(path_type=str))
+@click.argument("out_dir", type=click.Path(path_type=str))
+@click.option("--iterations", type=click.IntRange(1), default=None, help="Optimisation steps [default: 3000].")
+@click.option("--cap-max", type=click.IntRange(1), default=None, help="Most Gaussians MCMC may grow to [60000].")
+@click.option("--sh-degree", type=click.IntRange(0, 3), default=None, help="Largest SH degree [3].")
+@click.option("--downscale", type=click.FloatRange(1.0), default=1.0, show_default=True,
+              help="Divide the image resolution by this factor.")
+@click.option("--init", type=click.Choice(["auto", "points", "random"]), default=None,
+              help="Initial Gaussians: sparse points (COLMAP) or random in the scene box [auto].")
+@click.option("--init-points", type=click.IntRange(4), default=None, help="Random initialisation size [20000].")
+@click.option("--random-background", is_flag=True, help="Random background each step (images with alpha).")
+@click.option("--eval-every", type=click.IntRange(0), default=None, help="Evaluate on held-out views this often.")
+@click.option("--checkpoint-every", type=click.IntRange(1), default=None, help="Checkpoint this often [250].")
+@click.option("--seed", type=int, default=None, help="Random seed [0].")
+@click.option("--resume", is_flag=True, help="Continue from OUT_DIR/checkpoints/latest.pt (its settings are kept; "
+              "--iterations may extend the run).")
+@overwrite_option
+@quiet_option
+def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | None, sh_degree: int | None,
+          downscale: float, init: str | None, init_points: int | None, random_background: bool,
+          eval_every: int | None, checkpoint_every: int | None, seed: int | None, resume: bool, overwrite: bool,
+          quiet: bool) -> None:
+    """Train a 3DGS scene from posed images (Blender or COLMAP) into OUT_DIR.
+
+    Writes OUT_DIR/point_cloud/iteration_N/point_cloud.ply (Inria PLY), checkpoints/latest.pt, cfg.json,
+    metrics.json, training.png and renders/ (held-out views beside the ground truth).
+    """
+    from roodi_toolkit.errors import RoodiError
+    from roodi_toolkit.training import TrainConfig, config_with, train_scene
+
+    if resume and overwrite:
+        raise RoodiError("--resume and --overwrite contradict each other; choose one")
+    config = config_with(TrainConfig(), iterations=iterations, cap_max=cap_max, sh_degree=sh_degree, init=init,
+                         init_num_points=init_points, random_background=random_background or None,
+                         eval_every=eval_every, checkpoint_every=checkpoint_every, seed=seed)
+    result = train_scene(data_dir, out_dir, config, downscale=downscale, resume=resume, overwrite=overwrite,
+                         progress=progress_factory(quiet), iterations_override=iterations if resume else None)
+    ev = result.metrics
+    figures = f", held-out PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}" if ev else ""
+    click.echo(f"trained {result.iterations} iterations, {result.num_gaussians:,} Gaussians{figures} "
+               f"({result.seconds_per_iteration * 1000:.0f} ms/iteration)")
+    click.echo(f"model: {result.ply_path}")

@@ -1,0 +1,139 @@
+"""Scene training: one step works, resume is exact, kill-and-resume continues, outputs in the 3DGS layout."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from roodi_toolkit import read_ply
+from roodi_toolkit.datasets import load_dataset
+from roodi_toolkit.errors import RoodiError
+from roodi_toolkit.strategy import MCMCStrategy
+from roodi_toolkit.training import TrainConfig, Trainer, split_views, train_scene
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    from roodi_toolkit.scenegen import SceneSettings, make_scene
+
+    root = tmp_path_factory.mktemp("scene") / "kitchen"
+    make_scene(root, "kitchen", seed=3, settings=SceneSettings(width=32, height=32, train_views=10, test_views=2,
+                                                               supersample=1, n_objects=5, n_targets=3))
+    return root
+
+
+def small_config(**kw):
+    base = dict(iterations=30, init_num_points=600, eval_every=0, checkpoint_every=10,
+                strategy=MCMCStrategy(cap_max=800, refine_start_iter=5, refine_every=5))
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_training_reduces_the_loss(tiny_scene):
+    ds = load_dataset(tiny_scene)
+    trainer = Trainer(ds, small_config(iterations=60))
+    first = np.mean([trainer.train_step()["loss"] for _ in range(5)])
+    for _ in range(50):
+        info = trainer.train_step()
+    last = np.mean([trainer.train_step()["loss"] for _ in range(5)])
+    assert last < 0.9 * first
+    assert info["count"] > 600  # MCMC grew the model
+    assert trainer.evaluate()["psnr"] > 0
+
+
+def test_held_out_views_when_there_is_no_test_split(tiny_scene):
+    ds = load_dataset(tiny_scene)
+    train, held = split_views(ds, 8)
+    assert held == ds.train_indices[::8] and not set(train) & set(held)
+    assert split_views(ds, 0)[1] == []
+
+
+def test_sh_degree_schedule(tiny_scene):
+    trainer = Trainer(load_dataset(tiny_scene), small_config(sh_degree=2, sh_degree_interval=3))
+    degrees = []
+    for _ in range(10):
+        degrees.append(trainer.sh_degree)
+        trainer.train_step()
+    assert degrees == [0, 0, 0, 1, 1, 1, 2, 2, 2, 2]
+
+
+def test_resume_is_exact(tiny_scene, tmp_path):
+    """A run interrupted at step 17 and resumed from its step-10 checkpoint ends identical to an uninterrupted one."""
+    cfg = small_config()
+    full = train_scene(tiny_scene, tmp_path / "full", cfg)
+
+    class Killed(Exception):
+        pass
+
+    def kill_at_17(trainer, info):
+        if trainer.step == 17:
+            raise Killed
+
+    with pytest.raises(Killed):
+        train_scene(tiny_scene, tmp_path / "part", cfg, on_step=kill_at_17)
+    resumed = train_scene(tiny_scene, tmp_path / "part", resume=True)
+    assert resumed.iterations == full.iterations == 30
+    assert resumed.num_gaussians == full.num_gaussians
+    a, b = read_ply(full.ply_path), read_ply(resumed.ply_path)
+    np.testing.assert_array_equal(a.means, b.means)
+    np.testing.assert_array_equal(a.sh_dc, b.sh_dc)
+    counts = lambda r: [h["count"] for h in r.history if "count" in h]
+    assert counts(resumed) == counts(full)
+
+
+def test_outputs_follow_the_3dgs_layout(tiny_scene, tmp_path):
+    res = train_scene(tiny_scene, tmp_path / "m", small_config(iterations=12, eval_every=6))
+    out = tmp_path / "m"
+    assert res.ply_path == out / "point_cloud" / "iteration_12" / "point_cloud.ply"
+    cloud = read_ply(res.ply_path)
+    assert len(cloud) == res.num_gaussians and cloud.sh_degree == 3
+    assert (out / "checkpoints" / "latest.pt").is_file()
+    torch.load(out / "checkpoints" / "latest.pt", weights_only=True)  # safe format
+    cfg = json.loads((out / "cfg.json").read_text())
+    assert cfg["iterations"] == 12 and cfg["strategy"]["cap_max"] == 800
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["iterations"] == 12 and "psnr" in metrics["eval"]
+    assert (out / "training.png").stat().st_size > 1000
+    assert list((out / "renders").glob("*_render_vs_gt.png"))
+
+
+def test_bad_paths_and_refusals(tiny_scene, tmp_path, run_cli):
+    res = run_cli("train", tmp_path / "nope", tmp_path / "out", "--iterations", "2", "-q")
+    assert res.exit_code == 1 and "dataset not found" in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    res = run_cli("train", tiny_scene, tmp_path / "o2", "--resume", "-q")
+    assert res.exit_code == 1 and "nothing to resume" in res.stderr
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("x")
+    res = run_cli("train", tiny_scene, tmp_path / "full", "-q")
+    assert res.exit_code == 1 and "--overwrite" in res.stderr
+    with pytest.raises(RoodiError, match="iterations"):
+        TrainConfig(iterations=0)
+
+
+def test_cli_train_and_kill_then_resume(tiny_scene, tmp_path):
+    """A real process killed with SIGKILL after its first checkpoint resumes and finishes with the same count."""
+    out = tmp_path / "killed"
+    args = [sys.executable, "-m", "roodi_toolkit.cli.main", "train", str(tiny_scene), str(out), "--iterations",
+            "40", "--checkpoint-every", "5", "--init-points", "600", "--cap-max", "800", "-q"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    ckpt = out / "checkpoints" / "latest.pt"
+    deadline = time.time() + 120
+    while not ckpt.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert ckpt.exists()
+    done = subprocess.run(args[:-1] + ["--resume", "-q"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "trained 40 iterations" in done.stdout
+    ref = subprocess.run(args[:5] + [str(tmp_path / "ref")] + args[6:], capture_output=True, text=True)
+    assert ref.returncode == 0, ref.stderr
+    count = lambda s: int(s.split("iterations, ")[1].split(" Gaussians")[0].replace(",", ""))
+    assert count(done.stdout) == count(ref.stdout)
