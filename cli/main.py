@@ -20,6 +20,7 @@ from roodi_toolkit._version import __version__
 
 # name -> "module:attribute" of a click.Command. One line per command.
 COMMANDS: dict[str, str] = {
+    "demo": "roodi_toolkit.cli.cmd_demo:demo",
     "info": "roodi_toolkit.cli.cmd_info:info",
     "plugins": "roodi_toolkit.cli.cmd_plugins:plugins",
     "prune": "roodi_toolkit.cli.cmd_prune:prune",
