@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         "paper (w2, K=16, alpha=2)": PruneConfig(rule="paper", alpha=2.0),
         "paper (w2, K=16, alpha=1)": PruneConfig(rule="paper", alpha=1.0),
         "Open3D SOR (nb_neighbors=17, std_ratio=2)": ("open3d", 16, 2.0),
-        "robust, euclidean (K=16, alpha=4)": PruneConfig(distance="euclidean"),
+        "robust, euclidean (K=16, alpha=3.5)": PruneConfig(distance="euclidean"),
     }
     t0 = time.perf_counter()
     rows = evaluate(STANDARD_MIXES, seeds, methods)

@@ -25,7 +25,7 @@ Examples:
 @click.option("--k", "k", type=click.IntRange(min=1), default=16, show_default=True,
               help="Neighbours per Gaussian, not counting itself.")
 @click.option("--alpha", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Threshold multiplier. Default per rule: robust 4, paper 2, clip 3.")
+              help="Threshold multiplier. Default per rule: robust 3.5, paper 2, clip 3.")
 @click.option("--distance", type=click.Choice(["w2", "euclidean"]), default="w2", show_default=True,
               help="w2: squared 2-Wasserstein between Gaussians (paper); euclidean: plain centre distance (Open3D).")
 @click.option("--rule", type=click.Choice(["robust", "paper", "clip"]), default="robust", show_default=True,

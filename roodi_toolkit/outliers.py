@@ -39,7 +39,7 @@ EXTRA_CANDIDATES = 8
 MAD_TO_SIGMA = 1.4826
 """Scale factor that makes the median absolute deviation a consistent estimate of a normal's sigma."""
 
-DEFAULT_ALPHA = {"robust": 4.0, "paper": 2.0, "clip": 3.0}
+DEFAULT_ALPHA = {"robust": 3.5, "paper": 2.0, "clip": 3.0}
 """alpha per rule when none is given. robust: measured on the planted-floater benchmark (docs/pruning.md); paper:
 the SOR convention (PCL tutorials, Open3D examples use 2.0; the paper does not publish its alpha); clip: 3-sigma
 clipping."""
