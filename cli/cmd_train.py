@@ -23,8 +23,9 @@ EXAMPLE = """Example:
 @click.option("--sh-degree", type=click.IntRange(0, 3), default=None, help="Largest SH degree [3].")
 @click.option("--downscale", type=click.FloatRange(1.0), default=1.0, show_default=True,
               help="Divide the image resolution by this factor.")
-@click.option("--init", type=click.Choice(["auto", "points", "random"]), default=None,
-              help="Initial Gaussians: sparse points (COLMAP) or random in the scene box [auto].")
+@click.option("--init", type=click.Choice(["auto", "points", "random", "depth"]), default=None,
+              help="Initial Gaussians: sparse points (COLMAP), random in the scene box, or lifted from the views' "
+              "depth maps (datasets with depth, e.g. make-scene) [auto: points if any, else random].")
 @click.option("--init-points", type=click.IntRange(4), default=None, help="Random initialisation size [20000].")
 @click.option("--random-background", is_flag=True, help="Random background each step (images with alpha).")
 @click.option("--eval-every", type=click.IntRange(0), default=None, help="Evaluate on held-out views this often.")

@@ -43,7 +43,9 @@ class TrainConfig:
         ssim_window: SSIM window (3DGS: 11).
         means_lr: position learning rate per unit of scene scale (3DGS: 1.6e-4), decayed to
             ``means_lr * means_lr_final`` at the last step.
-        init: ``"auto"`` (the dataset's sparse points if any, else random), ``"points"`` or ``"random"``.
+        init: ``"auto"`` (the dataset's sparse points if any, else random), ``"points"``, ``"random"`` (uniform in
+            the scene box, coloured by projection into the views), or ``"depth"`` (pixels of the training views' depth
+            maps lifted to 3D, as from an RGB-D capture; needs a dataset with depth).
         init_num_points: random initialisation size (ours: sized for the CPU; gsplat uses 100,000).
         init_opacity: initial opacity (3DGS-MCMC: 0.5).
         init_scale: initial scale as a fraction of the mean distance to the 3 nearest points (3DGS-MCMC: 0.1).
@@ -83,8 +85,8 @@ class TrainConfig:
             raise ConfigError(f"iterations must be at least 1, got {self.iterations}")
         if self.sh_degree not in (0, 1, 2, 3):
             raise ConfigError(f"sh_degree must be 0..3, got {self.sh_degree}")
-        if self.init not in ("auto", "points", "random"):
-            raise ConfigError(f"init must be auto, points or random, got {self.init!r}")
+        if self.init not in ("auto", "points", "random", "depth"):
+            raise ConfigError(f"init must be auto, points, random or depth, got {self.init!r}")
         if not 0 <= self.ssim_lambda <= 1:
             raise ConfigError(f"ssim_lambda must be in [0, 1], got {self.ssim_lambda}")
         if self.init_num_points < 1:
@@ -133,6 +135,33 @@ def projected_colors(points: np.ndarray, dataset: Dataset, views: list[int], max
             warnings.simplefilter("ignore", RuntimeWarning)
             colors = np.nanmedian(samples, axis=0)
     return np.where(np.isnan(colors), 0.5, colors).astype(np.float32)
+
+
+def depth_points(dataset: Dataset, views: list[int], n: int, generator: torch.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``n`` points [n, 3] and colours [n, 3] lifted from random pixels of the views' depth maps."""
+    if dataset.depths is None:
+        raise RoodiError("init 'depth' needs a dataset with depth maps (e.g. one made by make-scene)")
+    pts, cols = [], []
+    per_view = max(1, -(-n // len(views)))
+    for v in views:
+        depth = dataset.depths[v]
+        ys, xs = torch.nonzero(depth > 0, as_tuple=True)
+        if len(ys) == 0:
+            continue
+        pick = torch.randint(len(ys), (min(per_view, len(ys)),), generator=generator)
+        ys, xs = ys[pick].numpy(), xs[pick].numpy()
+        z = depth[ys, xs].numpy().astype(np.float64)
+        cam = dataset.cameras[v]
+        K = cam.K
+        x_cam = np.stack([(xs + 0.5 - K[0, 2]) / K[0, 0] * z, (ys + 0.5 - K[1, 2]) / K[1, 1] * z, z], axis=1)
+        c2w = cam.camera_to_world
+        pts.append(x_cam @ c2w[:3, :3].T + c2w[:3, 3])
+        cols.append(dataset.images[v][ys, xs].numpy())
+    if not pts:
+        raise RoodiError("init 'depth': the depth maps are empty")
+    points, colors = np.concatenate(pts), np.concatenate(cols)
+    keep = torch.randperm(len(points), generator=generator)[:n].numpy()
+    return points[keep], colors[keep]
 
 
 def init_params(points: np.ndarray, colors: np.ndarray | None, config: TrainConfig,
@@ -244,6 +273,8 @@ class Trainer:
     # ------------------------------------------------------------------------------------------------ set-up
     def _initial_points(self) -> tuple[np.ndarray, np.ndarray | None]:
         ds, cfg = self.dataset, self.config
+        if cfg.init == "depth":
+            return depth_points(ds, self.train_indices, cfg.init_num_points, self.generator)
         use_points = cfg.init == "points" or (cfg.init == "auto" and ds.points is not None and len(ds.points) >= 4)
         if use_points:
             if ds.points is None or len(ds.points) < 4:

@@ -1,5 +1,6 @@
 """Scene training: one step works, resume is exact, kill-and-resume continues, outputs in the 3DGS layout."""
 
+import dataclasses
 import json
 import os
 import signal
@@ -137,3 +138,22 @@ def test_cli_train_and_kill_then_resume(tiny_scene, tmp_path):
     assert ref.returncode == 0, ref.stderr
     count = lambda s: int(s.split("iterations, ")[1].split(" Gaussians")[0].replace(",", ""))
     assert count(done.stdout) == count(ref.stdout)
+
+
+def test_depth_initialisation_lies_on_the_surfaces(tiny_scene):
+    ds = load_dataset(tiny_scene)
+    trainer = Trainer(ds, small_config(init="depth"))
+    means = trainer.params["means"].detach().numpy()
+    assert len(means) == 600
+    # every lifted point projects back onto a pixel whose depth matches it
+    cam = ds.cameras[trainer.train_indices[0]]
+    uv, z = cam.project(means)
+    px = np.floor(uv).astype(int)
+    ok = (z > 0) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+    depth = ds.depths[trainer.train_indices[0]].numpy()[px[ok, 1], px[ok, 0]]
+    seen = depth > 0
+    assert np.mean(np.abs(depth[seen] - z[ok][seen]) < 0.02 * z[ok][seen] + 1e-3) > 0.3  # the visible ones agree
+    # a surface point can hide behind what this camera sees, never float in front of it (pixel edges aside)
+    assert np.mean(z[ok][seen] < 0.9 * depth[seen]) < 0.03
+    with pytest.raises(RoodiError, match="depth maps"):
+        Trainer(dataclasses.replace(ds, depths=None), small_config(init="depth"))
