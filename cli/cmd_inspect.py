@@ -1,0 +1,124 @@
+"""``roodi-toolkit inspect``: see a cloud in PyVista and what pruning (same options as ``prune``) would remove."""
+
+from __future__ import annotations
+
+import click
+
+from roodi_toolkit.cli.common import overwrite_option, parse_size, progress_factory, quiet_option
+from roodi_toolkit.cli.prune_options import PRUNE_OPTION_NAMES, prune_config_from_options, prune_options
+
+PROGRESS_MIN_GAUSSIANS = 200_000
+"""Clouds at least this large get progress bars while pruning (as ``prune``)."""
+
+EPILOG = """\b
+Examples:
+  roodi-toolkit inspect scene.ply                                   # a window (needs a display)
+  roodi-toolkit inspect scene.ply --screenshot view.png --histogram hist.png
+  roodi-toolkit inspect scene.ply --screenshot view.png --show removed --camera +z --window-size 1600x1200
+  roodi-toolkit inspect scene.ply --screenshot d.png --color-by distance --rule paper --alpha 2
+  roodi-toolkit inspect scene.ply --html view.html                  # needs trame-pyvista
+"""
+
+CAMERA_HELP = ("View direction: iso, xy (from +z), xz (from -y), yz (from +x), or the side the camera sits on: "
+               "+x, -x, +y, -y, +z, -z. The camera frames the kept Gaussians.")
+
+
+@click.command(epilog=EPILOG)
+@click.argument("input_ply", metavar="IN.ply", type=click.Path(path_type=str))
+@prune_options
+@click.option("--show", type=click.Choice(["both", "kept", "removed"]), default="both", show_default=True,
+              help="Which Gaussians to draw.")
+@click.option("--color-by", type=click.Choice(["rgb", "opacity", "scale", "distance"]), default="rgb",
+              show_default=True,
+              help="rgb: own colour (SH DC) with opacity as alpha; opacity, scale (largest axis) or distance (mean "
+                   "distance to the K neighbours, log colour bar) through a colour map.")
+@click.option("--highlight", default="red", show_default=True, metavar="COLOR",
+              help="Colour of the Gaussians pruning removes (a name or #rrggbb); 'none' draws them like the kept.")
+@click.option("--glyphs", type=click.Choice(["auto", "ellipsoids", "splats"]), default="auto", show_default=True,
+              help="ellipsoids: oriented, scaled ellipsoids (exact footprint, small clouds); splats: Gaussian point "
+                   "splats sized by scale (fast); auto: ellipsoids up to 20,000 drawn Gaussians.")
+@click.option("--camera", type=click.Choice(["iso", "xy", "xz", "yz", "+x", "-x", "+y", "-y", "+z", "-z"]),
+              default="iso", show_default=True, help=CAMERA_HELP)
+@click.option("--window-size", default="1024x768", show_default=True, metavar="WxH",
+              help="Window and screenshot size in pixels.")
+@click.option("--screenshot", type=click.Path(path_type=str), default=None,
+              help="Write a PNG of the view (off screen; works without a display or GPU).")
+@click.option("--html", "html_path", type=click.Path(path_type=str), default=None,
+              help="Export an interactive HTML page (needs PyVista's trame extras).")
+@click.option("--histogram", type=click.Path(path_type=str), default=None,
+              help="Write the distribution of mean neighbour distances (log scale) with the threshold marked.")
+@click.option("--window/--no-window", default=None,
+              help="Open an interactive window. Default: only when a display exists and no file output is asked.")
+@overwrite_option
+@quiet_option
+def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: str, camera: str, window_size: str,
+            screenshot: str | None, html_path: str | None, histogram: str | None, window: bool | None,
+            overwrite: bool, quiet: bool, **prune_kwargs: object) -> None:
+    """Show IN.ply in PyVista with the Gaussians that `prune` (same options) would remove highlighted.
+
+    Each Gaussian is drawn with its footprint: oriented, scaled ellipsoids for small clouds, Gaussian splats sized by
+    scale for large ones. Without a display, ask for --screenshot, --html or --histogram.
+    """
+    from roodi_toolkit import inspect as insp
+    from roodi_toolkit.errors import OutputError, RoodiError
+    from roodi_toolkit.files import check_output, write_image
+    from roodi_toolkit.outliers import remove_statistical_outliers
+    from roodi_toolkit.ply import read_ply
+
+    config = prune_config_from_options(**{name: prune_kwargs[name] for name in PRUNE_OPTION_NAMES})
+    size = parse_size(window_size, "--window-size")
+    outputs = [p for p in (screenshot, html_path, histogram) if p is not None]
+    for path in outputs:
+        check_output(path, overwrite=overwrite, inputs=[input_ply])
+    if len({str(click.format_filename(p)) for p in outputs}) != len(outputs):
+        raise OutputError("--screenshot, --html and --histogram must be different files")
+    has_display = insp.display_available()
+    if window is None:
+        window = has_display and not outputs
+    if window and not has_display:
+        raise RoodiError("no display to open a window on (DISPLAY is not set); use --screenshot, --html or "
+                         "--histogram to write the view to files")
+    if not window and not outputs:
+        raise RoodiError("nothing to do: no display for a window and no output; pass --screenshot, --html or "
+                         "--histogram")
+    if html_path is not None:  # refuse before the pruning, not after
+        ok, reason = insp.html_export_supported()
+        if not ok:
+            raise RoodiError(f"{html_path}: cannot export HTML: {reason}")
+    highlight_colour = None if highlight.strip().lower() == "none" else highlight
+    if highlight_colour is not None:
+        import pyvista as pv
+
+        try:
+            pv.Color(highlight_colour)
+        except ValueError:
+            raise click.BadParameter(f"not a colour: {highlight!r} (use a name such as red or #ff00ff)",
+                                     param_hint="--highlight") from None
+
+    cloud = read_ply(input_ply)
+    progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
+    _, keep, report = remove_statistical_outliers(cloud, config, progress=progress)
+    removed = ", ".join(f"{name} {n:,}" for name, n in report.stages if n) or "none"
+    click.echo(f"kept {report.kept_count:,} of {report.input_count:,} Gaussians (removed: {removed}; "
+               f"threshold {report.threshold:.6g})")
+
+    if histogram is not None:
+        insp.save_histogram(insp.histogram_figure(report), histogram)
+        click.echo(f"wrote {histogram}")
+    if screenshot is None and html_path is None and not window:
+        return
+    distances = insp.distances_per_gaussian(report, len(cloud)) if color_by == "distance" else None
+    plotter = insp.plot_cloud(cloud, keep, show=show, color_by=color_by, distances=distances,
+                              highlight=highlight_colour, glyphs=glyphs, camera=camera, off_screen=not window,
+                              window_size=size, distance_label=insp.distance_label(report))
+    try:
+        if window:  # the files then show the view the user left the window in
+            plotter.show(title=f"roodi-toolkit inspect {input_ply}", auto_close=False)
+        if html_path is not None:
+            insp.export_html(plotter, html_path)
+            click.echo(f"wrote {html_path}")
+        if screenshot is not None:
+            write_image(insp.screenshot_image(plotter), screenshot)
+            click.echo(f"wrote {screenshot}")
+    finally:
+        plotter.close()

@@ -1,0 +1,66 @@
+"""The pruning options shared by ``prune`` and ``inspect``: one definition, so both commands prune the same way.
+
+They mirror the options ``cmd_prune.py`` defined inline (same names, help, defaults and validation); ``prune``
+should switch to this decorator so the two cannot drift apart.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, TypeVar
+
+import click
+
+from roodi_toolkit.cli.common import parse_floats
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+PRUNE_OPTION_NAMES = ("k", "alpha", "distance", "rule", "neighbors", "filter_nan", "min_opacity", "filter_box",
+                      "filter_sphere")
+"""Keyword names the decorated command receives for these options."""
+
+_OPTIONS = [
+    click.option("--k", "k", type=click.IntRange(min=1), default=16, show_default=True,
+                 help="Neighbours per Gaussian, not counting itself."),
+    click.option("--alpha", type=click.FloatRange(min=0, min_open=True), default=None,
+                 help="Threshold multiplier. Default per rule: robust 3.5, paper 2, clip 3."),
+    click.option("--distance", type=click.Choice(["w2", "euclidean"]), default="w2", show_default=True,
+                 help="w2: squared 2-Wasserstein between Gaussians (paper); euclidean: plain centre distance "
+                      "(Open3D)."),
+    click.option("--rule", type=click.Choice(["robust", "paper", "clip"]), default="robust", show_default=True,
+                 help="robust: median/MAD of log distances, re-evaluated without flagged neighbours; paper: one pass "
+                      "of mean + alpha * std; clip: iterated mean + alpha * std."),
+    click.option("--neighbors", type=click.Choice(["centre", "w2"]), default="centre", show_default=True,
+                 help="centre: K nearest centres (paper); w2: exact K nearest under W2 (slower)."),
+    click.option("--filter-nan", is_flag=True,
+                 help="Drop Gaussians with NaN/Inf values (otherwise they are an error)."),
+    click.option("--min-opacity", type=click.FloatRange(0, 1, max_open=True), default=None,
+                 help="Drop Gaussians whose opacity (linear, after sigmoid) is below this, e.g. 0.0039 = 1/255."),
+    click.option("--filter-box", metavar="X0,Y0,Z0,X1,Y1,Z1", default=None,
+                 help="Keep only Gaussians whose centre is inside this axis-aligned box."),
+    click.option("--filter-sphere", metavar="X,Y,Z,R", default=None,
+                 help="Keep only Gaussians whose centre is inside this sphere."),
+]
+
+
+def prune_options(func: F) -> F:
+    """Return ``func`` decorated with the pruning options, in the order ``prune --help`` lists them."""
+    for option in reversed(_OPTIONS):
+        func = option(func)
+    return func
+
+
+def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
+                              filter_nan: bool, min_opacity: float | None, filter_box: str | None,
+                              filter_sphere: str | None) -> Any:
+    """Return the ``PruneConfig`` the pruning options describe.
+
+    Raises:
+        click.BadParameter: a malformed ``--filter-box`` or ``--filter-sphere`` (usage error, exit 2).
+        ConfigError: values :class:`~roodi_toolkit.outliers.PruneConfig` refuses (exit 1 with one line).
+    """
+    from roodi_toolkit.outliers import PruneConfig
+
+    box = parse_floats(filter_box, 6, "--filter-box") if filter_box is not None else None
+    sphere = parse_floats(filter_sphere, 4, "--filter-sphere") if filter_sphere is not None else None
+    return PruneConfig(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors, filter_nan=filter_nan,
+                       min_opacity=min_opacity, box=box, sphere=sphere)
