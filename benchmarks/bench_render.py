@@ -2,7 +2,9 @@
 
 Prints, for 10k, 100k and 300k Gaussians at 128x128, 256x256 and 512x512, the median times of the tiled renderer
 (``rasterize``), of the dense reference (``rasterize_dense_reference``: every Gaussian at every pixel) and their
-ratios, plus the peak memory of the tiled renderer. Every configuration runs in its own process so that peak memory
+ratios, plus the peak memory of the tiled renderer. Times are wall-clock and process CPU time (user + system, both
+threads): on a machine shared with other jobs wall-clock time mostly measures the others; the CPU time of a process
+that only computes bounds its wall-clock time on an idle machine from above, and the ratios use CPU time. Every configuration runs in its own process so that peak memory
 (the rise of the peak resident set size over the loaded scene) is its own.
 
 The dense reference holds N x pixels pairs, so it is run in pieces of the image of about 16M pairs (forward and
@@ -69,19 +71,22 @@ def run_fast(n: int, size: int, repeats: int, tile_size: int) -> dict:
 
     params, w2c, K = _setup(n, size)
     base = _rss_mb()
-    fwd, both = [], []
+    fwd, both, fwd_cpu, both_cpu = [], [], [], []
     for _ in range(repeats + 1):  # the first run warms up and is dropped
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         with torch.no_grad():
             out = rasterize(*_args(params), w2c, K, size, size, tile_size=tile_size)
         fwd.append(time.perf_counter() - t0)
+        fwd_cpu.append(time.process_time() - c0)
         for p in params.values():
             p.grad = None
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = rasterize(*_args(params), w2c, K, size, size, tile_size=tile_size)
         (out.rgb.sum() + out.depth.sum()).backward()
         both.append(time.perf_counter() - t0)
+        both_cpu.append(time.process_time() - c0)
     return {"fwd": statistics.median(fwd[1:]), "both": statistics.median(both[1:]),
+            "fwd_cpu": statistics.median(fwd_cpu[1:]), "both_cpu": statistics.median(both_cpu[1:]),
             "peak_mb": _peak_mb() - base, "visible": int(out.visible.sum()),
             "mean_radius_px": float(out.radii[out.visible].float().mean()),
             "coverage": float(out.alpha.detach().mean())}
@@ -122,13 +127,13 @@ def run_dense(n: int, size: int, budget: float, pairs_per_piece: int = 1 << 24) 
         one(pieces[len(pieces) // 2], backward)  # warm-up
         overhead = []
         for _ in range(3):
-            t0 = time.perf_counter()
+            c0 = time.process_time()
             one(((0, 1), (0, 1)), backward)
-            overhead.append(time.perf_counter() - t0)
+            overhead.append(time.process_time() - c0)
         overhead = statistics.median(overhead)
         stride = max(1, len(pieces) // 64)
         order = [i for k in range(stride) for i in range(k, len(pieces), stride)]  # evenly spread first
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         pixels = done = 0
         for i in order:
             one(pieces[i], backward)
@@ -136,7 +141,7 @@ def run_dense(n: int, size: int, budget: float, pairs_per_piece: int = 1 << 24) 
             pixels += pieces[i][1][1] - pieces[i][1][0]
             if time.perf_counter() - t0 > budget:
                 break
-        elapsed = time.perf_counter() - t0
+        elapsed = time.process_time() - c0
         per_pixel = max(elapsed - done * overhead, 0.0) / pixels
         result[key] = per_pixel * size * size + overhead
         result[key + "_extrapolated"] = done < len(pieces)
@@ -151,8 +156,14 @@ def main() -> None:
     ap.add_argument("--dense-budget", type=float, default=8.0,
                     help="seconds of measured dense time per configuration before extrapolating (default 8)")
     ap.add_argument("--tile-size", type=int, default=4)
+    ap.add_argument("--threads", type=int, default=1,
+                    help="torch threads (default 1: its CPU time is not inflated by other jobs' load, and bounds "
+                         "the wall-clock time of an idle 2-core run from above)")
     ap.add_argument("--quick", action="store_true", help="10k Gaussians at 128x128 only")
     args = ap.parse_args()
+    import torch
+
+    torch.set_num_threads(args.threads)
     if args.one:
         kind, n, size = args.one[0], int(args.one[1]), int(args.one[2])
         res = run_fast(n, size, args.repeats, args.tile_size) if kind == "fast" else run_dense(n, size,
@@ -160,30 +171,31 @@ def main() -> None:
         print(json.dumps(res))
         return
 
-    import torch
-
     ns = [10_000] if args.quick else [10_000, 100_000, 300_000]
     sizes = [128] if args.quick else [128, 256, 512]
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, tile {args.tile_size}px, "
           f"median of {args.repeats} runs after one warm-up; load average at start "
           f"{' '.join(f'{v:.1f}' for v in os.getloadavg())}")
-    header = (f"{'N':>7} {'size':>7} | {'fwd s':>7} {'f+b s':>7} {'peak MB':>8} {'r px':>5} {'cover':>5} | "
-              f"{'dense fwd':>10} {'dense f+b':>10} | {'x fwd':>7} {'x f+b':>7}")
+    header = (f"{'N':>7} {'size':>7} | {'fwd':>6} {'cpu':>6} {'f+b':>6} {'cpu':>6} {'peak MB':>7} {'r px':>5} "
+              f"{'cover':>5} | {'dense fwd':>10} {'dense f+b':>10} | {'x fwd':>6} {'x f+b':>6}")
     print(header)
     print("-" * len(header))
     for n in ns:
         for size in sizes:
             def sub(kind):
                 cmd = [sys.executable, __file__, "--one", kind, str(n), str(size), "--repeats", str(args.repeats),
-                       "--dense-budget", str(args.dense_budget), "--tile-size", str(args.tile_size)]
+                       "--dense-budget", str(args.dense_budget), "--tile-size", str(args.tile_size),
+                       "--threads", str(args.threads)]
                 return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
 
             fast, dense = sub("fast"), sub("dense")
             mark = lambda k: "*" if dense[k + "_extrapolated"] else " "  # noqa: E731
-            print(f"{n:>7} {size:>3}x{size:<3} | {fast['fwd']:7.3f} {fast['both']:7.3f} {fast['peak_mb']:8.0f} "
-                  f"{fast['mean_radius_px']:5.1f} {fast['coverage']:5.2f} | {dense['fwd']:9.1f}{mark('fwd')} "
-                  f"{dense['both']:9.1f}{mark('both')} | {dense['fwd'] / fast['fwd']:7.0f} "
-                  f"{dense['both'] / fast['both']:7.0f}", flush=True)
+            print(f"{n:>7} {size:>3}x{size:<3} | {fast['fwd']:6.3f} {fast['fwd_cpu']:6.3f} {fast['both']:6.3f} "
+                  f"{fast['both_cpu']:6.3f} {fast['peak_mb']:7.0f} {fast['mean_radius_px']:5.1f} "
+                  f"{fast['coverage']:5.2f} | {dense['fwd']:9.1f}{mark('fwd')} {dense['both']:9.1f}{mark('both')} | "
+                  f"{dense['fwd'] / fast['fwd_cpu']:6.0f} {dense['both'] / fast['both_cpu']:6.0f}", flush=True)
+    print("seconds per frame, median: tiled renderer wall-clock and process CPU time (all threads summed); dense "
+          "reference in CPU seconds; ratios = dense CPU / tiled CPU")
     print("* dense time extrapolated from evenly spread pieces of the image (its cost per pixel does not depend on "
           f"the content); budget {args.dense_budget:g} s measured per figure; projection counted once")
     print(f"load average at end {' '.join(f'{v:.1f}' for v in os.getloadavg())} (other processes share the cores)")

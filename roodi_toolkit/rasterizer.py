@@ -57,9 +57,10 @@ class RasterOutput:
         alpha: accumulated opacity, ``1 - T_final``. [H, W, 1]
         depth: expected depth (gsplat ``"ED"``), 0 where nothing was hit. [H, W, 1]
         features: composited extra channels (no background), or None if none were given. [H, W, F]
-        means2d: projected means in pixels; when the inputs require grad its ``.grad`` is filled by backward (the
-            screen-space gradient that densification strategies accumulate). [N, 2]
-        radii: half-extents in pixels of each Gaussian's footprint, 0 where culled. [N, 2]
+        means2d: projected means in pixels; when the inputs require grad, :meth:`means2d_grad` returns their gradient
+            after backward (the screen-space gradient that densification strategies accumulate). [N, 2]
+        radii: half-extents in pixels of each Gaussian's footprint, 0 where culled (the dense reference, which has
+            no footprints, leaves them 0). [N, 2]
         depths: camera-space z of each mean. [N]
         visible: Gaussians that touch at least one pixel (not culled, on screen). [N]
     """
@@ -560,7 +561,7 @@ class _RasterizeTiles(torch.autograd.Function):
                 done[active] = done_new
         g_means2d = g_params[:, :2]
         g_conics = g_params[:, 2:5]
-        g_opac = g_params[:, 5] / params[:, 5].exp()
+        g_opac = g_params[:, 5] / params[:, 5].exp().clamp_min(1e-30)  # opacity 0: never composited, gradient 0
         return g_means2d, g_conics, g_opac, g_colors, g_background, None, None, None, None, None
 
 

@@ -168,6 +168,17 @@ def test_means2d_gradient_for_densification():
     assert torch.isfinite(scene["means"].grad).all()
 
 
+def test_fully_transparent_and_degenerate_gaussians_give_finite_gradients():
+    scene = random_scene(n=40, seed=3, dtype=torch.float32)
+    scene["opacity_logits"][:5] = -1e4  # sigmoid underflows to exactly 0
+    scene["log_scales"][5:8] = -30.0  # zero-size: the 2D covariance is the 0.3 filter alone
+    scene["quats_wxyz"][8] = 0.0  # zero quaternion: the identity, as in 3DGS files
+    out, g = grads(rasterize, scene)
+    for name, grad in g.items():
+        assert torch.isfinite(grad).all(), name
+    assert (g["opacity_logits"][:5] == 0).all()
+
+
 # ------------------------------------------------------------------------------------------------ analytic images
 def axis_camera(f=40.0, size=33):
     """Camera at the origin looking along +z; a mean on the axis projects onto the centre of pixel (16, 16)."""
