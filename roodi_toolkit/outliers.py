@@ -272,7 +272,19 @@ class NeighborDistances:
         values = np.where(take, self._candidate_dist[affected], 0).sum(axis=1, dtype=np.float64)
         mean[affected[enough]] = values[enough] / self.k
         rest = affected[~enough]
-        if rest.size:  # many flagged nearby: search the unflagged Gaussians again
+        if rest.size:  # many flagged nearby: one wider search in the full tree, skipping the flagged
+            m = min(4 * (self.k + EXTRA_CANDIDATES), len(self.means))
+            idx, dist2 = self.index.query(self.means[rest], m)
+            usable = ~flagged[idx] & (idx != rest[:, None])
+            enough = usable.sum(axis=1) >= self.k
+            ok = rest[enough]
+            if ok.size:
+                order = np.argsort(~usable[enough], axis=1, kind="stable")[:, :self.k]  # first K usable, in order
+                nb = np.take_along_axis(idx[enough], order, axis=1)
+                d2 = np.take_along_axis(dist2[enough], order, axis=1)
+                mean[ok] = self._distances(nb, d2, ok).mean(axis=1, dtype=np.float64)
+            rest = rest[~enough]
+        if rest.size:  # inside a flagged cluster: search a tree over the unflagged Gaussians
             sub = CentreIndex(self.means[survivors])
             position = np.full(len(self.means), -1, dtype=np.int64)
             position[survivors] = np.arange(len(survivors))
