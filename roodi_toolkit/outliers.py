@@ -126,7 +126,8 @@ class PruneReport:
         config: the configuration as a dict (alpha resolved).
         timings: seconds per step.
         evaluated: ``[M]`` indices into the input cloud of the Gaussians that reached the statistics.
-        mean_distances: ``[M]`` final d_i of those Gaussians (what the threshold was applied to).
+        mean_distances: ``[M]`` final d_i of those Gaussians (what the threshold was applied to); for isolated
+            floaters of the robust rule a proven lower bound that already exceeds the threshold.
         first_mean_distances: ``[M]`` d_i of the first round (the paper's quantity).
     """
 
@@ -233,6 +234,10 @@ class NeighborDistances:
             self._candidate_dist = np.full(self.candidates.shape, np.nan, dtype=dist.dtype)
             self._candidate_dist[:, :self.k] = dist
         self.mean = dist.mean(axis=1, dtype=np.float64)
+        m = min(4 * (self.k + EXTRA_CANDIDATES), len(self.means))
+        self._wide_rows = np.zeros(0, dtype=np.int64)  # rows whose wider search is cached, sorted
+        self._wide_idx = np.zeros((0, m), dtype=np.int64)
+        self._wide_d2 = np.zeros((0, m), dtype=np.float32)
 
     def _distances(self, neighbors: np.ndarray, dist2: np.ndarray, rows: np.ndarray) -> np.ndarray:
         if self.config.distance == "w2":
@@ -242,11 +247,15 @@ class NeighborDistances:
         diff = self.means[neighbors].astype(np.float64) - self.means[rows][:, None, :].astype(np.float64)
         return np.sqrt(np.einsum("rkc,rkc->rk", diff, diff))
 
-    def mean_excluding(self, flagged: np.ndarray) -> np.ndarray:
+    def mean_excluding(self, flagged: np.ndarray, threshold: float | None = None) -> np.ndarray:
         """Return d_i ``[N]`` with each Gaussian's K neighbours taken among the Gaussians not flagged.
 
         Rows whose first-round neighbours are all unflagged keep their first-round value (their K nearest are
         the same); the others are searched again in a tree over the unflagged Gaussians.
+
+        With a ``threshold``, a row whose unflagged neighbours all lie beyond a wider search (an isolated floater
+        among other floaters) gets the lower bound that search proves, when that bound already exceeds the threshold:
+        its decision is exact, its value an underestimate, and no tree over the unflagged Gaussians is built for it.
         """
         mean = self.mean.copy()
         survivors = np.flatnonzero(~flagged)
@@ -273,8 +282,7 @@ class NeighborDistances:
         mean[affected[enough]] = values[enough] / self.k
         rest = affected[~enough]
         if rest.size:  # many flagged nearby: one wider search in the full tree, skipping the flagged
-            m = min(4 * (self.k + EXTRA_CANDIDATES), len(self.means))
-            idx, dist2 = self.index.query(self.means[rest], m)
+            idx, dist2 = self._wide_candidates(rest)
             usable = ~flagged[idx] & (idx != rest[:, None])
             enough = usable.sum(axis=1) >= self.k
             ok = rest[enough]
@@ -283,6 +291,13 @@ class NeighborDistances:
                 nb = np.take_along_axis(idx[enough], order, axis=1)
                 d2 = np.take_along_axis(dist2[enough], order, axis=1)
                 mean[ok] = self._distances(nb, d2, ok).mean(axis=1, dtype=np.float64)
+            if threshold is not None:
+                # every unflagged neighbour is at least as far as the m-th candidate: W2^2 >= |mu_i - mu_j|^2
+                far2 = dist2[~enough, -1].astype(np.float64)
+                bound = far2 if self.config.distance == "w2" else np.sqrt(far2)
+                decided = bound > threshold
+                mean[rest[~enough][decided]] = bound[decided]
+                enough[np.flatnonzero(~enough)[decided]] = True
             rest = rest[~enough]
         if rest.size:  # inside a flagged cluster: search a tree over the unflagged Gaussians
             sub = CentreIndex(self.means[survivors])
@@ -292,6 +307,23 @@ class NeighborDistances:
             idx, dist2 = _drop_self(idx, dist2, position[rest])
             mean[rest] = self._distances(survivors[idx], dist2, rest).mean(axis=1, dtype=np.float64)
         return mean
+
+    def _wide_candidates(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return the 4 (K + EXTRA) nearest centres of ``rows`` (sorted), searched once per row and then cached.
+
+        The same isolated floaters need the wider search in every round of the rule; the candidate list does not
+        depend on which Gaussians are flagged, only its use does.
+        """
+        new = rows[~np.isin(rows, self._wide_rows)]
+        if new.size:
+            idx, dist2 = self.index.query(self.means[new], self._wide_idx.shape[1])
+            rows_all = np.concatenate([self._wide_rows, new])
+            order = np.argsort(rows_all, kind="stable")
+            self._wide_rows = rows_all[order]
+            self._wide_idx = np.concatenate([self._wide_idx, idx.astype(np.int64)])[order]
+            self._wide_d2 = np.concatenate([self._wide_d2, dist2.astype(np.float32)])[order]
+        at = np.searchsorted(self._wide_rows, rows)
+        return self._wide_idx[at], self._wide_d2[at]
 
     def _w2_neighbors_among(self, survivors: np.ndarray, sub: CentreIndex, rows: np.ndarray) -> np.ndarray:
         """Return mean W2^2 to the exact K nearest (under W2^2) unflagged Gaussians, for ``rows``."""
@@ -366,7 +398,8 @@ def outlier_mask(dist: NeighborDistances, config: PruneConfig, report: PruneRepo
     d = d0
     converged = False
     for _ in range(config.max_iterations):
-        d = dist.mean_excluding(flagged)
+        # the robust rule's threshold is fixed, so rows decided by a distance bound need no exact value
+        d = dist.mean_excluding(flagged, threshold if config.rule == "robust" else None)
         if config.rule == "clip":
             threshold = paper_threshold(d[~flagged], alpha)
         new = d > threshold
