@@ -19,6 +19,7 @@ Rules (``docs/pruning.md`` has the measurements behind the default):
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, NamedTuple
@@ -37,6 +38,8 @@ RULES = ("robust", "paper", "clip")
 EXTRA_CANDIDATES = 8
 """Neighbours kept beyond K, so re-evaluating a Gaussian without its flagged neighbours needs no new search."""
 MAD_TO_SIGMA = 1.4826
+MEAN_AD_TO_SIGMA = math.sqrt(math.pi / 2)
+"""Mean absolute deviation to standard deviation for a normal distribution (1.2533)."""
 """Scale factor that makes the median absolute deviation a consistent estimate of a normal's sigma."""
 
 DEFAULT_ALPHA = {"robust": 3.5, "paper": 2.0, "clip": 3.0}
@@ -126,8 +129,9 @@ class PruneReport:
         config: the configuration as a dict (alpha resolved).
         timings: seconds per step.
         evaluated: ``[M]`` indices into the input cloud of the Gaussians that reached the statistics.
-        mean_distances: ``[M]`` final d_i of those Gaussians (what the threshold was applied to); for isolated
-            floaters of the robust rule a proven lower bound that already exceeds the threshold.
+        mean_distances: ``[M]`` the d_i each decision used (flagged exactly where it exceeds ``threshold``): the
+            re-evaluated one for Gaussians the robust rule's first round flagged, the first-round one otherwise; for
+            isolated floaters a proven lower bound that already exceeds the threshold.
         first_mean_distances: ``[M]`` d_i of the first round (the paper's quantity).
     """
 
@@ -358,7 +362,8 @@ def robust_threshold(d: np.ndarray, alpha: float) -> tuple[float, float, float]:
     """Return ``(threshold, median, mad)``: exp(median + alpha * 1.4826 * MAD) over log d (d > 0 only).
 
     Log distances: W2^2 spans orders of magnitude and its log is close to symmetric on a surface, so a robust
-    centre and spread of log d describe the object's Gaussians whatever the floaters do.
+    centre and spread of log d describe the object's Gaussians whatever the floaters do. When the MAD is zero (more
+    than half the distances equal), the mean absolute deviation about the median stands in for it.
     """
     d = np.asarray(d, dtype=np.float64)
     pos = d[d > 0]
@@ -366,8 +371,14 @@ def robust_threshold(d: np.ndarray, alpha: float) -> tuple[float, float, float]:
         return 0.0, float("-inf"), 0.0
     logs = np.log(pos)
     med = float(np.median(logs))
-    mad = float(np.median(np.abs(logs - med)))
-    return float(np.exp(med + alpha * MAD_TO_SIGMA * mad)), med, mad
+    dev = np.abs(logs - med)
+    mad = float(np.median(dev))
+    spread = MAD_TO_SIGMA * mad
+    if spread == 0.0:
+        # over half the distances are equal (regular grids, duplicated structure): the MAD says nothing about the
+        # rest, so use the mean absolute deviation (x1.2533 for a normal's sigma); zero only if all are equal
+        spread = MEAN_AD_TO_SIGMA * float(dev.mean())
+    return float(np.exp(med + alpha * spread)), med, mad
 
 
 def outlier_mask(dist: NeighborDistances, config: PruneConfig, report: PruneReport | None = None) -> np.ndarray:
@@ -394,6 +405,7 @@ def outlier_mask(dist: NeighborDistances, config: PruneConfig, report: PruneRepo
     else:
         threshold = paper_threshold(d0, alpha)
     flagged = d0 > threshold
+    first_flagged = flagged
     report.thresholds = [threshold]
     d = d0
     converged = False
@@ -402,14 +414,19 @@ def outlier_mask(dist: NeighborDistances, config: PruneConfig, report: PruneRepo
         d = dist.mean_excluding(flagged, threshold if config.rule == "robust" else None)
         if config.rule == "clip":
             threshold = paper_threshold(d[~flagged], alpha)
-        new = d > threshold
+            new = d > threshold
+        else:
+            # robust: later rounds only clear Gaussians whose distance was raised by a flagged neighbour; adding
+            # flags would let the rule erode a cloud from its boundary inwards, layer by layer
+            new = flagged & (d > threshold)
         report.thresholds.append(threshold)
         if np.array_equal(new, flagged):
             converged = True
             break
         flagged = new
     report.threshold, report.iterations, report.converged = threshold, len(report.thresholds), converged
-    report.mean_distances = d
+    # the distance each decision used: re-evaluated for the Gaussians the first round flagged (robust), else first
+    report.mean_distances = d if config.rule == "clip" else np.where(first_flagged, d, d0)
     return flagged
 
 

@@ -107,3 +107,20 @@ def test_help_lists_prune(run_cli):
     assert "prune" in res.stdout
     res = run_cli("prune", "--help")
     assert res.exit_code == 0 and "--floaters-out" in res.stdout
+
+
+def test_nothing_removed_writes_no_floater_file(run_cli, tmp_path):
+    import numpy as np
+
+    from roodi_toolkit import GaussianCloud, write_ply
+
+    t = np.linspace(0, 2 * np.pi, 200, endpoint=False)  # a ring: every Gaussian has the same neighbourhood
+    ring = np.stack([np.cos(t), np.sin(t), np.zeros_like(t)], 1) * 10
+    cloud = GaussianCloud.from_activated(ring, scales=np.full((200, 3), 0.2), opacities=np.full(200, 0.9),
+                                         rgb=np.full((200, 3), 0.5))
+    src = tmp_path / "ring.ply"
+    write_ply(cloud, src)
+    res = run_cli("prune", src, tmp_path / "o.ply", "--floaters-out", tmp_path / "f.ply", "-q")
+    assert res.exit_code == 0, res.stderr
+    assert "nothing was removed" in res.stdout
+    assert (tmp_path / "o.ply").exists() and not (tmp_path / "f.ply").exists()
