@@ -28,6 +28,8 @@ COMMANDS: dict[str, str] = {
     "render": "roodi_toolkit.cli.cmd_render:render",
     "train": "roodi_toolkit.cli.cmd_train:train",
     "make-scene": "roodi_toolkit.cli.cmd_make_scene:make_scene",
+    "distill": "roodi_toolkit.cli.cmd_distill:distill",
+    "select": "roodi_toolkit.cli.cmd_select:select",
 }
 
 EPILOG = "Add --debug anywhere for a full traceback on errors. Docs: README.md."

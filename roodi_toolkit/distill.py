@@ -230,8 +230,16 @@ def compositing_weights(cloud_tensors: dict[str, Tensor], camera: Camera, *, max
             cols.append(idx[c])
             vals.append(w[r, c])
         indices = torch.stack([torch.cat(rows), torch.cat(cols)])
-        return torch.sparse_coo_tensor(indices, torch.cat(vals), (H * W, n), check_invariants=False).coalesce() \
-            .to_sparse_csr()
+        return _csr(torch.sparse_coo_tensor(indices, torch.cat(vals), (H * W, n), check_invariants=False))
+
+
+def _csr(coo: Tensor) -> Tensor:
+    """Return a sparse COO matrix in CSR form (torch warns that CSR is beta; the products used here are stable)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return coo.coalesce().to_sparse_csr()
 
 
 class _SparseRender(torch.autograd.Function):
@@ -292,7 +300,7 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
         with progress(total=len(views), desc="compositing weights") as bar:
             for v in views:
                 w = compositing_weights(frozen, dataset.cameras[v])
-                cache[v] = (w, w.to_sparse_coo().t().coalesce().to_sparse_csr())
+                cache[v] = (w, _csr(w.to_sparse_coo().t()))
                 bar.update(1)
     with progress(total=config.iterations, desc="distill") as bar:
         for step in range(1, config.iterations + 1):
@@ -631,3 +639,142 @@ def load_distillation(model_dir: str | Path) -> tuple[ModelFolder, GaussianCloud
 def config_dict(config: DistillConfig) -> dict[str, Any]:
     """Return the config as a JSON-ready dict."""
     return asdict(config)
+
+
+# ---------------------------------------------------------------------------------------------------- commands
+
+
+def scene_labels(data_dir: str | Path) -> dict[int, str]:
+    """Return object names by id from a generated scene's ``scene.json`` (empty for other datasets)."""
+    from .files import read_json
+
+    p = Path(data_dir) / "scene.json"
+    if not p.is_file():
+        return {}
+    record = read_json(p, "scene record")
+    try:
+        return {0: "background", **{int(o["id"]): str(o["name"]) for o in record.get("objects", [])}}
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return {}
+
+
+def _picture_views(eval_views: Sequence[int], train_views: Sequence[int], n: int = 4) -> list[int]:
+    views = list(eval_views)[:n]
+    rest = [v for v in train_views if v not in views]
+    step = max(1, len(rest) // max(1, n - len(views)))
+    return views + rest[::step][:n - len(views)]
+
+
+def run_distill(model_dir: str | Path, data_dir: str | Path, *, segmenter: str = "files",
+                clicks: Sequence[Any] = (), mask_dir: str | Path | None = None,
+                segmenter_options: dict[str, Any] | None = None, config: DistillConfig = DistillConfig(),
+                downscale: float | None = None, progress: ProgressFactory = null_progress) -> dict[str, Any]:
+    """Segment, distil and save into a trained model folder; return a JSON-ready summary.
+
+    Reads ``MODEL_DIR/point_cloud/iteration_N/point_cloud.ply`` (highest N) and ``cfg.json`` (downscale and the
+    held-out views of training, which are scored here too); writes the PLY back with ``object_feature_*`` columns,
+    ``object_classifier.pt``, ``object_masks/<view>.png`` (the segmenter's masks), ``distill.json`` and
+    ``distill.png`` (per view: image, masks, rendered classes, rendered probability of the predicted class).
+    """
+    from . import files
+    from .datasets import load_dataset
+    from .ply import read_ply
+    from .segmenters import SegmentPrompt, get_segmenter
+    from .training import split_views
+
+    model = find_model(model_dir)
+    ds_scale = float(downscale if downscale is not None else model.config.get("downscale", 1) or 1)
+    dataset = load_dataset(data_dir, ds_scale, progress=progress)
+    cloud = read_ply(model.ply_path)
+    seg = get_segmenter(segmenter, **(segmenter_options or {}))
+    prompt = SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir))
+    t0 = time.perf_counter()
+    masks = seg.segment(dataset, prompt, scene=cloud if seg.needs_scene else None, progress=progress)
+    seg_seconds = time.perf_counter() - t0
+    train_views, eval_views = split_views(dataset, int(model.config.get("holdout_every", 8)))
+    result = distill_object_features(cloud, dataset, masks, config, train_views=train_views, progress=progress)
+    labels = scene_labels(data_dir) if masks.kind == "instances" else {0: "rest", 1: "target"}
+    result.classifier.labels = {i: n for i, n in labels.items() if i < masks.num_classes}
+    distilled = with_features(cloud, result.features)
+    held = evaluate_class_maps(distilled, result.classifier, dataset, masks, eval_views, progress=progress) \
+        if eval_views else {"views": [], "mean_iou": float("nan"), "per_object": {}, "pairs": 0}
+    classifier_path = save_distillation(model, cloud, result, {"data_dir": str(data_dir), "downscale": ds_scale,
+                                                               "segmenter": segmenter})
+    mask_out = model.root / "object_masks"
+    mask_out.mkdir(exist_ok=True)
+    for name, m in zip(masks.names, masks.masks.numpy()):
+        files.write_image(m.astype(np.uint8 if masks.num_classes <= 256 else np.uint16), mask_out / f"{name}.png")
+    rows = []
+    frozen = _frozen_tensors(distilled)
+    with torch.no_grad():
+        for v in _picture_views(eval_views, train_views):
+            prob = result.classifier.probabilities(render_features(frozen, result.features, dataset.cameras[v]))
+            pred = prob.argmax(-1).numpy()
+            rows.append([dataset.images[v].numpy(), colorize_ids(masks.masks[v].numpy()), colorize_ids(pred),
+                         heat(prob.max(-1).values.numpy())])
+    picture = files.write_image(probability_grid(rows), model.root / "distill.png")
+    summary = {
+        "model": str(model.ply_path), "data_dir": str(data_dir), "downscale": ds_scale, "segmenter": segmenter,
+        "mask_kind": masks.kind, "mask_source": masks.source, "num_classes": masks.num_classes,
+        "labels": {str(k): v for k, v in result.classifier.labels.items()}, "num_gaussians": len(cloud),
+        "config": config_dict(config), "train_views": len(train_views), "seconds": result.seconds,
+        "segment_seconds": seg_seconds, "final_loss": result.history[-1]["loss"] if result.history else float("nan"),
+        "history": result.history,
+        "held_out": {**held, "per_object": {str(k): v for k, v in held["per_object"].items()}},
+        "ply": str(model.ply_path), "classifier": str(classifier_path), "picture": str(picture),
+        "picture_columns": ["image", "masks", "rendered classes", "rendered probability of that class"],
+    }
+    files.write_json(summary, model.root / "distill.json")
+    return summary
+
+
+def run_select(model_dir: str | Path, object_id: int, output_ply: str | Path, *, threshold: float = 0.3,
+               prune: bool = True, prune_config: PruneConfig | None = None, picture: str | Path | None = None,
+               overwrite: bool = False, progress: ProgressFactory = null_progress) -> dict[str, Any]:
+    """Select object ``object_id`` of a distilled model folder, write it as a PLY and a picture; return a summary.
+
+    The picture (default ``OUT.png`` beside ``OUT.ply``) shows per view: the image, the object's mask, the rendered
+    probability of the object, and the selected Gaussians rendered alone on white. It needs the dataset the
+    distillation used; without it no picture is written.
+    """
+    from . import files
+    from .ply import write_ply
+    from .renderers import render_cloud
+
+    out = files.check_output(output_ply, overwrite=overwrite)
+    pic = Path(picture) if picture is not None else out.with_suffix(".png")
+    files.check_output(pic, overwrite=overwrite)
+    model, cloud, classifier = load_distillation(model_dir)
+    sel = select_object(cloud, classifier, object_id, threshold=threshold, prune=prune, prune_config=prune_config,
+                        progress=progress)
+    write_ply(sel.cloud, out)
+    state = files.load_checkpoint(model.classifier_path)
+    summary: dict[str, Any] = {
+        "object": object_id, "label": classifier.labels.get(object_id, ""), "threshold": threshold,
+        "num_gaussians": len(cloud), "selected": int(sel.selected.sum()), "kept": len(sel.cloud),
+        "pruned": None if sel.prune_report is None else int(sel.selected.sum() - len(sel.cloud)),
+        "output": str(out), "picture": None,
+    }
+    data_dir = state.get("data_dir")
+    mask_dir = model.root / "object_masks"
+    if data_dir and Path(data_dir).exists() and mask_dir.is_dir():
+        from .datasets import load_dataset
+        from .segmenters import FilesSegmenter, SegmentPrompt
+        from .training import split_views
+
+        dataset = load_dataset(data_dir, float(state.get("downscale", 1)))
+        masks = FilesSegmenter(mask_dir).segment(dataset, SegmentPrompt())
+        train_views, eval_views = split_views(dataset, int(model.config.get("holdout_every", 8)))
+        feats = cloud_features(cloud)
+        frozen = _frozen_tensors(cloud)
+        rows = []
+        with torch.no_grad():
+            for v in _picture_views(eval_views, train_views):
+                cam = dataset.cameras[v]
+                prob = classifier.probabilities(render_features(frozen, feats, cam))[..., object_id].numpy()
+                alone = render_cloud(sel.cloud, cam, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy()
+                target = (masks.masks[v].numpy() == object_id).astype(np.float32)
+                rows.append([dataset.images[v].numpy(), target, heat(prob), alone])
+        summary["picture"] = str(files.write_image(probability_grid(rows), pic))
+        summary["picture_columns"] = ["image", "mask of the object", "rendered probability", "selection alone"]
+    return summary

@@ -1,0 +1,41 @@
+"""``roodi-toolkit select``: one object's Gaussians from a distilled scene, outliers pruned (ROODI Fig. 2d)."""
+
+from __future__ import annotations
+
+import click
+
+from .common import overwrite_option, progress_factory, quiet_option
+
+EXAMPLE = """Examples:
+
+\b
+  roodi-toolkit select models/bedroom --object 2 ball.ply
+  roodi-toolkit select models/bedroom --object 1 chair.ply --threshold 0.5 --no-prune
+"""
+
+
+@click.command(epilog=EXAMPLE)
+@click.argument("model_dir", type=click.Path(path_type=str))
+@click.argument("output_ply", metavar="OUT.ply", type=click.Path(path_type=str))
+@click.option("--object", "object_id", type=click.IntRange(0), required=True,
+              help="Class id of the object (its instance id in the masks; 1 for click/binary masks).")
+@click.option("--threshold", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.3,
+              show_default=True, help="Keep Gaussians whose probability of the object exceeds this.")
+@click.option("--no-prune", is_flag=True, help="Skip the statistical outlier removal.")
+@click.option("--picture", type=click.Path(path_type=str), default=None,
+              help="Where to write the picture of rendered probabilities beside the masks [OUT.png].")
+@overwrite_option
+@quiet_option
+def select(model_dir: str, output_ply: str, object_id: int, threshold: float, no_prune: bool, picture: str | None,
+           overwrite: bool, quiet: bool) -> None:
+    """Write the Gaussians of object --object of the distilled scene MODEL_DIR to OUT.ply."""
+    from roodi_toolkit.distill import run_select
+
+    summary = run_select(model_dir, object_id, output_ply, threshold=threshold, prune=not no_prune,
+                         picture=picture, overwrite=overwrite, progress=progress_factory(quiet))
+    pruned = f", {summary['pruned']:,} pruned as outliers" if summary["pruned"] is not None else ""
+    name = f" ({summary['label']})" if summary.get("label") else ""
+    click.echo(f"object {object_id}{name}: {summary['selected']:,} of {summary['num_gaussians']:,} Gaussians above "
+               f"{threshold}{pruned}; wrote {summary['kept']:,} to {output_ply}")
+    if summary.get("picture"):
+        click.echo(f"picture: {summary['picture']}")
