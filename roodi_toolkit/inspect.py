@@ -303,6 +303,12 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
     keep = np.ones(n, dtype=bool) if keep_mask is None else np.asarray(keep_mask)
     if keep.shape != (n,) or keep.dtype != np.bool_:
         raise ConfigError(f"keep_mask must be a bool array [N] = [{n}], got {keep.dtype} {keep.shape}")
+    if highlight is not None:
+        try:
+            pv.Color(highlight)
+        except ValueError:
+            raise ConfigError(f"highlight is not a colour: {highlight!r} (use a name such as 'red' or "
+                              "'#ff00ff', or None)") from None
     size = tuple(int(v) for v in window_size)
     if len(size) != 2 or min(size) < 1:
         raise ConfigError(f"window_size must be (width, height) in pixels, got {window_size}")
@@ -321,11 +327,13 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
     plotter = pv.Plotter(off_screen=off_screen, window_size=list(size))
     plotter.set_background(background)
 
-    # camera first: the highlight's minimum on-screen size depends on the framed distance
+    # frame the object (the kept Gaussians); actors are added with reset_camera=False so the framing stays
     frame_idx = np.flatnonzero(keep & finite)
     if frame_idx.size == 0:
         frame_idx = np.flatnonzero(finite)
     centre, radius = robust_sphere(cloud.means[frame_idx])
+    # a tiny or single-Gaussian object: frame at least its own footprint
+    radius = max(radius, 3.0 * float(np.median(cloud.scales[frame_idx].max(axis=1))))
     frame_camera(plotter, centre, radius, camera)
 
     scalars = colormap = None

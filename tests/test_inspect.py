@@ -223,6 +223,8 @@ def test_bad_options_are_config_errors(planted):
         insp.plot_cloud(planted.cloud, show="all")
     with pytest.raises(ConfigError, match="keep_mask"):
         insp.plot_cloud(planted.cloud, np.ones(3, dtype=bool))
+    with pytest.raises(ConfigError, match="highlight"):
+        insp.plot_cloud(planted.cloud, highlight="blurple")
 
 
 # ---------------------------------------------------------------------------------------------- histogram
