@@ -12,8 +12,8 @@ Each Gaussian is drawn with its footprint:
 Kept Gaussians show their own colour (SH DC, clipped to [0, 1]) with their opacity as alpha, or a quantity through a
 colour map (``color_by``); the ones pruning removes are drawn in the highlight colour, unlit: the
 footprint as a wireframe ellipsoid or a splat with the Gaussian's opacity (so a large floater does not hide the
-object), and an opaque square of :data:`HIGHLIGHT_MARKER_PIXELS` pixels marks its centre, so a floater smaller than a pixel still
-shows and its centre is exactly the highlight colour whatever the lights.
+object), and an opaque square of :data:`HIGHLIGHT_MARKER_PIXELS` pixels marks its centre, so a floater smaller
+than a pixel still shows and its centre is exactly the highlight colour whatever the lights.
 
 Off screen needs no display and no GPU (VTK renders through EGL or OSMesa).
 """

@@ -316,11 +316,14 @@ def test_cli_html_is_written_or_refused_in_one_line(run_cli, planted_ply, tmp_pa
         assert "trame" in res.stderr and not (tmp_path / "v.html").exists()
 
 
-def test_prune_options_mirror_prune_command():
-    """``inspect`` prunes exactly as ``prune``: the shared options match prune's names, types, defaults and help."""
+def test_inspect_and_prune_share_the_pruning_options():
+    """``inspect`` prunes exactly as ``prune``: same option names, types, defaults and help, same config."""
+    import click
+
     from roodi_toolkit.cli.cmd_inspect import inspect as inspect_cmd
     from roodi_toolkit.cli.cmd_prune import prune
-    from roodi_toolkit.cli.prune_options import PRUNE_OPTION_NAMES
+    from roodi_toolkit.cli.prune_options import PRUNE_OPTION_NAMES, prune_config_from_options
+    from roodi_toolkit.outliers import PruneConfig
 
     def describe(command):
         return {p.name: (tuple(p.opts), repr(p.type), p.default, p.help, p.is_flag, p.show_default)
@@ -329,3 +332,11 @@ def test_prune_options_mirror_prune_command():
     ours, theirs = describe(inspect_cmd), describe(prune)
     assert set(ours) == set(PRUNE_OPTION_NAMES)
     assert ours == theirs
+    config = prune_config_from_options(k=8, alpha=2.5, distance="w2", rule="paper", neighbors="centre",
+                                       filter_nan=True, min_opacity=0.1, filter_box="0,0,0,1,2,3",
+                                       filter_sphere="1, 2, 3, 4")
+    assert config == PruneConfig(k=8, alpha=2.5, rule="paper", filter_nan=True, min_opacity=0.1,
+                                 box=(0.0, 0.0, 0.0, 1.0, 2.0, 3.0), sphere=(1.0, 2.0, 3.0, 4.0))
+    with pytest.raises(click.BadParameter, match="4 comma-separated"):
+        prune_config_from_options(k=8, alpha=None, distance="w2", rule="robust", neighbors="centre",
+                                  filter_nan=False, min_opacity=None, filter_box=None, filter_sphere="1,2,3")
