@@ -255,7 +255,8 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
         raise RoodiError("fine-tuning needs at least one original view of the object")
     t0 = time.perf_counter()
     perceptual = perceptual_loss(config.perceptual, config.lpips_weights, config.lpips_net)
-    params = cloud_to_params(cloud)
+    # cloud_to_params shares memory with the cloud's arrays: copy, so that the caller's cloud is left as it was
+    params = cloud_to_params(cloud.copy())
     _, radius = object_extent(cloud)
     lrs = {"means": config.means_lr * radius, "quats": config.quats_lr, "scales": config.scales_lr,
            "opacities": config.opacities_lr, "sh0": config.sh0_lr, "shN": config.shN_lr}

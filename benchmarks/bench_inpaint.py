@@ -1,0 +1,123 @@
+"""Occlusion masks, inpainting and fine-tuning on a generated scene, scored against the generator's own truth.
+
+The scene's meshes give both the truth and the models: the scene model is Gaussians sampled on every object's
+surface (tests/mesh_gaussians.py); the object model is those on the target, where Gaussians never seen in any training
+view (hidden behind other objects, by the mesh renderer's depth) are given a wrong grey colour, as a reconstruction
+leaves what it never saw. Training views are the generator's renders. Then:
+
+- occlusion masks from the 4 object-centred views vs the hidden truth (target seen alone, not in the full scene);
+- PSNR of the object before and after refinement, on the training views inside the target's mask ("unoccluded")
+  and on the 4 object-centred views against the target rendered alone on white, over the hidden-truth pixels
+  ("occluded") and over the whole view.
+
+Usage: .venv/bin/python benchmarks/bench_inpaint.py [--preset picnic --seed 0 --target basket_3 --size 64 ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from roodi_toolkit.finetune import FinetuneConfig, refine_object  # noqa: E402
+from roodi_toolkit.gaussians import GaussianCloud  # noqa: E402
+from roodi_toolkit.occlusion import OcclusionConfig, mask_scores  # noqa: E402
+from roodi_toolkit.scenegen import build_scene, render_views, training_cameras  # noqa: E402
+from roodi_toolkit.training import cloud_to_params, render_params  # noqa: E402
+from tests.mesh_gaussians import hidden_truth, mesh_cloud, nearby  # noqa: E402
+
+
+def masked_psnr(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> float:
+    if not bool(mask.any()):
+        return float("nan")
+    mse = float(((a.clamp(0, 1) - b) ** 2)[mask].mean())
+    return float("inf") if mse == 0 else -10 * math.log10(mse)
+
+
+def seen_in_views(points: np.ndarray, cams, renders, target_id: int, tol: float) -> np.ndarray:
+    seen = np.zeros(len(points), bool)
+    for cam, r in zip(cams, renders):
+        uv, z = cam.project(points)
+        j, i = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+        ok = (z > 0) & (j >= 0) & (j < cam.width) & (i >= 0) & (i < cam.height)
+        idx = np.where(ok)[0]
+        hit = (r.ids[i[idx], j[idx]] == target_id) & (np.abs(r.depth[i[idx], j[idx]] - z[idx]) < tol)
+        seen[idx[hit]] = True
+    return seen
+
+
+def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64, train_views=12, iterations=100,
+        inpainter="opencv", debug_dir=None) -> dict:
+    t0 = time.perf_counter()
+    scene = build_scene(preset, seed)
+    target = next(o for o in scene.targets if o.name == target_name)
+    cams = training_cameras(scene, train_views, train_size, train_size)
+    renders = render_views(scene, cams, supersample=2)
+    obj = mesh_cloud([target], seed=0)
+    spacing = 1 / 60000 ** 0.5
+    seen = seen_in_views(obj.means.astype(np.float64), cams, renders, target.id, tol=3 * spacing)
+    rgb = obj.rgb.copy()
+    rgb[~seen] = 0.5  # never seen: a wrong colour, as a reconstruction leaves it
+    obj = GaussianCloud.from_activated(obj.means, scales=obj.scales, opacities=obj.opacities, rgb=rgb)
+    occ_cfg = OcclusionConfig(size=size)
+    radius = float(np.linalg.norm(target.vertices - target.center, axis=1).max())
+    reach = 3 * radius / math.sin(math.radians(occ_cfg.fov_deg) / 2)
+    scene_cloud = GaussianCloud.concatenate([obj, mesh_cloud(nearby(scene, target, reach), seed=1)])
+    images = torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in renders])
+    masks = torch.stack([torch.as_tensor(r.ids == target.id) for r in renders])
+    res = refine_object(obj, scene_cloud, images, cams, masks, inpainter=inpainter, occlusion=occ_cfg,
+                        finetune=FinetuneConfig(iterations=iterations), up=(0, 0, 1), debug_dir=debug_dir)
+    truth = hidden_truth(scene, target, res.occlusion.cameras)
+    scores = mask_scores(res.occlusion.occluded.numpy(), truth)
+    raw = mask_scores(res.occlusion.occluded_raw.numpy(), truth)
+    full_recall = mask_scores(res.occlusion.mask.numpy(), truth)["recall"]
+    gt_views = render_views(scene, res.occlusion.cameras, object_ids=[target.id], with_ground=False,
+                            background=(1.0, 1.0, 1.0), supersample=2)
+    gt = torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in gt_views])
+    white = torch.ones(3)
+    figures = {}
+    for label, cloud in (("before", obj), ("after", res.cloud)):
+        p = cloud_to_params(cloud)
+        with torch.no_grad():
+            tr = torch.stack([render_params(p, c, background=white).rgb for c in cams])
+            ov = torch.stack([render_params(p, c, background=white).rgb for c in res.occlusion.cameras])
+        figures[label] = {
+            "unoccluded_train_psnr": masked_psnr(tr, images, masks),
+            "occluded_hidden_psnr": masked_psnr(ov, gt, torch.as_tensor(truth)),
+            "object_views_psnr": masked_psnr(ov, gt, torch.ones(gt.shape[:3], dtype=torch.bool)),
+        }
+    return {"preset": preset, "seed": seed, "target": target_name, "view_size": size, "train_size": train_size,
+            "train_views": train_views, "iterations": iterations, "inpainter": res.inpainter,
+            "perceptual": res.finetune.perceptual, "object_gaussians": len(obj), "never_seen": int((~seen).sum()),
+            "hidden_fraction": float(truth.mean()), "occlusion_opened": scores, "occlusion_raw": raw,
+            "inpaint_mask_recall_of_hidden": full_recall, "psnr": figures,
+            "finetune_seconds": res.finetune.seconds, "seconds": time.perf_counter() - t0}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--preset", default="picnic")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--target", default="basket_3")
+    ap.add_argument("--size", type=int, default=64)
+    ap.add_argument("--train-size", type=int, default=64)
+    ap.add_argument("--train-views", type=int, default=12)
+    ap.add_argument("--iterations", type=int, default=100)
+    ap.add_argument("--inpainter", default="opencv")
+    ap.add_argument("--debug-dir", default=None)
+    a = ap.parse_args()
+    out = run(a.preset, a.seed, a.target, a.size, a.train_size, a.train_views, a.iterations, a.inpainter,
+              a.debug_dir)
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
