@@ -8,8 +8,9 @@ the paper found it harmful because inpaintings are not always right.
 :func:`refine_object` is the whole step: occlusion reasoning, inpainting of the four views as one 2x2 grid, fine-tuning,
 and the debug images (renders, masks, grids before and after inpainting, the object before and after).
 
-Perceptual loss: LPIPS (Zhang et al. 2018), as in the paper, when the ``lpips`` package and a complete local state
-dict for it are available (``lpips_weights`` or ``$ROODI_LPIPS_WEIGHTS``; nothing is downloaded). Otherwise a
+Perceptual loss: LPIPS (Zhang et al. 2018), as in the paper, when its weights are on this machine
+(:meth:`roodi_toolkit.lpips.LPIPS.from_local`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream files in
+the local caches; nothing is downloaded). Otherwise a
 Laplacian-pyramid L1 ("Lap1", Bojanowski et al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass
 levels of the two images, each level weighted equally, so that edges and texture at every scale count as much as
 flat colour. It needs no weights and is not D-SSIM. :attr:`FinetuneResult.perceptual` says which one ran.
@@ -34,7 +35,6 @@ from .gaussians import GaussianCloud
 from .occlusion import OcclusionConfig, OcclusionResult, object_extent, occlusion_masks, write_occlusion_images
 from .progress import ProgressFactory, null_progress
 
-ENV_LPIPS = "ROODI_LPIPS_WEIGHTS"
 
 
 @dataclass(frozen=True)
@@ -49,8 +49,7 @@ class FinetuneConfig:
             order of the L1 term at the start on our benchmark scenes).
         perceptual: ``"auto"`` (LPIPS if available locally, else Laplacian), ``"lpips"`` (required) or
             ``"laplacian"``.
-        lpips_weights: a local LPIPS state dict (default ``$ROODI_LPIPS_WEIGHTS``).
-        lpips_net: LPIPS backbone, ``"vgg"`` or ``"alex"``.
+        lpips_weights: a local LPIPS weights file (default: ``$ROODI_LPIPS_WEIGHTS`` or the upstream local caches).
         means_lr: position learning rate per unit of object radius (3DGS: 1.6e-4 per unit of scene extent).
         scales_lr, quats_lr, opacities_lr, sh0_lr, shN_lr: 3DGS learning rates.
         background: RGB behind the object in renders and targets.
@@ -63,7 +62,6 @@ class FinetuneConfig:
     perceptual_weight: float = 0.2
     perceptual: str = "auto"
     lpips_weights: Optional[str] = None
-    lpips_net: str = "vgg"
     means_lr: float = 1.6e-4
     scales_lr: float = 5e-3
     quats_lr: float = 1e-3
@@ -115,46 +113,35 @@ class LaplacianLoss(torch.nn.Module):
 
 
 class LPIPSLoss(torch.nn.Module):
-    """Return LPIPS between two ``[H, W, 3]`` images in [0, 1] (the ``lpips`` package, weights from a local file)."""
+    """Return LPIPS between two ``[H, W, 3]`` images in [0, 1] (:mod:`roodi_toolkit.lpips`, local weights only)."""
 
     name = "lpips"
 
-    def __init__(self, weights: str, net: str = "vgg") -> None:
+    def __init__(self, weights: Optional[str] = None) -> None:
         super().__init__()
-        import lpips
+        from .lpips import LPIPS
 
-        model = lpips.LPIPS(net=net, pretrained=False, pnet_rand=True, verbose=False)
-        state = torch.load(weights, map_location="cpu", weights_only=True)
-        model.load_state_dict(state)
-        self.model = model.eval().requires_grad_(False)
+        self.model = LPIPS.from_local(weights)
 
     def forward(self, a: Tensor, b: Tensor) -> Tensor:
-        x = torch.stack([a, b]).permute(0, 3, 1, 2) * 2 - 1
-        return self.model(x[:1], x[1:]).mean()
+        return self.model(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]).mean()
 
 
-def perceptual_loss(kind: str = "auto", weights: Optional[str] = None, net: str = "vgg") -> torch.nn.Module:
+def perceptual_loss(kind: str = "auto", weights: Optional[str] = None) -> torch.nn.Module:
     """Return the perceptual loss module to use: LPIPS from local weights if possible (or required), else Laplacian.
 
     Raises:
-        ConfigError: ``kind="lpips"`` but the package or the local weights are missing.
+        ConfigError: ``kind="lpips"`` but no local LPIPS weights were found (the message says where it looked).
     """
+    from .lpips import LPIPSUnavailable
+
     if kind == "laplacian":
         return LaplacianLoss()
-    weights = weights or os.environ.get(ENV_LPIPS)
-    problem = ""
-    if not weights or not Path(weights).is_file():
-        problem = (f"no local LPIPS weights (set {ENV_LPIPS} or lpips_weights to a state dict file)" if not weights
-                   else f"LPIPS weights {weights} not found")
-    else:
-        try:
-            return LPIPSLoss(weights, net)
-        except ImportError as exc:
-            problem = f"the lpips package is not importable ({exc}); pip install lpips"
-        except Exception as exc:  # noqa: BLE001 - a bad state dict is reported, not crashed on
-            problem = f"cannot load LPIPS from {weights}: {type(exc).__name__}: {exc}"
-    if kind == "lpips":
-        raise ConfigError(f"perceptual loss 'lpips' unavailable: {problem}")
+    try:
+        return LPIPSLoss(weights)
+    except LPIPSUnavailable as exc:
+        if kind == "lpips":
+            raise ConfigError(f"perceptual loss 'lpips' unavailable: {exc}") from None
     return LaplacianLoss()
 
 
@@ -254,9 +241,9 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
     if len(originals.cameras) == 0:
         raise RoodiError("fine-tuning needs at least one original view of the object")
     t0 = time.perf_counter()
-    perceptual = perceptual_loss(config.perceptual, config.lpips_weights, config.lpips_net)
+    perceptual = perceptual_loss(config.perceptual, config.lpips_weights)
     # cloud_to_params shares memory with the cloud's arrays: copy, so that the caller's cloud is left as it was
-    params = cloud_to_params(cloud.copy())
+    params = cloud_to_params(cloud)
     _, radius = object_extent(cloud)
     lrs = {"means": config.means_lr * radius, "quats": config.quats_lr, "scales": config.scales_lr,
            "opacities": config.opacities_lr, "sh0": config.sh0_lr, "shN": config.shN_lr}

@@ -211,8 +211,8 @@ def cloud_to_params(cloud: GaussianCloud, sh_degree: int | None = None) -> dict[
             [rest, np.zeros((len(cloud), k - rest.shape[1], 3), dtype=np.float32)], axis=1)
     values = {"means": cloud.means, "quats": cloud.quats_wxyz, "scales": cloud.log_scales,
               "opacities": cloud.opacity_logits, "sh0": cloud.sh_dc[:, None, :], "shN": rest}
-    return {k: torch.nn.Parameter(torch.as_tensor(np.ascontiguousarray(v), dtype=torch.float32))
-            for k, v in values.items()}
+    # copies: optimizers update parameters in place and must not write into the cloud's arrays
+    return {k: torch.nn.Parameter(torch.tensor(np.asarray(v), dtype=torch.float32)) for k, v in values.items()}
 
 
 def render_params(params: dict[str, Tensor], camera: Camera, *, sh_degree: int | None = None,

@@ -4,7 +4,6 @@ images, and (slow) the generated-scene check that unoccluded views stay and occl
 from __future__ import annotations
 
 import sys
-import types
 
 import numpy as np
 import pytest
@@ -43,26 +42,22 @@ def test_perceptual_choice_without_local_lpips(monkeypatch, tmp_path):
         perceptual_loss("lpips", str(tmp_path / "missing.pth"))
 
 
-def test_lpips_is_used_when_package_and_local_weights_exist(monkeypatch, tmp_path):
-    """A stand-in ``lpips`` module (the real one is not installed here) checks the local-weights path is taken."""
+def test_lpips_is_used_when_local_weights_exist(monkeypatch, tmp_path):
+    """Random weights written in the test stand in for the real file; the local-weights path is the one taken."""
+    from roodi_toolkit.lpips import LPIPS, save_combined
 
-    class FakeLPIPS(torch.nn.Module):
-        def __init__(self, net="alex", pretrained=True, pnet_rand=False, verbose=True):
-            super().__init__()
-            assert not pretrained and pnet_rand  # nothing may be fetched: weights come from the state dict
-            self.lin = torch.nn.Conv2d(3, 1, 1, bias=False)
-
-        def forward(self, x, y):
-            return self.lin((x - y) ** 2).mean(dim=(1, 2, 3), keepdim=True)
-
-    monkeypatch.setitem(sys.modules, "lpips", types.SimpleNamespace(LPIPS=FakeLPIPS))
-    weights = tmp_path / "lpips.pth"
-    torch.save({"lin.weight": torch.full((1, 3, 1, 1), 2.0)}, weights)
+    torch.manual_seed(0)
+    reference = LPIPS()
+    for p in reference.parameters():
+        p.data.uniform_(0, 0.1)
+    weights = save_combined(reference, tmp_path / "lpips.pt")
     monkeypatch.setenv("ROODI_LPIPS_WEIGHTS", str(weights))
     loss = perceptual_loss("auto")
     assert isinstance(loss, LPIPSLoss) and loss.name == "lpips"
-    a, b = torch.zeros(8, 8, 3), torch.full((8, 8, 3), 0.5)
-    assert float(loss(a, b)) == pytest.approx(3 * 2.0 * 1.0)  # inputs mapped to [-1, 1]: difference 1, squared
+    a, b = torch.rand(40, 40, 3), torch.rand(40, 40, 3)
+    expected = reference(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None])
+    assert float(loss(a, b)) == pytest.approx(float(expected), rel=1e-6)
+    assert float(loss(a, a)) == pytest.approx(0.0, abs=1e-7)
 
 
 def test_targets_keep_the_object_and_ignore_where_it_may_hide():

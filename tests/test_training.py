@@ -157,3 +157,17 @@ def test_depth_initialisation_lies_on_the_surfaces(tiny_scene):
     assert np.mean(z[ok][seen] < 0.9 * depth[seen]) < 0.03
     with pytest.raises(RoodiError, match="depth maps"):
         Trainer(dataclasses.replace(ds, depths=None), small_config(init="depth"))
+
+
+def test_cloud_to_params_copies():
+    """Optimizer steps on the parameters must not write into the cloud they came from."""
+    from roodi_toolkit.training import cloud_to_params
+
+    from .conftest import make_cloud
+
+    cloud = make_cloud(10, sh_degree=1)
+    before = cloud.means.copy()
+    params = cloud_to_params(cloud)
+    with torch.no_grad():
+        params["means"].add_(1.0)
+    np.testing.assert_array_equal(cloud.means, before)

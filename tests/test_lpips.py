@@ -1,0 +1,71 @@
+"""LPIPS: the real loading paths, exercised with randomly initialised weights written in the test."""
+
+import pytest
+import torch
+
+from roodi_toolkit.lpips import ALEXNET_CHECKPOINT, ENV_WEIGHTS, LPIPS, LPIPSUnavailable, save_combined
+
+
+def random_upstream_pair(seed=0):
+    """State dicts shaped like torchvision's AlexNet checkpoint and the lpips v0.1 alex.pth."""
+    g = torch.Generator().manual_seed(seed)
+    ref = LPIPS()
+    alexnet = {k: torch.randn(v.shape, generator=g) * 0.05 for k, v in ref.state_dict().items()
+               if k.startswith("features.")}
+    alexnet["classifier.1.weight"] = torch.zeros(4, 4)  # the upstream file has a classifier too; it is ignored
+    lin = {f"lin{i}.model.1.weight": torch.rand(ref.lins[i].weight.shape, generator=g) for i in range(5)}
+    return lin, alexnet
+
+
+def test_identical_images_have_zero_distance_and_noise_increases_it():
+    net = LPIPS.from_state_dicts(*random_upstream_pair())
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(2, 3, 64, 64, generator=g)
+    noisy = (x + 0.1 * torch.randn(x.shape, generator=g)).clamp(0, 1)
+    very = (x + 0.4 * torch.randn(x.shape, generator=g)).clamp(0, 1)
+    d0, d1, d2 = net(x, x), net(x, noisy), net(x, very)
+    assert torch.all(d0.abs() < 1e-6)
+    assert torch.all(d1 > 0) and torch.all(d2 > d1)
+
+
+def test_gradients_flow_to_the_input_not_the_weights():
+    net = LPIPS()
+    x = torch.rand(1, 3, 48, 48, requires_grad=True)
+    net(x, torch.rand(1, 3, 48, 48)).sum().backward()
+    assert x.grad is not None and torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0
+    assert all(p.grad is None for p in net.parameters())
+
+
+def test_from_local_reads_combined_file_and_upstream_pair(tmp_path, monkeypatch):
+    lin, alexnet = random_upstream_pair(3)
+    reference = LPIPS.from_state_dicts(lin, alexnet)
+    x, y = torch.rand(1, 3, 64, 64), torch.rand(1, 3, 64, 64)
+    combined = save_combined(reference, tmp_path / "lpips_alex.pt")
+    monkeypatch.setenv(ENV_WEIGHTS, str(combined))
+    assert torch.allclose(LPIPS.from_local()(x, y), reference(x, y))
+    # the upstream pair from a torch hub cache and an lpips package folder
+    monkeypatch.delenv(ENV_WEIGHTS)
+    hub = tmp_path / "hub"
+    (hub / "checkpoints").mkdir(parents=True)
+    torch.save(alexnet, hub / "checkpoints" / ALEXNET_CHECKPOINT)
+    pkg = tmp_path / "site" / "lpips"
+    (pkg / "weights" / "v0.1").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    torch.save(lin, pkg / "weights" / "v0.1" / "alex.pth")
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(hub))
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+    assert torch.allclose(LPIPS.from_local()(x, y), reference(x, y))
+
+
+def test_missing_or_wrong_weights_say_what_is_missing(tmp_path, monkeypatch):
+    monkeypatch.delenv(ENV_WEIGHTS, raising=False)
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "empty_hub"))
+    with pytest.raises(LPIPSUnavailable, match="no local LPIPS weights; looked at"):
+        LPIPS.from_local()
+    with pytest.raises(LPIPSUnavailable, match="not found"):
+        LPIPS.from_local(tmp_path / "nope.pt")
+    torch.save({"features.0.weight": torch.zeros(1)}, tmp_path / "bad.pt")
+    with pytest.raises(LPIPSUnavailable, match="incomplete"):
+        LPIPS.from_local(tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match="32x32"):
+        LPIPS()(torch.rand(1, 3, 16, 16), torch.rand(1, 3, 16, 16))
