@@ -1,0 +1,86 @@
+"""Distillation and selection on a generated scene: held-out class-map IoU, click-segmenter mask IoU, object alpha IoU.
+
+Usage:
+    .venv/bin/python benchmarks/bench_distill.py MODEL_DIR DATA_DIR [--iterations 500] [--click-view r_000]
+
+MODEL_DIR is a `roodi-toolkit train` output of the generated scene DATA_DIR (`roodi-toolkit make-scene`); it is
+copied, never modified. Prints one JSON summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("model_dir")
+    ap.add_argument("data_dir")
+    ap.add_argument("--iterations", type=int, default=500)
+    ap.add_argument("--click-view", default=None, help="view to click each target in (default: where it is largest)")
+    ap.add_argument("--no-click", action="store_true")
+    args = ap.parse_args()
+
+    from roodi_toolkit.datasets import load_dataset
+    from roodi_toolkit.distill import (DistillConfig, alpha_iou, load_distillation, run_distill, select_object)
+    from roodi_toolkit.files import read_json
+    from roodi_toolkit.ply import read_ply
+    from roodi_toolkit.segmenters import Click, SegmentPrompt, get_segmenter, mask_iou
+    from roodi_toolkit.distill import find_model
+
+    data = Path(args.data_dir)
+    record = read_json(data / "scene.json")
+    with tempfile.TemporaryDirectory() as tmp:
+        model = Path(tmp) / "model"
+        shutil.copytree(args.model_dir, model, ignore=shutil.ignore_patterns("checkpoints"))
+        t0 = time.perf_counter()
+        summary = run_distill(model, data, config=DistillConfig(iterations=args.iterations))
+        total = time.perf_counter() - t0
+        _, cloud, classifier = load_distillation(model)
+        out = {"model": args.model_dir, "gaussians": len(cloud), "iterations": args.iterations,
+               "distill_seconds_optimisation": round(summary["seconds"], 1), "distill_seconds_command": round(total, 1),
+               "held_out_views": len(summary["held_out"]["views"]),
+               "held_out_mean_iou": round(summary["held_out"]["mean_iou"], 4),
+               "held_out_per_object": {k: round(v, 3) for k, v in summary["held_out"]["per_object"].items()},
+               "targets": {}}
+        ds = load_dataset(data, float(summary["downscale"]))
+        for t in record["targets"]:
+            tid = int(t["id"])
+            tds = load_dataset(data / t["path"], float(summary["downscale"]))
+            res = {}
+            for prune in (False, True):
+                sel = select_object(cloud, classifier, tid, prune=prune)
+                ious = alpha_iou(sel.cloud, tds.cameras, tds.alphas)
+                res["pruned" if prune else "unpruned"] = {"gaussians": len(sel.cloud),
+                                                           "alpha_iou": round(float(np.mean(ious)), 4)}
+            held = summary["held_out"]["per_object"].get(str(tid))
+            res["held_out_class_iou"] = None if held is None else round(held, 4)
+            if not args.no_click:
+                areas = (ds.masks == tid).flatten(1).sum(1)
+                v = int(areas.argmax()) if args.click_view is None else ds.names.index(args.click_view)
+                ys, xs = np.nonzero((ds.masks[v] == tid).numpy())
+                k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))  # the mask pixel nearest its centroid
+                click = Click(ds.names[v], xs[k] + 0.5, ys[k] + 0.5)
+                t1 = time.perf_counter()
+                masks = get_segmenter("click").segment(ds, SegmentPrompt((click,)), scene=read_ply(find_model(model).ply_path))
+                secs = time.perf_counter() - t1
+                ious = [mask_iou(masks.masks[i] == 1, ds.masks[i] == tid) for i in range(len(ds))
+                        if (ds.masks[i] == tid).any()]
+                res["click"] = {"click": f"{click.view}:{click.x:g},{click.y:g}", "mean_iou": round(float(np.mean(ious)), 4),
+                                "median_iou": round(float(np.median(ious)), 4), "views": len(ious),
+                                "seconds": round(secs, 1)}
+            out["targets"][f"{tid}_{t['name']}"] = res
+    print(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,134 @@
+"""Segmenters: the plugin interface, the files segmenter's matching and errors, the click segmenter's masks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
+from roodi_toolkit.files import write_image
+from roodi_toolkit.segmenters import (Click, ClickSegmenter, FilesSegmenter, SegmentPrompt, Segmenter, ViewMasks,
+                                      get_segmenter, mask_iou, segmenter_names)
+
+from .object_scene import object_dataset
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return object_dataset()
+
+
+def test_builtins_are_registered_through_entry_points():
+    names = segmenter_names()
+    assert {"files", "click"} <= set(names)
+    assert isinstance(get_segmenter("files"), FilesSegmenter)
+    assert isinstance(get_segmenter("click"), ClickSegmenter)
+    with pytest.raises(PluginError, match="available"):
+        get_segmenter("nope")
+
+
+def test_a_plugin_registered_by_environment(monkeypatch):
+    monkeypatch.setenv("ROODI_PLUGINS", "segmenters:mine=roodi_toolkit.segmenters:FilesSegmenter;"
+                                        "segmenters:bad=roodi_toolkit.segmenters:mask_iou")
+    assert isinstance(get_segmenter("mine"), Segmenter)
+    with pytest.raises(PluginError, match="not a roodi_toolkit.segmenters.Segmenter"):
+        get_segmenter("bad")
+
+
+def test_click_parsing():
+    assert Click.parse("r_003:41,57.5") == Click("r_003", 41.0, 57.5)
+    assert Click.parse(" 3 : 1e1 , 2 ") == Click("3", 10.0, 2.0)
+    for bad in ("r_003", "r_003:41", "r_003:a,b", ":1,2", "v:nan,1"):
+        with pytest.raises(ConfigError):
+            Click.parse(bad)
+
+
+def test_view_masks_checks():
+    with pytest.raises(PluginError, match="binary"):
+        ViewMasks(torch.full((1, 2, 2), 2), ["a"], "binary", 2)
+    with pytest.raises(PluginError, match="\\[N, H, W\\]"):
+        ViewMasks(torch.zeros(2, 2, 2), ["a"], "binary", 2)
+    m = ViewMasks(torch.tensor([[[0, 3]]]), ["a"], "instances", 2)
+    assert m.num_classes == 4 and m.present_ids() == [3]
+
+
+def test_files_uses_the_dataset_masks(scene):
+    ds, _, _ = scene
+    m = FilesSegmenter().segment(ds, SegmentPrompt())
+    assert m.kind == "instances" and m.num_classes == 3 and torch.equal(m.masks, ds.masks)
+    no_masks = ds.subset(range(len(ds)))
+    no_masks.masks = None
+    with pytest.raises(DatasetError, match="no masks"):
+        FilesSegmenter().segment(no_masks, SegmentPrompt())
+
+
+def test_files_reads_a_folder_by_view_name(scene, tmp_path):
+    ds, _, _ = scene
+    folder = tmp_path / "masks"
+    folder.mkdir()
+    for i, name in reversed(list(enumerate(ds.names))):  # written in another order: matched by name
+        write_image(((ds.masks[i] == 2).numpy() * 255).astype(np.uint8), folder / f"{name}.png")
+    write_image(np.zeros((32, 32), np.uint8), folder / "unrelated.png")
+    m = get_segmenter("files").segment(ds, SegmentPrompt(mask_dir=folder))
+    assert m.kind == "binary" and m.num_classes == 2
+    assert torch.equal(m.masks, (ds.masks == 2).to(torch.int64))
+    # instance ids, stored at twice the size (a dataset loaded downscaled): resized by nearest neighbour
+    big = tmp_path / "big"
+    big.mkdir()
+    for i, name in enumerate(ds.names):
+        write_image(np.kron(ds.masks[i].numpy(), np.ones((2, 2), np.int64)).astype(np.uint8), big / f"{name}.png")
+    m = FilesSegmenter(big).segment(ds, SegmentPrompt())
+    assert m.kind == "instances" and torch.equal(m.masks, ds.masks)
+
+
+def test_files_errors(scene, tmp_path):
+    ds, _, _ = scene
+    with pytest.raises(DatasetError, match="not found"):
+        FilesSegmenter(tmp_path / "missing").segment(ds, SegmentPrompt())
+    folder = tmp_path / "m"
+    folder.mkdir()
+    for name in ds.names[:-2]:
+        write_image(np.zeros((32, 32), np.uint8), folder / f"{name}.png")
+    with pytest.raises(DatasetError, match=f"no mask for 2 of 12 views: {ds.names[-2]}.png, {ds.names[-1]}.png"):
+        FilesSegmenter(folder).segment(ds, SegmentPrompt())
+    write_image(np.zeros((30, 32), np.uint8), folder / f"{ds.names[-2]}.png")
+    write_image(np.zeros((32, 32), np.uint8), folder / f"{ds.names[-1]}.png")
+    with pytest.raises(DatasetError, match="mask is 32x30 but its view is 32x32"):
+        FilesSegmenter(folder).segment(ds, SegmentPrompt())
+    colour = np.zeros((32, 32, 3), np.uint8)
+    colour[..., 0] = 255
+    write_image(colour, folder / f"{ds.names[-2]}.png")
+    with pytest.raises(DatasetError, match="colour image"):
+        FilesSegmenter(folder).segment(ds, SegmentPrompt())
+
+
+def test_click_checks(scene):
+    ds, cloud, _ = scene
+    seg = ClickSegmenter()
+    with pytest.raises(ConfigError, match="needs a click"):
+        seg.segment(ds, SegmentPrompt(), scene=cloud)
+    with pytest.raises(ConfigError, match="same view"):
+        seg.segment(ds, SegmentPrompt((Click("r_000", 5, 5), Click("r_001", 5, 5))), scene=cloud)
+    with pytest.raises(ConfigError, match="outside"):
+        seg.segment(ds, SegmentPrompt((Click("r_000", 50, 5),)), scene=cloud)
+    with pytest.raises(ConfigError, match="no view named"):
+        seg.segment(ds, SegmentPrompt((Click("nope", 5, 5),)), scene=cloud)
+    with pytest.raises(ConfigError, match="trained scene"):
+        seg.segment(ds, SegmentPrompt((Click("r_000", 5, 5),)))
+    with pytest.raises(ConfigError, match="at most 2"):
+        seg.segment(ds, SegmentPrompt((Click("r_000", 5, 5),) * 3), scene=cloud)
+
+
+@pytest.mark.parametrize("obj", [1, 2])
+def test_click_propagates_to_the_other_views(scene, obj):
+    ds, cloud, _ = scene
+    v = 3
+    ys, xs = np.nonzero((ds.masks[v] == obj).numpy())
+    k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
+    masks = ClickSegmenter().segment(ds, SegmentPrompt((Click(ds.names[v], xs[k] + 0.5, ys[k] + 0.5),)), scene=cloud)
+    assert masks.kind == "binary" and masks.info["clicked_view"] == ds.names[v]
+    ious = [mask_iou(masks.masks[i] == 1, ds.masks[i] == obj) for i in range(len(ds))]
+    assert ious[v] > 0.7
+    assert np.mean(ious) > 0.75, ious
+    assert min(ious) > 0.4, ious  # every view, including the far side of the orbit
