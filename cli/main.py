@@ -21,6 +21,7 @@ from roodi_toolkit._version import __version__
 # name -> "module:attribute" of a click.Command. One line per command.
 COMMANDS: dict[str, str] = {
     "demo": "roodi_toolkit.cli.cmd_demo:demo",
+    "evaluate": "roodi_toolkit.cli.cmd_evaluate:evaluate",
     "info": "roodi_toolkit.cli.cmd_info:info",
     "inspect": "roodi_toolkit.cli.cmd_inspect:inspect",
     "plugins": "roodi_toolkit.cli.cmd_plugins:plugins",
