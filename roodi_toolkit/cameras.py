@@ -157,6 +157,19 @@ def look_at(eye: Sequence[float], target: Sequence[float], up: Sequence[float] =
     return w2c
 
 
+def horizontal_basis(up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the unit ``up`` vector and two unit axes spanning the plane perpendicular to it (right-handed)."""
+    up_v = np.asarray(up, dtype=np.float64)
+    norm = np.linalg.norm(up_v)
+    if norm == 0:
+        raise ConfigError("the up vector must not be zero")
+    up_v = up_v / norm
+    helper = np.array([1.0, 0.0, 0.0]) if abs(up_v[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(up_v, helper)
+    e1 /= np.linalg.norm(e1)
+    return up_v, e1, np.cross(up_v, e1)
+
+
 def orbit_cameras(center: Sequence[float], radius: float, n: int, *, elevation_deg: float = 20.0, width: int = 256,
                   height: int = 256, fov_x_deg: float = 50.0, azimuth0_deg: float = 0.0,
                   up: Sequence[float] = (0.0, 0.0, 1.0), near: float = 0.01, far: float = 1e10) -> list[Camera]:
@@ -166,13 +179,7 @@ def orbit_cameras(center: Sequence[float], radius: float, n: int, *, elevation_d
     if radius <= 0:
         raise ConfigError(f"orbit radius must be positive, got {radius}")
     center = np.asarray(center, dtype=np.float64)
-    up_v = np.asarray(up, dtype=np.float64)
-    up_v = up_v / np.linalg.norm(up_v)
-    # two axes spanning the horizontal plane
-    a = np.array([1.0, 0.0, 0.0]) if abs(up_v[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(up_v, a)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up_v, e1)
+    up_v, e1, e2 = horizontal_basis(up)
     K = intrinsics_from_fov(math.radians(fov_x_deg), width, height)
     el = math.radians(elevation_deg)
     cams = []

@@ -514,13 +514,7 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
                 split_labels.append(split)
                 bar.update(1)
 
-    images_np = np.stack(rgbs)
-    alpha_t = None
-    if any(a is not None for a in alphas):
-        alpha_np = np.stack([a if a is not None else np.ones(rgbs[0].shape[:2], np.float32) for a in alphas])
-        images_np = images_np * alpha_np[..., None] + np.asarray(bg, np.float32) * (1.0 - alpha_np[..., None])
-        alpha_t = torch.from_numpy(alpha_np.astype(np.float32))
-    images_t = torch.from_numpy(images_np.astype(np.float32))
+    images_t, alpha_t = _composite(rgbs, alphas, bg)
     mask_t = None
     if any(m is not None for m in masks):
         if any(m is None for m in masks):
@@ -549,6 +543,17 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
                  masks=mask_t, depths=depth_t, root=p if p.is_dir() else p.parent, format="blender",
                  metadata=metadata)
     return _downscale_dataset(ds, d)
+
+
+def _composite(rgbs: list[np.ndarray], alphas: list[np.ndarray | None],
+               background: Sequence[float]) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Return images ``[N, H, W, 3]`` composited on ``background`` where they had alpha, and the alphas (or None)."""
+    images = np.stack(rgbs)
+    if not any(a is not None for a in alphas):
+        return torch.from_numpy(images.astype(np.float32)), None
+    alpha = np.stack([a if a is not None else np.ones(rgbs[0].shape[:2], np.float32) for a in alphas])
+    images = images * alpha[..., None] + np.asarray(background, np.float32) * (1.0 - alpha[..., None])
+    return torch.from_numpy(images.astype(np.float32)), torch.from_numpy(alpha.astype(np.float32))
 
 
 def _check_background(bg: Any, where: Path) -> tuple[float, float, float]:
@@ -1190,18 +1195,13 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
             alphas.append(alpha)
             cameras.append(cam)
             bar.update(1)
-    images_np = np.stack(rgbs)
-    alpha_t = None
-    if any(a is not None for a in alphas):
-        alpha_np = np.stack([a if a is not None else np.ones(rgbs[0].shape[:2], np.float32) for a in alphas])
-        images_np = images_np * alpha_np[..., None] + np.asarray(bg, np.float32) * (1.0 - alpha_np[..., None])
-        alpha_t = torch.from_numpy(alpha_np.astype(np.float32))
+    images_t, alpha_t = _composite(rgbs, alphas, bg)
     hold = int(test_every)
     splits = ["test" if hold > 0 and i % hold == 0 else "train" for i in range(len(cameras))]
     points = model.points.xyz if len(model.points.ids) else None
     colors = model.points.rgb if len(model.points.ids) else None
     bounds = estimate_bounds(cameras, points)
-    ds = Dataset(images=torch.from_numpy(images_np.astype(np.float32)), cameras=cameras, splits=splits, background=bg,
+    ds = Dataset(images=images_t, cameras=cameras, splits=splits, background=bg,
                  bounds=bounds, alphas=alpha_t, points=points, point_colors=colors, root=root, format="colmap",
                  metadata={"sparse": str(sparse), "camera_models": sorted({c.model for c in model.cameras.values()})})
     return _downscale_dataset(ds, d)

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .cameras import Camera, intrinsics_from_fov, look_at
+from .cameras import Camera, horizontal_basis, intrinsics_from_fov, look_at
 from .errors import CloudError, ConfigError
 from .gaussians import GaussianCloud
 
@@ -162,12 +162,7 @@ def object_cameras(centre: Sequence[float], radius: float, config: OcclusionConf
         >>> len(cams), all(c.center[2] > 0 for c in cams)
         (4, True)
     """
-    up_v = np.asarray(up, dtype=np.float64)
-    up_v = up_v / np.linalg.norm(up_v)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(up_v[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(up_v, helper)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up_v, e1)
+    up_v, e1, e2 = horizontal_basis(up)
     rng = np.random.default_rng(config.seed)
     n = config.num_views
     fov = math.radians(config.fov_deg)
