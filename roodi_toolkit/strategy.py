@@ -190,6 +190,16 @@ def _split_into_copies(params: dict[str, torch.nn.Parameter], sampled: Tensor,
     return sources, torch.logit(new_o), torch.log(new_s)
 
 
+def _with_split_sources(name: str, p: Tensor, sources: Tensor, new_logits: Tensor, new_log_scales: Tensor) -> Tensor:
+    """Return a copy of parameter ``name`` with the split sources' opacity or scale set to their shared value."""
+    p = p.clone()
+    if name == "opacities":
+        p[sources] = new_logits.to(p.dtype)
+    elif name == "scales":
+        p[sources] = new_log_scales.to(p.dtype)
+    return p
+
+
 @torch.no_grad()
 def relocate_dead(params: dict[str, torch.nn.Parameter], optimizers: dict[str, torch.optim.Optimizer],
                   min_opacity: float, generator: torch.Generator | None = None) -> int:
@@ -204,11 +214,7 @@ def relocate_dead(params: dict[str, torch.nn.Parameter], optimizers: dict[str, t
     touched = torch.cat([sources, dead])
 
     def param_fn(name: str, p: Tensor) -> Tensor:
-        p = p.clone()
-        if name == "opacities":
-            p[sources] = new_logits.to(p.dtype)
-        elif name == "scales":
-            p[sources] = new_log_scales.to(p.dtype)
+        p = _with_split_sources(name, p, sources, new_logits, new_log_scales)
         p[dead] = p[sampled]
         return p
 
@@ -234,11 +240,7 @@ def grow(params: dict[str, torch.nn.Parameter], optimizers: dict[str, torch.opti
     sources, new_logits, new_log_scales = _split_into_copies(params, sampled, min_opacity)
 
     def param_fn(name: str, p: Tensor) -> Tensor:
-        p = p.clone()
-        if name == "opacities":
-            p[sources] = new_logits.to(p.dtype)
-        elif name == "scales":
-            p[sources] = new_log_scales.to(p.dtype)
+        p = _with_split_sources(name, p, sources, new_logits, new_log_scales)
         return torch.cat([p, p[sampled]])
 
     def state_fn(name: str, v: Tensor) -> Tensor:
