@@ -51,8 +51,8 @@ class DistillConfig:
         feature_dim: object feature size (Gaussian Grouping: 16).
         feature_lr: Adam learning rate of the per-Gaussian features. Gaussian Grouping trains ``_objects_dc`` at its
             ``feature_lr`` 2.5e-3 and the classifier at 5e-4, but jointly with the scene for 30,000 steps; in the
-            paper's 500 steps those rates leave the loss at 0.42 where 10x both reach 0.08 (measured on a generated
-            scene, benchmarks/RESULTS.md), so the defaults are 10x Gaussian Grouping's. Pass 2.5e-3 / 5e-4 for its
+            paper's 500 steps those rates leave the loss at 0.42 at step 410 where 10x both are at 0.08 (measured on
+            a generated scene, benchmarks/RESULTS.md), so the defaults are 10x Gaussian Grouping's. Pass 2.5e-3 / 5e-4 for its
             exact rates.
         classifier_lr: Adam learning rate of the 1x1 classifier (10x Gaussian Grouping's 5e-4, see above).
         feature_init_std: features start as N(0, std^2): small, so Gaussians that no view sees keep a near-zero
