@@ -17,18 +17,32 @@ QUERY_CHUNK = 1 << 19
 """Queries per batched kNN call (progress granularity; memory is one chunk of results)."""
 
 
+def _spread_bits(x: np.ndarray) -> np.ndarray:
+    """Return 10-bit integers with two zero bits inserted after each bit (bit b moves to bit 3b)."""
+    x = x.astype(np.uint32) & np.uint32(0x3FF)
+    x = (x | (x << np.uint32(16))) & np.uint32(0x030000FF)
+    x = (x | (x << np.uint32(8))) & np.uint32(0x0300F00F)
+    x = (x | (x << np.uint32(4))) & np.uint32(0x030C30C3)
+    return (x | (x << np.uint32(2))) & np.uint32(0x09249249)
+
+
 def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
-    """Return the permutation ``[N]`` that sorts points ``[N, 3]`` along a Z-order curve on a 2^bits grid."""
+    """Return the permutation ``[N]`` that sorts points ``[N, 3]`` along a Z-order curve on a 2^bits grid (bits <= 10).
+
+    Example:
+        >>> morton_order(np.array([[1.0, 1, 1], [0, 0, 0], [1, 0, 0], [0, 1, 0]])).tolist()
+        [1, 2, 3, 0]
+    """
+    if not 1 <= bits <= 10:
+        raise ConfigError(f"morton_order supports 1 to 10 bits per axis, got {bits}")
     p = np.asarray(points, dtype=np.float64)
     lo = p.min(axis=0)
     span = float((p.max(axis=0) - lo).max())
     if not np.isfinite(span) or span <= 0:
         return np.arange(len(p))
     cells = ((p - lo) * ((2**bits - 1) / span)).astype(np.uint32)
-    code = np.zeros(len(p), dtype=np.uint32)
-    for b in range(bits):
-        for axis in range(3):
-            code |= ((cells[:, axis] >> np.uint32(b)) & np.uint32(1)) << np.uint32(3 * b + axis)
+    code = _spread_bits(cells[:, 0]) | (_spread_bits(cells[:, 1]) << np.uint32(1)) | (
+        _spread_bits(cells[:, 2]) << np.uint32(2))
     return np.argsort(code, kind="stable")
 
 

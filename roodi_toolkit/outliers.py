@@ -129,9 +129,9 @@ class PruneReport:
         config: the configuration as a dict (alpha resolved).
         timings: seconds per step.
         evaluated: ``[M]`` indices into the input cloud of the Gaussians that reached the statistics.
-        mean_distances: ``[M]`` the d_i each decision used (flagged exactly where it exceeds ``threshold``): the
-            re-evaluated one for Gaussians the robust rule's first round flagged, the first-round one otherwise; for
-            isolated floaters a proven lower bound that already exceeds the threshold.
+        mean_distances: ``[M]`` the d_i each decision used (flagged exactly where it exceeds ``threshold``): for the
+            robust rule, the value of the round that last re-evaluated a Gaussian the first round flagged (for
+            isolated floaters a proven lower bound already above the threshold), the first-round value otherwise.
         first_mean_distances: ``[M]`` d_i of the first round (the paper's quantity).
     """
 
@@ -208,6 +208,42 @@ def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, 
 
 
 # ------------------------------------------------------------------------------------------------------ distances
+@dataclass
+class _Memo:
+    """The last re-evaluation: its flags and threshold, the values, which rows were affected, which needed wide search."""
+
+    flagged: np.ndarray
+    threshold: float | None
+    mean: np.ndarray
+    affected: np.ndarray
+    wide: np.ndarray
+
+
+class _WideCache:
+    """The ``width`` nearest centres of rows searched so far, found once per row and then reused.
+
+    The same rows (isolated floaters, Gaussians beside a flagged cluster) need the wider search in several rounds
+    of the rule; the candidate list does not depend on which Gaussians are flagged, only its use does.
+    """
+
+    def __init__(self, n: int, width: int) -> None:
+        self.width = width
+        self.slot = np.full(n, -1, dtype=np.int64)
+        self.idx = np.zeros((0, width), dtype=np.int32)
+        self.dist2 = np.zeros((0, width), dtype=np.float32)
+
+    def get(self, rows: np.ndarray, index: CentreIndex, means: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return candidates ``[R, width]`` (sorted by distance) and their squared distances for ``rows``."""
+        new = rows[self.slot[rows] < 0]
+        if new.size:
+            idx, dist2 = index.query(means[new], self.width)
+            self.slot[new] = len(self.idx) + np.arange(len(new))
+            self.idx = np.concatenate([self.idx, idx.astype(np.int32)])
+            self.dist2 = np.concatenate([self.dist2, dist2.astype(np.float32)])
+        at = self.slot[rows]
+        return self.idx[at], self.dist2[at]
+
+
 class NeighborDistances:
     """Per-Gaussian distances to K neighbours, and the machinery to re-evaluate them against a subset.
 
@@ -238,10 +274,10 @@ class NeighborDistances:
             self._candidate_dist = np.full(self.candidates.shape, np.nan, dtype=dist.dtype)
             self._candidate_dist[:, :self.k] = dist
         self.mean = dist.mean(axis=1, dtype=np.float64)
-        m = min(4 * (self.k + EXTRA_CANDIDATES), len(self.means))
-        self._wide_rows = np.zeros(0, dtype=np.int64)  # rows whose wider search is cached, sorted
-        self._wide_idx = np.zeros((0, m), dtype=np.int64)
-        self._wide_d2 = np.zeros((0, m), dtype=np.float32)
+        # wider searches for rows with many flagged candidates: 2x, then 4x (K + EXTRA), each cached per row
+        widths = sorted({min(f * (self.k + EXTRA_CANDIDATES), len(self.means) - 1) for f in (2, 4)})
+        self._wide = [_WideCache(len(self.means), w) for w in widths]
+        self._memo: _Memo | None = None
 
     def _distances(self, neighbors: np.ndarray, dist2: np.ndarray, rows: np.ndarray) -> np.ndarray:
         if self.config.distance == "w2":
@@ -251,7 +287,8 @@ class NeighborDistances:
         diff = self.means[neighbors].astype(np.float64) - self.means[rows][:, None, :].astype(np.float64)
         return np.sqrt(np.einsum("rkc,rkc->rk", diff, diff))
 
-    def mean_excluding(self, flagged: np.ndarray, threshold: float | None = None) -> np.ndarray:
+    def mean_excluding(self, flagged: np.ndarray, threshold: float | None = None,
+                       only: np.ndarray | None = None) -> np.ndarray:
         """Return d_i ``[N]`` with each Gaussian's K neighbours taken among the Gaussians not flagged.
 
         Rows whose first-round neighbours are all unflagged keep their first-round value (their K nearest are
@@ -260,17 +297,44 @@ class NeighborDistances:
         With a ``threshold``, a row whose unflagged neighbours all lie beyond a wider search (an isolated floater
         among other floaters) gets the lower bound that search proves, when that bound already exceeds the threshold:
         its decision is exact, its value an underestimate, and no tree over the unflagged Gaussians is built for it.
+
+        With ``only`` (a mask), just those rows are re-evaluated; the others keep their first-round value.
         """
         mean = self.mean.copy()
         survivors = np.flatnonzero(~flagged)
         if len(survivors) <= self.k:
             return np.full_like(mean, np.inf)
-        affected = np.flatnonzero(flagged[self.neighbors].any(axis=1))
+        affected_mask = flagged[self.neighbors].any(axis=1)
+        if only is not None:
+            affected_mask &= only
+        affected = np.flatnonzero(affected_mask)
         if affected.size == 0:
             return mean
         if self.config.neighbors == "w2":
             mean[affected] = self._w2_neighbors_among(survivors, CentreIndex(self.means[survivors]), affected)
             return mean
+        memo = self._memo
+        if memo is not None and memo.threshold == threshold and not (flagged & ~memo.flagged).any():
+            # only flags were cleared since the last call: a row's value can change only if one of its stored
+            # candidates was cleared, or if it needed the wider searches (whose candidates are not tracked)
+            cleared = memo.flagged & ~flagged
+            mean = memo.mean.copy()
+            gone = memo.affected & ~affected_mask
+            mean[gone] = self.mean[gone]
+            wide = memo.wide & affected_mask
+            affected = affected[cleared[self.candidates[affected]].any(axis=1) | wide[affected]]
+        else:
+            wide = np.zeros(len(mean), dtype=bool)
+        wide[affected] = False
+        wide[self._mean_among_unflagged(mean, affected, flagged, survivors, threshold)] = True
+        self._memo = _Memo(flagged.copy(), threshold, mean.copy(), affected_mask, wide)
+        return mean
+
+    def _mean_among_unflagged(self, mean: np.ndarray, affected: np.ndarray, flagged: np.ndarray,
+                              survivors: np.ndarray, threshold: float | None) -> np.ndarray:
+        """Fill ``mean`` at ``affected`` rows from their K nearest unflagged; return the rows that needed wider search."""
+        if affected.size == 0:
+            return affected
         # the K nearest unflagged among the stored K + EXTRA_CANDIDATES (exact while at most EXTRA are flagged)
         cand = self.candidates[affected]
         missing = np.isnan(self._candidate_dist[affected, self.k:]).any(axis=1)
@@ -284,9 +348,11 @@ class NeighborDistances:
         take = usable & (rank <= self.k)
         values = np.where(take, self._candidate_dist[affected], 0).sum(axis=1, dtype=np.float64)
         mean[affected[enough]] = values[enough] / self.k
-        rest = affected[~enough]
-        if rest.size:  # many flagged nearby: one wider search in the full tree, skipping the flagged
-            idx, dist2 = self._wide_candidates(rest)
+        rest = wide_rows = affected[~enough]
+        for wide in self._wide:  # many flagged nearby: wider searches in the full tree, skipping the flagged
+            if not rest.size:
+                break
+            idx, dist2 = wide.get(rest, self.index, self.means)
             usable = ~flagged[idx] & (idx != rest[:, None])
             enough = usable.sum(axis=1) >= self.k
             ok = rest[enough]
@@ -296,7 +362,7 @@ class NeighborDistances:
                 d2 = np.take_along_axis(dist2[enough], order, axis=1)
                 mean[ok] = self._distances(nb, d2, ok).mean(axis=1, dtype=np.float64)
             if threshold is not None:
-                # every unflagged neighbour is at least as far as the m-th candidate: W2^2 >= |mu_i - mu_j|^2
+                # every unflagged neighbour is at least as far as the last candidate: W2^2 >= |mu_i - mu_j|^2
                 far2 = dist2[~enough, -1].astype(np.float64)
                 bound = far2 if self.config.distance == "w2" else np.sqrt(far2)
                 decided = bound > threshold
@@ -310,24 +376,7 @@ class NeighborDistances:
             idx, dist2 = sub.query(self.means[rest], self.k + 1)
             idx, dist2 = _drop_self(idx, dist2, position[rest])
             mean[rest] = self._distances(survivors[idx], dist2, rest).mean(axis=1, dtype=np.float64)
-        return mean
-
-    def _wide_candidates(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Return the 4 (K + EXTRA) nearest centres of ``rows`` (sorted), searched once per row and then cached.
-
-        The same isolated floaters need the wider search in every round of the rule; the candidate list does not
-        depend on which Gaussians are flagged, only its use does.
-        """
-        new = rows[~np.isin(rows, self._wide_rows)]
-        if new.size:
-            idx, dist2 = self.index.query(self.means[new], self._wide_idx.shape[1])
-            rows_all = np.concatenate([self._wide_rows, new])
-            order = np.argsort(rows_all, kind="stable")
-            self._wide_rows = rows_all[order]
-            self._wide_idx = np.concatenate([self._wide_idx, idx.astype(np.int64)])[order]
-            self._wide_d2 = np.concatenate([self._wide_d2, dist2.astype(np.float32)])[order]
-        at = np.searchsorted(self._wide_rows, rows)
-        return self._wide_idx[at], self._wide_d2[at]
+        return wide_rows
 
     def _w2_neighbors_among(self, survivors: np.ndarray, sub: CentreIndex, rows: np.ndarray) -> np.ndarray:
         """Return mean W2^2 to the exact K nearest (under W2^2) unflagged Gaussians, for ``rows``."""
@@ -405,17 +454,23 @@ def outlier_mask(dist: NeighborDistances, config: PruneConfig, report: PruneRepo
     else:
         threshold = paper_threshold(d0, alpha)
     flagged = d0 > threshold
-    first_flagged = flagged
+    decided = d0.copy()  # the distance each Gaussian's current decision rests on
     report.thresholds = [threshold]
     d = d0
     converged = False
     for _ in range(config.max_iterations):
         # the robust rule's threshold is fixed, so rows decided by a distance bound need no exact value
-        d = dist.mean_excluding(flagged, threshold if config.rule == "robust" else None)
+        if config.rule == "robust":
+            # only flagged Gaussians can change their decision, so only they are re-evaluated
+            d = dist.mean_excluding(flagged, threshold, only=flagged)
+        else:
+            d = dist.mean_excluding(flagged)
         if config.rule == "clip":
             threshold = paper_threshold(d[~flagged], alpha)
             new = d > threshold
+            decided = d
         else:
+            decided[flagged] = d[flagged]
             # robust: later rounds only clear Gaussians whose distance was raised by a flagged neighbour; adding
             # flags would let the rule erode a cloud from its boundary inwards, layer by layer
             new = flagged & (d > threshold)
@@ -425,8 +480,7 @@ def outlier_mask(dist: NeighborDistances, config: PruneConfig, report: PruneRepo
             break
         flagged = new
     report.threshold, report.iterations, report.converged = threshold, len(report.thresholds), converged
-    # the distance each decision used: re-evaluated for the Gaussians the first round flagged (robust), else first
-    report.mean_distances = d if config.rule == "clip" else np.where(first_flagged, d, d0)
+    report.mean_distances = decided
     return flagged
 
 

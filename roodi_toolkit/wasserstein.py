@@ -45,6 +45,10 @@ from .progress import ProgressFactory, null_progress
 NEWTON_STEPS = 3
 """Newton steps of the trace solve; 3 reach float64 round-off from the upper-bound start (measured)."""
 
+NEWTON_STEPS_FLOAT32 = 2
+"""Newton steps in float32: 2 already reach its round-off (max error 8u on 200k random, flat and near-isotropic
+pairs, the same as 3 steps; 1 step leaves 62u)."""
+
 W2_ERROR_FACTOR = 16.0
 """c in the documented error bound c * u * (|mu_i - mu_j|^2 + tr S_i + tr S_j)."""
 
@@ -169,7 +173,8 @@ def _bures_sq(a: GaussianShapes, b: GaussianShapes) -> np.ndarray:
 
     i1 = quad(b.sq, a.sq)
     i2 = quad(b.cof, a.cof)
-    t = sum_sqrt_eigenvalues(i1, i2, a.det_sqrt * b.det_sqrt)
+    steps = NEWTON_STEPS_FLOAT32 if np.result_type(i1) == np.float32 else NEWTON_STEPS
+    t = sum_sqrt_eigenvalues(i1, i2, a.det_sqrt * b.det_sqrt, steps=steps)
     ta, tb = a.trace, b.trace
     bures = ta + tb - 2 * np.sqrt(ta * tb) * t
     return np.maximum(bures, 0)

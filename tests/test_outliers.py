@@ -7,7 +7,7 @@ import pytest
 
 from roodi_toolkit.errors import CloudError, ConfigError
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.outliers import (NeighborDistances, PruneConfig, outlier_mask, paper_threshold,
+from roodi_toolkit.outliers import (NeighborDistances, PruneConfig, outlier_mask, paper_threshold, PruneReport,
                                     remove_statistical_outliers, robust_threshold)
 from roodi_toolkit.synthetic import FAR, NEAR, OBJECT, STANDARD_MIXES, FloaterMix, planted_floater_cloud
 from roodi_toolkit.wasserstein import w2_sq
@@ -189,3 +189,21 @@ def test_robust_rule_does_not_erode_a_regular_grid():
         np.array([[100.0, 100.0, 50.0]]), scales=np.full((1, 3), 0.2), opacities=[0.9], rgb=[[0.5, 0.5, 0.5]])])
     _, keep2, _ = remove_statistical_outliers(far)
     assert not keep2[-1] and keep2[:-1].mean() > 0.85
+
+
+def test_memoised_rounds_equal_full_recomputation():
+    """Later rounds recompute only rows whose candidates were cleared: the result equals recomputing every row."""
+
+    class NoMemo(NeighborDistances):
+        def mean_excluding(self, flagged, threshold=None, only=None):
+            self._memo = None
+            return super().mean_excluding(flagged, threshold, only)
+
+    for mix in STANDARD_MIXES[:3] + STANDARD_MIXES[-4:-3]:
+        planted = planted_floater_cloud(mix, seed=1)
+        config = PruneConfig()
+        a, b = PruneReport(input_count=len(planted.cloud)), PruneReport(input_count=len(planted.cloud))
+        fast = outlier_mask(NeighborDistances(planted.cloud, config), config, a)
+        full = outlier_mask(NoMemo(planted.cloud, config), config, b)
+        assert np.array_equal(fast, full) and a.iterations == b.iterations
+        np.testing.assert_array_equal(a.mean_distances, b.mean_distances)
