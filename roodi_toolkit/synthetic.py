@@ -209,8 +209,9 @@ def planted_floater_cloud(mix: FloaterMix = FloaterMix(), seed: int = 0) -> Plan
     far_pts = np.empty((0, 3))
     while len(far_pts) < n_far:
         cand = rng.uniform(-mix.far_extent, mix.far_extent, size=(4 * n_far + 16, 3))
-        gap, _ = tree.query(cand)
-        far_pts = np.concatenate([far_pts, cand[gap >= mix.far_gap]])
+        # only "is anything closer than far_gap" matters: a bounded query answers it without a full search
+        gap, _ = tree.query(cand, distance_upper_bound=mix.far_gap)
+        far_pts = np.concatenate([far_pts, cand[np.isinf(gap)]])
     far_pts = far_pts[:n_far]
     far = GaussianCloud.from_activated(
         far_pts, scales=h * rng.uniform(*mix.far_size, (n_far, 1)) * np.exp(rng.normal(0, 0.3, (n_far, 3))),
