@@ -171,3 +171,17 @@ def test_cloud_to_params_copies():
     with torch.no_grad():
         params["means"].add_(1.0)
     np.testing.assert_array_equal(cloud.means, before)
+
+
+@pytest.mark.slow
+def test_generated_scene_trains_to_27_db_within_15_minutes(tmp_path):
+    """Issue 7's check: a 128x128 generated scene reaches >= 27 dB on its held-out full-scene views in < 15 min."""
+    from roodi_toolkit.scenegen import SceneSettings, make_scene
+
+    scene = tmp_path / "bedroom"
+    make_scene(scene, "bedroom", seed=0, settings=SceneSettings(width=128, height=128, test_views=1))
+    start = time.perf_counter()
+    result = train_scene(scene, tmp_path / "model", TrainConfig(iterations=2000, init="depth", eval_every=0))
+    minutes = (time.perf_counter() - start) / 60
+    assert result.metrics["psnr"] >= 27.0, result.metrics
+    assert minutes < 15.0
