@@ -110,14 +110,26 @@ def test_refine_writes_the_debug_images(tmp_path):
         refine_object(obj, scene, images, cams, masks, occlusion=OcclusionConfig(size=24, num_views=3))
 
 
-@pytest.mark.slow
-def test_generated_scene_unoccluded_views_stay_and_occluded_ones_improve():
-    """About 5 minutes on 2 shared cores: benchmarks/bench_inpaint.py's default run (picnic 0, basket_3)."""
+@pytest.fixture(scope="module")
+def picnic_refinement():
+    """benchmarks/bench_inpaint.py's default run (picnic 0, basket_3): about 20 s on a quiet 2-core machine."""
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1]))
     from benchmarks.bench_inpaint import run
 
-    out = run()
+    return run()
+
+
+@pytest.mark.slow
+def test_generated_scene_masks_and_unoccluded_views_stay(picnic_refinement):
+    out = picnic_refinement
     before, after = out["psnr"]["before"], out["psnr"]["after"]
     assert out["occlusion_opened"]["recall"] > 0.9 and out["occlusion_opened"]["precision"] > 0.5
     assert after["unoccluded_train_psnr"] >= before["unoccluded_train_psnr"] - 0.5
-    assert after["occluded_hidden_psnr"] > before["occluded_hidden_psnr"]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="issue 9 open: with the classical opencv inpainter the hidden pixels gain "
+                   "only ~0.001-0.01 dB (the fills cannot know the hidden colours); see benchmarks/RESULTS.md")
+def test_generated_scene_occluded_views_improve(picnic_refinement):
+    before, after = picnic_refinement["psnr"]["before"], picnic_refinement["psnr"]["after"]
+    assert after["occluded_hidden_psnr"] >= before["occluded_hidden_psnr"] + 0.1
