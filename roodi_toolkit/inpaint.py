@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from .errors import ConfigError, PluginError
-from .plugins import discover, load_plugin
+from .plugins import discover, instantiate
 
 
 class Inpainter(ABC):
@@ -168,16 +168,7 @@ def get_inpainter(name: str = "opencv", **options: Any) -> Inpainter:
         PluginError: unknown name, failed import, not an :class:`Inpainter`, not available here (the message says
             why, e.g. missing weights), or options it does not take.
     """
-    cls = load_plugin("inpainters", name)
-    if not (isinstance(cls, type) and issubclass(cls, Inpainter)):
-        raise PluginError(f"inpainter plugin {name!r} is {cls!r}, not a roodi_toolkit.inpaint.Inpainter subclass")
-    ok, why = cls.available()
-    if not ok:
-        raise PluginError(f"inpainter {name!r} cannot run here: {why}")
-    try:
-        return cls(**options)
-    except TypeError as exc:
-        raise PluginError(f"inpainter {name!r} does not take these options: {exc}") from None
+    return instantiate("inpainters", name, Inpainter, **options)
 
 
 # ------------------------------------------------------------------------------------------------ built-in: OpenCV

@@ -134,3 +134,25 @@ def check_all(groups: tuple[str, ...] = GROUPS) -> list[PluginStatus]:
             else:
                 statuses.append(PluginStatus(spec, True))
     return statuses
+
+
+def instantiate(group: str, name: str, base: type, **options: Any) -> Any:
+    """Return an instance of plugin ``name`` of ``group``, which must be a subclass of ``base``, built with ``options``.
+
+    The class's ``available()`` (returning ``(ok, why)``) is asked first, so a backend that cannot run here (no CUDA,
+    no local weights) says why instead of failing later.
+
+    Raises:
+        PluginError: unknown name, failed import, not a subclass of ``base``, unavailable, or options it does not take.
+    """
+    kind = short_group(full_group(group))[:-1]
+    cls = load_plugin(group, name)
+    if not (isinstance(cls, type) and issubclass(cls, base)):
+        raise PluginError(f"{kind} plugin {name!r} is {cls!r}, not a {base.__module__}.{base.__qualname__} subclass")
+    ok, why = cls.available()
+    if not ok:
+        raise PluginError(f"{kind} {name!r} cannot run here: {why}")
+    try:
+        return cls(**options)
+    except TypeError as exc:
+        raise PluginError(f"{kind} {name!r} does not take these options: {exc}") from None

@@ -26,7 +26,7 @@ from torch import Tensor
 from .cameras import Camera
 from .errors import CloudError, PluginError
 from .gaussians import GaussianCloud
-from .plugins import discover, load_plugin
+from .plugins import discover, instantiate
 from .rasterizer import RasterOutput, rasterize
 
 RenderOutput = RasterOutput
@@ -149,16 +149,7 @@ def get_renderer(name: str = "torch", **options: Any) -> Renderer:
         PluginError: unknown name, failed import, not a :class:`Renderer`, or not available on this machine (the
             message says why, e.g. no CUDA).
     """
-    cls = load_plugin("renderers", name)
-    if not (isinstance(cls, type) and issubclass(cls, Renderer)):
-        raise PluginError(f"renderer plugin {name!r} is {cls!r}, not a roodi_toolkit.renderers.Renderer subclass")
-    ok, why = cls.available()
-    if not ok:
-        raise PluginError(f"renderer {name!r} cannot run here: {why}")
-    try:
-        return cls(**options)
-    except TypeError as exc:
-        raise PluginError(f"renderer {name!r} does not take these options: {exc}") from None
+    return instantiate("renderers", name, Renderer, **options)
 
 
 def render_cloud(cloud: GaussianCloud, camera: Camera, *, renderer: Renderer | str = "torch",

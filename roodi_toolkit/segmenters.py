@@ -36,7 +36,7 @@ from .cameras import Camera
 from .datasets import Dataset
 from .errors import ConfigError, DatasetError, PluginError
 from .gaussians import GaussianCloud
-from .plugins import discover, load_plugin
+from .plugins import discover, instantiate
 from .progress import ProgressFactory, null_progress
 
 MASK_KINDS = ("binary", "instances")
@@ -174,16 +174,7 @@ def get_segmenter(name: str = "files", **options: Any) -> Segmenter:
         PluginError: unknown name, failed import, not a :class:`Segmenter`, or not available here (the message says
             why and how to install what is missing).
     """
-    cls = load_plugin("segmenters", name)
-    if not (isinstance(cls, type) and issubclass(cls, Segmenter)):
-        raise PluginError(f"segmenter plugin {name!r} is {cls!r}, not a roodi_toolkit.segmenters.Segmenter subclass")
-    ok, why = cls.available()
-    if not ok:
-        raise PluginError(f"segmenter {name!r} cannot run here: {why}")
-    try:
-        return cls(**options)
-    except TypeError as exc:
-        raise PluginError(f"segmenter {name!r} does not take these options: {exc}") from None
+    return instantiate("segmenters", name, Segmenter, **options)
 
 
 def view_index(dataset: Dataset, view: str) -> int:
