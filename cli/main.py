@@ -22,6 +22,7 @@ from roodi_toolkit._version import __version__
 COMMANDS: dict[str, str] = {
     "demo": "roodi_toolkit.cli.cmd_demo:demo",
     "evaluate": "roodi_toolkit.cli.cmd_evaluate:evaluate",
+    "extract": "roodi_toolkit.cli.cmd_extract:extract",
     "info": "roodi_toolkit.cli.cmd_info:info",
     "inspect": "roodi_toolkit.cli.cmd_inspect:inspect",
     "plugins": "roodi_toolkit.cli.cmd_plugins:plugins",

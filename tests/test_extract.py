@@ -1,0 +1,77 @@
+"""extract: every stage chained on a tiny generated scene, stage reuse on a re-run, ablation switches."""
+
+import json
+
+import pytest
+
+from roodi_toolkit import read_ply
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    from roodi_toolkit.scenegen import SceneSettings, make_scene
+
+    root = tmp_path_factory.mktemp("x") / "kitchen"
+    record = make_scene(root, "kitchen", seed=3, settings=SceneSettings(
+        width=32, height=32, train_views=10, test_views=2, supersample=1, n_objects=5, n_targets=3))
+    return root, record["targets"][0]["id"]
+
+
+def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cli):
+    from dataclasses import replace
+
+    from roodi_toolkit.distill import DistillConfig
+    from roodi_toolkit.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.finetune import FinetuneConfig
+    from roodi_toolkit.occlusion import OcclusionConfig
+    from roodi_toolkit.strategy import MCMCStrategy
+    from roodi_toolkit.training import TrainConfig
+
+    scene, target = tiny_scene
+    config = ExtractConfig(
+        train=TrainConfig(iterations=40, init="depth", init_num_points=800, eval_every=0, checkpoint_every=20,
+                          strategy=MCMCStrategy(cap_max=1000, refine_start_iter=10, refine_every=10)),
+        distill=DistillConfig(iterations=40), occlusion=OcclusionConfig(size=32, opening_reference=0, opening_size=5),
+        finetune=FinetuneConfig(iterations=4))
+    out = tmp_path / "out"
+    report = extract_objects(scene, out, [target], config=config)
+    obj = read_ply(out / f"object_{target}" / "object.ply")
+    assert len(obj) == report["objects"][str(target)]["gaussians"] > 0
+    assert not any(k.startswith("object_feature_") for k in obj.extras)
+    assert (out / "scene" / "object_classifier.pt").is_file()
+    assert (out / f"object_{target}" / "object.png").is_file()
+    assert list((out / f"object_{target}" / "debug").iterdir())
+    saved = json.loads((out / "report.json").read_text())
+    assert saved["objects"][str(target)]["inpainter"] == "opencv" and saved["reused"] == []
+    again = extract_objects(scene, out, [target], config=config)
+    assert again["reused"] == ["train", "distill", f"select {target}", f"refine {target}"]
+    # the ablation without inpainting reuses the trained and distilled scene
+    ablation = extract_objects(scene, tmp_path / "no_inpaint", [target], model_dir=out / "scene",
+                               config=replace(config, inpaint=False, prune=False))
+    assert ablation["reused"] == ["distill"]
+    assert len(read_ply(tmp_path / "no_inpaint" / f"object_{target}" / "object.ply")) >= len(
+        read_ply(out / f"object_{target}" / "selected.ply"))
+
+
+def test_extract_command_errors(tiny_scene, tmp_path, run_cli):
+    scene, _ = tiny_scene
+    res = run_cli("extract", scene, tmp_path / "o", "-q")
+    assert res.exit_code == 2 and "--object" in res.stderr
+    res = run_cli("extract", tmp_path / "missing", tmp_path / "o", "--object", "1", "--iterations", "2", "-q")
+    assert res.exit_code == 1 and "dataset not found" in res.stderr
+
+
+def test_tiny_selection_skips_pruning_and_says_so(tiny_scene, tmp_path):
+    from dataclasses import replace
+
+    from roodi_toolkit.distill import DistillConfig
+    from roodi_toolkit.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.outliers import PruneConfig
+    from roodi_toolkit.training import TrainConfig
+
+    scene, target = tiny_scene
+    config = ExtractConfig(train=TrainConfig(iterations=40, init="depth", init_num_points=800, eval_every=0),
+                           distill=DistillConfig(iterations=40), inpaint=False)
+    config = replace(config, prune_config=PruneConfig(k=100_000))  # more neighbours than any selection has
+    report = extract_objects(scene, tmp_path / "o", [target], config=config)
+    assert "prune_skipped" in report["objects"][str(target)]
