@@ -376,20 +376,19 @@ def _to_float_image(arr: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray
 
 
 def _read_rgb(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    return _to_float_image(_read_dataset_image(path), path)
+
+
+def _read_dataset_image(path: Path) -> np.ndarray:
+    """Return an image file's array, its read errors as DatasetError."""
     try:
-        arr = read_image(path)
-    except DatasetError:
-        raise
+        return read_image(path)
     except RoodiError as exc:
         raise DatasetError(str(exc)) from None
-    return _to_float_image(arr, path)
 
 
 def _read_mask(path: Path) -> np.ndarray:
-    try:
-        arr = read_image(path)
-    except RoodiError as exc:
-        raise DatasetError(str(exc)) from None
+    arr = _read_dataset_image(path)
     if arr.ndim == 3:
         # an RGB(A) mask: instance ids are stored in the first channel
         arr = arr[..., 0]
@@ -403,10 +402,7 @@ def _read_depth(path: Path, scale: float) -> np.ndarray:
         except (OSError, ValueError) as exc:
             raise DatasetError(f"{path}: cannot read depth ({exc})") from None
         return np.asarray(arr, dtype=np.float32).reshape(arr.shape[:2])
-    try:
-        arr = read_image(path)
-    except RoodiError as exc:
-        raise DatasetError(str(exc)) from None
+    arr = _read_dataset_image(path)
     if arr.ndim == 3:
         arr = arr[..., 0]
     return arr.astype(np.float32) * np.float32(scale)

@@ -7,14 +7,10 @@ import pytest
 from roodi_toolkit import read_ply
 
 
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    from roodi_toolkit.scenegen import SceneSettings, make_scene
-
-    root = tmp_path_factory.mktemp("x") / "kitchen"
-    record = make_scene(root, "kitchen", seed=3, settings=SceneSettings(
-        width=32, height=32, train_views=10, test_views=2, supersample=1, n_objects=5, n_targets=3))
-    return root, record["targets"][0]["id"]
+@pytest.fixture
+def tiny_scene(tiny_kitchen):
+    record = json.loads((tiny_kitchen / "scene.json").read_text())
+    return tiny_kitchen, record["targets"][0]["id"]
 
 
 def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cli):

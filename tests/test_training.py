@@ -20,14 +20,9 @@ from roodi_toolkit.strategy import MCMCStrategy
 from roodi_toolkit.training import TrainConfig, Trainer, split_views, train_scene
 
 
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    from roodi_toolkit.scenegen import SceneSettings, make_scene
-
-    root = tmp_path_factory.mktemp("scene") / "kitchen"
-    make_scene(root, "kitchen", seed=3, settings=SceneSettings(width=32, height=32, train_views=10, test_views=2,
-                                                               supersample=1, n_objects=5, n_targets=3))
-    return root
+@pytest.fixture
+def tiny_scene(tiny_kitchen):
+    return tiny_kitchen
 
 
 def small_config(**kw):
