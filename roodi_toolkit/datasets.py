@@ -379,6 +379,21 @@ def _read_rgb(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     return _to_float_image(_read_dataset_image(path), path)
 
 
+class _SameSize:
+    """Remembers the first image's size and refuses an image of any other size."""
+
+    def __init__(self) -> None:
+        self.size: tuple[int, int] | None = None
+        self.first: Path | None = None
+
+    def __call__(self, path: Path, width: int, height: int) -> None:
+        if self.size is None:
+            self.size, self.first = (width, height), path
+        elif self.size != (width, height):
+            raise DatasetError(f"{path}: image is {width}x{height} but {self.first} is {self.size[0]}x{self.size[1]}; "
+                               "all images of a dataset must have the same size")
+
+
 def _read_dataset_image(path: Path) -> np.ndarray:
     """Return an image file's array, its read errors as DatasetError."""
     try:
@@ -471,8 +486,7 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
     depths: list[np.ndarray | None] = []
     cameras: list[Camera] = []
     split_labels: list[str] = []
-    size: tuple[int, int] | None = None
-    first_path: Path | None = None
+    same_size = _SameSize()
     depth_scale: float | None = None
     with progress(total=total, desc="load images") as bar:
         for json_path, split, meta in metas:
@@ -480,11 +494,7 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
                 image_path = _frame_image_path(json_path, frame, frame_idx)
                 rgb, alpha = _read_rgb(image_path)
                 h, w = rgb.shape[:2]
-                if size is None:
-                    size, first_path = (w, h), image_path
-                elif size != (w, h):
-                    raise DatasetError(f"{image_path}: image is {w}x{h} but {first_path} is {size[0]}x{size[1]}; all "
-                                       "images of a dataset must have the same size")
+                same_size(image_path, w, h)
                 cam = _blender_camera(json_path, meta, frame, frame_idx, (w, h), image_path.stem)
                 mask = None
                 if "mask_path" in frame:
@@ -1170,8 +1180,7 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
     if not img_root.is_dir():
         raise DatasetError(f"{root}: images folder {images_dir!r} not found")
     rgbs, alphas, cameras = [], [], []
-    size: tuple[int, int] | None = None
-    first: Path | None = None
+    same_size = _SameSize()
     with progress(total=len(pairs), desc="load images") as bar:
         for cam, img in pairs:
             image_path = img_root / img.name
@@ -1179,11 +1188,7 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
                 raise DatasetError(f"{image_path}: image of COLMAP image {img.id} ({img.name!r}) not found")
             rgb, alpha = _read_rgb(image_path)
             h, w = rgb.shape[:2]
-            if size is None:
-                size, first = (w, h), image_path
-            elif size != (w, h):
-                raise DatasetError(f"{image_path}: image is {w}x{h} but {first} is {size[0]}x{size[1]}; all images of "
-                                   "a dataset must have the same size")
+            same_size(image_path, w, h)
             if (w, h) != (cam.width, cam.height):
                 # images already resized on disk (e.g. the images_2 folders of 3DGS): scale the intrinsics
                 cam = cam.with_size(w, h)
