@@ -34,12 +34,14 @@ EXAMPLE = """Example:
               help="Pruning distance (euclidean: ablation).")
 @click.option("--rule", type=click.Choice(["robust", "paper", "clip"]), default="robust", show_default=True,
               help="Pruning rule (paper: the paper's single pass).")
+@click.option("--single-stage", is_flag=True,
+              help="Learn the object features together with the scene instead of after it (ablation: w/o two-stage).")
 @click.option("--inpainter", default="opencv", show_default=True, help="Inpainter plugin (see roodi-toolkit plugins).")
 @overwrite_option
 @quiet_option
 def extract(data_dir: str, out_dir: str, object_ids: tuple[int, ...], model_dir: str | None, iterations: int | None,
             init: str, distill_iterations: int, threshold: float, no_prune: bool, no_inpaint: bool, distance: str,
-            rule: str, inpainter: str, overwrite: bool, quiet: bool) -> None:
+            rule: str, single_stage: bool, inpainter: str, overwrite: bool, quiet: bool) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
 
     Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object's selection and
@@ -56,7 +58,7 @@ def extract(data_dir: str, out_dir: str, object_ids: tuple[int, ...], model_dir:
     config = replace(base, train=config_with(base.train, iterations=iterations, init=init),
                      distill=DistillConfig(iterations=distill_iterations), threshold=threshold, prune=not no_prune,
                      prune_config=PruneConfig(distance=distance, rule=rule), inpaint=not no_inpaint,
-                     inpainter=inpainter)
+                     inpainter=inpainter, single_stage=single_stage)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, config=config, overwrite=overwrite,
                              progress=progress_factory(quiet))
     if report["reused"]:

@@ -50,6 +50,8 @@ class ExtractConfig:
         inpainter: the inpainter plugin.
         occlusion: occlusion-reasoning settings.
         finetune: fine-tuning settings.
+        single_stage: train the object features together with the scene instead of distilling them into the trained
+            scene (the paper's "w/o two-stage" ablation, :mod:`roodi_toolkit.joint`); needs the dataset's masks.
     """
 
     train: TrainConfig = field(default_factory=lambda: TrainConfig(init="auto"))
@@ -62,6 +64,7 @@ class ExtractConfig:
     inpainter: str = "opencv"
     occlusion: OcclusionConfig = OcclusionConfig()
     finetune: FinetuneConfig = FinetuneConfig()
+    single_stage: bool = False
 
     def __post_init__(self) -> None:
         if not 0 < self.threshold < 1:
@@ -131,6 +134,8 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
 
     if not object_ids:
         raise ConfigError("give at least one object id to extract")
+    if config.single_stage and model_dir is not None:
+        raise ConfigError("single-stage training trains the scene itself; it cannot start from a trained model")
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True)
     report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}, "reused": []}
     timings = report["stages"]
@@ -142,14 +147,22 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
             report["reused"].append("train")
         else:
             resume = (model / "checkpoints" / "latest.pt").is_file() and not overwrite
-            train_scene(data_dir, model, config.train, downscale=config.downscale, resume=resume,
-                        overwrite=not resume, progress=progress)
+            if config.single_stage:
+                from .joint import train_joint
+
+                train_joint(data_dir, model, config.train, config.distill, downscale=config.downscale,
+                            resume=resume, overwrite=not resume, progress=progress)
+            else:
+                train_scene(data_dir, model, config.train, downscale=config.downscale, resume=resume,
+                            overwrite=not resume, progress=progress)
     else:
         model = Path(model_dir)
     timings["train_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    if (model / CLASSIFIER_FILE).is_file() and not overwrite:
+    if config.single_stage:
+        pass  # learned with the scene
+    elif (model / CLASSIFIER_FILE).is_file() and not overwrite:
         report["reused"].append("distill")
     else:
         report["distill"] = run_distill(model, data_dir, config=config.distill, downscale=config.downscale,

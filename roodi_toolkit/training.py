@@ -11,6 +11,7 @@ moment and resumed from its last checkpoint continues exactly as the uninterrupt
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -324,10 +325,14 @@ class Trainer:
             old_background = background
             background = torch.rand(3, generator=self.generator)
             gt = (gt + (1 - alpha) * (background - old_background)).clamp(0, 1)
-        out = render_params(self.params, camera, sh_degree=self.sh_degree, background=background)
+        out = render_params(self.params, camera, sh_degree=self.sh_degree, background=background,
+                            features=self._rendered_features())
         l1 = torch.abs(out.rgb - gt).mean()
         ssim = ssim_value(out.rgb, gt, cfg.ssim_window)
         loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim) + self.strategy.regularization(self.params)
+        extra = self._extra_loss(out, view)
+        if extra is not None:
+            loss = loss + extra
         loss.backward()
         for opt in self.optimizers.values():
             opt.step()
@@ -339,6 +344,14 @@ class Trainer:
         self.step += 1
         return {"step": self.step, "loss": float(loss.detach()), "l1": float(l1.detach()),
                 "psnr": psnr(out.rgb.detach(), gt), "count": self.num_gaussians}
+
+    def _rendered_features(self) -> Tensor | None:
+        """Return per-Gaussian features to render beside the colour (none here; see :mod:`roodi_toolkit.joint`)."""
+        return None
+
+    def _extra_loss(self, out: RasterOutput, view: int) -> Tensor | None:
+        """Return a loss term added to the photometric loss of ``view`` (none here)."""
+        return None
 
     @torch.no_grad()
     def evaluate(self, indices: list[int] | None = None) -> dict[str, float]:
@@ -366,7 +379,7 @@ class Trainer:
             "step": self.step,
             "config": self.config.to_dict(),
             "params": {k: v.detach().clone() for k, v in self.params.items()},
-            "optimizers": {k: opt.state_dict() for k, opt in self.optimizers.items()},
+            "optimizers": {k: copy.deepcopy(opt.state_dict()) for k, opt in self.optimizers.items()},  # not views of live state
             "scheduler": self.scheduler.state_dict(),
             "strategy_state": self.strategy_state.state_dict(),
             "generator": self.generator.get_state(),
@@ -378,7 +391,7 @@ class Trainer:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore a state from :meth:`state_dict` (the dataset and config must be the run's own)."""
         try:
-            self.params = {k: torch.nn.Parameter(state["params"][k].clone()) for k in PARAM_NAMES}
+            self.params = {k: torch.nn.Parameter(state["params"][k].clone()) for k in self.params}
             self._make_optimizers()
             for k, opt in self.optimizers.items():
                 opt.load_state_dict(state["optimizers"][k])
@@ -429,7 +442,8 @@ def checkpoint_path(out_dir: Path) -> Path:
 def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(), *,
                 downscale: float = 1, resume: bool = False, overwrite: bool = False,
                 progress: ProgressFactory = null_progress, iterations_override: int | None = None,
-                on_step: Callable[[Trainer, dict[str, float]], None] | None = None) -> TrainResult:
+                on_step: Callable[[Trainer, dict[str, float]], None] | None = None,
+                make_trainer: Callable[[Dataset, TrainConfig], Trainer] | None = None) -> TrainResult:
     """Train a scene model and write it in the layout other 3DGS tools read; return where it is and its figures.
 
     Writes ``out_dir/point_cloud/iteration_N/point_cloud.ply`` (Inria PLY), ``checkpoints/latest.pt`` (every
@@ -447,6 +461,8 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
         iterations_override: on resume, train to this many iterations instead of the checkpoint's (the position
             learning-rate decay keeps the original schedule).
         on_step: called after every step (tests use it to interrupt a run).
+        make_trainer: builds the trainer from the dataset and config (default :class:`Trainer`; the single-stage
+            ablation passes one that also trains object features).
     """
     from . import files
     from .datasets import load_dataset
@@ -467,7 +483,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
         files.prepare_output_dir(out, overwrite=overwrite)
         state = None
     dataset = load_dataset(data_dir, downscale)
-    trainer = Trainer(dataset, config)
+    trainer = (make_trainer or Trainer)(dataset, config)
     if state is not None:
         trainer.load_state_dict(state)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
