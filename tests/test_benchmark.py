@@ -1,0 +1,83 @@
+"""Baselines and the benchmark command on a tiny generated scene."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from roodi_toolkit.baselines import click_in_mask, gaussian_grouping
+from roodi_toolkit.distill import DistillConfig, ObjectClassifier, with_features
+from roodi_toolkit.errors import ConfigError, RoodiError
+from roodi_toolkit.extract import ExtractConfig
+from roodi_toolkit.finetune import FinetuneConfig
+from roodi_toolkit.occlusion import OcclusionConfig
+from roodi_toolkit.strategy import MCMCStrategy
+from roodi_toolkit.training import TrainConfig
+
+from .conftest import make_cloud
+
+
+def test_gaussian_grouping_takes_the_argmax_class():
+    cloud = make_cloud(6)
+    feats = torch.eye(3)[[0, 1, 2, 1, 1, 0]].float()
+    classifier = ObjectClassifier(torch.eye(3) * 5, torch.zeros(3))
+    sel = gaussian_grouping(with_features(cloud, feats), classifier, 1)
+    assert sel.keep.tolist() == [False, True, False, True, True, False] and len(sel.cloud) == 3
+    assert not any(k.startswith("object_feature_") for k in sel.cloud.extras)
+    assert gaussian_grouping(with_features(cloud, feats), classifier, 2, rule="threshold", threshold=0.9).keep.sum() == 1
+    with pytest.raises(ConfigError):
+        gaussian_grouping(with_features(cloud, feats), classifier, 7)
+    with pytest.raises(RoodiError, match="selected no Gaussian"):
+        gaussian_grouping(with_features(cloud, torch.zeros(6, 3)), ObjectClassifier(torch.eye(3), torch.tensor([1., 0, 0])), 2)
+
+
+def test_click_lands_deepest_inside_the_mask():
+    mask = np.zeros((20, 30), bool)
+    mask[2:18, 3:13] = True  # a 10-wide bar: its middle column is deepest
+    mask[8:12, 13:29] = True  # a thin arm
+    x, y = click_in_mask(mask)
+    assert mask[y, x] and 6 <= x <= 9 and 8 <= y <= 11
+    with pytest.raises(ConfigError):
+        click_in_mask(np.zeros((4, 4), bool))
+
+
+TINY = ExtractConfig(
+    train=TrainConfig(iterations=40, init="depth", init_num_points=800, eval_every=0,
+                      strategy=MCMCStrategy(cap_max=1000, refine_start_iter=10, refine_every=10)),
+    distill=DistillConfig(iterations=40), occlusion=OcclusionConfig(size=32, opening_reference=0, opening_size=5),
+    finetune=FinetuneConfig(iterations=2))
+
+
+def test_benchmark_runs_every_method_and_writes_the_tables(tiny_kitchen, tmp_path):
+    from roodi_toolkit.benchmark import ABLATIONS, MACHINE_SIZE, METHODS, run_benchmark
+
+    root = tmp_path / "scenes"
+    root.mkdir()
+    (root / "kitchen").symlink_to(tiny_kitchen)  # reused as it is
+    results = run_benchmark(root, tmp_path / "bench", presets=["kitchen"], size=MACHINE_SIZE, config=TINY)
+    assert list(results["mean"]) == list(METHODS)
+    targets = json.loads((tiny_kitchen / "scene.json").read_text())["targets"]
+    for m in METHODS:
+        rows = results["scenes"]["kitchen"][m]["objects"]
+        assert len(rows) == len(targets)
+        assert all(0 <= r["iou"] <= 1 for r in rows)
+    saved = json.loads((tmp_path / "bench" / "results.json").read_text())
+    assert {c["check"] for c in saved["checks"]} >= {"full - Gaussian Grouping IoU >= 0.3"}
+    assert len(saved["checks"]) == 2 + len(ABLATIONS)
+    md = (tmp_path / "bench" / "results.md").read_text()
+    assert "Table 1" in md and "Table 2" in md and "36.12" in md and "w/o two-stage" in md
+    assert (tmp_path / "bench" / "kitchen.png").stat().st_size > 5000
+    sim = json.loads((tmp_path / "bench" / "kitchen" / "feature_similarity" / f"object_{targets[0]['id']}"
+                      / "selection.json").read_text())
+    assert 0.5 <= sim["threshold"] <= 0.99 and sim["train_mask_iou"] is not None
+    # a re-run reuses everything: same scores
+    again = run_benchmark(root, tmp_path / "bench", presets=["kitchen"], size=MACHINE_SIZE, config=TINY)
+    assert again["mean"] == results["mean"]
+
+
+def test_benchmark_command_errors(tmp_path, run_cli):
+    res = run_cli("benchmark", tmp_path / "r", tmp_path / "o", "--preset", "attic", "-q")
+    assert res.exit_code == 1 and "unknown preset" in res.stderr
+    res = run_cli("benchmark", tmp_path / "r", tmp_path / "o2", "--method", "magic", "-q")
+    assert res.exit_code == 1 and "unknown method" in res.stderr
