@@ -104,10 +104,12 @@ PAPER_SIZE = BenchmarkSize(size=200, train_views=50, test_views=50, iterations=3
 
 
 def extract_config(size: BenchmarkSize, seed: int = 0) -> ExtractConfig:
-    """Return the full method's settings at ``size`` (every stage's defaults otherwise)."""
+    """Return the full method's settings at ``size``: every stage's defaults, except that the occlusion views are
+    at most twice the scene's image size (256 px views of a 64 px scene would only magnify it, at 16x the cost)."""
     train = TrainConfig(iterations=size.iterations, init="depth", init_num_points=size.init_points, seed=seed,
                         eval_every=0, strategy=MCMCStrategy(cap_max=size.cap_max))
-    return ExtractConfig(train=train)
+    base = ExtractConfig(train=train)
+    return replace(base, occlusion=replace(base.occlusion, size=min(base.occlusion.size, 2 * size.size)))
 
 
 def method_config(method: str, base: ExtractConfig) -> ExtractConfig:
@@ -347,19 +349,14 @@ def results_markdown(results: dict[str, Any]) -> str:
 def _scene_grid(data: Path, preset: str, methods: Sequence[str], pictures: dict[str, dict[int, np.ndarray]],
                 out: Path) -> Path:
     """Write the scene's picture grid (paper Fig. 5): per target a training view, the truth and every method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from .datasets import load_dataset
-    from .files import save_figure
+    from .files import new_figure, save_figure
     from .metrics import find_target
 
     scene = load_dataset(data)
     targets = _targets(data)
     cols = ["training view", "ground truth", *methods]
-    fig, axes = plt.subplots(len(targets), len(cols), figsize=(1.6 * len(cols), 1.7 * len(targets)), squeeze=False)
+    fig, axes = new_figure(len(targets), len(cols), figsize=(1.6 * len(cols), 1.7 * len(targets)), squeeze=False)
     for r, target in enumerate(targets):
         areas = [int((m == target["id"]).sum()) for m in scene.masks] if scene.masks is not None else [0]
         folder, _ = find_target(data, target["id"])

@@ -529,17 +529,12 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
 
 def write_training_pictures(trainer: Trainer, out: Path, max_renders: int = 4) -> None:
     """Write the loss/PSNR plot and a few held-out renders beside their ground truth."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from . import files
 
     hist = trainer.history
     train = [h for h in hist if "loss" in h]
     evals = [h for h in hist if "eval_psnr" in h]
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.5))
+    fig, (ax1, ax2) = files.new_figure(1, 2, figsize=(10, 3.5))
     if train:
         ax1.plot([h["step"] for h in train], [h["loss"] for h in train], lw=1)
         ax2.plot([h["step"] for h in train], [h["psnr"] for h in train], lw=1, alpha=0.6, label="train view")

@@ -51,3 +51,15 @@ def test_json_roundtrip_and_errors(tmp_path):
         read_json(tmp_path / "bad.json")
     with pytest.raises(RoodiError, match="not found"):
         read_json(tmp_path / "none.json")
+
+
+def test_figures_leave_the_matplotlib_backend_alone(tmp_path):
+    import matplotlib
+
+    from roodi_toolkit.files import new_figure, save_figure
+
+    before = matplotlib.get_backend()
+    fig, (a, b) = new_figure(1, 2, figsize=(4, 2))
+    a.plot([0, 1], [1, 0])
+    path = save_figure(fig, tmp_path / "f.png")
+    assert path.stat().st_size > 1000 and matplotlib.get_backend() == before
