@@ -162,7 +162,8 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
     t = time.perf_counter()
     if config.single_stage:
         pass  # learned with the scene
-    elif (model / CLASSIFIER_FILE).is_file() and not overwrite:
+    elif (model / CLASSIFIER_FILE).is_file() and (not overwrite or model_dir is not None):
+        # a given model is an input: --overwrite replaces this run's outputs, never its distillation
         report["reused"].append("distill")
     else:
         report["distill"] = run_distill(model, data_dir, config=config.distill, downscale=config.downscale,

@@ -45,6 +45,11 @@ def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cl
     ablation = extract_objects(scene, tmp_path / "no_inpaint", [target], model_dir=out / "scene",
                                config=replace(config, inpaint=False, prune=False))
     assert ablation["reused"] == ["distill"]
+    # --overwrite replaces the run's outputs, never the given model's distillation
+    stamp = (out / "scene" / "object_classifier.pt").stat().st_mtime_ns
+    again = extract_objects(scene, tmp_path / "no_inpaint", [target], model_dir=out / "scene", overwrite=True,
+                            config=replace(config, inpaint=False, prune=False))
+    assert again["reused"] == ["distill"] and (out / "scene" / "object_classifier.pt").stat().st_mtime_ns == stamp
     assert len(read_ply(tmp_path / "no_inpaint" / f"object_{target}" / "object.ply")) >= len(
         read_ply(out / f"object_{target}" / "selected.ply"))
 
