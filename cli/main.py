@@ -11,6 +11,7 @@ modules import heavy libraries inside their functions.
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from typing import Sequence
 
@@ -35,7 +36,8 @@ COMMANDS: dict[str, str] = {
     "select": "roodi_toolkit.cli.cmd_select:select",
 }
 
-EPILOG = "Add --debug anywhere for a full traceback on errors. Docs: README.md."
+EPILOG = ("Add --debug anywhere for a full traceback on errors, --threads N for N PyTorch threads (default 1, or "
+          "$ROODI_THREADS). Docs: README.md.")
 
 
 class LazyGroup(click.Group):
@@ -66,6 +68,49 @@ def app() -> None:
     """
 
 
+# Commands whose work is PyTorch (rendering, training, fine-tuning): they run with ROODI_THREADS intra-op threads.
+TORCH_COMMANDS = frozenset({"benchmark", "demo", "distill", "evaluate", "extract", "render", "select", "train"})
+
+
+def _torch_threads(args: Sequence[str]) -> None:
+    """Set PyTorch's intra-op threads for the torch commands: ``--threads N`` or ``$ROODI_THREADS``, default 1.
+
+    The renderer's kernels are many small tensor operations; on a 2-core machine that is also running anything else,
+    PyTorch's OpenMP threads spin against each other: a 64x64 training step took 637 ms with 2 threads and 58 ms with
+    1 (benchmarks/RESULTS.md). One thread is the safe default; raise it on an idle many-core machine.
+    """
+    from roodi_toolkit.errors import ConfigError
+
+    if not any(a in TORCH_COMMANDS for a in args):
+        return
+    value = os.environ.get("ROODI_THREADS", "1")
+    try:
+        n = int(value)
+    except ValueError:
+        raise ConfigError(f"ROODI_THREADS / --threads must be a positive integer, got {value!r}") from None
+    if n < 1:
+        raise ConfigError(f"ROODI_THREADS / --threads must be a positive integer, got {value!r}")
+    import torch
+
+    torch.set_num_threads(n)
+
+
+def _pop_threads(args: list[str]) -> list[str]:
+    """Move a global ``--threads N`` (anywhere on the line) into ``$ROODI_THREADS``; return the other arguments."""
+    out, i = [], 0
+    while i < len(args):
+        if args[i] == "--threads" and i + 1 < len(args):
+            os.environ["ROODI_THREADS"] = args[i + 1]
+            i += 2
+            continue
+        if args[i].startswith("--threads="):
+            os.environ["ROODI_THREADS"] = args[i].split("=", 1)[1]
+        else:
+            out.append(args[i])
+        i += 1
+    return out
+
+
 def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
@@ -76,8 +121,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
-    args = [a for a in args if a != "--debug"]
+    args = _pop_threads([a for a in args if a != "--debug"])
     try:
+        _torch_threads(args)
         app.main(args=args, prog_name="roodi-toolkit", standalone_mode=False)
         return 0
     except click.exceptions.Exit as exc:  # --help / --version

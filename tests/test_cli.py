@@ -85,3 +85,18 @@ def test_cli_is_not_a_top_level_module():
 
     assert importlib.util.find_spec("cli") is None or "roodi" not in str(importlib.util.find_spec("cli").origin)
     assert app.name == "app"
+
+
+def test_threads_option_sets_torch_threads(run_cli, monkeypatch, tmp_path):
+    import torch
+
+    monkeypatch.delenv("ROODI_THREADS", raising=False)
+    before = torch.get_num_threads()
+    try:
+        res = run_cli("--threads", "2", "render", tmp_path / "missing.ply", tmp_path / "o")
+        assert res.exit_code == 1 and torch.get_num_threads() == 2
+        res = run_cli("render", tmp_path / "missing.ply", tmp_path / "o", "--threads=0")
+        assert res.exit_code == 1 and "positive integer" in res.stderr and "\n" not in res.stderr.strip()
+    finally:
+        torch.set_num_threads(before)
+        monkeypatch.delenv("ROODI_THREADS", raising=False)
