@@ -51,6 +51,9 @@ METHODS: dict[str, str] = {
     "euclidean": "w/o Wasserstein (Euclidean)",
     "paper_rule": "paper's pruning rule (vs robust default)",
 }
+SHORT = {"full": "ROODI", "gaussian_grouping": "GG argmax", "feature_similarity": "SAGA-style",
+         "no_two_stage": "w/o two-stage", "no_inpaint": "w/o inpaint", "no_prune": "w/o prune",
+         "euclidean": "Euclidean", "paper_rule": "paper rule"}
 COMPARISON = ("full", "gaussian_grouping", "feature_similarity")
 ABLATIONS = ("no_two_stage", "no_inpaint", "no_prune", "euclidean", "paper_rule")
 METRICS = ("psnr", "ssim", "lpips", "iou")
@@ -369,7 +372,7 @@ def _scene_grid(data: Path, preset: str, methods: Sequence[str], pictures: dict[
             ax.set_xticks([])
             ax.set_yticks([])
             if r == 0:
-                ax.set_title(METHODS.get(title, title), fontsize=6)
+                ax.set_title(SHORT.get(title, title), fontsize=7)
             if c == 0:
                 ax.set_ylabel(target["name"], fontsize=7)
     fig.tight_layout()
