@@ -54,6 +54,31 @@ def seen_in_views(points: np.ndarray, cams, renders, target_id: int, tol: float)
     return seen
 
 
+def object_view_truth(scene, target, cameras) -> tuple[np.ndarray, torch.Tensor]:
+    """Return the hidden truth ``[V, H, W]`` bool (the target seen alone, not in the full scene) and the target alone
+    on white ``[V, H, W, 3]`` in ``cameras``, both from the generator's mesh renderer."""
+    truth = hidden_truth(scene, target, cameras)
+    views = render_views(scene, cameras, object_ids=[target.id], with_ground=False, background=(1.0, 1.0, 1.0),
+                         supersample=2)
+    return truth, torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in views])
+
+
+def psnr_figures(cloud: GaussianCloud, train_cams, images: torch.Tensor, masks: torch.Tensor, object_cams,
+                 gt: torch.Tensor, truth: np.ndarray) -> dict[str, float]:
+    """Return the object's PSNR on white: in the training views inside its mask ``[N, H, W]`` ("unoccluded"), and in
+    the object-centred views against ``gt`` over the hidden-truth pixels ("occluded") and over the whole view."""
+    white = torch.ones(3)
+    p = cloud_to_params(cloud)
+    with torch.no_grad():
+        tr = torch.stack([render_params(p, c, background=white).rgb for c in train_cams])
+        ov = torch.stack([render_params(p, c, background=white).rgb for c in object_cams])
+    return {
+        "unoccluded_train_psnr": masked_psnr(tr, images, masks),
+        "occluded_hidden_psnr": masked_psnr(ov, gt, torch.as_tensor(truth)),
+        "object_views_psnr": masked_psnr(ov, gt, torch.ones(gt.shape[:3], dtype=torch.bool)),
+    }
+
+
 def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64, train_views=12, iterations=100,
         inpainter="opencv", debug_dir=None) -> dict:
     t0 = time.perf_counter()
@@ -75,25 +100,12 @@ def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64,
     masks = torch.stack([torch.as_tensor(r.ids == target.id) for r in renders])
     res = refine_object(obj, scene_cloud, images, cams, masks, inpainter=inpainter, occlusion=occ_cfg,
                         finetune=FinetuneConfig(iterations=iterations), up=(0, 0, 1), debug_dir=debug_dir)
-    truth = hidden_truth(scene, target, res.occlusion.cameras)
+    truth, gt = object_view_truth(scene, target, res.occlusion.cameras)
     scores = mask_scores(res.occlusion.occluded.numpy(), truth)
     raw = mask_scores(res.occlusion.occluded_raw.numpy(), truth)
     full_recall = mask_scores(res.occlusion.mask.numpy(), truth)["recall"]
-    gt_views = render_views(scene, res.occlusion.cameras, object_ids=[target.id], with_ground=False,
-                            background=(1.0, 1.0, 1.0), supersample=2)
-    gt = torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in gt_views])
-    white = torch.ones(3)
-    figures = {}
-    for label, cloud in (("before", obj), ("after", res.cloud)):
-        p = cloud_to_params(cloud)
-        with torch.no_grad():
-            tr = torch.stack([render_params(p, c, background=white).rgb for c in cams])
-            ov = torch.stack([render_params(p, c, background=white).rgb for c in res.occlusion.cameras])
-        figures[label] = {
-            "unoccluded_train_psnr": masked_psnr(tr, images, masks),
-            "occluded_hidden_psnr": masked_psnr(ov, gt, torch.as_tensor(truth)),
-            "object_views_psnr": masked_psnr(ov, gt, torch.ones(gt.shape[:3], dtype=torch.bool)),
-        }
+    figures = {label: psnr_figures(cloud, cams, images, masks, res.occlusion.cameras, gt, truth)
+               for label, cloud in (("before", obj), ("after", res.cloud))}
     return {"preset": preset, "seed": seed, "target": target_name, "view_size": size, "train_size": train_size,
             "train_views": train_views, "iterations": iterations, "inpainter": res.inpainter,
             "perceptual": res.finetune.perceptual, "object_gaussians": len(obj), "never_seen": int((~seen).sum()),
