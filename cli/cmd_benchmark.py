@@ -11,7 +11,7 @@ EXAMPLE = """Example:
 \b
   roodi-toolkit benchmark scenes/ bench/                       # 4 scenes, every method, sized for a CPU
   roodi-toolkit benchmark scenes/ bench/ --preset picnic --method full --method gaussian_grouping
-  roodi-toolkit benchmark scenes_paper/ bench_paper/ --paper-size   # 200x200, 50+50 views, 30,000 steps
+  roodi-toolkit benchmark scenes_paper/ bench_paper/ --scale paper   # 200x200, 50+50 views, 30,000 steps
 """
 
 
@@ -23,13 +23,15 @@ EXAMPLE = """Example:
               help="Method to run (repeat; default all): full, gaussian_grouping, feature_similarity, "
                    "no_two_stage, no_inpaint, no_prune, euclidean, paper_rule.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Scene and training seed.")
-@click.option("--paper-size", is_flag=True, help="The paper's view counts and 30,000 training steps at 200x200.")
+@click.option("--scale", type=click.Choice(["cpu", "cpu-large", "paper"]), default="cpu", show_default=True,
+              help="cpu: 64x64, 32+8 views, 1,500 steps; cpu-large: 96x96, 40+12 views, 3,000 steps; paper: 200x200, "
+                   "50+50 views, 30,000 steps.")
 @click.option("--size", type=click.IntRange(16, 2048), default=None, help="Image size of the generated scenes.")
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Scene training iterations.")
 @overwrite_option
 @quiet_option
 def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[str, ...], seed: int,
-              paper_size: bool, size: int | None, iterations: int | None, overwrite: bool, quiet: bool) -> None:
+              scale: str, size: int | None, iterations: int | None, overwrite: bool, quiet: bool) -> None:
     """Generate (or reuse) the preset scenes in ROOT, run ROODI, its baselines and ablations, and write
     OUT_DIR/results.md and results.json (the paper's Tables 1 and 2) and a picture grid per scene.
 
@@ -38,9 +40,9 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
     """
     from dataclasses import replace
 
-    from roodi_toolkit.benchmark import MACHINE_SIZE, METHODS, PAPER_SIZE, PRESETS, run_benchmark
+    from roodi_toolkit.benchmark import METHODS, PRESETS, SIZES, run_benchmark
 
-    chosen = PAPER_SIZE if paper_size else MACHINE_SIZE
+    chosen = SIZES[scale]
     if size is not None:
         chosen = replace(chosen, size=size)
     if iterations is not None:
