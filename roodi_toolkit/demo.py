@@ -1,17 +1,38 @@
-"""The README's main job on embedded data: plant floaters around an object's surface, prune them, show the result.
+"""The README's main job on generated data: extract one object from a generated scene and score it (no GPU, no
+downloads, no input files), and the earlier planted-floater pruning demo.
 
-Needs no GPU, no downloads and no input files: the cloud is generated (:mod:`roodi_toolkit.synthetic`).
+:func:`run_extract_demo` generates a multi-object scene (:mod:`roodi_toolkit.scenegen`), trains it, distils its
+instance masks, extracts one partly hidden target with the offline defaults
+(:func:`roodi_toolkit.extract.extract_objects`: ``files`` masks, ``opencv`` inpainter) and scores it with the paper's
+metrics against the target's object-alone views.
+:func:`run_prune_demo` plants floaters around a generated surface and prunes them (:mod:`roodi_toolkit.synthetic`).
+
+Layout of the extraction demo's ``OUT_DIR``::
+
+    data/                       the generated scene (roodi-toolkit make-scene layout)
+    extraction/                 roodi-toolkit extract's folder: scene/ (trained, distilled), object_<ID>/...
+    extraction/object_<ID>/object.ply   the extracted object (Inria PLY)
+    summary.png                 a training view, the true object, the object before and after refinement
+    report.json                 settings, stage times, metrics, paths
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+import time
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any, Optional
 
 import numpy as np
 
+from .errors import ConfigError
+from .extract import ExtractConfig
 from .gaussians import GaussianCloud
+from .metrics import Evaluation
 from .progress import ProgressFactory, null_progress
+from .scenegen import PRESETS, SceneSettings
+from .training import TrainConfig, config_with
 
 
 @dataclass
@@ -46,8 +67,6 @@ def run_prune_demo(out_dir: str | Path, *, seed: int = 0, surface: str = "ant", 
     Writes ``with_floaters.ply`` (the input), ``pruned.ply``, ``floaters.ply`` (what was removed), ``report.json`` and
     ``prune_demo.png`` (the cloud before and after, removed Gaussians in red) into ``out_dir``.
     """
-    import time
-
     import matplotlib
 
     matplotlib.use("Agg")
@@ -90,3 +109,265 @@ def run_prune_demo(out_dir: str | Path, *, seed: int = 0, surface: str = "ant", 
                  f"removed {scores['near']:.1%}, object lost {scores['object']:.2%}", fontsize=10)
     files.save_figure(fig, paths["picture"])
     return DemoResult(out, paths, scores, len(keep), int(keep.sum()), time.perf_counter() - t0)
+
+
+# ------------------------------------------------------------------------------------------------ extraction demo
+
+
+def _demo_train() -> TrainConfig:
+    # 2000 steps with --init depth reach 32.5 dB held-out on the 128x128 bedroom scene in 3.4 min on a quiet 2-core
+    # machine (benchmarks/RESULTS.md, "Scene training"; the glossy kitchen: 24.5 dB). A 30,000 cap (15,000 lifted from
+    # depth) rather than 40,000 (20,000) took the whole demo from 15.8 to 11.3 min on a shared machine, distillation
+    # being the larger share, and scored the kitchen pot better (IoU 0.83 against 0.78; "Extraction demo" in
+    # RESULTS.md).
+    return config_with(TrainConfig(), iterations=2000, init="depth", init_num_points=15_000, cap_max=30_000,
+                       eval_every=0)
+
+
+@dataclass(frozen=True)
+class ExtractDemoConfig:
+    """Settings of the extraction demo; the defaults finish within 20 minutes on 2 CPU cores (benchmarks/RESULTS.md).
+
+    Attributes:
+        preset: the generated scene's preset (kitchen: glossy pots, bowls and vases on and around a table).
+        seed: its seed (kitchen 2: a metal pot by the table, 13% of it hidden by the table top and the bottles on it).
+        object_id: the target to extract; None picks the target with the most hidden pixels in the training views.
+        scene: image size and view counts of the generated scene (the test views are the object-alone views scored).
+        extract: every extraction stage; the offline defaults except the scene training, sized for the CPU.
+    """
+
+    preset: str = "kitchen"
+    seed: int = 2
+    object_id: Optional[int] = None
+    scene: SceneSettings = SceneSettings(width=128, height=128, train_views=50, test_views=12)
+    extract: ExtractConfig = field(default_factory=lambda: ExtractConfig(train=_demo_train()))
+
+    def __post_init__(self) -> None:
+        if self.preset not in PRESETS:
+            raise ConfigError(f"unknown preset {self.preset!r}; choose one of {', '.join(PRESETS)}")
+
+
+@dataclass
+class ExtractDemoResult:
+    """What the extraction demo wrote and measured.
+
+    Attributes:
+        out_dir: the demo's folder.
+        object_id: the extracted target's instance id.
+        object_name: its name in scene.json.
+        files: name -> path of the outputs (``object_ply``, ``summary``, ``object_picture``, ``debug``, ``report`` ...).
+        evaluation: the paper's metrics of the extracted object.
+        before: the same metrics of the object after selection and pruning, before inpainting and fine-tuning.
+        stages: wall seconds per stage.
+        cpu_stages: process CPU seconds per stage, all threads together (``extract``: its four stages).
+        gaussians: Gaussian counts (``scene``, ``selected``, ``object``).
+        hidden_fraction: fraction of the target's pixels hidden by other objects over the training views.
+        scene_psnr: held-out PSNR of the trained scene model (None when it has no held-out views).
+        seconds: wall time of the whole demo.
+        load_average: the machine's 1-minute load average at the start and at the end.
+    """
+
+    out_dir: Path
+    object_id: int
+    object_name: str
+    files: dict[str, Path]
+    evaluation: Evaluation
+    before: Evaluation
+    stages: dict[str, float]
+    cpu_stages: dict[str, float]
+    gaussians: dict[str, int]
+    hidden_fraction: float
+    scene_psnr: Optional[float]
+    seconds: float
+    load_average: tuple[float, float]
+
+
+class _Clock:
+    """Wall and process CPU seconds of named stages."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+        self._t = (time.perf_counter(), time.process_time())
+
+    def lap(self, name: str) -> None:
+        now = (time.perf_counter(), time.process_time())
+        self.wall[name] = self.wall.get(name, 0.0) + now[0] - self._t[0]
+        self.cpu[name] = self.cpu.get(name, 0.0) + now[1] - self._t[1]
+        self._t = now
+
+
+def _alone_masks(scene: Any, cameras: list, target_ids: list[int]) -> dict[int, np.ndarray]:
+    """Return per target ``[V, H, W]`` True where it covers the views' pixel centres when rendered alone."""
+    from .scenegen import render_views
+
+    alone = {}
+    for tid in target_ids:
+        renders = render_views(scene, cameras, object_ids=[tid], with_ground=False, supersample=1)
+        alone[tid] = np.stack([r.ids == tid for r in renders])
+    return alone
+
+
+def _outline(mask: np.ndarray) -> np.ndarray:
+    from scipy.ndimage import binary_erosion
+
+    return mask & ~binary_erosion(mask)
+
+
+def _view_scores(view: Any) -> str:
+    return "" if view.psnr is None else f"\nPSNR {view.psnr:.1f} dB, IoU {view.iou:.2f}"
+
+
+def _zoom_box(mask: np.ndarray, scale: float = 3.0) -> tuple[int, int, int, int]:
+    """Return ``(y0, y1, x0, x1)``: a square ``scale`` x the mask's box about its centre, shifted inside the image."""
+    h, w = mask.shape
+    ys, xs = np.nonzero(mask)
+    if ys.size == 0:
+        return 0, h, 0, w
+    side = min(h, w, max(8, int(np.ceil(scale * max(ys.max() + 1 - ys.min(), xs.max() + 1 - xs.min())))))
+    cy, cx = (ys.min() + ys.max() + 1) // 2, (xs.min() + xs.max() + 1) // 2
+    y0, x0 = min(max(0, cy - side // 2), h - side), min(max(0, cx - side // 2), w - side)
+    return y0, y0 + side, x0, x0 + side
+
+
+def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visible: np.ndarray, truth: np.ndarray,
+                    before: np.ndarray, after: np.ndarray, titles: list[str], suptitle: str) -> None:
+    """Write five panels: a training view, its close-up (the target outlined, its hidden part in red), the true
+    object, the object before and after refinement."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    from . import files
+
+    view = train_image.copy()
+    hidden = alone & ~visible
+    view[hidden] = 0.45 * view[hidden] + 0.55 * np.array([1.0, 0.0, 0.0])
+    view[_outline(alone)] = (1.0, 0.9, 0.0)
+    y0, y1, x0, x1 = _zoom_box(alone)
+    fig, axes = plt.subplots(1, 5, figsize=(16, 3.9))
+    for ax, img, title in zip(axes, [train_image, view[y0:y1, x0:x1], truth, before, after], titles):
+        ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
+        ax.set_title(title, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    axes[0].add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, edgecolor=(1.0, 0.9, 0.0),
+                                linewidth=1.5))
+    fig.suptitle(suptitle, fontsize=10)
+    files.save_figure(fig, path)
+
+
+def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDemoConfig(), *,
+                     overwrite: bool = False, progress: ProgressFactory = null_progress) -> ExtractDemoResult:
+    """Return the figures of an extraction on a generated scene, after writing the scene, the object and pictures.
+
+    Generates the scene into ``out_dir/data``, extracts the target into ``out_dir/extraction`` (train, distil with
+    the scene's own instance masks, select, prune, occlusion-reasoned ``opencv`` inpainting, fine-tune), scores the
+    object before and after refinement against the target's object-alone test views, and writes ``summary.png`` and
+    ``report.json``.
+
+    Args:
+        out_dir: the demo's folder; an existing non-empty one is refused unless ``overwrite`` (then everything is
+            regenerated and retrained).
+        config: scene, target and extraction settings.
+        overwrite: write into an existing folder.
+        progress: progress factory (one bar per stage).
+
+    Raises:
+        ConfigError: bad settings, or ``config.object_id`` is not one of the scene's targets.
+        OutputError: ``out_dir`` exists and is not empty without ``overwrite``.
+    """
+    from . import files
+    from .datasets import load_dataset
+    from .extract import extract_objects
+    from .metrics import evaluate_object, find_target
+    from .ply import read_ply
+    from .scenegen import build_scene, make_scene
+
+    load_start = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    clock = _Clock()
+    settings = config.scene
+    scene = build_scene(config.preset, config.seed, n_objects=settings.n_objects, n_targets=settings.n_targets)
+    target_ids = [o.id for o in scene.targets]
+    if config.object_id is not None and config.object_id not in target_ids:
+        listed = ", ".join(f"{o.id} ({o.name})" for o in scene.targets)
+        raise ConfigError(f"object {config.object_id} is not a target of the {config.preset} scene with seed "
+                          f"{config.seed}; its targets are {listed}")
+    out = files.prepare_output_dir(out_dir, overwrite=overwrite)
+    data = out / "data"
+    make_scene(data, config.preset, config.seed, settings=settings, overwrite=overwrite, progress=progress)
+    clock.lap("make_scene")
+
+    # which target other objects hide most: its object-alone silhouette against the scene's instance masks
+    dataset = load_dataset(data)
+    masks = dataset.masks.numpy()
+    alone = _alone_masks(scene, dataset.cameras, target_ids)
+    hidden = {tid: int((a & (masks != tid)).sum()) for tid, a in alone.items()}
+    if config.object_id is None:
+        object_id = max(target_ids, key=lambda t: (hidden[t], int(alone[t].sum())))
+    else:
+        object_id = int(config.object_id)
+    name = scene.object(object_id).name
+    total = int(alone[object_id].sum())
+    hidden_fraction = hidden[object_id] / total if total else 0.0
+    clock.lap("choose_target")
+
+    ex_dir = out / "extraction"
+    report = extract_objects(data, ex_dir, [object_id], config=config.extract, overwrite=overwrite, progress=progress)
+    entry = report["objects"][str(object_id)]
+    for stage in ("train", "distill"):
+        clock.wall[stage] = report["stages"][f"{stage}_s"]
+    clock.wall["select_prune"] = entry["select_s"]
+    clock.wall["refine"] = entry["refine_s"]
+    clock.lap("extract")  # the CPU seconds of the four stages together; wall seconds kept per stage above
+    clock.wall.pop("extract")
+
+    odir = ex_dir / f"object_{object_id}"
+    final, selected = read_ply(odir / "object.ply"), read_ply(odir / "selected.ply")
+    evaluation, renders = evaluate_object(final, data, object_id, progress=progress)
+    before, before_renders = evaluate_object(selected, data, object_id, progress=progress)
+    clock.lap("evaluate")
+
+    # the test view of median PSNR (a representative one), and the training view hiding most of the target
+    scored = [i for i, v in enumerate(evaluation.views) if v.psnr is not None] or list(range(len(evaluation.views)))
+    j = sorted(scored, key=lambda i: evaluation.views[i].psnr or 0.0)[len(scored) // 2]
+    a, visible = alone[object_id], masks == object_id
+    seen = visible.sum(axis=(1, 2)) >= 0.3 * np.maximum(a.sum(axis=(1, 2)), 1)
+    hidden_per_view = np.where(seen, (a & ~visible).sum(axis=(1, 2)), -1)
+    k = int(np.argmax(hidden_per_view)) if seen.any() else int(np.argmax(visible.sum(axis=(1, 2))))
+    truth = load_dataset(find_target(data, object_id)[0], background=(1.0, 1.0, 1.0))
+    vj = evaluation.views[j]
+    paths = {"object_ply": odir / "object.ply", "summary": out / "summary.png", "object_picture": odir / "object.png",
+             "debug": odir / "debug", "selected_ply": odir / "selected.ply", "scene_model": ex_dir / "scene",
+             "data": data, "overview": data / "overview.png", "report": out / "report.json"}
+    _summary_figure(paths["summary"], dataset.images[k].numpy(), a[k], visible[k], truth.images[j].numpy(),
+                    before_renders[j], renders[j],
+                    [f"training view {dataset.cameras[k].name}", f"close-up: {name} outlined,\nits hidden part in red",
+                     f"true {name} alone, test view {vj.name}",
+                     f"selected + pruned (before inpainting){_view_scores(before.views[j])}",
+                     f"extracted (inpainted + fine-tuned){_view_scores(vj)}"],
+                    f"ROODI on a generated {config.preset} scene (seed {config.seed}, "
+                    f"{settings.width}x{settings.height}): {name}, {hidden_fraction:.0%} of it hidden "
+                    "in the training views")
+    clock.lap("pictures")
+
+    trained = files.read_json(ex_dir / "scene" / "metrics.json", "training metrics")
+    scene_psnr = (trained.get("eval") or {}).get("psnr")
+    gaussians = {"scene": int(trained.get("num_gaussians", 0)), "selected": int(entry["gaussians_selected_and_pruned"]),
+                 "object": int(entry["gaussians"])}
+    seconds = time.perf_counter() - t0
+    load = (load_start, os.getloadavg()[0])
+    files.write_json({
+        "preset": config.preset, "seed": config.seed, "object_id": object_id, "object_name": name,
+        "hidden_fraction": hidden_fraction, "hidden_pixels_per_target": {str(t): h for t, h in hidden.items()},
+        "metrics": evaluation.to_dict(), "metrics_before_refinement": before.to_dict(),
+        "stages_s": clock.wall, "stages_cpu_s": clock.cpu, "seconds": seconds, "load_average_1min": list(load),
+        "cpu_count": os.cpu_count(), "gaussians": gaussians, "scene_heldout_psnr": scene_psnr,
+        "summary_views": {"train": dataset.cameras[k].name, "test": vj.name},
+        "scene_settings": asdict(settings), "extract_config": asdict(config.extract),
+        "files": {key: str(p) for key, p in paths.items()}}, paths["report"])
+    return ExtractDemoResult(out, object_id, name, paths, evaluation, before, clock.wall, clock.cpu, gaussians,
+                             hidden_fraction, scene_psnr, seconds, load)
