@@ -67,11 +67,6 @@ def run_prune_demo(out_dir: str | Path, *, seed: int = 0, surface: str = "ant", 
     Writes ``with_floaters.ply`` (the input), ``pruned.ply``, ``floaters.ply`` (what was removed), ``report.json`` and
     ``prune_demo.png`` (the cloud before and after, removed Gaussians in red) into ``out_dir``.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from . import files
     from .outliers import remove_statistical_outliers
     from .ply import write_ply
@@ -100,7 +95,7 @@ def run_prune_demo(out_dir: str | Path, *, seed: int = 0, surface: str = "ant", 
     thin = int(np.argmin(extent))
     view = tuple(i for i in range(3) if i != thin)
     along = "xyz"[thin]
-    fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
+    fig, axes = files.new_figure(1, 3, figsize=(12, 4.2))
     _projection_panel(axes[0], planted.cloud, np.ones(len(keep), dtype=bool), view,
                       f"input: {len(keep):,} Gaussians (view along {along})")
     _projection_panel(axes[1], planted.cloud, keep, view, f"flagged by pruning: {(~keep).sum():,}")
@@ -234,10 +229,6 @@ def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visi
                     before: np.ndarray, after: np.ndarray, titles: list[str], suptitle: str) -> None:
     """Write five panels: a training view, its close-up (the target outlined, its hidden part in red), the true
     object, the object before and after refinement."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
     from . import files
@@ -247,7 +238,7 @@ def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visi
     view[hidden] = 0.45 * view[hidden] + 0.55 * np.array([1.0, 0.0, 0.0])
     view[_outline(alone)] = (1.0, 0.9, 0.0)
     y0, y1, x0, x1 = _zoom_box(alone)
-    fig, axes = plt.subplots(1, 5, figsize=(16, 3.9))
+    fig, axes = files.new_figure(1, 5, figsize=(16, 3.9))
     for ax, img, title in zip(axes, [train_image, view[y0:y1, x0:x1], truth, before, after], titles):
         ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
         ax.set_title(title, fontsize=9)
