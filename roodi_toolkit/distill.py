@@ -181,56 +181,23 @@ def render_features(cloud_tensors: dict[str, Tensor], features: Tensor, camera: 
     return out.features
 
 
-def compositing_weights(cloud_tensors: dict[str, Tensor], camera: Camera, *, max_elements: int = 1 << 23) -> Tensor:
+def compositing_weights(cloud_tensors: dict[str, Tensor], camera: Camera, *, max_elements: int = 1 << 22) -> Tensor:
     """Return the sparse ``[H*W, N]`` matrix of alpha-compositing weights of the Gaussians in ``camera``.
 
     Row ``p`` holds ``alpha_i T_i`` of every Gaussian that contributes to pixel ``p`` (pixels in row-major order),
-    with the rasterizer's rules (:mod:`roodi_toolkit.rasterizer`: depth order, ``alpha = min(0.99, o G)``, skipped
-    below 1/255, a pixel stops before transmittance would fall below 1e-4), so ``W @ features`` is the rendered
-    feature image that ``rasterize(..., features=...)`` returns, to float rounding. Computed densely in pixel chunks
-    of at most ``max_elements`` (pixel, Gaussian) pairs.
+    computed by the rasterizer's own tiles (:func:`roodi_toolkit.rasterizer.compositing_pairs`), so ``W @ features``
+    is the rendered feature image that ``rasterize(..., features=...)`` returns, to float rounding.
+    ``max_elements`` bounds the (pixel, Gaussian) pairs held at once.
     """
-    from .rasterizer import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN, project_gaussians
+    from .rasterizer import compositing_pairs
 
-    H, W = camera.height, camera.width
     n = cloud_tensors["means"].shape[0]
-    with torch.no_grad():
-        proj = project_gaussians(cloud_tensors["means"], cloud_tensors["quats"], cloud_tensors["scales"],
-                                 torch.as_tensor(camera.world_to_camera, dtype=torch.float32),
-                                 torch.as_tensor(camera.K, dtype=torch.float32), W, H, near=camera.near,
-                                 far=camera.far)
-        opac = torch.sigmoid(cloud_tensors["opacities"])
-        # footprint: outside Mahalanobis radius sqrt(2 ln(255 o)) the alpha test fails anyway
-        r2 = 2.0 * torch.log((255.0 * opac).clamp_min(1.0))
-        half = torch.sqrt(r2[:, None] * torch.diagonal(proj.cov2d, dim1=1, dim2=2))
-        m2 = proj.means2d
-        usable = proj.in_range & (opac >= ALPHA_MIN) & (m2[:, 0] + half[:, 0] > 0) & (m2[:, 0] - half[:, 0] < W) \
-            & (m2[:, 1] + half[:, 1] > 0) & (m2[:, 1] - half[:, 1] < H)
-        idx = torch.nonzero(usable).reshape(-1)
-        idx = idx[torch.sort(proj.depths[idx], stable=True)[1]]
-        M = len(idx)
-        if M == 0:
-            return torch.sparse_coo_tensor(torch.zeros(2, 0, dtype=torch.long), torch.zeros(0), (H * W, n)).coalesce()
-        means2d, conics, o = m2[idx], proj.conics[idx], opac[idx]
-        ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float32) + 0.5, torch.arange(W, dtype=torch.float32) + 0.5,
-                                indexing="ij")
-        pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1)
-        rows, cols, vals = [], [], []
-        step = max(1, max_elements // M)
-        for p0 in range(0, H * W, step):
-            d = pix[p0:p0 + step, None, :] - means2d[None]
-            maha = conics[:, 0] * d[..., 0] ** 2 + 2 * conics[:, 1] * d[..., 0] * d[..., 1] + conics[:, 2] * d[..., 1] ** 2
-            alpha = torch.clamp_max(o[None] * torch.exp(-0.5 * maha), ALPHA_MAX)
-            alpha = torch.where(alpha >= ALPHA_MIN, alpha, torch.zeros_like(alpha))
-            t_incl = torch.cumprod(1.0 - alpha, dim=1)
-            t_excl = torch.cat([torch.ones_like(t_incl[:, :1]), t_incl[:, :-1]], dim=1)
-            w = alpha * t_excl * (t_incl >= TRANSMITTANCE_MIN)
-            r, c = torch.nonzero(w, as_tuple=True)
-            rows.append(r + p0)
-            cols.append(idx[c])
-            vals.append(w[r, c])
-        indices = torch.stack([torch.cat(rows), torch.cat(cols)])
-        return _csr(torch.sparse_coo_tensor(indices, torch.cat(vals), (H * W, n), check_invariants=False))
+    rows, cols, vals = compositing_pairs(
+        cloud_tensors["means"], cloud_tensors["quats"], cloud_tensors["scales"], cloud_tensors["opacities"],
+        torch.as_tensor(camera.world_to_camera, dtype=torch.float32), torch.as_tensor(camera.K, dtype=torch.float32),
+        camera.width, camera.height, near=camera.near, far=camera.far, max_elements=max_elements)
+    indices = torch.stack([rows, cols])
+    return _csr(torch.sparse_coo_tensor(indices, vals, (camera.height * camera.width, n), check_invariants=False))
 
 
 def _csr(coo: Tensor) -> Tensor:

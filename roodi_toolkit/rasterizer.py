@@ -636,3 +636,67 @@ def rasterize(
     radii = torch.where(visible[:, None], half, torch.zeros_like(half)).to(torch.int32)
     return _split_output(render, alpha, 0 if features is None else features.shape[1], means2d, radii, proj.depths,
                          visible)
+
+
+@torch.no_grad()
+def compositing_pairs(
+    means: Tensor,  # [N, 3]
+    quats_wxyz: Tensor,  # [N, 4]
+    log_scales: Tensor,  # [N, 3]
+    opacity_logits: Tensor,  # [N]
+    world_to_camera: Tensor,  # [4, 4]
+    K: Tensor,  # [3, 3]
+    width: int,
+    height: int,
+    *,
+    near: float = 0.01,
+    far: float = 1e10,
+    eps2d: float = EPS2D,
+    tile_size: int = 4,
+    chunk: int = 32,
+    max_elements: int = 1 << 22,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Return ``(pixels, gaussians, weights)``: every non-zero alpha-compositing weight ``alpha_i T_i`` of the view,
+    with its row-major pixel index and Gaussian index, exactly as :func:`rasterize` composites them (same tiles, depth
+    order and cut-offs), so that summing ``weights * features[gaussians]`` per pixel gives its feature image.
+
+    Only the Gaussians binned to a tile are evaluated there, so the cost follows the rendering's, not pixels x
+    Gaussians.
+    """
+    dtype = means.dtype
+    w2c, Kt = _camera_tensors(world_to_camera, K, dtype, means.device)
+    proj = project_gaussians(means, quats_wxyz, log_scales, w2c, Kt, width, height, near=near, far=far, eps2d=eps2d)
+    opac = torch.sigmoid(opacity_logits)
+    bounds, visible, _ = _footprints(proj.means2d, proj.cov2d, opac, proj.in_range, width, height)
+    tiles = _bin_tiles(bounds, visible, proj.depths, width, height, tile_size)
+    params = torch.cat([proj.means2d, proj.conics, torch.log(opac)[:, None]], dim=-1)
+    comp = _Compositor(tiles, params, chunk, max_elements)
+    t = torch.arange(tiles.tiles_x * tiles.tiles_y)
+    ly, lx = torch.meshgrid(torch.arange(tile_size), torch.arange(tile_size), indexing="ij")
+    px = (t % tiles.tiles_x)[:, None] * tile_size + lx.reshape(-1)[None]  # [T, P]
+    py = (t // tiles.tiles_x)[:, None] * tile_size + ly.reshape(-1)[None]
+    inside = (px < width) & (py < height)
+    pixel = py * width + px
+    rows, cols, vals = [], [], []
+    for group in comp.groups():
+        t_carry = torch.ones(len(group), comp.P, dtype=dtype)
+        done = torch.zeros_like(t_carry, dtype=torch.bool)
+        active = torch.arange(len(group))
+        for r in range(-(-int(tiles.counts[group].max()) // chunk)):
+            active = active[(tiles.counts[group[active]] > r * chunk) & ~done[active].all(-1)]
+            if len(active) == 0:
+                break
+            ids, _, _, _, alpha = comp.chunk_alpha(group[active], r)
+            w, _, _, t_new, done_new = comp.transmittance(alpha, t_carry[active], done[active])
+            a, p, b = torch.nonzero(w, as_tuple=True)
+            tg = group[active][a]
+            ok = inside[tg, p]
+            rows.append(pixel[tg, p][ok])
+            cols.append(ids[a, b][ok])
+            vals.append(w[a, p, b][ok])
+            t_carry[active] = t_new
+            done[active] = done_new
+    if not rows:
+        empty = torch.zeros(0, dtype=torch.long)
+        return empty, empty, torch.zeros(0, dtype=dtype)
+    return torch.cat(rows), torch.cat(cols), torch.cat(vals)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -38,8 +40,15 @@ def test_cached_weights_render_what_the_rasterizer_renders(scene):
     feats = torch.randn(len(cloud), 5, generator=torch.Generator().manual_seed(0))
     for v in (0, 5):
         expected = render_features(frozen, feats, ds.cameras[v])
-        w = compositing_weights(frozen, ds.cameras[v], max_elements=50_000)  # several pixel chunks
+        w = compositing_weights(frozen, ds.cameras[v], max_elements=50_000)  # several tile groups
         torch.testing.assert_close((w @ feats).reshape(expected.shape), expected, atol=2e-5, rtol=1e-4)
+    # an image size that is not a multiple of the tile size: the padding pixels of edge tiles are dropped
+    cam = ds.cameras[0]
+    odd = replace(cam, width=cam.width - 3, height=cam.height - 1)
+    expected = render_features(frozen, feats, odd)
+    w = compositing_weights(frozen, odd)
+    assert w.shape == (odd.width * odd.height, len(cloud))
+    torch.testing.assert_close((w @ feats).reshape(expected.shape), expected, atol=2e-5, rtol=1e-4)
 
 
 def test_cached_and_rasterized_distillation_agree(scene):
