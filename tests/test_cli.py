@@ -90,7 +90,7 @@ def test_cli_is_not_a_top_level_module():
 def test_threads_option_sets_torch_threads(run_cli, monkeypatch, tmp_path):
     import torch
 
-    monkeypatch.delenv("ROODI_THREADS", raising=False)
+    monkeypatch.setenv("ROODI_THREADS", "1")  # main() writes --threads there; teardown restores the original
     before = torch.get_num_threads()
     try:
         res = run_cli("--threads", "2", "render", tmp_path / "missing.ply", tmp_path / "o")
@@ -99,4 +99,3 @@ def test_threads_option_sets_torch_threads(run_cli, monkeypatch, tmp_path):
         assert res.exit_code == 1 and "positive integer" in res.stderr and "\n" not in res.stderr.strip()
     finally:
         torch.set_num_threads(before)
-        monkeypatch.delenv("ROODI_THREADS", raising=False)
