@@ -12,7 +12,7 @@ SURFACES = ("ant", "sphere", "torus", "box")
 EXAMPLE = """Example:
 
 \b
-  roodi-toolkit demo demo-out                       # about 11 minutes on 2 cores
+  roodi-toolkit demo demo-out                       # about 5 minutes on 2 cores
   roodi-toolkit demo demo-out --overwrite --preset livingroom --seed 5
   roodi-toolkit demo small --size 64 --train-views 24 --iterations 800 --max-gaussians 8000
   roodi-toolkit demo prune-out --prune-only         # the planted-floater pruning demo (seconds)
@@ -66,7 +66,7 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
     Generates a cluttered scene (make-scene), trains it, distils its instance masks, then selects, prunes, inpaints
     the hidden parts (opencv) and fine-tunes the target; scores it (PSNR, SSIM, LPIPS, IoU) against the target's
     object-alone views; writes OUT_DIR/extraction/object_<ID>/object.ply, OUT_DIR/summary.png and
-    OUT_DIR/report.json. The defaults take about 11 minutes on 2 CPU cores.
+    OUT_DIR/report.json. The defaults take about 5 minutes on 2 CPU cores.
     """
     params = click.get_current_context().params
     given = [flag for name, flag in EXTRACT_ONLY.items() if params[name] is not None]
