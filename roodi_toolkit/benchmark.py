@@ -165,9 +165,12 @@ def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: Pr
     data = root / preset
     if (data / "scene.json").is_file():
         return data
+    if data.exists() and any(data.iterdir()):
+        raise ConfigError(f"{data} exists but holds no scene.json; remove it or choose another ROOT (the benchmark "
+                          "generates its scenes there and never writes over other files)")
     settings = SceneSettings(width=size.size, height=size.size, train_views=size.train_views,
                              test_views=size.test_views, supersample=size.supersample)
-    make_scene(data, preset, seed, settings=settings, overwrite=data.exists(), progress=progress)
+    make_scene(data, preset, seed, settings=settings, progress=progress)
     return data
 
 

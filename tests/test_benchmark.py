@@ -81,3 +81,11 @@ def test_benchmark_command_errors(tmp_path, run_cli):
     assert res.exit_code == 1 and "unknown preset" in res.stderr
     res = run_cli("benchmark", tmp_path / "r", tmp_path / "o2", "--method", "magic", "-q")
     assert res.exit_code == 1 and "unknown method" in res.stderr
+
+
+def test_benchmark_never_writes_over_a_foreign_folder(tmp_path, run_cli):
+    (tmp_path / "r" / "picnic").mkdir(parents=True)
+    (tmp_path / "r" / "picnic" / "notes.txt").write_text("mine")
+    res = run_cli("benchmark", tmp_path / "r", tmp_path / "o", "--preset", "picnic", "-q")
+    assert res.exit_code == 1 and "no scene.json" in res.stderr
+    assert (tmp_path / "r" / "picnic" / "notes.txt").read_text() == "mine"
