@@ -104,17 +104,14 @@ def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     Raises:
         RoodiError: no masks in the dataset, or what training raises.
     """
-    from .datasets import load_dataset
     from .distill import find_model, save_distillation, scene_labels
     from .segmenters import FilesSegmenter, SegmentPrompt
-    from .training import split_views, train_scene
+    from .training import train_scene
 
-    dataset = load_dataset(data_dir, downscale)
-    masks = FilesSegmenter().segment(dataset, SegmentPrompt())
     trainers: list[JointTrainer] = []
 
     def make(ds: Dataset, cfg: TrainConfig) -> JointTrainer:
-        trainers.append(JointTrainer(ds, cfg, masks, distill))
+        trainers.append(JointTrainer(ds, cfg, FilesSegmenter().segment(ds, SegmentPrompt()), distill))
         return trainers[-1]
 
     t0 = time.perf_counter()
@@ -123,13 +120,12 @@ def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     trainer = trainers[-1]
     classifier = trainer.classifier()
     labels = scene_labels(data_dir)
-    classifier.labels = {i: n for i, n in labels.items() if i < masks.num_classes}
-    train_views, _ = split_views(dataset, config.holdout_every)
+    classifier.labels = {i: n for i, n in labels.items() if i < trainer.masks.num_classes}
     cloud = trainer.to_cloud()
     features = trainer.params["features"].detach().clone()
     cloud.extras = {}
     save_distillation(find_model(out_dir), cloud,
-                      DistillResult(features, classifier, [], time.perf_counter() - t0, train_views),
+                      DistillResult(features, classifier, [], time.perf_counter() - t0, list(trainer.train_indices)),
                       {"data_dir": str(data_dir), "downscale": downscale, "segmenter": "files",
                        "single_stage": True})
     return result
