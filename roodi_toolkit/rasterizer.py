@@ -428,6 +428,26 @@ class _Compositor:
         for i in range(0, len(busy), self.tiles_per_group):
             yield busy[i:i + self.tiles_per_group]
 
+    def weights(self, group: Tensor, t_carry: Tensor):
+        """Yield ``(active, ids, w)`` per chunk of ``group``'s tiles, front to back: the tiles still compositing
+        (indices into ``group``), their chunk's Gaussian ids ``[Ta, B]`` and compositing weights ``[Ta, P, B]``.
+
+        ``t_carry`` ``[len(group), P]`` is the transmittance entering the group and is updated in place, so it holds
+        the final transmittance when the generator is exhausted.
+        """
+        chunk = self.chunk
+        done = torch.zeros_like(t_carry, dtype=torch.bool)
+        active = torch.arange(len(group))
+        for r in range(-(-int(self.tiles.counts[group].max()) // chunk)):
+            active = active[(self.tiles.counts[group[active]] > r * chunk) & ~done[active].all(-1)]
+            if len(active) == 0:
+                return
+            ids, _, _, _, alpha = self.chunk_alpha(group[active], r)
+            w, _, _, t_new, done_new = self.transmittance(alpha, t_carry[active], done[active])
+            yield active, ids, w
+            t_carry[active] = t_new
+            done[active] = done_new
+
     def chunk_alpha(self, tiles: Tensor, r: int):
         """Return (ids [Ta, B], params [Ta, B, 6], local means [Ta, B, 2], alpha_raw [Ta, P, B], alpha [Ta, P, B])."""
         B = self.chunk
@@ -486,19 +506,9 @@ class _RasterizeTiles(torch.autograd.Function):
         t_final = colors.new_ones(T, comp.P)
         for group in comp.groups():
             t_carry = t_final[group]
-            done = torch.zeros_like(t_carry, dtype=torch.bool)
             acc_g = acc[group]
-            n_rounds = -(-int(tiles.counts[group].max()) // chunk)
-            active = torch.arange(len(group))
-            for r in range(n_rounds):
-                active = active[(tiles.counts[group[active]] > r * chunk) & ~done[active].all(-1)]
-                if len(active) == 0:
-                    break
-                ids, _, _, _, alpha = comp.chunk_alpha(group[active], r)
-                w, _, _, t_new, done_new = comp.transmittance(alpha, t_carry[active], done[active])
+            for active, ids, w in comp.weights(group, t_carry):
                 acc_g[active] += torch.bmm(w, colors[ids])
-                t_carry[active] = t_new
-                done[active] = done_new
             acc[group] = acc_g
             t_final[group] = t_carry
         render = acc + t_final[..., None] * background
@@ -679,23 +689,13 @@ def compositing_pairs(
     pixel = py * width + px
     rows, cols, vals = [], [], []
     for group in comp.groups():
-        t_carry = torch.ones(len(group), comp.P, dtype=dtype)
-        done = torch.zeros_like(t_carry, dtype=torch.bool)
-        active = torch.arange(len(group))
-        for r in range(-(-int(tiles.counts[group].max()) // chunk)):
-            active = active[(tiles.counts[group[active]] > r * chunk) & ~done[active].all(-1)]
-            if len(active) == 0:
-                break
-            ids, _, _, _, alpha = comp.chunk_alpha(group[active], r)
-            w, _, _, t_new, done_new = comp.transmittance(alpha, t_carry[active], done[active])
+        for active, ids, w in comp.weights(group, torch.ones(len(group), comp.P, dtype=dtype)):
             a, p, b = torch.nonzero(w, as_tuple=True)
             tg = group[active][a]
             ok = inside[tg, p]
             rows.append(pixel[tg, p][ok])
             cols.append(ids[a, b][ok])
             vals.append(w[a, p, b][ok])
-            t_carry[active] = t_new
-            done[active] = done_new
     if not rows:
         empty = torch.zeros(0, dtype=torch.long)
         return empty, empty, torch.zeros(0, dtype=dtype)
