@@ -139,7 +139,7 @@ def method_config(method: str, base: ExtractConfig) -> ExtractConfig:
 def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
     """Return the metrics of an empty extraction (a white render, no coverage)."""
     from .datasets import load_dataset
-    from .metrics import _mean, find_target, score_views
+    from .metrics import Evaluation, find_target, score_views
 
     folder, name = find_target(data_dir, object_id)
     truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
@@ -147,9 +147,8 @@ def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
     white = np.ones((n, truth.height, truth.width, 3), np.float32)
     views = score_views(white, np.zeros((n, truth.height, truth.width), np.float32), truth.images.numpy(),
                         truth.alphas.numpy(), truth.names)
-    return {"object_id": object_id, "object_name": name, "psnr": _mean([v.psnr for v in views]),
-            "ssim": _mean([v.ssim for v in views]), "lpips": None, "iou": float(np.mean([v.iou for v in views])),
-            "views": n}
+    return Evaluation.from_views(object_id, name, views, lpips_status="not computed: empty extraction").to_dict(
+        per_view=False)
 
 
 def _targets(data_dir: Path) -> list[dict[str, Any]]:

@@ -117,6 +117,18 @@ class Evaluation:
     iou: float = float("nan")
     lpips_status: str = "ok"
 
+    @classmethod
+    def from_views(cls, object_id: int, object_name: str, views: list[ViewScores],
+                   lpips_status: str = "ok") -> "Evaluation":
+        """Return the evaluation averaging ``views`` (crop metrics over the views that have them; LPIPS only when
+        ``lpips_status`` is ``"ok"``)."""
+        nan = float("nan")
+        mean_psnr, mean_ssim = _mean([v.psnr for v in views]), _mean([v.ssim for v in views])
+        return cls(object_id, object_name, views, psnr=nan if mean_psnr is None else mean_psnr,
+                   ssim=nan if mean_ssim is None else mean_ssim,
+                   lpips=_mean([v.lpips for v in views]) if lpips_status == "ok" else None,
+                   iou=float(np.mean([v.iou for v in views])), lpips_status=lpips_status)
+
     def to_dict(self, per_view: bool = True) -> dict[str, Any]:
         out = {"object_id": self.object_id, "object_name": self.object_name, "psnr": self.psnr, "ssim": self.ssim,
                "lpips": self.lpips, "iou": self.iou, "lpips_status": self.lpips_status,
@@ -221,10 +233,4 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
     renders_np, alphas_np = np.stack(renders), np.stack(alphas)
     views = score_views(renders_np, alphas_np, truth.images[:count].numpy(), truth.alphas[:count].numpy(),
                         truth.names[:count], lpips_model)
-    nan = float("nan")
-    mean_psnr, mean_ssim = _mean([v.psnr for v in views]), _mean([v.ssim for v in views])
-    ev = Evaluation(object_id, name, views, psnr=nan if mean_psnr is None else mean_psnr,
-                    ssim=nan if mean_ssim is None else mean_ssim,
-                    lpips=_mean([v.lpips for v in views]) if lpips_model is not None else None,
-                    iou=float(np.mean([v.iou for v in views])), lpips_status=status)
-    return ev, renders_np
+    return Evaluation.from_views(object_id, name, views, lpips_status=status), renders_np
