@@ -181,7 +181,9 @@ def _extract_one(method: str, data: Path, out: Path, object_id: int, config: Ext
     return out / f"object_{object_id}" / "object.ply"
 
 
-def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Path) -> Path:
+def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Path, loaded: dict[str, Any]) -> Path:
+    """Write one baseline extraction; ``loaded`` keeps the scene's distillation, dataset and masks for the next target
+    of the same scene."""
     from .baselines import feature_similarity, gaussian_grouping
     from .datasets import load_dataset
     from .distill import load_distillation
@@ -193,14 +195,17 @@ def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Pat
     path = out / f"object_{object_id}" / "object.ply"
     if path.is_file():
         return path
-    folder, cloud, classifier = load_distillation(model)
+    if "cloud" not in loaded:
+        loaded["folder"], loaded["cloud"], loaded["classifier"] = load_distillation(model)
+    folder, cloud = loaded["folder"], loaded["cloud"]
     if method == "gaussian_grouping":
-        sel = gaussian_grouping(cloud, classifier, object_id)
+        sel = gaussian_grouping(cloud, loaded["classifier"], object_id)
     else:
-        dataset = load_dataset(data, float(folder.config.get("downscale", 1) or 1))
-        masks = FilesSegmenter().segment(dataset, SegmentPrompt()).masks
-        views, _ = split_views(dataset, int(folder.config.get("holdout_every", 8)))
-        sel = feature_similarity(cloud, dataset, masks, object_id, views=views)
+        if "dataset" not in loaded:
+            loaded["dataset"] = load_dataset(data, float(folder.config.get("downscale", 1) or 1))
+            loaded["masks"] = FilesSegmenter().segment(loaded["dataset"], SegmentPrompt()).masks
+            loaded["views"] = split_views(loaded["dataset"], int(folder.config.get("holdout_every", 8)))[0]
+        sel = feature_similarity(cloud, loaded["dataset"], loaded["masks"], object_id, views=loaded["views"])
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(sel.details, path.parent / "selection.json")
     write_ply(sel.cloud, path)
@@ -249,6 +254,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
         scene_out = out / preset
         model = scene_out / "full" / "scene"
         per_method: dict[str, Any] = {}
+        loaded: dict[str, Any] = {}  # the scene's distillation, read once for its baselines
         pictures: dict[str, dict[int, np.ndarray]] = {}
         for method in methods:
             rows = []
@@ -259,7 +265,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                 t = time.perf_counter()
                 try:
                     if method in ("gaussian_grouping", "feature_similarity"):
-                        path = _baseline_one(method, data, mout, target["id"], model)
+                        path = _baseline_one(method, data, mout, target["id"], model, loaded)
                     else:
                         path = _extract_one(method, data, mout, target["id"], config,
                                             model if method not in ("full", "no_two_stage") else None, progress)
