@@ -25,10 +25,14 @@ PRESET_NAMES = ("bedroom", "kitchen", "livingroom", "picnic")
               help="Number of targets (default: 3 or 4).")
 @click.option("--supersample", type=click.IntRange(1, 4), default=2, show_default=True,
               help="Anti-aliasing rays per pixel along each axis (masks and depth always use the pixel centre).")
+@click.option("--test-framing", type=click.Choice(("scene", "object")), default="scene", show_default=True,
+              help="Test cameras: 'scene' = at the training cameras' distance, aimed at the target (the paper's "
+                   "protocol); 'object' = close-ups in which the target fills the frame.")
 @overwrite_option
 @quiet_option
 def make_scene(out_dir: str, preset: str, seed: int, size_text: str, train_views: int, test_views: int,
-               n_objects: int | None, n_targets: int | None, supersample: int, overwrite: bool, quiet: bool) -> None:
+               n_objects: int | None, n_targets: int | None, supersample: int, test_framing: str, overwrite: bool,
+               quiet: bool) -> None:
     """Write a cluttered scene with 3-4 target objects, rendered by ray casting meshes, to OUT_DIR.
 
     \b
@@ -44,7 +48,8 @@ def make_scene(out_dir: str, preset: str, seed: int, size_text: str, train_views
 
     width, height = parse_size(size_text)
     settings = SceneSettings(width=width, height=height, train_views=train_views, test_views=test_views,
-                             supersample=supersample, n_objects=n_objects, n_targets=n_targets)
+                             supersample=supersample, n_objects=n_objects, n_targets=n_targets,
+                             test_framing=test_framing)
     record = run(out_dir, preset, seed, settings=settings, overwrite=overwrite, progress=progress_factory(quiet))
     targets = ", ".join(f"{t['id']}:{t['name']}" for t in record["targets"])
     if not quiet:

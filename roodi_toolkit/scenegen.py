@@ -54,6 +54,7 @@ __all__ = [
     "build_scene",
     "training_cameras",
     "target_cameras",
+    "TEST_FRAMINGS",
     "render_views",
     "make_scene",
     "overview_image",
@@ -225,6 +226,7 @@ PRESETS: dict[str, Preset] = {
 }
 
 # kinds that cannot be targets: furniture and flat things that are scenery rather than objects to extract
+TEST_FRAMINGS = ("scene", "object")
 _NOT_TARGETS = frozenset({"bed", "sofa", "table", "blanket", "bench", "umbrella"})
 
 
@@ -241,6 +243,10 @@ class SceneSettings:
         supersample: rays per pixel along each axis for colour and alpha (masks and depth use the centre ray).
         n_targets: number of targets, or None for 3 or 4 drawn from the seed.
         n_objects: number of objects, or None for the preset's range.
+        test_framing: how the targets' test cameras frame them: ``"scene"`` (the paper's protocol: cameras on the
+            training views' hemisphere, at their distance, aimed at the target, so the object is as large as in
+            training and anything kept elsewhere in the scene, such as floaters, shows in the view) or ``"object"``
+            (close-ups in which the target fills the frame: a stricter test of the object's detail).
     """
 
     width: int = 200
@@ -251,6 +257,7 @@ class SceneSettings:
     supersample: int = 2
     n_targets: int | None = None
     n_objects: int | None = None
+    test_framing: str = "scene"
 
     def __post_init__(self) -> None:
         if not (8 <= self.width <= 8192 and 8 <= self.height <= 8192):
@@ -266,6 +273,8 @@ class SceneSettings:
             raise ConfigError(f"n_targets must be 1 to 4, got {self.n_targets}")
         if self.n_objects is not None and not 5 <= self.n_objects <= MAX_OBJECTS:
             raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {self.n_objects}")
+        if self.test_framing not in TEST_FRAMINGS:
+            raise ConfigError(f"test_framing must be one of {', '.join(TEST_FRAMINGS)}, got {self.test_framing!r}")
 
 
 @dataclass
@@ -877,6 +886,20 @@ def _cap_directions(n: int, el_range: tuple[float, float], rng: np.random.Genera
     return np.stack([r * np.cos(az), r * np.sin(az), z], axis=1)
 
 
+def _scene_frame(scene: Scene, K: np.ndarray, width: int, height: int) -> tuple[np.ndarray, float, float]:
+    """Return the training cameras' look-at centre, the scene's radius around it and their distance from it."""
+    fov_min = 2 * math.atan(min(width / (2 * K[0, 0]), height / (2 * K[1, 1])))
+    b = scene.bounds
+    centre = np.array([(b[0, 0] + b[1, 0]) / 2, (b[0, 1] + b[1, 1]) / 2, 0.3 * (b[1, 2] - b[0, 2])])
+    v = np.concatenate([o.vertices for o in scene.objects])
+    radius = float(np.linalg.norm(v - centre, axis=1).max())
+    return centre, radius, radius / math.sin(fov_min / 2) * 0.92  # a little cropping keeps the objects large
+
+
+# elevation band (degrees) of the full-scene training cameras
+TRAIN_ELEVATIONS = (18.0, 65.0)
+
+
 def training_cameras(scene: Scene, n: int, width: int, height: int, *, fov_x_deg: float = 50.0,
                      seed: int | None = None) -> list[Camera]:
     """Return ``n`` cameras on a hemisphere around the scene, looking at its middle, framing all objects.
@@ -891,13 +914,8 @@ def training_cameras(scene: Scene, n: int, width: int, height: int, *, fov_x_deg
     """
     rng = np.random.default_rng([scene.seed if seed is None else int(seed), 1])
     K = intrinsics_from_fov(math.radians(fov_x_deg), width, height)
-    fov_min = 2 * math.atan(min(width / (2 * K[0, 0]), height / (2 * K[1, 1])))
-    b = scene.bounds
-    centre = np.array([(b[0, 0] + b[1, 0]) / 2, (b[0, 1] + b[1, 1]) / 2, 0.3 * (b[1, 2] - b[0, 2])])
-    v = np.concatenate([o.vertices for o in scene.objects])
-    radius = float(np.linalg.norm(v - centre, axis=1).max())
-    dist = radius / math.sin(fov_min / 2) * 0.92  # a little cropping keeps the objects large in the frame
-    dirs = _cap_directions(n, (18.0, 65.0), rng)
+    centre, radius, dist = _scene_frame(scene, K, width, height)
+    dirs = _cap_directions(n, TRAIN_ELEVATIONS, rng)
     cams = []
     for i, d in enumerate(dirs):
         eye = centre + d * dist * rng.uniform(0.95, 1.08)
@@ -907,29 +925,39 @@ def training_cameras(scene: Scene, n: int, width: int, height: int, *, fov_x_deg
 
 
 def target_cameras(scene: Scene, target: SceneObject, n: int, width: int, height: int, *, fov_x_deg: float = 50.0,
-                   seed: int | None = None) -> list[Camera]:
-    """Return ``n`` cameras around one object, framing it (different from the full-scene training cameras).
+                   seed: int | None = None, framing: str = "scene") -> list[Camera]:
+    """Return ``n`` test cameras of one object, aimed at it, at positions different from the training cameras.
 
     Args:
-        scene: the scene (for the seed).
+        scene: the scene.
         target: the object to look at.
         n: number of views.
         width: image width.
         height: image height.
         fov_x_deg: horizontal field of view.
         seed: randomness of the positions (default derived from the scene's seed and the object id).
+        framing: ``"scene"``: on the training cameras' hemisphere and at their distance (the object as large as in
+            training; the paper's object-alone test renders); ``"object"``: close-ups in which the object fills the
+            frame.
     """
+    if framing not in TEST_FRAMINGS:
+        raise ConfigError(f"framing must be one of {', '.join(TEST_FRAMINGS)}, got {framing!r}")
     rng = np.random.default_rng([scene.seed if seed is None else int(seed), 2, target.id])
     K = intrinsics_from_fov(math.radians(fov_x_deg), width, height)
-    fov_min = 2 * math.atan(min(width / (2 * K[0, 0]), height / (2 * K[1, 1])))
     v = target.vertices
     centre = (v.min(axis=0) + v.max(axis=0)) / 2
-    radius = float(np.linalg.norm(v - centre, axis=1).max())
-    dist = radius / math.sin(fov_min / 2) * 1.1
-    dirs = _cap_directions(n, (8.0, 70.0), rng)
     cams = []
-    for i, d in enumerate(dirs):
-        eye = centre + d * dist * rng.uniform(0.97, 1.1)
+    if framing == "object":
+        fov_min = 2 * math.atan(min(width / (2 * K[0, 0]), height / (2 * K[1, 1])))
+        radius = float(np.linalg.norm(v - centre, axis=1).max())
+        dist = radius / math.sin(fov_min / 2) * 1.1
+        for i, d in enumerate(_cap_directions(n, (8.0, 70.0), rng)):
+            eye = centre + d * dist * rng.uniform(0.97, 1.1)
+            cams.append(Camera(look_at(eye, centre), K, width, height, near=0.01, far=100.0, name=f"r_{i:03d}"))
+        return cams
+    scene_centre, _, dist = _scene_frame(scene, K, width, height)
+    for i, d in enumerate(_cap_directions(n, TRAIN_ELEVATIONS, rng)):
+        eye = scene_centre + d * dist * rng.uniform(0.95, 1.08)
         cams.append(Camera(look_at(eye, centre), K, width, height, near=0.01, far=100.0, name=f"r_{i:03d}"))
     return cams
 
@@ -1361,7 +1389,8 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
         folder = f"targets/{obj.id:02d}_{obj.name}"
         tdir = out / folder
         (tdir / "test" / "masks").mkdir(parents=True, exist_ok=True)
-        tcams = target_cameras(scene, obj, settings.test_views, W, H, fov_x_deg=settings.fov_x_deg)
+        tcams = target_cameras(scene, obj, settings.test_views, W, H, fov_x_deg=settings.fov_x_deg,
+                               framing=settings.test_framing)
         tr = render_views(scene, tcams, object_ids=[obj.id], with_ground=False, supersample=settings.supersample,
                           background=(1.0, 1.0, 1.0), progress=progress)
         extra = []

@@ -19,6 +19,7 @@ from roodi_toolkit.scenegen import (
     make_scene,
     render_views,
     scene_from_record,
+    target_cameras,
     training_cameras,
 )
 
@@ -153,6 +154,37 @@ def test_shadows_darken_the_ground() -> None:
     ground = with_objects.ids == 0
     darker = (with_objects.rgb.mean(axis=2) < only_ground.rgb.mean(axis=2) - 0.1) & ground
     assert darker.sum() > 20  # cast shadows on the grass
+
+
+def _extent(cam, vertices: np.ndarray) -> float:
+    """Fraction of the image width the projected vertices span."""
+    uv, _ = cam.project(vertices)
+    return float(np.ptp(uv[:, 0]) / cam.width)
+
+
+def test_test_cameras_scene_framing_matches_training_scale_and_object_framing_fills_the_view() -> None:
+    scene = build_scene("kitchen", 4)
+    target = scene.targets[0]
+    centre = (target.vertices.min(axis=0) + target.vertices.max(axis=0)) / 2
+    train = training_cameras(scene, 12, 64, 64)
+    near = target_cameras(scene, target, 12, 64, 64, framing="object")
+    far = target_cameras(scene, target, 12, 64, 64)  # the paper's protocol is the default
+    train_dist = [np.linalg.norm(c.center - centre) for c in train]
+    far_dist = [np.linalg.norm(c.center - centre) for c in far]
+    # at the training cameras' range, aimed at the target (it projects to the middle), not at training positions
+    assert 0.6 * min(train_dist) < np.median(far_dist) < 1.5 * max(train_dist)
+    for cam in far:
+        uv, z = cam.project(centre[None])
+        assert z[0] > 0 and np.abs(uv[0] - 32).max() < 1.0
+    assert min(np.linalg.norm(a.center - b.center) for a in far for b in train) > 1e-3
+    # the object is as large as in training with scene framing, and fills the view in close-ups
+    train_size = np.median([_extent(c, target.vertices) for c in train])
+    assert 0.5 < np.median([_extent(c, target.vertices) for c in far]) / train_size < 2.0
+    assert np.median([_extent(c, target.vertices) for c in near]) > 0.5
+    with pytest.raises(ConfigError, match="framing"):
+        target_cameras(scene, target, 2, 64, 64, framing="tight")
+    with pytest.raises(ConfigError, match="test_framing"):
+        SceneSettings(test_framing="tight")
 
 
 def test_settings_and_preset_errors(tmp_path: Path) -> None:
