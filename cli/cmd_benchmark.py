@@ -20,8 +20,9 @@ EXAMPLE = """Example:
 @click.argument("out_dir", type=click.Path(path_type=str))
 @click.option("--preset", "presets", multiple=True, help="Scene preset to run (repeat; default all four).")
 @click.option("--method", "methods", multiple=True,
-              help="Method to run (repeat; default all): full, gaussian_grouping, feature_similarity, "
-                   "no_two_stage, no_inpaint, no_prune, euclidean, paper_rule.")
+              help="Method to run (repeat; default all): full, gaussian_grouping (runs no_two_stage too: it selects "
+                   "from that model), feature_similarity, gaussian_grouping_shared, no_two_stage, no_inpaint, "
+                   "no_prune, euclidean, paper_rule.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Scene and training seed.")
 @click.option("--scale", type=click.Choice(["cpu", "cpu-large", "paper"]), default="cpu", show_default=True,
               help="cpu: 64x64, 32+8 views, 1,500 steps; cpu-large: 96x96, 40+12 views, 3,000 steps; paper: 200x200, "
@@ -54,5 +55,6 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
         psnr = "n/a" if scores["psnr"] is None else f"{scores['psnr']:.2f}"
         click.echo(f"{METHODS[m]:<45} PSNR {psnr:>6}  IoU {iou}")
     for c in results["checks"]:
-        click.echo(f"{'met' if c['met'] else 'NOT met'}: {c['check']} ({c['value']:+.3f})")
+        click.echo(f"{'info' if c['met'] is None else 'met' if c['met'] else 'NOT met'}: {c['check']} "
+                   f"({c['value']:+.3f})")
     click.echo(f"tables: {out_dir}/results.md, {out_dir}/results.json; pictures: {out_dir}/<preset>.png")
