@@ -19,7 +19,8 @@ With ``--control``, ``selected.ply`` is also fine-tuned again with the run's set
 (the same steps in the same order, without the inpainted views' terms), which tells what the inpainted views add
 beyond more fitting to the training views. (Re-running the whole refinement reproduces ``refined.ply`` exactly.)
 
-Usage: .venv/bin/python benchmarks/bench_refine.py [OUT_DIR SCENES_ROOT] [--preset P ...] [--control] [--json PATH]
+Usage: .venv/bin/python benchmarks/bench_refine.py [OUT_DIR SCENES_ROOT] [--preset P ...] [--control] [--seed-holes]
+       [--json PATH]
 (default: the 64x64 benchmark run, /work/bench/out and /work/bench/scenes). Read only: writes nothing but the JSON.
 """
 
@@ -29,6 +30,7 @@ import argparse
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +44,8 @@ from roodi_toolkit.benchmark import MACHINE_SIZE, PRESETS, extract_config  # noq
 from roodi_toolkit.datasets import load_dataset  # noqa: E402
 from roodi_toolkit.distill import load_distillation  # noqa: E402
 from roodi_toolkit.files import read_json, write_json  # noqa: E402
-from roodi_toolkit.finetune import FinetuneConfig, ViewTargets, finetune_object, object_view_targets  # noqa: E402
+from roodi_toolkit.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,  # noqa: E402
+                                    refine_object)
 from roodi_toolkit.metrics import evaluate_object  # noqa: E402
 from roodi_toolkit.occlusion import OcclusionConfig, mask_scores, occlusion_masks, up_from_cameras  # noqa: E402
 from roodi_toolkit.ply import read_ply  # noqa: E402
@@ -87,9 +90,10 @@ def finetune_originals_only(cloud, cams, images: torch.Tensor, masks: torch.Tens
 
 
 def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, object_id: int,
-                   scene_depths: torch.Tensor | None = None) -> dict:
+                   scene_depths: torch.Tensor | None = None, seed_holes: bool = False) -> dict:
     """Return the figures of one target: occlusion-mask scores, PSNRs and paper metrics before and after refinement
-    (and after fine-tuning on the original views only, given the scene's depth ``[N, H, W]`` in the training views)."""
+    (and after fine-tuning on the original views only, given the scene's depth ``[N, H, W]`` in the training views;
+    and after the whole refinement again with hole seeding, ``seed_holes``)."""
     t0 = time.perf_counter()
     odir = out_dir / f"object_{object_id}"
     target = next(o for o in scene.objects if o.id == object_id)
@@ -112,6 +116,9 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
     clouds = {"before": before, "after": after}
     if scene_depths is not None:
         clouds["originals_only"] = finetune_originals_only(before, cams, images, masks, scene_depths, occ, fine)
+    if seed_holes:
+        clouds["seeded"] = refine_object(before, scene_cloud, images, cams, masks, occlusion=config,
+                                         finetune=replace(fine, seed_holes=True)).cloud
     psnr = {}
     for label, cloud in clouds.items():
         figures = psnr_figures(cloud, cams, images, masks, occ.cameras, gt, truth)
@@ -126,8 +133,10 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
             "reproduced": reproduced, "psnr": psnr, "seconds": time.perf_counter() - t0}
 
 
-def measure_preset(out_root: Path, scenes_root: Path, preset: str, control: bool = False) -> list[dict]:
-    """Return the figures of every target of one preset (with the originals-only control if ``control``)."""
+def measure_preset(out_root: Path, scenes_root: Path, preset: str, control: bool = False,
+                   seed_holes: bool = False) -> list[dict]:
+    """Return the figures of every target of one preset (with the originals-only control if ``control``, the
+    refinement with hole seeding if ``seed_holes``)."""
     data = scenes_root / preset
     record = read_json(data / "scene.json", "scene record")
     scene = scene_from_record(record)
@@ -142,7 +151,7 @@ def measure_preset(out_root: Path, scenes_root: Path, preset: str, control: bool
                                   for v in dataset.train_indices])
     rows = []
     for t in record["targets"]:
-        row = measure_target(data, full, scene, dataset, scene_cloud, int(t["id"]), depths)
+        row = measure_target(data, full, scene, dataset, scene_cloud, int(t["id"]), depths, seed_holes)
         rows.append({"preset": preset, **row})
         print_row(rows[-1])
     return rows
@@ -184,8 +193,9 @@ def summarize(rows: list[dict]) -> dict:
 def _change(m: dict) -> str:
     """Return ``before -> after (+change)`` and the originals-only control where measured."""
     out = f"{m['before']:8.3f} -> {m['after']:8.3f} ({m['change_after']:+.3f})"
-    if "originals_only" in m:
-        out += f" | originals only {m['originals_only']:8.3f} ({m['change_originals_only']:+.3f})"
+    for label in ("originals_only", "seeded"):
+        if label in m:
+            out += f" | {label.replace('_', ' ')} {m[label]:8.3f} ({m[f'change_{label}']:+.3f})"
     return out
 
 
@@ -194,7 +204,8 @@ def print_row(r: dict) -> None:
 
     def pair(f: str, digits: int = 2) -> str:
         text = f"{p['before'][f]:.{digits}f} -> {p['after'][f]:.{digits}f}"
-        return text + (f" [{p['originals_only'][f]:.{digits}f}]" if "originals_only" in p else "")
+        return text + "".join(f" [{label[:4]} {p[label][f]:.{digits}f}]" for label in ("originals_only", "seeded")
+                              if label in p)
 
     print(f"{r['preset']:<10} {r['object_name']:<10} {r['gaussians']:>4} G, hidden {100 * r['hidden_fraction']:5.2f}% "
           f"P {o['precision']:.2f} R {o['recall']:.2f} | occluded {pair('occluded_hidden_psnr')} | "
@@ -219,13 +230,15 @@ def main() -> None:
     ap.add_argument("scenes_root", nargs="?", default="/work/bench/scenes", help="its generated scenes")
     ap.add_argument("--preset", action="append", choices=PRESETS, help="only these presets (default all)")
     ap.add_argument("--control", action="store_true", help="also fine-tune on the original views only")
+    ap.add_argument("--seed-holes", action="store_true",
+                    help="also run the whole refinement again with hole seeding (FinetuneConfig.seed_holes)")
     ap.add_argument("--json", default=None, help="write every figure here")
     a = ap.parse_args()
     t0 = time.perf_counter()
     presets = a.preset or [p for p in PRESETS if (Path(a.out_dir) / p / "full").is_dir()]
     rows = []
     for preset in presets:
-        rows += measure_preset(Path(a.out_dir), Path(a.scenes_root), preset, a.control)
+        rows += measure_preset(Path(a.out_dir), Path(a.scenes_root), preset, a.control, a.seed_holes)
     per_preset = {p: summarize([r for r in rows if r["preset"] == p]) for p in presets}
     overall = summarize(rows)
     # the paper's protocol: the mean per scene, then over scenes (the pooled mask scores are over all objects)
@@ -241,7 +254,8 @@ def main() -> None:
     seconds = time.perf_counter() - t0
     print(f"\n{len(rows)} objects in {seconds:.0f} s")
     if a.json:
-        write_json({"out_dir": a.out_dir, "scenes_root": a.scenes_root, "control": a.control, "objects": rows,
+        write_json({"out_dir": a.out_dir, "scenes_root": a.scenes_root, "control": a.control,
+                    "seed_holes": a.seed_holes, "objects": rows,
                     "per_preset": per_preset, "all_objects": overall, "scene_mean": scene_mean, "seconds": seconds},
                    a.json)
 

@@ -65,6 +65,22 @@ class Camera:
         """``[3]`` camera centre in world coordinates."""
         return self.camera_to_world[:3, 3]
 
+    def backproject(self, pixels_rc: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Return world points ``[P, 3]`` of pixels ``[P, 2]`` (row, col; their centres) at z-depths ``[P]``.
+
+        Example:
+            >>> cam = Camera(np.eye(4), intrinsics_from_fov(1.0, 8, 8), 8, 8)
+            >>> uv, z = cam.project(cam.backproject(np.array([[2, 5]]), np.array([3.0])))
+            >>> [round(float(x), 6) for x in (*uv[0], z[0])]
+            [5.5, 2.5, 3.0]
+        """
+        K = self.K
+        rc = np.asarray(pixels_rc, dtype=np.float64).reshape(-1, 2)
+        z = np.asarray(depth, dtype=np.float64).reshape(-1)
+        cam = np.stack([(rc[:, 1] + 0.5 - K[0, 2]) / K[0, 0] * z, (rc[:, 0] + 0.5 - K[1, 2]) / K[1, 1] * z, z], axis=1)
+        c2w = self.camera_to_world
+        return cam @ c2w[:3, :3].T + c2w[:3, 3]
+
     @property
     def fov_x(self) -> float:
         """Horizontal field of view in radians."""

@@ -54,6 +54,13 @@ class FinetuneConfig:
         scales_lr, quats_lr, opacities_lr, sh0_lr, shN_lr: 3DGS learning rates.
         background: RGB behind the object in renders and targets.
         seed: order of the views.
+        seed_holes: before fine-tuning, add Gaussians where an inpainted view shows the object but the object model
+            renders (almost) nothing (ours, not in the paper; see :func:`seed_hole_gaussians`). Without it the 100
+            steps can only recolour and nudge existing Gaussians, which leaves holes behind occluders empty.
+        seed_stride: one seeded Gaussian per this many pixels along each axis of a view.
+        seed_opacity: opacity of the seeded Gaussians.
+        seed_min_difference: a pixel counts as filled when the inpainted colour differs from the background by more
+            than this (max over channels).
     """
 
     iterations: int = 100
@@ -70,6 +77,10 @@ class FinetuneConfig:
     shN_lr: float = 2.5e-3 / 20
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     seed: int = 0
+    seed_holes: bool = False
+    seed_stride: int = 2
+    seed_opacity: float = 0.5
+    seed_min_difference: float = 0.1
 
     def __post_init__(self) -> None:
         if self.iterations < 0 or self.inpaint_every < 1:
@@ -79,6 +90,9 @@ class FinetuneConfig:
             raise ConfigError(f"finetune: perceptual must be auto, lpips or laplacian, got {self.perceptual!r}")
         if self.l1_inpaint_weight < 0 or self.perceptual_weight < 0:
             raise ConfigError("finetune: loss weights must be non-negative")
+        if self.seed_stride < 1 or not 0 < self.seed_opacity < 1 or not 0 <= self.seed_min_difference < 1:
+            raise ConfigError(f"finetune: need seed_stride >= 1, 0 < seed_opacity < 1, 0 <= seed_min_difference < 1; "
+                              f"got {self.seed_stride}, {self.seed_opacity}, {self.seed_min_difference}")
 
 
 # ----------------------------------------------------------------------------------------------- perceptual losses
@@ -276,6 +290,84 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
     return FinetuneResult(params_to_cloud(params), perceptual.name, history, time.perf_counter() - t0)
 
 
+def seed_hole_gaussians(object_cloud: GaussianCloud, occlusion: OcclusionResult, inpainted: Tensor, *,
+                        stride: int = 2, opacity: float = 0.5, min_difference: float = 0.1,
+                        alpha_threshold: float = 0.5, depth_tolerance: float = 0.05,
+                        background: Sequence[float] = (1.0, 1.0, 1.0)) -> GaussianCloud:
+    """Return new Gaussians (same columns as ``object_cloud``) where the inpainted views show the object, the object
+    model renders less than ``alpha_threshold`` alpha, and the scene has a surface in front: the object's holes
+    behind occluders, which the inpainter filled.
+
+    A seeded pixel (every ``stride``-th along each axis) is inside the inpainting mask, inside the outline of the
+    object's bounding sphere, has object alpha below ``alpha_threshold`` and an inpainted colour away from the
+    background. Its depth is the object's rendered depth at the nearest pixel that shows the object (the hidden part
+    continues the visible surface beside it), kept within the bounding sphere's depth range; the scene's depth there
+    must be nearer by ``depth_tolerance`` times the object's radius (the occlusion test), so that translucent but
+    visible parts of the object, which the training views constrain, get no seeds. The Gaussian is round,
+    as wide as ``stride`` pixels at that depth, with the inpainted colour (degree-0 SH; higher bands zero) and
+    ``opacity``. Fine-tuning then moves and recolours the seeds with the other Gaussians; seeds that a training view
+    sees on the background are pulled transparent there.
+
+    Args:
+        object_cloud: the object (for its SH degree and extra columns).
+        occlusion: the occlusion reasoning of the views (cameras, object alpha and depth, mask, bounding sphere).
+        inpainted: the inpainted views. [V, H, W, 3]
+        stride: pixel stride of the seeds.
+        opacity: their opacity.
+        min_difference: a pixel is filled when its inpainted colour differs from ``background`` by more than this.
+        alpha_threshold: object alpha below which a pixel is a hole.
+        depth_tolerance: how much nearer (times the object's radius) the scene must be than the seed.
+        background: the views' background colour.
+    """
+    from scipy import ndimage
+
+    bg = np.asarray(background, dtype=np.float32)
+    means, colours, sizes = [], [], []
+    for k, cam in enumerate(occlusion.cameras):
+        alpha = occlusion.object_alpha[k].numpy()
+        depth = occlusion.object_depth[k].numpy()
+        image = inpainted[k].numpy()
+        shown = alpha >= alpha_threshold
+        if not shown.any():
+            continue
+        uv, zc = cam.project(np.asarray(occlusion.centre)[None])
+        zc = float(zc[0])
+        if zc <= occlusion.radius:
+            continue
+        r_px = cam.K[0, 0] * occlusion.radius / math.sqrt(zc * zc - occlusion.radius ** 2)
+        ys, xs = np.mgrid[0:cam.height, 0:cam.width]
+        inside = (xs + 0.5 - uv[0, 0]) ** 2 + (ys + 0.5 - uv[0, 1]) ** 2 <= r_px ** 2
+        grid = np.zeros_like(shown)
+        grid[::stride, ::stride] = True
+        filled = np.abs(image - bg).max(axis=2) > min_difference
+        seeds = grid & inside & filled & ~shown & occlusion.mask[k].numpy()
+        if not seeds.any():
+            continue
+        # depth of the nearest pixel that shows the object
+        _, (iy, ix) = ndimage.distance_transform_edt(~shown, return_indices=True)
+        z_all = np.clip(depth[iy, ix], zc - occlusion.radius, zc + occlusion.radius)
+        scene_z = occlusion.scene_depth[k].numpy()
+        seeds &= (scene_z > 0) & (scene_z < z_all - depth_tolerance * occlusion.radius)
+        if not seeds.any():
+            continue
+        rc = np.argwhere(seeds)
+        z = z_all[seeds]
+        means.append(cam.backproject(rc, z))
+        colours.append(image[seeds])
+        sizes.append(stride * z / cam.K[0, 0] / 2.0)
+    n = int(sum(len(m) for m in means))
+    extras = {name: np.zeros(n, dtype=col.dtype) for name, col in object_cloud.extras.items()}
+    if n == 0:
+        return object_cloud.select(np.zeros(0, dtype=np.int64))
+    size = np.concatenate(sizes)
+    seeded = GaussianCloud.from_activated(np.concatenate(means), scales=np.repeat(size[:, None], 3, axis=1),
+                                         opacities=np.full(n, opacity), rgb=np.clip(np.concatenate(colours), 0, 1),
+                                         sh_degree=object_cloud.sh_degree, extras=extras)
+    if object_cloud.normals is not None:
+        seeded.normals = np.zeros((n, 3), dtype=np.float32)
+    return seeded
+
+
 # ------------------------------------------------------------------------------------------- the whole refinement
 
 
@@ -339,6 +431,15 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     bg = finetune.background
     occ = occlusion_masks(object_cloud, scene_cloud, None, occlusion, up=up, background=bg)
     inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt)
+    seeded = 0
+    if finetune.seed_holes:
+        seeds = seed_hole_gaussians(object_cloud, occ, inpainted, stride=finetune.seed_stride,
+                                    opacity=finetune.seed_opacity, min_difference=finetune.seed_min_difference,
+                                    alpha_threshold=occlusion.alpha_threshold,
+                                    depth_tolerance=occlusion.depth_tolerance, background=bg)
+        seeded = len(seeds)
+        if seeded:
+            object_cloud = GaussianCloud.concatenate([object_cloud, seeds])
     # scene depth in the training views tells where something may hide the object
     scene_params = cloud_to_params(scene_cloud)
     with torch.no_grad():
@@ -366,6 +467,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         write_json({"inpainter": getattr(inpainter, "name", "") or type(inpainter).__name__,
                     "perceptual_loss": result.perceptual, "occlusion": asdict(occlusion),
                     "finetune": asdict(finetune), "object_centre": occ.centre.tolist(), "object_radius": occ.radius,
+                    "seeded_gaussians": seeded,
                     "occluded_fraction": [float(m.float().mean()) for m in occ.occluded],
                     "mask_fraction": [float(m.float().mean()) for m in occ.mask],
                     "seconds_finetune": result.seconds, "history": result.history}, out_dir / "refine.json")

@@ -10,9 +10,11 @@ import pytest
 import torch
 
 from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.finetune import (FinetuneConfig, LaplacianLoss, LPIPSLoss, ViewTargets, finetune_object,
-                                    object_view_targets, perceptual_loss, refine_object)
-from roodi_toolkit.occlusion import OcclusionConfig
+                                    object_view_targets, perceptual_loss, refine_object, seed_hole_gaussians)
+from roodi_toolkit.gaussians import GaussianCloud
+from roodi_toolkit.occlusion import OcclusionConfig, OcclusionResult
 from roodi_toolkit.training import cloud_to_params, render_params
 
 from .test_inpaint import tiny_refine_inputs
@@ -108,6 +110,44 @@ def test_refine_writes_the_debug_images(tmp_path):
     assert res.inpainter == "opencv" and res.inpainted.shape == (4, 24, 24, 3)
     with pytest.raises(ConfigError, match="2x2"):
         refine_object(obj, scene, images, cams, masks, occlusion=OcclusionConfig(size=24, num_views=3))
+
+
+def test_hole_seeds_go_where_an_occluder_hides_a_filled_hole():
+    """One 16x16 view of an object at depth 5 whose right half is missing: seeds only where the inpainter filled it
+    and something in the scene is in front, at the visible surface's depth, with the filled colour."""
+    cam = Camera(look_at([0, 0, -5], [0, 0, 0], up=[0, 1, 0]), intrinsics_from_fov(0.6, 16, 16), 16, 16)
+    alpha = torch.zeros(1, 16, 16)
+    alpha[0, 4:12, 4:8] = 1.0
+    depth = alpha * 5.0
+    scene_depth = torch.zeros(1, 16, 16)
+    scene_depth[0, :, 8:] = 3.0  # an occluder in front of the right half ...
+    scene_depth[0, 12:, :] = 0.0  # ... but nothing in front of the bottom rows
+    inpainted = torch.ones(1, 16, 16, 3)
+    inpainted[0, 4:14, 8:12] = torch.tensor([0.9, 0.1, 0.1])  # the fill: red right of the object
+    mask = alpha < 0.5
+    occ = OcclusionResult([cam], torch.ones(1, 16, 16, 3), alpha, depth, torch.ones(1, 16, 16, 3), scene_depth,
+                          torch.zeros_like(mask), torch.zeros_like(mask), mask, np.zeros(3), 1.0)
+    obj = GaussianCloud.from_activated(np.zeros((2, 3)), scales=np.full((2, 3), 0.1), opacities=np.full(2, 0.9),
+                                       rgb=np.full((2, 3), 0.5), sh_degree=1, extras={"f_0": np.ones(2, np.float32)})
+    seeds = seed_hole_gaussians(obj, occ, inpainted, stride=2, opacity=0.4)
+    uv, z = cam.project(seeds.means)
+    assert len(seeds) == 2 * 4  # rows 4, 6, 8, 10 (not 12: nothing in front) x columns 8, 10
+    assert np.allclose(z, 5.0, atol=1e-4) and (uv[:, 0] > 8).all() and (uv[:, 1] < 12).all()
+    assert np.allclose(seeds.rgb, [0.9, 0.1, 0.1], atol=1e-5) and np.allclose(seeds.opacities, 0.4)
+    assert seeds.sh_degree == 1 and list(seeds.extras) == ["f_0"] and (seeds.extras["f_0"] == 0).all()
+    GaussianCloud.concatenate([obj, seeds])  # same columns: the refinement can join them
+    # nothing filled: no seeds
+    assert len(seed_hole_gaussians(obj, occ, torch.ones(1, 16, 16, 3))) == 0
+
+
+def test_refine_with_hole_seeding_adds_gaussians_and_records_them(tmp_path):
+    obj, scene, images, cams, masks = tiny_refine_inputs()
+    res = refine_object(obj, scene, images, cams, masks, occlusion=OcclusionConfig(size=24),
+                        finetune=FinetuneConfig(iterations=2, seed_holes=True, seed_stride=1), debug_dir=tmp_path)
+    record = __import__("json").loads((tmp_path / "refine.json").read_text())
+    assert record["seeded_gaussians"] > 0 and len(res.cloud) == len(obj) + record["seeded_gaussians"]
+    with pytest.raises(ConfigError, match="seed_stride"):
+        FinetuneConfig(seed_stride=0)
 
 
 @pytest.fixture(scope="module")
