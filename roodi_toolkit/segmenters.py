@@ -16,8 +16,9 @@ Built-ins:
 
 - ``files`` (default): masks or instance-id maps from a folder of PNGs matched to the views by name, or the
   dataset's own masks (Blender frames with ``mask_path``, as the generated benchmark scenes have).
-- ``click``: one or two clicks in one view, lifted to 3D through the trained scene's rendered depth, projected into the
-  other views with a visibility test against their rendered depth, and refined per view by OpenCV GrabCut.
+- ``click``: one or two clicks in one view; the clicked surface's Gaussians (by their compositing weights there) are
+  grown through a 3D neighbour graph of the trained scene's Gaussians, and every view's mask is where the selected
+  Gaussians give most of the rendered alpha (see :class:`ClickSegmenter`).
 """
 
 from __future__ import annotations
@@ -389,46 +390,91 @@ class ClickSettings:
     """Parameters of the ``click`` segmenter (ours; chosen on the generated benchmark scenes, see RESULTS.md).
 
     Attributes:
-        depth_tolerance: neighbouring pixels belong to the same surface when their rendered depths differ by less
-            than this fraction of the depth (the clicked region's flood fill).
+        depth_tolerance_min: in the clicked view, neighbouring pixels belong to the same surface when their depths
+            (of each pixel's largest-weight Gaussian) differ by less than a tolerance, as a fraction of the depth (the
+            clicked region's flood fill); the tolerance starts at this value ...
+        depth_tolerance_max: ... and is multiplied by ``depth_tolerance_step`` up to at most this value ...
+        depth_tolerance_step: ... per step,
+        leak_ratio: stopping before the step that multiplies the region's area by more than this (a leak through a
+            contact onto the ground or a neighbouring object) ...
+        leak_min_pixels: ... once the region has at least this many pixels.
         region_radius: the clicked region stays within this fraction of the scene box diagonal of the click's 3D
             point (keeps the flood fill from running along the ground).
-        visibility_tolerance: a lifted point is visible in another view when its depth is at most the rendered depth
-            times ``1 + visibility_tolerance``.
-        min_alpha: pixels with rendered alpha below this have no usable depth.
-        grabcut_iterations: GrabCut iterations per view.
-        margin: the band around the projected region that GrabCut may still give to the object, as a fraction of
-            the region's size (at least 2 pixels).
-        min_pixels: a view where fewer lifted points are visible than this gets an empty mask.
-        max_points: the lifted point set is subsampled to this many points.
-        grow_radius: points lifted from the propagated views join the set only within this multiple of the clicked
-            region's 3D radius from its centre (so the back of the object is reached and the ground is not).
+        min_alpha: pixels with rendered alpha below this have no usable depth, and a click there is refused.
+        grabcut_iterations: GrabCut iterations on the clicked view's region.
+        seed_fraction: a Gaussian seeds the object (or the rest) when at least this fraction of its compositing
+            weight in the clicked view falls inside the clicked region (or inside the band around it).
+        min_weight: Gaussians whose summed compositing weight in the clicked view is below this are no seeds.
+        grow_radius: only Gaussians whose centres lie within this multiple of the clicked region's 3D radius (around
+            its centre) can join the object; those beyond are fixed to the rest (so the ground is not followed).
+        neighbours: each Gaussian is linked to this many nearest Gaussians (by centre) in the 3D growth graph.
+        colour_sigma: link strength falls as ``exp(-dist2 / (2 colour_sigma^2))`` of the two Gaussians' DC colours
+            (RGB 0..1), so growth stops at colour edges.
+        colour_weight: strength of each unseeded Gaussian's pull towards the label of the nearest seed colour,
+            relative to one link.
+        threshold: a pixel is in a view's mask when more than this fraction of its rendered alpha comes from the
+            selected Gaussians; a Gaussian is selected when its smoothed label exceeds it.
+        vote_rounds: rounds of the multi-view vote: each Gaussian is re-selected when more than ``threshold`` of its
+            compositing weight over all views falls inside the masks, and the masks are rendered again.
     """
 
-    depth_tolerance: float = 0.02
+    depth_tolerance_min: float = 0.004
+    depth_tolerance_max: float = 0.03
+    depth_tolerance_step: float = 1.25
+    leak_ratio: float = 2.0
+    leak_min_pixels: int = 20
     region_radius: float = 0.15
-    visibility_tolerance: float = 0.03
     min_alpha: float = 0.5
     grabcut_iterations: int = 5
-    margin: float = 0.25
-    min_pixels: int = 4
-    max_points: int = 20000
-    grow_radius: float = 1.6
+    seed_fraction: float = 0.5
+    min_weight: float = 1.0
+    grow_radius: float = 1.2
+    neighbours: int = 10
+    colour_sigma: float = 0.1
+    colour_weight: float = 0.1
+    threshold: float = 0.5
+    vote_rounds: int = 2
+
+
+def _view_weights(tensors: dict[str, torch.Tensor], camera: Camera) -> Any:
+    """Return the sparse ``[H*W, N]`` scipy CSR matrix of the Gaussians' alpha-compositing weights in ``camera``
+    (rows: pixels in row-major order), as the rasterizer composites them."""
+    from scipy import sparse
+
+    from .rasterizer import compositing_pairs
+
+    rows, cols, vals = compositing_pairs(
+        tensors["means"], tensors["quats"], tensors["scales"], tensors["opacities"],
+        torch.as_tensor(camera.world_to_camera, dtype=torch.float32), torch.as_tensor(camera.K, dtype=torch.float32),
+        camera.width, camera.height, near=camera.near, far=camera.far)
+    n = tensors["means"].shape[0]
+    return sparse.csr_matrix((vals.numpy(), (rows.numpy(), cols.numpy())), shape=(camera.height * camera.width, n))
 
 
 class ClickSegmenter(Segmenter):
-    """One or two clicks in one view, propagated through the trained scene's geometry and refined by GrabCut.
+    """One or two clicks in one view, grown into a set of the scene's Gaussians and rendered into every view.
 
-    In the clicked view the region is the flood fill of the rendered depth from the clicks (neighbouring depths
-    within ``depth_tolerance``, within ``region_radius`` of the click in 3D) refined by GrabCut on the image. Its
-    pixels are lifted to 3D with the rendered depth. The other views are visited in order of increasing angle from the
-    clicked view (around the lifted points' centre); in each, the lifted points that are visible (their depth at most
-    the rendered depth there) give a prior region, which GrabCut refines (sure object: the eroded prior; probable
-    object: the prior; probable rest: a band around it; sure rest: the remainder). Each refined mask is lifted in turn
-    (within ``grow_radius`` of the first region), so the back of the object is reached as the views go round.
+    1. Clicked view: the region is a flood fill from the clicks over the depth of each pixel's largest-weight
+       Gaussian (sharp at object edges, unlike the blended expected depth), within ``region_radius`` of the click in
+       3D. Its tolerance grows from ``depth_tolerance_min`` by ``depth_tolerance_step`` and stops before the step
+       where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact); GrabCut on the image
+       then refines it.
+    2. Seeds: with the view's per-pixel compositing weights (``rasterizer.compositing_pairs``), a Gaussian whose
+       weight lies mostly inside the region seeds the object; one whose weight lies mostly in the band around the
+       region seeds the rest.
+    3. 3D growth: the Gaussians within ``grow_radius`` times the region's 3D radius are linked to their
+       ``neighbours`` nearest Gaussians, links weakened across colour edges (``colour_sigma``). Each Gaussian's label
+       is the smooth solution of this graph (a sparse linear solve, as in random-walker segmentation) with the
+       seeds held at 1 and 0, the Gaussians beyond the radius at 0, and a weak pull of the others towards the label
+       of the nearest seed colour; labels above ``threshold`` form the selection. This reaches the object's hidden
+       back, which no pixel of the clicked view shows.
+    4. Masks: in every view a pixel is the object when more than ``threshold`` of its alpha comes from the selected
+       Gaussians (occlusion is the full scene's compositing). ``vote_rounds`` times, the selection is re-estimated as
+       the Gaussians whose weight over all views falls mostly inside the masks, and the masks are rendered again.
 
     Args:
-        renderer: renderer name for depth (default the built-in ``torch``).
+        renderer: accepted for compatibility and unused: the compositing weights come from the built-in rasterizer
+            (:func:`roodi_toolkit.rasterizer.compositing_pairs`), whatever renderer trained the scene.
         seed: OpenCV's random seed (GrabCut's GMM initialisation).
         **settings: fields of :class:`ClickSettings`.
     """
@@ -452,12 +498,6 @@ class ClickSegmenter(Segmenter):
             return False, "OpenCV is missing: pip install opencv-python-headless"
         return True, ""
 
-    def _render(self, scene: GaussianCloud, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-        from .renderers import render_cloud
-
-        out = render_cloud(scene, camera, renderer=self.renderer)
-        return out.depth[..., 0].numpy().astype(np.float64), out.alpha[..., 0].numpy().astype(np.float64)
-
     def segment(self, dataset: Dataset, prompt: SegmentPrompt, *, scene: Optional[GaussianCloud] = None,
                 progress: ProgressFactory = null_progress) -> ViewMasks:
         """Return binary masks (1 = the clicked object) of every view.
@@ -465,31 +505,107 @@ class ClickSegmenter(Segmenter):
         Raises:
             ConfigError: no scene, bad clicks, or a click on empty space (no rendered depth there).
         """
-        import cv2
-
         if scene is None:
             raise ConfigError("the click segmenter needs the trained scene (its depth) to propagate the clicks")
         s = self.settings
         v0 = check_clicks(dataset, prompt.clicks)
         H, W = dataset.height, dataset.width
         names = dataset.names
-        out = np.zeros((len(dataset), H, W), dtype=np.int64)
+        t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)  # noqa: E731
+        tensors = {"means": t(scene.means), "quats": t(scene.quats_wxyz), "scales": t(scene.log_scales),
+                   "opacities": t(scene.opacity_logits)}
         cam0 = dataset.cameras[v0]
-        depth0, alpha0 = self._render(scene, cam0)
-        valid0 = (alpha0 >= s.min_alpha) & (depth0 > 0)
+        w0 = _view_weights(tensors, cam0)
         seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks]
+        mask0, band0 = self._clicked_region(dataset, v0, scene, w0, seeds)
+        inside = np.asarray(w0.T @ mask0.reshape(-1).astype(np.float64)).ravel()
+        around = np.asarray(w0.T @ band0.reshape(-1).astype(np.float64)).ravel()
+        total = np.asarray(w0.sum(axis=0)).ravel()
+        seen = total >= s.min_weight
+        fg = seen & (inside >= s.seed_fraction * total)
+        bg = seen & (around >= s.seed_fraction * total)
+        depth0 = self._depth(w0, scene, cam0).reshape(H, W)
+        rc = np.argwhere(mask0 & (depth0 > 0))
+        points = _backproject(cam0, rc, depth0[mask0 & (depth0 > 0)])
+        centre = points.mean(axis=0)
+        radius0 = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-6)
+        labels = self._grow(scene, fg, bg, centre, s.grow_radius * radius0)
+        selected = labels > s.threshold
+        candidates = np.linalg.norm(scene.means - centre, axis=1) <= s.grow_radius * radius0
+        info: dict[str, Any] = {"clicked_view": names[v0], "seed_gaussians": int(fg.sum()),
+                                "grown_gaussians": int(selected.sum())}
+        weights = []
+        with progress(total=len(dataset), desc="render the selection") as bar:
+            for v in range(len(dataset)):
+                w = w0 if v == v0 else _view_weights(tensors, dataset.cameras[v])
+                alpha = np.asarray(w.sum(axis=1)).ravel()
+                weights.append((w[:, candidates].tocsr(), alpha))
+                bar.update(1)
+        cand_index = np.flatnonzero(candidates)
+        sel = selected[cand_index].astype(np.float64)
+        for _ in range(max(int(s.vote_rounds), 0) + 1):
+            masks = [(wc @ sel > s.threshold * np.maximum(alpha, 1e-12)) & (alpha >= 1.0 / 255.0)
+                     for wc, alpha in weights]
+            if _ == s.vote_rounds:
+                break
+            inw = np.zeros(len(cand_index))
+            tot = np.zeros(len(cand_index))
+            for (wc, _alpha), m in zip(weights, masks):
+                inw += wc.T @ m.astype(np.float64)
+                tot += np.asarray(wc.sum(axis=0)).ravel()
+            voted = tot >= s.min_weight
+            sel = np.where(voted, inw > s.threshold * tot, sel > 0).astype(np.float64)
+        info["selected_gaussians"] = int(sel.sum())
+        out = np.stack([m.reshape(H, W) for m in masks]).astype(np.int64)
+        return ViewMasks(torch.from_numpy(out), names, "binary", 2, source=f"click in {names[v0]}", info=info)
+
+    @staticmethod
+    def _depth(weights: Any, scene: GaussianCloud, camera: Camera) -> np.ndarray:
+        """Return the rendered expected depth ``[H*W]`` (0 where nothing is hit) from compositing weights."""
+        z = scene.means @ camera.world_to_camera[2, :3] + camera.world_to_camera[2, 3]
+        alpha = np.asarray(weights.sum(axis=1)).ravel()
+        return np.where(alpha > 1e-10, (weights @ z) / np.maximum(alpha, 1e-10), 0.0)
+
+    @staticmethod
+    def _surface_depth(weights: Any, scene: GaussianCloud, camera: Camera) -> np.ndarray:
+        """Return the depth ``[H*W]`` of each pixel's largest-weight Gaussian (0 where nothing is hit): unlike the
+        expected depth it does not blend across object edges, so a flood fill stops there."""
+        z = scene.means @ camera.world_to_camera[2, :3] + camera.world_to_camera[2, 3]
+        top = np.asarray(weights.argmax(axis=1)).ravel()
+        hit = np.asarray(weights.max(axis=1).todense()).ravel() > 0
+        return np.where(hit, z[top], 0.0)
+
+    def _clicked_region(self, dataset: Dataset, v0: int, scene: GaussianCloud, w0: Any,
+                        seeds: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+        """Return the clicked view's object region and the band of rest around it, both ``[H, W]`` bool."""
+        import cv2
+
+        s = self.settings
+        H, W = dataset.height, dataset.width
+        cam0 = dataset.cameras[v0]
+        alpha0 = np.asarray(w0.sum(axis=1)).ravel().reshape(H, W)
+        depth0 = self._surface_depth(w0, scene, cam0).reshape(H, W)
+        valid0 = (alpha0 >= s.min_alpha) & (depth0 > 0)
         for r, c in seeds:
             if not valid0[r, c]:
-                raise ConfigError(f"the click at {c},{r} in {names[v0]} hits no surface of the scene model "
+                raise ConfigError(f"the click at {c},{r} in {dataset.names[v0]} hits no surface of the scene model "
                                   f"(rendered alpha below {s.min_alpha}); click on the object")
         diag = float(np.linalg.norm(np.asarray(dataset.bounds[1]) - np.asarray(dataset.bounds[0])))
-        all_rc = np.argwhere(valid0)
-        pts_all = _backproject(cam0, all_rc, depth0[valid0])
+        pts_all = _backproject(cam0, np.argwhere(valid0), depth0[valid0])
         near_grid = np.zeros((H, W), bool)
         for r, c in seeds:
             p0 = _backproject(cam0, np.array([[r, c]]), depth0[[r], [c]])[0]
             near_grid[valid0] |= np.linalg.norm(pts_all - p0, axis=1) <= s.region_radius * diag
-        region = _depth_flood_fill(depth0, valid0 & near_grid, seeds, s.depth_tolerance)
+        # the fill's tolerance grows step by step and stops before the step where the region suddenly grows
+        # several-fold: it has leaked through a contact onto the ground or a neighbour
+        tol = s.depth_tolerance_min
+        region = _depth_flood_fill(depth0, valid0 & near_grid, seeds, tol)
+        while tol * s.depth_tolerance_step <= s.depth_tolerance_max * (1 + 1e-9):
+            tol *= s.depth_tolerance_step
+            grown = _depth_flood_fill(depth0, valid0 & near_grid, seeds, tol)
+            if region.sum() >= s.leak_min_pixels and grown.sum() > s.leak_ratio * region.sum():
+                break
+            region = grown
         for r, c in seeds:
             region[r, c] = True
         init = np.full((H, W), cv2.GC_BGD, np.uint8)
@@ -497,63 +613,58 @@ class ClickSegmenter(Segmenter):
         init[region] = cv2.GC_PR_FGD
         for r, c in seeds:
             init[max(0, r - 1):r + 2, max(0, c - 1):c + 2] = cv2.GC_FGD
-        image0 = dataset.images[v0].numpy()
-        mask0 = _grabcut(image0, init, s.grabcut_iterations, self.seed)
+        mask0 = _grabcut(dataset.images[v0].numpy(), init, s.grabcut_iterations, self.seed)
         mask0 = _component_at(_fill_holes(mask0), seeds) & valid0 | (init == cv2.GC_FGD)
-        out[v0] = mask0
-        rc = np.argwhere(mask0 & valid0)
-        points = _backproject(cam0, rc, depth0[mask0 & valid0])
-        centre = points.mean(axis=0)
-        radius0 = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-6)
-        rng = np.random.default_rng(self.seed)
-        order = _views_by_angle(dataset.cameras, v0, centre)
-        info: dict[str, Any] = {"clicked_view": names[v0], "prior_pixels": {}}
-        with progress(total=len(order), desc="propagate clicks") as bar:
-            for v in order:
-                cam = dataset.cameras[v]
-                depth, alpha = self._render(scene, cam)
-                uv, z = cam.project(points)
-                px = np.floor(uv).astype(np.int64)
-                ok = (z > cam.near) & (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
-                px, z = px[ok], z[ok]
-                dref = depth[px[:, 1], px[:, 0]]
-                vis = (alpha[px[:, 1], px[:, 0]] >= s.min_alpha) & (z <= dref * (1 + s.visibility_tolerance))
-                prior = np.zeros((H, W), bool)
-                prior[px[vis, 1], px[vis, 0]] = True
-                info["prior_pixels"][names[v]] = int(prior.sum())
-                if prior.sum() < s.min_pixels:
-                    bar.update(1)
-                    continue
-                prior = _fill_holes(_close(prior, 1))
-                size = math.sqrt(prior.sum())
-                band = max(2, int(round(s.margin * size)))
-                init = np.full((H, W), cv2.GC_BGD, np.uint8)
-                init[_dilate(prior, band)] = cv2.GC_PR_BGD
-                init[prior] = cv2.GC_PR_FGD
-                init[_erode(prior, max(1, band // 2))] = cv2.GC_FGD
-                mask = _grabcut(dataset.images[v].numpy(), init, s.grabcut_iterations, self.seed)
-                mask = _fill_holes(mask)
-                out[v] = mask
-                valid = mask & (alpha >= s.min_alpha) & (depth > 0)
-                new = _backproject(cam, np.argwhere(valid), depth[valid])
-                new = new[np.linalg.norm(new - centre, axis=1) <= s.grow_radius * radius0]
-                points = np.concatenate([points, new])
-                if len(points) > s.max_points:
-                    points = points[rng.choice(len(points), s.max_points, replace=False)]
-                bar.update(1)
-        return ViewMasks(torch.from_numpy(out), names, "binary", 2, source=f"click in {names[v0]}", info=info)
+        band = _dilate(mask0, max(2, int(round(0.25 * math.sqrt(mask0.sum()))))) & ~mask0
+        return mask0, band
 
+    def _grow(self, scene: GaussianCloud, fg: np.ndarray, bg: np.ndarray, centre: np.ndarray,
+              radius: float) -> np.ndarray:
+        """Return each Gaussian's object label in 0..1 ``[N]``: the seeds grown through the 3D neighbour graph."""
+        from scipy import sparse
+        from scipy.spatial import cKDTree
+        from scipy.sparse.linalg import spsolve
 
-def _views_by_angle(cameras: Sequence[Camera], v0: int, centre: np.ndarray) -> list[int]:
-    """Return the view indices other than ``v0`` sorted by the angle between their and ``v0``'s direction to
-    ``centre``."""
-    def direction(cam: Camera) -> np.ndarray:
-        d = cam.center - centre
-        return d / max(float(np.linalg.norm(d)), 1e-12)
-
-    d0 = direction(cameras[v0])
-    others = [i for i in range(len(cameras)) if i != v0]
-    return sorted(others, key=lambda i: -float(direction(cameras[i]) @ d0))
+        s = self.settings
+        n = len(scene)
+        dist = np.linalg.norm(scene.means - centre, axis=1)
+        # the graph holds a shell beyond the radius, held at 0, so the growth feels the rest around the object
+        idx = np.flatnonzero(dist <= 1.5 * radius)
+        labels = np.zeros(n)
+        labels[fg] = 1.0
+        if len(idx) < 2:
+            return labels
+        pos = scene.means[idx]
+        rgb = np.clip(scene.rgb[idx], 0, 1)
+        k = min(s.neighbours, len(idx) - 1)
+        _, nb = cKDTree(pos).query(pos, k=k + 1)
+        i = np.repeat(np.arange(len(idx)), k)
+        j = nb[:, 1:].reshape(-1)
+        dc2 = ((rgb[i] - rgb[j]) ** 2).sum(1)
+        w = np.exp(-dc2 / (2 * s.colour_sigma ** 2))
+        A = sparse.coo_matrix((w, (i, j)), shape=(len(idx), len(idx))).tocsr()
+        A = A.maximum(A.T)
+        f, b = fg[idx], bg[idx] & ~fg[idx]
+        outside = dist[idx] > radius
+        fixed = f | b | outside
+        target = np.where(f, 1.0, 0.0)
+        prior = np.zeros(len(idx))
+        if f.any() and (b | outside).any():
+            d_fg, _ = cKDTree(rgb[f]).query(rgb)
+            d_bg, _ = cKDTree(rgb[b | outside]).query(rgb)
+            prior = d_bg / np.maximum(d_fg + d_bg, 1e-12)
+        free = ~fixed
+        if not free.any():
+            labels[idx] = target
+            return labels
+        L = sparse.diags(np.asarray(A.sum(axis=1)).ravel()) - A
+        Lff = L[free][:, free] + sparse.diags(np.full(int(free.sum()), s.colour_weight))
+        rhs = -(L[free][:, fixed] @ target[fixed]) + s.colour_weight * prior[free]
+        x = np.atleast_1d(spsolve(Lff.tocsc(), rhs))
+        out = target.copy()
+        out[free] = x
+        labels[idx] = out
+        return labels
 
 
 def _disk(radius: int) -> np.ndarray:
@@ -566,18 +677,6 @@ def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     from scipy import ndimage
 
     return ndimage.binary_dilation(mask, structure=_disk(radius)) if radius > 0 else mask.copy()
-
-
-def _erode(mask: np.ndarray, radius: int) -> np.ndarray:
-    from scipy import ndimage
-
-    return ndimage.binary_erosion(mask, structure=_disk(radius)) if radius > 0 else mask.copy()
-
-
-def _close(mask: np.ndarray, radius: int) -> np.ndarray:
-    from scipy import ndimage
-
-    return ndimage.binary_closing(mask, structure=_disk(radius)) if radius > 0 else mask.copy()
 
 
 def mask_iou(pred: np.ndarray | torch.Tensor, true: np.ndarray | torch.Tensor) -> float:

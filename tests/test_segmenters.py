@@ -8,6 +8,7 @@ import torch
 
 from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
 from roodi_toolkit.files import write_image
+from roodi_toolkit.renderers import render_cloud
 from roodi_toolkit.segmenters import (Click, ClickSegmenter, FilesSegmenter, SegmentPrompt, Segmenter, ViewMasks,
                                       get_segmenter, mask_iou, segmenter_names)
 
@@ -122,7 +123,7 @@ def test_click_checks(scene):
 
 @pytest.mark.parametrize("obj", [1, 2])
 def test_click_propagates_to_the_other_views(scene, obj):
-    ds, cloud, _ = scene
+    ds, cloud, ids = scene
     v = 3
     ys, xs = np.nonzero((ds.masks[v] == obj).numpy())
     k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
@@ -130,5 +131,16 @@ def test_click_propagates_to_the_other_views(scene, obj):
     assert masks.kind == "binary" and masks.info["clicked_view"] == ds.names[v]
     ious = [mask_iou(masks.masks[i] == 1, ds.masks[i] == obj) for i in range(len(ds))]
     assert ious[v] > 0.7
-    assert np.mean(ious) > 0.75, ious
-    assert min(ious) > 0.4, ious  # every view, including the far side of the orbit
+    assert np.mean(ious) > 0.9, ious
+    assert min(ious) > 0.6, ious  # every view, including the far side of the orbit
+    # the 3D growth reaches the object's hidden back and stops at the ground it stands on
+    n_true = int((ids == obj).sum())
+    assert abs(masks.info["selected_gaussians"] - n_true) <= 0.1 * n_true, (masks.info, n_true)
+
+
+def test_click_on_empty_space_is_refused(scene):
+    ds, cloud, _ = scene
+    alpha = [render_cloud(cloud, cam).alpha[..., 0] for cam in ds.cameras[:1]][0]
+    r, c = np.argwhere(alpha.numpy() < 0.5)[0]
+    with pytest.raises(ConfigError, match="hits no surface"):
+        ClickSegmenter().segment(ds, SegmentPrompt((Click(ds.names[0], c + 0.5, r + 0.5),)), scene=cloud)
