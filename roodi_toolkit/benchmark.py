@@ -389,29 +389,13 @@ def results_markdown(results: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def zoom_box(alpha: np.ndarray, scale: float = 2.0) -> tuple[int, int, int, int]:
-    """Return a square ``(y0, y1, x0, x1)`` about ``scale`` x the tight box of ``alpha``'s object (the whole image
-    when it shows none), clipped to the image: the zoom-in of the paper's Fig. 5."""
-    from .metrics import box_around
-
-    h, w = alpha.shape
-    box = box_around(alpha, scale)
-    if box is None:
-        return 0, h, 0, w
-    y0, y1, x0, x1 = box
-    side = min(max(y1 - y0, x1 - x0, 8), h, w)
-    cy, cx = (y0 + y1) // 2, (x0 + x1) // 2
-    y0, x0 = min(max(0, cy - side // 2), h - side), min(max(0, cx - side // 2), w - side)
-    return y0, y0 + side, x0, x0 + side
-
-
 def _scene_grid(data: Path, preset: str, methods: Sequence[str], pictures: dict[str, dict[int, np.ndarray]],
                 out: Path) -> Path:
     """Write the scene's picture grid (paper Fig. 5): per target a training view, then the truth and every method's
     render of the first test view, full frame (floaters anywhere show) and zoomed in on the true object."""
     from .datasets import load_dataset
     from .files import new_figure, save_figure
-    from .metrics import find_target
+    from .metrics import ALPHA_THRESHOLD, find_target, zoom_box
 
     scene = load_dataset(data)
     targets = _targets(data)
@@ -424,7 +408,7 @@ def _scene_grid(data: Path, preset: str, methods: Sequence[str], pictures: dict[
         truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
         images = [scene.images[int(np.argmax(areas))].numpy(), truth.images[0].numpy()]
         images += [pictures.get(m, {}).get(target["id"], np.ones_like(images[1])) for m in methods]
-        y0, y1, x0, x1 = zoom_box(truth.alphas[0].numpy())
+        y0, y1, x0, x1 = zoom_box(truth.alphas[0].numpy() > ALPHA_THRESHOLD, 2.0)
         for c, (img, title) in enumerate(zip(images, cols)):
             for k, view in enumerate((img, img[y0:y1, x0:x1] if c else None)):
                 ax = axes[2 * r + k, c]

@@ -213,33 +213,25 @@ def _view_scores(view: Any) -> str:
     return "" if view.psnr is None else f"\nPSNR {view.psnr:.1f} dB, IoU {view.iou:.2f}"
 
 
-def _zoom_box(mask: np.ndarray, scale: float = 3.0) -> tuple[int, int, int, int]:
-    """Return ``(y0, y1, x0, x1)``: a square ``scale`` x the mask's box about its centre, shifted inside the image."""
-    h, w = mask.shape
-    ys, xs = np.nonzero(mask)
-    if ys.size == 0:
-        return 0, h, 0, w
-    side = min(h, w, max(8, int(np.ceil(scale * max(ys.max() + 1 - ys.min(), xs.max() + 1 - xs.min())))))
-    cy, cx = (ys.min() + ys.max() + 1) // 2, (xs.min() + xs.max() + 1) // 2
-    y0, x0 = min(max(0, cy - side // 2), h - side), min(max(0, cx - side // 2), w - side)
-    return y0, y0 + side, x0, x0 + side
-
-
 def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visible: np.ndarray, truth: np.ndarray,
-                    before: np.ndarray, after: np.ndarray, titles: list[str], suptitle: str) -> None:
-    """Write five panels: a training view, its close-up (the target outlined, its hidden part in red), the true
-    object, the object before and after refinement."""
+                    truth_alpha: np.ndarray, before: np.ndarray, after: np.ndarray, titles: list[str],
+                    suptitle: str) -> None:
+    """Write five panels: a training view, its close-up (the target outlined, its hidden part in red), then, zoomed
+    in on the object in one test view, the true object and the object before and after refinement."""
     from matplotlib.patches import Rectangle
 
     from . import files
+    from .metrics import ALPHA_THRESHOLD, zoom_box
 
     view = train_image.copy()
     hidden = alone & ~visible
     view[hidden] = 0.45 * view[hidden] + 0.55 * np.array([1.0, 0.0, 0.0])
     view[_outline(alone)] = (1.0, 0.9, 0.0)
-    y0, y1, x0, x1 = _zoom_box(alone)
+    y0, y1, x0, x1 = zoom_box(alone)
+    t0, t1, s0, s1 = zoom_box(truth_alpha > ALPHA_THRESHOLD, 2.0)
+    test = [img[t0:t1, s0:s1] for img in (truth, before, after)]
     fig, axes = files.new_figure(1, 5, figsize=(16, 3.9))
-    for ax, img, title in zip(axes, [train_image, view[y0:y1, x0:x1], truth, before, after], titles):
+    for ax, img, title in zip(axes, [train_image, view[y0:y1, x0:x1], *test], titles):
         ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
         ax.set_title(title, fontsize=9)
         ax.set_xticks([])
@@ -335,9 +327,9 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
              "debug": odir / "debug", "selected_ply": odir / "selected.ply", "scene_model": ex_dir / "scene",
              "data": data, "overview": data / "overview.png", "report": out / "report.json"}
     _summary_figure(paths["summary"], dataset.images[k].numpy(), a[k], visible[k], truth.images[j].numpy(),
-                    before_renders[j], renders[j],
+                    truth.alphas[j].numpy(), before_renders[j], renders[j],
                     [f"training view {dataset.cameras[k].name}", f"close-up: {name} outlined,\nits hidden part in red",
-                     f"true {name} alone, test view {vj.name}",
+                     f"true {name} alone, test view {vj.name} (zoom)",
                      f"selected + pruned (before inpainting){_view_scores(before.views[j])}",
                      f"extracted (inpainted + fine-tuned){_view_scores(vj)}"],
                     f"ROODI on a generated {config.preset} scene (seed {config.seed}, "

@@ -375,16 +375,6 @@ def _component_at(mask: np.ndarray, seeds: Sequence[tuple[int, int]]) -> np.ndar
     return np.isin(labels, list(ids)) if ids else np.zeros_like(mask)
 
 
-def _backproject(camera: Camera, pixels_rc: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """Return world points ``[P, 3]`` of pixels ``[P, 2]`` (row, col) at z-depths ``[P]``."""
-    K = camera.K
-    u = pixels_rc[:, 1] + 0.5
-    v = pixels_rc[:, 0] + 0.5
-    cam = np.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth], axis=1)
-    c2w = camera.camera_to_world
-    return cam @ c2w[:3, :3].T + c2w[:3, 3]
-
-
 @dataclass(frozen=True)
 class ClickSettings:
     """Parameters of the ``click`` segmenter (ours; chosen on the generated benchmark scenes, see RESULTS.md).
@@ -526,7 +516,7 @@ class ClickSegmenter(Segmenter):
         bg = seen & (around >= s.seed_fraction * total)
         depth0 = self._depth(w0, scene, cam0).reshape(H, W)
         rc = np.argwhere(mask0 & (depth0 > 0))
-        points = _backproject(cam0, rc, depth0[mask0 & (depth0 > 0)])
+        points = cam0.backproject(rc, depth0[mask0 & (depth0 > 0)])
         centre = points.mean(axis=0)
         radius0 = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-6)
         labels = self._grow(scene, fg, bg, centre, s.grow_radius * radius0)
@@ -591,10 +581,10 @@ class ClickSegmenter(Segmenter):
                 raise ConfigError(f"the click at {c},{r} in {dataset.names[v0]} hits no surface of the scene model "
                                   f"(rendered alpha below {s.min_alpha}); click on the object")
         diag = float(np.linalg.norm(np.asarray(dataset.bounds[1]) - np.asarray(dataset.bounds[0])))
-        pts_all = _backproject(cam0, np.argwhere(valid0), depth0[valid0])
+        pts_all = cam0.backproject(np.argwhere(valid0), depth0[valid0])
         near_grid = np.zeros((H, W), bool)
         for r, c in seeds:
-            p0 = _backproject(cam0, np.array([[r, c]]), depth0[[r], [c]])[0]
+            p0 = cam0.backproject(np.array([[r, c]]), depth0[[r], [c]])[0]
             near_grid[valid0] |= np.linalg.norm(pts_all - p0, axis=1) <= s.region_radius * diag
         # the fill's tolerance grows step by step and stops before the step where the region suddenly grows
         # several-fold: it has leaked through a contact onto the ground or a neighbour

@@ -18,7 +18,8 @@ def scene_dir(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("m") / "picnic"
     make_scene(root, "picnic", seed=1, settings=SceneSettings(width=64, height=64, train_views=4, test_views=6,
-                                                             supersample=1, n_objects=5, n_targets=2))
+                                                             supersample=1, n_objects=5, n_targets=2,
+                                                             test_framing="object"))  # large enough at 64 px
     return root
 
 
