@@ -35,12 +35,16 @@ import torch
 
 from .cameras import Camera
 from .datasets import Dataset
-from .errors import ConfigError, DatasetError, PluginError
+from .errors import ConfigError, DatasetError, PluginError, RoodiError
 from .gaussians import GaussianCloud
 from .plugins import discover, instantiate
 from .progress import ProgressFactory, null_progress
 
 MASK_KINDS = ("binary", "instances")
+
+
+class SegmentationError(RoodiError):
+    """A segmenter ran but found no object (for example a click that selects nothing)."""
 
 
 # ------------------------------------------------------------------------------------------------------ prompt
@@ -494,6 +498,7 @@ class ClickSegmenter(Segmenter):
 
         Raises:
             ConfigError: no scene, bad clicks, or a click on empty space (no rendered depth there).
+            SegmentationError: the click selected nothing (the clicked view's mask came out empty).
         """
         if scene is None:
             raise ConfigError("the click segmenter needs the trained scene (its depth) to propagate the clicks")
@@ -546,6 +551,11 @@ class ClickSegmenter(Segmenter):
             voted = tot >= s.min_weight
             sel = np.where(voted, inw > s.threshold * tot, sel > 0).astype(np.float64)
         info["selected_gaussians"] = int(sel.sum())
+        if not masks[v0].any():
+            raise SegmentationError(
+                f"the click in {names[v0]} selected no Gaussians of the scene model ({int(fg.sum())} seeds, "
+                f"{int(selected.sum())} after growing, none left after the multi-view vote): click nearer the middle "
+                "of the object, add a second click, or give masks with the files segmenter")
         out = np.stack([m.reshape(H, W) for m in masks]).astype(np.int64)
         return ViewMasks(torch.from_numpy(out), names, "binary", 2, source=f"click in {names[v0]}", info=info)
 

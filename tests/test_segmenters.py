@@ -9,8 +9,8 @@ import torch
 from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
 from roodi_toolkit.files import write_image
 from roodi_toolkit.renderers import render_cloud
-from roodi_toolkit.segmenters import (Click, ClickSegmenter, FilesSegmenter, SegmentPrompt, Segmenter, ViewMasks,
-                                      get_segmenter, mask_iou, segmenter_names)
+from roodi_toolkit.segmenters import (Click, ClickSegmenter, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
+                                      ViewMasks, get_segmenter, mask_iou, segmenter_names)
 
 from .object_scene import object_dataset
 
@@ -144,3 +144,11 @@ def test_click_on_empty_space_is_refused(scene):
     r, c = np.argwhere(alpha.numpy() < 0.5)[0]
     with pytest.raises(ConfigError, match="hits no surface"):
         ClickSegmenter().segment(ds, SegmentPrompt((Click(ds.names[0], c + 0.5, r + 0.5),)), scene=cloud)
+
+
+def test_click_that_selects_nothing_says_so(scene):
+    ds, cloud, _ = scene
+    ys, xs = np.nonzero((ds.masks[3] == 1).numpy())
+    click = Click(ds.names[3], xs[0] + 0.5, ys[0] + 0.5)
+    with pytest.raises(SegmentationError, match="selected no Gaussians"):  # no Gaussian can be a seed
+        ClickSegmenter(min_weight=1e9).segment(ds, SegmentPrompt((click,)), scene=cloud)
