@@ -432,17 +432,14 @@ class ClickSettings:
 
 def _view_weights(tensors: dict[str, torch.Tensor], camera: Camera) -> Any:
     """Return the sparse ``[H*W, N]`` scipy CSR matrix of the Gaussians' alpha-compositing weights in ``camera``
-    (rows: pixels in row-major order), as the rasterizer composites them."""
+    (rows: pixels in row-major order): :func:`roodi_toolkit.distill.compositing_weights` in scipy's form, for the
+    column slicing and sums the propagation needs."""
     from scipy import sparse
 
-    from .rasterizer import compositing_pairs
+    from .distill import compositing_weights
 
-    rows, cols, vals = compositing_pairs(
-        tensors["means"], tensors["quats"], tensors["scales"], tensors["opacities"],
-        torch.as_tensor(camera.world_to_camera, dtype=torch.float32), torch.as_tensor(camera.K, dtype=torch.float32),
-        camera.width, camera.height, near=camera.near, far=camera.far)
-    n = tensors["means"].shape[0]
-    return sparse.csr_matrix((vals.numpy(), (rows.numpy(), cols.numpy())), shape=(camera.height * camera.width, n))
+    w = compositing_weights(tensors, camera)
+    return sparse.csr_matrix((w.values().numpy(), w.col_indices().numpy(), w.crow_indices().numpy()), shape=w.shape)
 
 
 class ClickSegmenter(Segmenter):
@@ -506,9 +503,9 @@ class ClickSegmenter(Segmenter):
         v0 = check_clicks(dataset, prompt.clicks)
         H, W = dataset.height, dataset.width
         names = dataset.names
-        t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)  # noqa: E731
-        tensors = {"means": t(scene.means), "quats": t(scene.quats_wxyz), "scales": t(scene.log_scales),
-                   "opacities": t(scene.opacity_logits)}
+        from .distill import _frozen_tensors
+
+        tensors = _frozen_tensors(scene)
         cam0 = dataset.cameras[v0]
         w0 = _view_weights(tensors, cam0)
         seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks]
