@@ -177,6 +177,18 @@ class ViewTargets:
     weights: Tensor = field(repr=False)
 
 
+def sphere_outline(camera: Camera, centre: Sequence[float], radius: float) -> tuple[Optional[np.ndarray], float]:
+    """Return the pixels ``[H, W]`` (bool, by their centres) inside the image outline of a sphere, and the depth of
+    its centre; ``None`` for the pixels when the centre is not in front of the camera."""
+    uv, z = camera.project(np.asarray(centre, dtype=np.float64)[None])
+    z = float(z[0])
+    if z <= 0:
+        return None, z
+    r_px = camera.K[0, 0] * radius / max(math.sqrt(max(z * z - radius * radius, 1e-12)), 1e-9)
+    ys, xs = np.mgrid[0:camera.height, 0:camera.width]
+    return (xs + 0.5 - uv[0, 0]) ** 2 + (ys + 0.5 - uv[0, 1]) ** 2 <= r_px ** 2, z
+
+
 def object_view_targets(images: Tensor, cameras: Sequence[Camera], object_masks: Tensor, *,
                         depths: Optional[Tensor] = None, centre: Optional[np.ndarray] = None, radius: float = 0.0,
                         background: Sequence[float] = (1.0, 1.0, 1.0)) -> ViewTargets:
@@ -201,15 +213,11 @@ def object_view_targets(images: Tensor, cameras: Sequence[Camera], object_masks:
     weights = torch.ones(masks.shape)
     if depths is not None and centre is not None and radius > 0:
         for i, cam in enumerate(cameras):
-            uv, z = cam.project(np.asarray(centre)[None])
-            z = float(z[0])
-            if z <= 0:
+            inside, z = sphere_outline(cam, centre, radius)
+            if inside is None:
                 continue
-            r_px = cam.K[0, 0] * radius / max(math.sqrt(max(z * z - radius * radius, 1e-12)), 1e-9)
-            ys, xs = torch.meshgrid(torch.arange(cam.height) + 0.5, torch.arange(cam.width) + 0.5, indexing="ij")
-            inside = (xs - uv[0, 0]) ** 2 + (ys - uv[0, 1]) ** 2 <= r_px ** 2
             d = depths[i]
-            may_hide = inside & (d > 0) & (d < z + radius) & ~masks[i]
+            may_hide = torch.from_numpy(inside) & (d > 0) & (d < z + radius) & ~masks[i]
             weights[i][may_hide] = 0.0
     return ViewTargets(list(cameras), targets, weights)
 
@@ -330,13 +338,9 @@ def seed_hole_gaussians(object_cloud: GaussianCloud, occlusion: OcclusionResult,
         shown = alpha >= alpha_threshold
         if not shown.any():
             continue
-        uv, zc = cam.project(np.asarray(occlusion.centre)[None])
-        zc = float(zc[0])
-        if zc <= occlusion.radius:
+        inside, zc = sphere_outline(cam, occlusion.centre, occlusion.radius)
+        if inside is None or zc <= occlusion.radius:
             continue
-        r_px = cam.K[0, 0] * occlusion.radius / math.sqrt(zc * zc - occlusion.radius ** 2)
-        ys, xs = np.mgrid[0:cam.height, 0:cam.width]
-        inside = (xs + 0.5 - uv[0, 0]) ** 2 + (ys + 0.5 - uv[0, 1]) ** 2 <= r_px ** 2
         grid = np.zeros_like(shown)
         grid[::stride, ::stride] = True
         filled = np.abs(image - bg).max(axis=2) > min_difference
