@@ -18,15 +18,19 @@ after occlusion-reasoned inpainting and fine-tuning), this compares ``selected.p
 With ``--control``, ``selected.ply`` is also fine-tuned again with the run's settings but on the original views only
 (the same steps in the same order, without the inpainted views' terms), which tells what the inpainted views add
 beyond more fitting to the training views. (Re-running the whole refinement reproduces ``refined.ply`` exactly.)
+With ``--variant NAME:KEY=VALUE[,KEY=VALUE...]`` (repeatable) the whole refinement runs again from ``selected.ply``
+with those :class:`~roodi_toolkit.finetune.FinetuneConfig` fields changed, e.g. ``--variant lr10:sh0_lr=0.025``;
+``--seed-holes`` is ``--variant seeded:seed_holes=true``.
 
 Usage: .venv/bin/python benchmarks/bench_refine.py [OUT_DIR SCENES_ROOT] [--preset P ...] [--control] [--seed-holes]
-       [--json PATH]
+       [--variant NAME:KEY=VALUE,...] [--json PATH]
 (default: the 64x64 benchmark run, /work/bench/out and /work/bench/scenes). Read only: writes nothing but the JSON.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -70,6 +74,29 @@ def run_configs(record: dict | None) -> tuple[OcclusionConfig, FinetuneConfig]:
     return OcclusionConfig(**occ), FinetuneConfig(**fine)
 
 
+def parse_variant(text: str) -> tuple[str, dict]:
+    """Return the name and the FinetuneConfig overrides of ``NAME:KEY=VALUE[,KEY=VALUE...]`` (values typed as the
+    fields' defaults)."""
+    name, sep, body = text.partition(":")
+    if not sep or not name or name in ("before", "after", "originals_only"):
+        raise argparse.ArgumentTypeError(f"--variant wants NAME:KEY=VALUE[,...] with a new name, got {text!r}")
+    defaults = {f.name: f.default for f in dataclasses.fields(FinetuneConfig)}
+    overrides = {}
+    for item in filter(None, body.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq or key not in defaults:
+            raise argparse.ArgumentTypeError(f"--variant {name}: {item!r} is not KEY=VALUE with a FinetuneConfig "
+                                             f"field ({', '.join(defaults)})")
+        kind = type(defaults[key])
+        if kind is bool:
+            overrides[key] = value.lower() in ("1", "true", "yes", "on")
+        elif kind in (int, float):
+            overrides[key] = kind(value)
+        else:
+            overrides[key] = value
+    return name, overrides
+
+
 def finetune_originals_only(cloud, cams, images: torch.Tensor, masks: torch.Tensor, depths: torch.Tensor, occ,
                             config: FinetuneConfig):
     """Return ``cloud`` fine-tuned as :func:`roodi_toolkit.finetune.refine_object` does, without the inpainted views.
@@ -90,10 +117,10 @@ def finetune_originals_only(cloud, cams, images: torch.Tensor, masks: torch.Tens
 
 
 def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, object_id: int,
-                   scene_depths: torch.Tensor | None = None, seed_holes: bool = False) -> dict:
+                   scene_depths: torch.Tensor | None = None, variants: dict[str, dict] | None = None) -> dict:
     """Return the figures of one target: occlusion-mask scores, PSNRs and paper metrics before and after refinement
     (and after fine-tuning on the original views only, given the scene's depth ``[N, H, W]`` in the training views;
-    and after the whole refinement again with hole seeding, ``seed_holes``)."""
+    and after the whole refinement again with each of ``variants``' FinetuneConfig overrides)."""
     t0 = time.perf_counter()
     odir = out_dir / f"object_{object_id}"
     target = next(o for o in scene.objects if o.id == object_id)
@@ -116,9 +143,9 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
     clouds = {"before": before, "after": after}
     if scene_depths is not None:
         clouds["originals_only"] = finetune_originals_only(before, cams, images, masks, scene_depths, occ, fine)
-    if seed_holes:
-        clouds["seeded"] = refine_object(before, scene_cloud, images, cams, masks, occlusion=config,
-                                         finetune=replace(fine, seed_holes=True)).cloud
+    for label, overrides in (variants or {}).items():
+        clouds[label] = refine_object(before, scene_cloud, images, cams, masks, occlusion=config,
+                                      finetune=replace(fine, **overrides)).cloud
     psnr = {}
     for label, cloud in clouds.items():
         figures = psnr_figures(cloud, cams, images, masks, occ.cameras, gt, truth)
@@ -134,9 +161,9 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
 
 
 def measure_preset(out_root: Path, scenes_root: Path, preset: str, control: bool = False,
-                   seed_holes: bool = False) -> list[dict]:
-    """Return the figures of every target of one preset (with the originals-only control if ``control``, the
-    refinement with hole seeding if ``seed_holes``)."""
+                   variants: dict[str, dict] | None = None) -> list[dict]:
+    """Return the figures of every target of one preset (with the originals-only control if ``control``, and the
+    refinement again with each of ``variants``' overrides)."""
     data = scenes_root / preset
     record = read_json(data / "scene.json", "scene record")
     scene = scene_from_record(record)
@@ -151,7 +178,7 @@ def measure_preset(out_root: Path, scenes_root: Path, preset: str, control: bool
                                   for v in dataset.train_indices])
     rows = []
     for t in record["targets"]:
-        row = measure_target(data, full, scene, dataset, scene_cloud, int(t["id"]), depths, seed_holes)
+        row = measure_target(data, full, scene, dataset, scene_cloud, int(t["id"]), depths, variants)
         rows.append({"preset": preset, **row})
         print_row(rows[-1])
     return rows
@@ -193,8 +220,9 @@ def summarize(rows: list[dict]) -> dict:
 def _change(m: dict) -> str:
     """Return ``before -> after (+change)`` and the originals-only control where measured."""
     out = f"{m['before']:8.3f} -> {m['after']:8.3f} ({m['change_after']:+.3f})"
-    for label in ("originals_only", "seeded"):
-        if label in m:
+    for label in m:
+        if label.startswith("change_") and label != "change_after":
+            label = label[len("change_"):]
             out += f" | {label.replace('_', ' ')} {m[label]:8.3f} ({m[f'change_{label}']:+.3f})"
     return out
 
@@ -204,8 +232,8 @@ def print_row(r: dict) -> None:
 
     def pair(f: str, digits: int = 2) -> str:
         text = f"{p['before'][f]:.{digits}f} -> {p['after'][f]:.{digits}f}"
-        return text + "".join(f" [{label[:4]} {p[label][f]:.{digits}f}]" for label in ("originals_only", "seeded")
-                              if label in p)
+        return text + "".join(f" [{label[:6]} {p[label][f]:.{digits}f}]" for label in p
+                              if label not in ("before", "after"))
 
     print(f"{r['preset']:<10} {r['object_name']:<10} {r['gaussians']:>4} G, hidden {100 * r['hidden_fraction']:5.2f}% "
           f"P {o['precision']:.2f} R {o['recall']:.2f} | occluded {pair('occluded_hidden_psnr')} | "
@@ -232,13 +260,18 @@ def main() -> None:
     ap.add_argument("--control", action="store_true", help="also fine-tune on the original views only")
     ap.add_argument("--seed-holes", action="store_true",
                     help="also run the whole refinement again with hole seeding (FinetuneConfig.seed_holes)")
+    ap.add_argument("--variant", action="append", type=parse_variant, default=[], metavar="NAME:KEY=VALUE,...",
+                    help="also run the whole refinement again with these FinetuneConfig fields (repeatable)")
     ap.add_argument("--json", default=None, help="write every figure here")
     a = ap.parse_args()
     t0 = time.perf_counter()
     presets = a.preset or [p for p in PRESETS if (Path(a.out_dir) / p / "full").is_dir()]
+    variants = dict(a.variant)
+    if a.seed_holes:
+        variants["seeded"] = {"seed_holes": True}
     rows = []
     for preset in presets:
-        rows += measure_preset(Path(a.out_dir), Path(a.scenes_root), preset, a.control, a.seed_holes)
+        rows += measure_preset(Path(a.out_dir), Path(a.scenes_root), preset, a.control, variants)
     per_preset = {p: summarize([r for r in rows if r["preset"] == p]) for p in presets}
     overall = summarize(rows)
     # the paper's protocol: the mean per scene, then over scenes (the pooled mask scores are over all objects)
@@ -255,7 +288,7 @@ def main() -> None:
     print(f"\n{len(rows)} objects in {seconds:.0f} s")
     if a.json:
         write_json({"out_dir": a.out_dir, "scenes_root": a.scenes_root, "control": a.control,
-                    "seed_holes": a.seed_holes, "objects": rows,
+                    "variants": variants, "objects": rows,
                     "per_preset": per_preset, "all_objects": overall, "scene_mean": scene_mean, "seconds": seconds},
                    a.json)
 
