@@ -11,6 +11,9 @@ after occlusion-reasoned inpainting and fine-tuning), this compares ``selected.p
   generator's mesh ray casting from the same cameras);
 - PSNR in those 4 views against the true target alone on white, over the hidden-truth pixels ("occluded") and over
   the whole view;
+- whether the hidden parts were ever seen: the hidden-truth pixels' surface points (the target alone, the generator's
+  depth) counted in the training views that see them (the generator's ids and depth), and the object model's alpha
+  there before refinement;
 - PSNR in the training views inside the target's mask ("unoccluded");
 - the paper's metrics (:func:`roodi_toolkit.metrics.evaluate_object`: PSNR in 1.2x the true box, alpha IoU) on the
   target's object-alone test views: the "w/o inpainting" vs "full" comparison per object.
@@ -43,7 +46,7 @@ import torch
 torch.set_num_threads(1)  # two threads on a busy 2-core machine are ~10x slower
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.bench_inpaint import object_view_truth, psnr_figures  # noqa: E402
+from benchmarks.bench_inpaint import object_view_truth, psnr_figures, seen_in_views  # noqa: E402
 from roodi_toolkit.benchmark import MACHINE_SIZE, PRESETS, extract_config  # noqa: E402
 from roodi_toolkit.datasets import load_dataset  # noqa: E402
 from roodi_toolkit.distill import load_distillation  # noqa: E402
@@ -53,7 +56,7 @@ from roodi_toolkit.finetune import (FinetuneConfig, ViewTargets, finetune_object
 from roodi_toolkit.metrics import evaluate_object  # noqa: E402
 from roodi_toolkit.occlusion import OcclusionConfig, mask_scores, occlusion_masks, up_from_cameras  # noqa: E402
 from roodi_toolkit.ply import read_ply  # noqa: E402
-from roodi_toolkit.scenegen import scene_from_record  # noqa: E402
+from roodi_toolkit.scenegen import render_views, scene_from_record  # noqa: E402
 from roodi_toolkit.training import cloud_to_params, render_params  # noqa: E402
 
 FIGURES = ("occluded_hidden_psnr", "object_views_psnr", "unoccluded_train_psnr", "test_psnr", "test_iou")
@@ -116,8 +119,26 @@ def finetune_originals_only(cloud, cams, images: torch.Tensor, masks: torch.Tens
     return finetune_object(cloud, originals, no_views, config).cloud
 
 
+def hidden_seen(scene, target, occ, truth: np.ndarray, cams, train_renders) -> dict:
+    """Return how the hidden-truth pixels' surface points were seen in the training views (the generator's renders
+    ``train_renders`` from ``cams``) and the object model's alpha at those pixels (``occ``: its occlusion result)."""
+    if not truth.any():
+        return {"seen_1": float("nan"), "seen_3": float("nan"), "median_views": float("nan"),
+                "object_alpha": float("nan")}
+    alone = render_views(scene, occ.cameras, object_ids=[target.id], with_ground=False, supersample=1)
+    points = np.concatenate([cam.backproject(np.argwhere(truth[k]), alone[k].depth[truth[k]])
+                             for k, cam in enumerate(occ.cameras) if truth[k].any()])
+    # depth slack: a fifth of the target's radius (the far side of the target must not count as seen)
+    tol = 0.2 * float(np.linalg.norm(target.vertices - target.center, axis=1).max())
+    counts = sum(seen_in_views(points, [c], [r], target.id, tol=tol).astype(np.int64)
+                 for c, r in zip(cams, train_renders))
+    return {"seen_1": float(np.mean(counts >= 1)), "seen_3": float(np.mean(counts >= 3)),
+            "median_views": float(np.median(counts)), "object_alpha": float(occ.object_alpha.numpy()[truth].mean())}
+
+
 def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, object_id: int,
-                   scene_depths: torch.Tensor | None = None, variants: dict[str, dict] | None = None) -> dict:
+                   scene_depths: torch.Tensor | None = None, variants: dict[str, dict] | None = None,
+                   train_renders=None) -> dict:
     """Return the figures of one target: occlusion-mask scores, PSNRs and paper metrics before and after refinement
     (and after fine-tuning on the original views only, given the scene's depth ``[N, H, W]`` in the training views;
     and after the whole refinement again with each of ``variants``' FinetuneConfig overrides)."""
@@ -157,6 +178,7 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
             "occlusion_opened": mask_scores(occ.occluded.numpy(), truth),
             "occlusion_raw": mask_scores(occ.occluded_raw.numpy(), truth),
             "inpaint_mask_recall_of_hidden": mask_scores(occ.mask.numpy(), truth)["recall"],
+            "hidden_seen": hidden_seen(scene, target, occ, truth, cams, train_renders),
             "reproduced": reproduced, "psnr": psnr, "seconds": time.perf_counter() - t0}
 
 
@@ -176,9 +198,10 @@ def measure_preset(out_root: Path, scenes_root: Path, preset: str, control: bool
         with torch.no_grad():
             depths = torch.stack([render_params(params, dataset.cameras[v]).depth[..., 0]
                                   for v in dataset.train_indices])
+    train_renders = render_views(scene, [dataset.cameras[v] for v in dataset.train_indices], supersample=1)
     rows = []
     for t in record["targets"]:
-        row = measure_target(data, full, scene, dataset, scene_cloud, int(t["id"]), depths, variants)
+        row = measure_target(data, full, scene, dataset, scene_cloud, int(t["id"]), depths, variants, train_renders)
         rows.append({"preset": preset, **row})
         print_row(rows[-1])
     return rows
@@ -214,6 +237,9 @@ def summarize(rows: list[dict]) -> dict:
     out["inpaint_mask_recall_of_hidden"] = (sum(r["inpaint_mask_recall_of_hidden"] * r["hidden_pixels"] for r in rows
                                                 if r["hidden_pixels"]) / hidden if hidden else float("nan"))
     out["hidden_fraction"] = _nanmean([r["hidden_fraction"] for r in rows])
+    for key in ("seen_1", "seen_3", "object_alpha"):  # over hidden pixels, all objects pooled
+        out[f"hidden_{key}"] = (sum(r["hidden_seen"][key] * r["hidden_pixels"] for r in rows if r["hidden_pixels"])
+                                / hidden if hidden else float("nan"))
     return out
 
 
@@ -235,7 +261,9 @@ def print_row(r: dict) -> None:
         return text + "".join(f" [{label[:6]} {p[label][f]:.{digits}f}]" for label in p
                               if label not in ("before", "after"))
 
+    h = r["hidden_seen"]
     print(f"{r['preset']:<10} {r['object_name']:<10} {r['gaussians']:>4} G, hidden {100 * r['hidden_fraction']:5.2f}% "
+          f"(seen in >=3 train views {h['seen_3']:.2f}, object alpha {h['object_alpha']:.2f}) "
           f"P {o['precision']:.2f} R {o['recall']:.2f} | occluded {pair('occluded_hidden_psnr')} | "
           f"view {pair('object_views_psnr')} | unoccluded {pair('unoccluded_train_psnr')} | "
           f"test {pair('test_psnr')} IoU {pair('test_iou', 3)} | {r['seconds']:.0f} s", flush=True)
@@ -246,7 +274,8 @@ def print_summary(name: str, s: dict) -> None:
           f"P {s['occlusion_opened']['precision']:.3f} R {s['occlusion_opened']['recall']:.3f} "
           f"IoU {s['occlusion_opened']['iou']:.3f}, raw P {s['occlusion_raw']['precision']:.3f} "
           f"R {s['occlusion_raw']['recall']:.3f} IoU {s['occlusion_raw']['iou']:.3f}; inpainting mask recall "
-          f"{s['inpaint_mask_recall_of_hidden']:.3f}")
+          f"{s['inpaint_mask_recall_of_hidden']:.3f}; hidden pixels seen in >=1 / >=3 training views "
+          f"{s['hidden_seen_1']:.2f} / {s['hidden_seen_3']:.2f}, object alpha there {s['hidden_object_alpha']:.2f}")
     for f in FIGURES:
         if s[f]["n"]:
             print(f"  {LABELS[f]:<34} {_change(s[f])}; improved {s[f]['improved']}/{s[f]['n']}")
