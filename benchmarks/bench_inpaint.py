@@ -11,11 +11,13 @@ leaves what it never saw. Training views are the generator's renders. Then:
   ("occluded") and over the whole view.
 
 Usage: .venv/bin/python benchmarks/bench_inpaint.py [--preset picnic --seed 0 --target basket_3 --size 64 ...]
+       [--finetune KEY=VALUE,...]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -40,6 +42,25 @@ def masked_psnr(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> float:
         return float("nan")
     mse = float(((a.clamp(0, 1) - b) ** 2)[mask].mean())
     return float("inf") if mse == 0 else -10 * math.log10(mse)
+
+
+def finetune_overrides(text: str) -> dict:
+    """Return the :class:`FinetuneConfig` fields of ``KEY=VALUE[,KEY=VALUE...]``, typed as the fields' defaults."""
+    defaults = {f.name: f.default for f in dataclasses.fields(FinetuneConfig)}
+    overrides = {}
+    for item in filter(None, text.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq or key not in defaults:
+            raise argparse.ArgumentTypeError(f"{item!r} is not KEY=VALUE with a FinetuneConfig field "
+                                             f"({', '.join(defaults)})")
+        kind = type(defaults[key])
+        if kind is bool:
+            overrides[key] = value.lower() in ("1", "true", "yes", "on")
+        elif kind in (int, float):
+            overrides[key] = kind(value)
+        else:
+            overrides[key] = value
+    return overrides
 
 
 def seen_in_views(points: np.ndarray, cams, renders, target_id: int, tol: float) -> np.ndarray:
@@ -80,7 +101,7 @@ def psnr_figures(cloud: GaussianCloud, train_cams, images: torch.Tensor, masks: 
 
 
 def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64, train_views=12, iterations=100,
-        inpainter="opencv", debug_dir=None) -> dict:
+        inpainter="opencv", debug_dir=None, finetune: dict | None = None) -> dict:
     t0 = time.perf_counter()
     scene = build_scene(preset, seed)
     target = next(o for o in scene.targets if o.name == target_name)
@@ -99,7 +120,8 @@ def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64,
     images = torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in renders])
     masks = torch.stack([torch.as_tensor(r.ids == target.id) for r in renders])
     res = refine_object(obj, scene_cloud, images, cams, masks, inpainter=inpainter, occlusion=occ_cfg,
-                        finetune=FinetuneConfig(iterations=iterations), up=(0, 0, 1), debug_dir=debug_dir)
+                        finetune=FinetuneConfig(iterations=iterations, **(finetune or {})), up=(0, 0, 1),
+                        debug_dir=debug_dir)
     truth, gt = object_view_truth(scene, target, res.occlusion.cameras)
     scores = mask_scores(res.occlusion.occluded.numpy(), truth)
     raw = mask_scores(res.occlusion.occluded_raw.numpy(), truth)
@@ -107,7 +129,7 @@ def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64,
     figures = {label: psnr_figures(cloud, cams, images, masks, res.occlusion.cameras, gt, truth)
                for label, cloud in (("before", obj), ("after", res.cloud))}
     return {"preset": preset, "seed": seed, "target": target_name, "view_size": size, "train_size": train_size,
-            "train_views": train_views, "iterations": iterations, "inpainter": res.inpainter,
+            "train_views": train_views, "iterations": iterations, "finetune": finetune or {}, "inpainter": res.inpainter,
             "perceptual": res.finetune.perceptual, "object_gaussians": len(obj), "never_seen": int((~seen).sum()),
             "hidden_fraction": float(truth.mean()), "occlusion_opened": scores, "occlusion_raw": raw,
             "inpaint_mask_recall_of_hidden": full_recall, "psnr": figures,
@@ -125,9 +147,11 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=100)
     ap.add_argument("--inpainter", default="opencv")
     ap.add_argument("--debug-dir", default=None)
+    ap.add_argument("--finetune", type=finetune_overrides, default={}, metavar="KEY=VALUE,...",
+                    help="FinetuneConfig fields to change, e.g. sh0_lr=0.025")
     a = ap.parse_args()
     out = run(a.preset, a.seed, a.target, a.size, a.train_size, a.train_views, a.iterations, a.inpainter,
-              a.debug_dir)
+              a.debug_dir, a.finetune)
     print(json.dumps(out, indent=1))
 
 

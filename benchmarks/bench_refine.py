@@ -46,7 +46,8 @@ import torch
 torch.set_num_threads(1)  # two threads on a busy 2-core machine are ~10x slower
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.bench_inpaint import object_view_truth, psnr_figures, seen_in_views  # noqa: E402
+from benchmarks.bench_inpaint import (finetune_overrides, object_view_truth, psnr_figures,  # noqa: E402
+                                      seen_in_views)
 from roodi_toolkit.benchmark import MACHINE_SIZE, PRESETS, extract_config  # noqa: E402
 from roodi_toolkit.datasets import load_dataset  # noqa: E402
 from roodi_toolkit.distill import load_distillation  # noqa: E402
@@ -78,26 +79,14 @@ def run_configs(record: dict | None) -> tuple[OcclusionConfig, FinetuneConfig]:
 
 
 def parse_variant(text: str) -> tuple[str, dict]:
-    """Return the name and the FinetuneConfig overrides of ``NAME:KEY=VALUE[,KEY=VALUE...]`` (values typed as the
-    fields' defaults)."""
+    """Return the name and the FinetuneConfig overrides of ``NAME:KEY=VALUE[,KEY=VALUE...]``."""
     name, sep, body = text.partition(":")
     if not sep or not name or name in ("before", "after", "originals_only"):
         raise argparse.ArgumentTypeError(f"--variant wants NAME:KEY=VALUE[,...] with a new name, got {text!r}")
-    defaults = {f.name: f.default for f in dataclasses.fields(FinetuneConfig)}
-    overrides = {}
-    for item in filter(None, body.split(",")):
-        key, eq, value = item.partition("=")
-        if not eq or key not in defaults:
-            raise argparse.ArgumentTypeError(f"--variant {name}: {item!r} is not KEY=VALUE with a FinetuneConfig "
-                                             f"field ({', '.join(defaults)})")
-        kind = type(defaults[key])
-        if kind is bool:
-            overrides[key] = value.lower() in ("1", "true", "yes", "on")
-        elif kind in (int, float):
-            overrides[key] = kind(value)
-        else:
-            overrides[key] = value
-    return name, overrides
+    try:
+        return name, finetune_overrides(body)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"--variant {name}: {exc}") from None
 
 
 def finetune_originals_only(cloud, cams, images: torch.Tensor, masks: torch.Tensor, depths: torch.Tensor, occ,
