@@ -258,8 +258,10 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     run_order = sorted(methods, key=lambda m: (m not in ("full", "no_two_stage"), methods.index(m)))
     root, out = Path(root), files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True)
     root.mkdir(parents=True, exist_ok=True)
-    scores_path = out / "scores.json"
-    cache: dict[str, Any] = files.read_json(scores_path, "scores") if scores_path.is_file() and not overwrite else {}
+    # scores are kept per scene, so that runs of different presets (--preset) can go side by side; an older
+    # OUT_DIR/scores.json (one file for all scenes) is still read
+    legacy = out / "scores.json"
+    cache: dict[str, Any] = files.read_json(legacy, "scores") if legacy.is_file() and not overwrite else {}
     config = config or extract_config(size, seed)
     results: dict[str, Any] = {"root": str(root), "seed": seed, "size": asdict(size), "methods": methods,
                                "iterations": config.train.iterations, "labels": {m: METHODS[m] for m in methods}, "scenes": {}}
@@ -267,6 +269,11 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     for preset in presets:
         data = _scene(root, preset, seed, size, progress)
         scene_out = out / preset
+        scene_out.mkdir(parents=True, exist_ok=True)
+        scores_path = scene_out / "scores.json"
+        if scores_path.is_file() and not overwrite:
+            cache.update(files.read_json(scores_path, "scores"))
+        scene_cache = {k: v for k, v in cache.items() if k.startswith(f"{preset}/")}
         per_method: dict[str, Any] = {}
         loaded: dict[str, dict[str, Any]] = {}  # per model: its distillation, read once for the scene's baselines
         pictures: dict[str, dict[int, np.ndarray]] = {}
@@ -295,9 +302,9 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                 except RoodiError as exc:
                     row = cache.get(key) or {**_empty_scores(data, target["id"]), "failed": str(exc), "gaussians": 0,
                                              "seconds": time.perf_counter() - t}
-                cache[key] = row
+                cache[key] = scene_cache[key] = row
                 rows.append(row)
-                files.write_json(cache, scores_path)
+                files.write_json(scene_cache, scores_path)
             # seconds of the first run that computed each object (training included where the method trains)
             per_method[method] = {"objects": rows, "mean": _average(rows),
                                   "seconds": float(sum(r.get("seconds", 0.0) for r in rows))}

@@ -79,7 +79,10 @@ def test_benchmark_runs_every_method_and_writes_the_tables(tiny_kitchen, tmp_pat
     sim = json.loads((tmp_path / "bench" / "kitchen" / "feature_similarity" / f"object_{targets[0]['id']}"
                       / "selection.json").read_text())
     assert 0.5 <= sim["threshold"] <= 0.99 and sim["train_mask_iou"] is not None
-    # a re-run reuses everything: same scores
+    # scores are kept per scene (presets can run side by side); a re-run reuses everything: same scores
+    assert set(json.loads((kitchen / "scores.json").read_text())) == {
+        f"kitchen/{m}/{t['id']}" for m in METHODS for t in targets}
+    assert not (tmp_path / "bench" / "scores.json").exists()
     again = run_benchmark(root, tmp_path / "bench", presets=["kitchen"], size=MACHINE_SIZE, config=TINY)
     assert again["mean"] == results["mean"]
 
