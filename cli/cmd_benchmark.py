@@ -20,9 +20,9 @@ EXAMPLE = """Example:
 @click.argument("out_dir", type=click.Path(path_type=str))
 @click.option("--preset", "presets", multiple=True, help="Scene preset to run (repeat; default all four).")
 @click.option("--method", "methods", multiple=True,
-              help="Method to run (repeat; default all): full, gaussian_grouping (runs no_two_stage too: it selects "
-                   "from that model), feature_similarity, gaussian_grouping_shared, no_two_stage, no_inpaint, "
-                   "no_prune, euclidean, paper_rule.")
+              help="Method to run (repeat; default all): full, gaussian_grouping and gaussian_grouping_argmax (they "
+                   "run no_two_stage too: they select from that model), feature_similarity, gaussian_grouping_shared, "
+                   "no_two_stage, no_inpaint, no_prune, euclidean, paper_rule.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Scene and training seed.")
 @click.option("--scale", type=click.Choice(["cpu", "cpu-large", "paper"]), default="cpu", show_default=True,
               help="cpu: 64x64, 32+8 views, 1,500 steps; cpu-large: 96x96, 40+12 views, 3,000 steps; paper: 200x200, "

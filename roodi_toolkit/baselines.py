@@ -1,7 +1,10 @@
 """The paper's baselines (Sec. 4, Table 1), run from the same trained scene and object features as ROODI.
 
 - **Gaussian Grouping**: the Gaussians whose classifier logit for the target is the largest of all classes
-  (argmax; the paper's wording), or whose softmax probability exceeds a threshold; no pruning, no inpainting.
+  (``rule="argmax"``; the paper's wording), whose softmax probability exceeds a threshold (``"threshold"``), or, as
+  Gaussian Grouping's own code takes an object out of a scene (its ``edit_object_removal.py``), those above the
+  threshold (0.3) together with every Gaussian inside the convex hull of their centres, after dropping selected
+  centres outside 1x the interquartile range on any axis (``"threshold_hull"``); no pruning, no inpainting.
 - **SAGA / OmniSeg3D-GS**: a pixel is clicked on the target; the Gaussians whose own feature has a cosine similarity
   with the feature rendered at that pixel above a threshold are the object. The paper "carefully chose the threshold
   and the pixel for best results"; here both are chosen without looking at the test views: the pixel is the one
@@ -54,10 +57,38 @@ def _take(cloud: GaussianCloud, keep: np.ndarray, what: str) -> GaussianCloud:
     return out
 
 
+def inside_hull(points: np.ndarray, chosen: np.ndarray, iqr_factor: float = 1.0) -> np.ndarray:
+    """Return which of ``points`` [N, 3] lie inside the convex hull of the ``chosen`` ones [N] (bool), after dropping
+    chosen points beyond ``iqr_factor`` interquartile ranges below the first or above the third quartile on any axis;
+    all False when fewer than 4 remain or they span no volume.
+
+    Example:
+        >>> corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
+        >>> pts = np.vstack([corners, [[0.5, 0.5, 0.5], [2.0, 0.5, 0.5]]])
+        >>> inside_hull(pts, np.r_[np.ones(8, bool), False, False]).tolist()[-2:]
+        [True, False]
+    """
+    from scipy.spatial import Delaunay, QhullError
+
+    pts = np.asarray(points, dtype=np.float64)[chosen]
+    if len(pts) >= 4:
+        q1, q3 = np.percentile(pts, [25, 75], axis=0)
+        spread = iqr_factor * (q3 - q1)
+        pts = pts[np.all((pts >= q1 - spread) & (pts <= q3 + spread), axis=1)]
+    if len(pts) < 4:
+        return np.zeros(len(points), dtype=bool)
+    try:
+        hull = Delaunay(pts)
+    except (QhullError, ValueError):  # flat or degenerate: no volume to be inside of
+        return np.zeros(len(points), dtype=bool)
+    return hull.find_simplex(np.asarray(points, dtype=np.float64)) >= 0
+
+
 def gaussian_grouping(cloud: GaussianCloud, classifier: ObjectClassifier, object_id: int, *, rule: str = "argmax",
                       threshold: float = 0.3) -> BaselineSelection:
-    """Return the Gaussian-Grouping-style extraction of ``object_id``: argmax of the classifier, or probability above
-    ``threshold`` (``rule="threshold"``), without pruning.
+    """Return the Gaussian-Grouping-style extraction of ``object_id``, without pruning: argmax of the classifier,
+    probability above ``threshold`` (``rule="threshold"``), or that with every Gaussian inside the convex hull of
+    their centres added, as Gaussian Grouping's object removal selects (``rule="threshold_hull"``).
     """
     if not 0 <= object_id < classifier.num_classes:
         raise ConfigError(f"object id {object_id} is not one of the classifier's classes 0..{classifier.num_classes - 1}")
@@ -65,12 +96,18 @@ def gaussian_grouping(cloud: GaussianCloud, classifier: ObjectClassifier, object
         logits = classifier.logits(cloud_features(cloud))
     if rule == "argmax":
         keep = (logits.argmax(-1) == object_id).numpy()
-    elif rule == "threshold":
+    elif rule in ("threshold", "threshold_hull"):
         keep = (torch.softmax(logits, -1)[:, object_id] > threshold).numpy()
     else:
-        raise ConfigError(f"rule must be argmax or threshold, got {rule!r}")
-    return BaselineSelection(_take(cloud, keep, f"Gaussian Grouping ({rule})"), keep,
-                             {"method": "gaussian_grouping", "rule": rule, "selected": int(keep.sum())})
+        raise ConfigError(f"rule must be argmax, threshold or threshold_hull, got {rule!r}")
+    details = {"method": "gaussian_grouping", "rule": rule, "selected": int(keep.sum())}
+    if rule != "argmax":
+        details["threshold"] = threshold
+    if rule == "threshold_hull":
+        hull = inside_hull(cloud.means, keep) & ~keep
+        details["added_by_hull"] = int(hull.sum())
+        keep = keep | hull
+    return BaselineSelection(_take(cloud, keep, f"Gaussian Grouping ({rule})"), keep, details)
 
 
 def click_in_mask(mask: np.ndarray) -> tuple[int, int]:

@@ -12,6 +12,7 @@ from roodi_toolkit.distill import DistillConfig, ObjectClassifier, with_features
 from roodi_toolkit.errors import ConfigError, RoodiError
 from roodi_toolkit.extract import ExtractConfig
 from roodi_toolkit.finetune import FinetuneConfig
+from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.occlusion import OcclusionConfig
 from roodi_toolkit.strategy import MCMCStrategy
 from roodi_toolkit.training import TrainConfig
@@ -29,8 +30,25 @@ def test_gaussian_grouping_takes_the_argmax_class():
     assert gaussian_grouping(with_features(cloud, feats), classifier, 2, rule="threshold", threshold=0.9).keep.sum() == 1
     with pytest.raises(ConfigError):
         gaussian_grouping(with_features(cloud, feats), classifier, 7)
+    with pytest.raises(ConfigError, match="threshold_hull"):
+        gaussian_grouping(with_features(cloud, feats), classifier, 1, rule="magic")
     with pytest.raises(RoodiError, match="selected no Gaussian"):
         gaussian_grouping(with_features(cloud, torch.zeros(6, 3)), ObjectClassifier(torch.eye(3), torch.tensor([1., 0, 0])), 2)
+
+
+def test_gaussian_grouping_code_rule_adds_the_convex_hull():
+    # class 1 on the corners of a unit cube and one far stray; class 0 at the centre and outside the cube
+    corners = [[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+    means = np.array(corners + [[9.0, 9.0, 9.0], [0.5, 0.5, 0.5], [3.0, 0.5, 0.5]])
+    cloud = GaussianCloud.from_activated(means, scales=np.full((11, 3), 0.01), opacities=np.full(11, 0.9),
+                                         rgb=np.full((11, 3), 0.5))
+    feats = torch.eye(2)[[1] * 9 + [0, 0]].float()
+    classifier = ObjectClassifier(torch.eye(2) * 5, torch.zeros(2))
+    sel = gaussian_grouping(with_features(cloud, feats), classifier, 1, rule="threshold_hull")
+    # the stray is outside 1x the interquartile range: it stays selected but does not stretch the hull
+    assert sel.keep.tolist() == [True] * 9 + [True, False]
+    assert sel.details["selected"] == 9 and sel.details["added_by_hull"] == 1 and sel.details["threshold"] == 0.3
+    assert gaussian_grouping(with_features(cloud, feats), classifier, 1, rule="threshold").keep.sum() == 9
 
 
 def test_click_lands_deepest_inside_the_mask():
@@ -70,9 +88,11 @@ def test_benchmark_runs_every_method_and_writes_the_tables(tiny_kitchen, tmp_pat
     kitchen = tmp_path / "bench" / "kitchen"
     first = f"object_{targets[0]['id']}"
     joint = json.loads((kitchen / "gaussian_grouping" / first / "selection.json").read_text())
+    argmax = json.loads((kitchen / "gaussian_grouping_argmax" / first / "selection.json").read_text())
     shared = json.loads((kitchen / "gaussian_grouping_shared" / first / "selection.json").read_text())
-    assert Path(joint["model"]) == kitchen / "no_two_stage" / "scene"
+    assert Path(joint["model"]) == Path(argmax["model"]) == kitchen / "no_two_stage" / "scene"
     assert Path(shared["model"]) == kitchen / "full" / "scene"
+    assert (joint["rule"], argmax["rule"], shared["rule"]) == ("threshold_hull", "argmax", "argmax")
     md = (tmp_path / "bench" / "results.md").read_text()
     assert "Table 1" in md and "Table 2" in md and "36.12" in md and "w/o two-stage" in md
     assert (tmp_path / "bench" / "kitchen.png").stat().st_size > 5000
@@ -85,6 +105,14 @@ def test_benchmark_runs_every_method_and_writes_the_tables(tiny_kitchen, tmp_pat
     assert not (tmp_path / "bench" / "scores.json").exists()
     again = run_benchmark(root, tmp_path / "bench", presets=["kitchen"], size=MACHINE_SIZE, config=TINY)
     assert again["mean"] == results["mean"]
+    # a baseline extracted with another selection rule (an older version) is made again, and scored again
+    record = kitchen / "gaussian_grouping" / first / "selection.json"
+    record.write_text(json.dumps({**joint, "rule": "argmax"}))
+    (kitchen / "gaussian_grouping" / first / "object.ply").write_bytes(
+        (kitchen / "gaussian_grouping_argmax" / first / "object.ply").read_bytes())
+    third = run_benchmark(root, tmp_path / "bench", presets=["kitchen"], size=MACHINE_SIZE, config=TINY)
+    assert json.loads(record.read_text())["rule"] == "threshold_hull"
+    assert third["mean"] == results["mean"]
 
 
 def test_benchmark_command_errors(tmp_path, run_cli):
