@@ -110,8 +110,13 @@ def test_benchmark_runs_every_method_and_writes_the_tables(tiny_kitchen, tmp_pat
     record.write_text(json.dumps({**joint, "rule": "argmax"}))
     (kitchen / "gaussian_grouping" / first / "object.ply").write_bytes(
         (kitchen / "gaussian_grouping_argmax" / first / "object.ply").read_bytes())
+    scores = json.loads((kitchen / "scores.json").read_text())
+    key = f"kitchen/gaussian_grouping/{targets[0]['id']}"
+    scores[key]["psnr"] = -1.0  # the stale extraction's score, which must not survive
+    (kitchen / "scores.json").write_text(json.dumps(scores))
     third = run_benchmark(root, tmp_path / "bench", presets=["kitchen"], size=MACHINE_SIZE, config=TINY)
     assert json.loads(record.read_text())["rule"] == "threshold_hull"
+    assert json.loads((kitchen / "scores.json").read_text())[key]["psnr"] != -1.0
     assert third["mean"] == results["mean"]
 
 
