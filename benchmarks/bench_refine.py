@@ -33,7 +33,6 @@ Usage: .venv/bin/python benchmarks/bench_refine.py [OUT_DIR SCENES_ROOT] [--pres
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import sys
 import time
