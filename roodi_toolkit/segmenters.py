@@ -396,6 +396,9 @@ class ClickSettings:
             point (keeps the flood fill from running along the ground).
         min_alpha: pixels with rendered alpha below this have no usable depth, and a click there is refused.
         grabcut_iterations: GrabCut iterations on the clicked view's region.
+        grabcut_min_keep: GrabCut refines the depth fill's region; when it keeps less than this fraction of it (a
+            small, flat-coloured or reflective object whose colours it cannot tell from the background's), the depth
+            fill's region is used as it is.
         seed_fraction: a Gaussian seeds the object (or the rest) when at least this fraction of its compositing
             weight in the clicked view falls inside the clicked region (or inside the band around it).
         min_weight: Gaussians whose summed compositing weight in the clicked view is below this are no seeds.
@@ -420,6 +423,7 @@ class ClickSettings:
     region_radius: float = 0.15
     min_alpha: float = 0.5
     grabcut_iterations: int = 5
+    grabcut_min_keep: float = 0.5
     seed_fraction: float = 0.5
     min_weight: float = 1.0
     grow_radius: float = 1.2
@@ -612,6 +616,8 @@ class ClickSegmenter(Segmenter):
             init[max(0, r - 1):r + 2, max(0, c - 1):c + 2] = cv2.GC_FGD
         mask0 = _grabcut(dataset.images[v0].numpy(), init, s.grabcut_iterations, self.seed)
         mask0 = _component_at(_fill_holes(mask0), seeds) & valid0 | (init == cv2.GC_FGD)
+        if mask0.sum() < s.grabcut_min_keep * region.sum():
+            mask0 = region
         band = _dilate(mask0, max(2, int(round(0.25 * math.sqrt(mask0.sum()))))) & ~mask0
         return mask0, band
 

@@ -9,6 +9,7 @@ import torch
 from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
 from roodi_toolkit.files import write_image
 from roodi_toolkit.renderers import render_cloud
+from roodi_toolkit import segmenters
 from roodi_toolkit.segmenters import (Click, ClickSegmenter, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
                                       ViewMasks, get_segmenter, mask_iou, segmenter_names)
 
@@ -152,3 +153,17 @@ def test_click_that_selects_nothing_says_so(scene):
     click = Click(ds.names[3], xs[0] + 0.5, ys[0] + 0.5)
     with pytest.raises(SegmentationError, match="selected no Gaussians"):  # no Gaussian can be a seed
         ClickSegmenter(min_weight=1e9).segment(ds, SegmentPrompt((click,)), scene=cloud)
+
+
+def test_click_keeps_the_depth_region_when_grabcut_throws_it_away(scene, monkeypatch):
+    # GrabCut cannot tell a flat-coloured or reflective object from its background and may keep only the click
+    ds, cloud, _ = scene
+    v = 3
+    ys, xs = np.nonzero((ds.masks[v] == 1).numpy())
+    k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
+    click = Click(ds.names[v], xs[k] + 0.5, ys[k] + 0.5)
+    monkeypatch.setattr(segmenters, "_grabcut", lambda image, init, iterations, seed: np.zeros(init.shape, bool))
+    kept = ClickSegmenter().segment(ds, SegmentPrompt((click,)), scene=cloud)  # the depth fill's region is used
+    assert mask_iou(kept.masks[v] == 1, ds.masks[v] == 1) > 0.6
+    with pytest.raises(SegmentationError, match="1 seeds"):  # trusting GrabCut leaves the click alone: nothing
+        ClickSegmenter(grabcut_min_keep=0.0).segment(ds, SegmentPrompt((click,)), scene=cloud)
