@@ -75,13 +75,15 @@ def seen_in_views(points: np.ndarray, cams, renders, target_id: int, tol: float)
     return seen
 
 
-def object_view_truth(scene, target, cameras) -> tuple[np.ndarray, torch.Tensor]:
-    """Return the hidden truth ``[V, H, W]`` bool (the target seen alone, not in the full scene) and the target alone
-    on white ``[V, H, W, 3]`` in ``cameras``, both from the generator's mesh renderer."""
+def object_view_truth(scene, target, cameras) -> tuple[np.ndarray, torch.Tensor, np.ndarray]:
+    """Return the hidden truth ``[V, H, W]`` bool (the target seen alone, not in the full scene), the target alone
+    on white ``[V, H, W, 3]`` and its z-depth ``[V, H, W]`` (0: not hit) in ``cameras``, all from the generator's mesh
+    renderer."""
     truth = hidden_truth(scene, target, cameras)
     views = render_views(scene, cameras, object_ids=[target.id], with_ground=False, background=(1.0, 1.0, 1.0),
                          supersample=2)
-    return truth, torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in views])
+    return (truth, torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in views]),
+            np.stack([r.depth for r in views]))
 
 
 def psnr_figures(cloud: GaussianCloud, train_cams, images: torch.Tensor, masks: torch.Tensor, object_cams,
@@ -122,7 +124,7 @@ def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64,
     res = refine_object(obj, scene_cloud, images, cams, masks, inpainter=inpainter, occlusion=occ_cfg,
                         finetune=FinetuneConfig(iterations=iterations, **(finetune or {})), up=(0, 0, 1),
                         debug_dir=debug_dir)
-    truth, gt = object_view_truth(scene, target, res.occlusion.cameras)
+    truth, gt, _ = object_view_truth(scene, target, res.occlusion.cameras)
     scores = mask_scores(res.occlusion.occluded.numpy(), truth)
     raw = mask_scores(res.occlusion.occluded_raw.numpy(), truth)
     full_recall = mask_scores(res.occlusion.mask.numpy(), truth)["recall"]

@@ -107,14 +107,14 @@ def finetune_originals_only(cloud, cams, images: torch.Tensor, masks: torch.Tens
     return finetune_object(cloud, originals, no_views, config).cloud
 
 
-def hidden_seen(scene, target, occ, truth: np.ndarray, cams, train_renders) -> dict:
-    """Return how the hidden-truth pixels' surface points were seen in the training views (the generator's renders
-    ``train_renders`` from ``cams``) and the object model's alpha at those pixels (``occ``: its occlusion result)."""
+def hidden_seen(target, occ, truth: np.ndarray, alone_depth: np.ndarray, cams, train_renders) -> dict:
+    """Return how the hidden-truth pixels' surface points (``alone_depth``: the target alone's depth ``[V, H, W]`` in
+    ``occ.cameras``) were seen in the training views (the generator's renders ``train_renders`` from ``cams``) and the
+    object model's alpha at those pixels (``occ``: its occlusion result)."""
     if not truth.any():
         return {"seen_1": float("nan"), "seen_3": float("nan"), "median_views": float("nan"),
                 "object_alpha": float("nan")}
-    alone = render_views(scene, occ.cameras, object_ids=[target.id], with_ground=False, supersample=1)
-    points = np.concatenate([cam.backproject(np.argwhere(truth[k]), alone[k].depth[truth[k]])
+    points = np.concatenate([cam.backproject(np.argwhere(truth[k]), alone_depth[k][truth[k]])
                              for k, cam in enumerate(occ.cameras) if truth[k].any()])
     # depth slack: a fifth of the target's radius (the far side of the target must not count as seen)
     tol = 0.2 * float(np.linalg.norm(target.vertices - target.center, axis=1).max())
@@ -146,7 +146,7 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
         reproduced = {"centre_error": float(np.abs(np.asarray(rec["object_centre"]) - occ.centre).max()),
                       "occluded_fraction_error": float(np.abs(np.asarray(rec["occluded_fraction"])
                                                               - occ.occluded.float().mean((1, 2)).numpy()).max())}
-    truth, gt = object_view_truth(scene, target, occ.cameras)
+    truth, gt, alone_depth = object_view_truth(scene, target, occ.cameras)
     images = dataset.images[views]
     masks = dataset.masks[views] == object_id
     clouds = {"before": before, "after": after}
@@ -166,7 +166,7 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
             "occlusion_opened": mask_scores(occ.occluded.numpy(), truth),
             "occlusion_raw": mask_scores(occ.occluded_raw.numpy(), truth),
             "inpaint_mask_recall_of_hidden": mask_scores(occ.mask.numpy(), truth)["recall"],
-            "hidden_seen": hidden_seen(scene, target, occ, truth, cams, train_renders),
+            "hidden_seen": hidden_seen(target, occ, truth, alone_depth, cams, train_renders),
             "reproduced": reproduced, "psnr": psnr, "seconds": time.perf_counter() - t0}
 
 

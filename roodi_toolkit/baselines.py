@@ -70,7 +70,8 @@ def inside_hull(points: np.ndarray, chosen: np.ndarray, iqr_factor: float = 1.0)
     """
     from scipy.spatial import Delaunay, QhullError
 
-    pts = np.asarray(points, dtype=np.float64)[chosen]
+    points = np.asarray(points, dtype=np.float64)
+    pts = points[chosen]
     if len(pts) >= 4:
         q1, q3 = np.percentile(pts, [25, 75], axis=0)
         spread = iqr_factor * (q3 - q1)
@@ -81,7 +82,7 @@ def inside_hull(points: np.ndarray, chosen: np.ndarray, iqr_factor: float = 1.0)
         hull = Delaunay(pts)
     except (QhullError, ValueError):  # flat or degenerate: no volume to be inside of
         return np.zeros(len(points), dtype=bool)
-    return hull.find_simplex(np.asarray(points, dtype=np.float64)) >= 0
+    return hull.find_simplex(points) >= 0
 
 
 def gaussian_grouping(cloud: GaussianCloud, classifier: ObjectClassifier, object_id: int, *, rule: str = "argmax",

@@ -285,7 +285,6 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
         scores_path = scene_out / "scores.json"
         if scores_path.is_file() and not overwrite:
             cache.update(files.read_json(scores_path, "scores"))
-        scene_cache = {k: v for k, v in cache.items() if k.startswith(f"{preset}/")}
         per_method: dict[str, Any] = {}
         loaded: dict[str, dict[str, Any]] = {}  # per model: its distillation, read once for the scene's baselines
         pictures: dict[str, dict[int, np.ndarray]] = {}
@@ -316,9 +315,9 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                 except RoodiError as exc:
                     row = cache.get(key) or {**_empty_scores(data, target["id"]), "failed": str(exc), "gaussians": 0,
                                              "seconds": time.perf_counter() - t}
-                cache[key] = scene_cache[key] = row
+                cache[key] = row
                 rows.append(row)
-                files.write_json(scene_cache, scores_path)
+                files.write_json({k: v for k, v in cache.items() if k.startswith(f"{preset}/")}, scores_path)
             # seconds of the first run that computed each object (training included where the method trains)
             per_method[method] = {"objects": rows, "mean": _average(rows),
                                   "seconds": float(sum(r.get("seconds", 0.0) for r in rows))}
