@@ -36,16 +36,16 @@ def main() -> int:
 
     torch.set_num_threads(int(os.environ.get("ROODI_THREADS", "1")))  # as the CLI does; 2 threads are slower here
 
-    from roodi_toolkit.datasets import load_dataset
-    from roodi_toolkit.distill import (DistillConfig, alpha_iou, load_distillation, run_distill, select_object)
-    from roodi_toolkit.files import read_json
-    from roodi_toolkit.ply import read_ply
-    from roodi_toolkit.distill import find_model
+    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.pipeline.distill import (DistillConfig, alpha_iou, load_distillation, run_distill, select_object)
+    from roodi_toolkit.io.files import read_json
+    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.pipeline.distill import find_model
 
     data = Path(args.data_dir)
     record = read_json(data / "scene.json")
     if args.click_only:
-        from roodi_toolkit.distill import find_model as _find
+        from roodi_toolkit.pipeline.distill import find_model as _find
 
         found = _find(Path(args.model_dir))
         scale = float(found.config.get("downscale", 1) or 1)
@@ -91,7 +91,7 @@ def main() -> int:
 
 def _click_scores(ds, tid: int, scene, click_view) -> dict:
     """Return the click segmenter's mask IoU against the true masks of target ``tid`` over the views that show it."""
-    from roodi_toolkit.segmenters import Click, SegmentPrompt, get_segmenter, mask_iou
+    from roodi_toolkit.pipeline.segment import Click, SegmentPrompt, get_segmenter, mask_iou
 
     areas = (ds.masks == tid).flatten(1).sum(1)
     v = int(areas.argmax()) if click_view is None else ds.names.index(click_view)

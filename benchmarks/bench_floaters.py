@@ -2,7 +2,7 @@
 
 Methods: the default rule (robust, W2, K=16), the paper's single pass (``--rule paper``, W2, alpha 2) and Open3D's
 ``remove_statistical_outlier(nb_neighbors=K+1, std_ratio=2)`` on the centres. Clouds: every mix of
-``roodi_toolkit.synthetic.STANDARD_MIXES`` (4 surfaces, 7 mixes of far / near-surface oversized floaters and
+``roodi_toolkit.synth.floaters.STANDARD_MIXES`` (4 surfaces, 7 mixes of far / near-surface oversized floaters and
 densities) for several seeds. Prints one row per mix (worst over seeds) and the worst case over all mixes.
 
 Target for the default (issue 3): at least 95% of each floater kind removed, at most 1% of the object lost, on
@@ -21,8 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from roodi_toolkit.outliers import NeighborDistances, PruneConfig, outlier_mask
-from roodi_toolkit.synthetic import FAR, NEAR, OBJECT, STANDARD_MIXES, planted_floater_cloud
+from roodi_toolkit.prune.outliers import NeighborDistances, PruneConfig, outlier_mask
+from roodi_toolkit.synth.floaters import FAR, NEAR, OBJECT, STANDARD_MIXES, planted_floater_cloud
 
 TARGET_REMOVED = 0.95
 TARGET_OBJECT_LOST = 0.01

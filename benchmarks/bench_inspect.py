@@ -27,8 +27,8 @@ os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
 
 
 def build(path: Path, size: int, seed: int = 0) -> None:
-    from roodi_toolkit.ply import write_ply
-    from roodi_toolkit.synthetic import FloaterMix, planted_floater_cloud
+    from roodi_toolkit.io.ply import write_ply
+    from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
 
     n_object = int(round(size / 1.02))
     planted = planted_floater_cloud(FloaterMix("torus", n_object=n_object, far_fraction=0.01, near_fraction=0.01),
@@ -40,10 +40,10 @@ def steps(ply: Path, out: Path, glyphs: str, window: tuple[int, int]) -> dict[st
     """Return seconds per step of what ``inspect --screenshot`` does, in process."""
     import pyvista as pv
 
-    from roodi_toolkit import inspect as insp
-    from roodi_toolkit.files import write_image
-    from roodi_toolkit.outliers import remove_statistical_outliers
-    from roodi_toolkit.ply import read_ply
+    from roodi_toolkit.viz import inspect as insp
+    from roodi_toolkit.io.files import write_image
+    from roodi_toolkit.prune.outliers import remove_statistical_outliers
+    from roodi_toolkit.io.ply import read_ply
 
     pv.OFF_SCREEN = True
     t = {}

@@ -14,7 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from roodi_toolkit.scenegen import PRESETS, SceneSettings, make_scene
+from roodi_toolkit.synth.scenegen import PRESETS, SceneSettings, make_scene
 
 
 def main() -> None:

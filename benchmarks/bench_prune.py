@@ -30,7 +30,7 @@ OPEN3D_SCRIPT = """
 import sys
 import numpy as np
 import open3d as o3d
-from roodi_toolkit.ply import read_ply, write_ply
+from roodi_toolkit.io.ply import read_ply, write_ply
 cloud = read_ply(sys.argv[1])
 pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.means.astype(np.float64)))
 _, kept = pcd.remove_statistical_outlier(nb_neighbors=17, std_ratio=2.0)
@@ -47,8 +47,8 @@ print(f"{dt} {resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss} {rc}")
 
 
 def build(path: Path, size: int, seed: int = 0) -> None:
-    from roodi_toolkit.ply import write_ply
-    from roodi_toolkit.synthetic import FloaterMix, planted_floater_cloud
+    from roodi_toolkit.io.ply import write_ply
+    from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
 
     n_object = int(round(size / 1.02))
     planted = planted_floater_cloud(FloaterMix("torus", n_object=n_object, far_fraction=0.01, near_fraction=0.01),

@@ -15,14 +15,14 @@ after occlusion-reasoned inpainting and fine-tuning), this compares ``selected.p
   depth) counted in the training views that see them (the generator's ids and depth), and the object model's alpha
   there before refinement;
 - PSNR in the training views inside the target's mask ("unoccluded");
-- the paper's metrics (:func:`roodi_toolkit.metrics.evaluate_object`: PSNR in 1.2x the true box, alpha IoU) on the
+- the paper's metrics (:func:`roodi_toolkit.evaluate.metrics.evaluate_object`: PSNR in 1.2x the true box, alpha IoU) on the
   target's object-alone test views: the "w/o inpainting" vs "full" comparison per object.
 
 With ``--control``, ``selected.ply`` is also fine-tuned again with the run's settings but on the original views only
 (the same steps in the same order, without the inpainted views' terms), which tells what the inpainted views add
 beyond more fitting to the training views. (Re-running the whole refinement reproduces ``refined.ply`` exactly.)
 With ``--variant NAME:KEY=VALUE[,KEY=VALUE...]`` (repeatable) the whole refinement runs again from ``selected.ply``
-with those :class:`~roodi_toolkit.finetune.FinetuneConfig` fields changed, e.g. ``--variant lr10:sh0_lr=0.025``;
+with those :class:`~roodi_toolkit.pipeline.finetune.FinetuneConfig` fields changed, e.g. ``--variant lr10:sh0_lr=0.025``;
 ``--seed-holes`` is ``--variant seeded:seed_holes=true``.
 
 Usage: .venv/bin/python benchmarks/bench_refine.py [OUT_DIR SCENES_ROOT] [--preset P ...] [--control] [--seed-holes]
@@ -47,17 +47,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.bench_inpaint import (finetune_overrides, object_view_truth, psnr_figures,  # noqa: E402
                                       seen_in_views)
-from roodi_toolkit.benchmark import MACHINE_SIZE, PRESETS, extract_config  # noqa: E402
-from roodi_toolkit.datasets import load_dataset  # noqa: E402
-from roodi_toolkit.distill import load_distillation  # noqa: E402
-from roodi_toolkit.files import read_json, write_json  # noqa: E402
-from roodi_toolkit.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,  # noqa: E402
+from roodi_toolkit.evaluate.benchmark import MACHINE_SIZE, PRESETS, extract_config  # noqa: E402
+from roodi_toolkit.io.datasets import load_dataset  # noqa: E402
+from roodi_toolkit.pipeline.distill import load_distillation  # noqa: E402
+from roodi_toolkit.io.files import read_json, write_json  # noqa: E402
+from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,  # noqa: E402
                                     refine_object)
-from roodi_toolkit.metrics import evaluate_object  # noqa: E402
-from roodi_toolkit.occlusion import OcclusionConfig, mask_scores, occlusion_masks, up_from_cameras  # noqa: E402
-from roodi_toolkit.ply import read_ply  # noqa: E402
-from roodi_toolkit.scenegen import render_views, scene_from_record  # noqa: E402
-from roodi_toolkit.training import cloud_to_params, render_params  # noqa: E402
+from roodi_toolkit.evaluate.metrics import evaluate_object  # noqa: E402
+from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores, occlusion_masks, up_from_cameras  # noqa: E402
+from roodi_toolkit.io.ply import read_ply  # noqa: E402
+from roodi_toolkit.synth.scenegen import render_views, scene_from_record  # noqa: E402
+from roodi_toolkit.pipeline.train import cloud_to_params, render_params  # noqa: E402
 
 FIGURES = ("occluded_hidden_psnr", "object_views_psnr", "unoccluded_train_psnr", "test_psnr", "test_iou")
 LABELS = {"occluded_hidden_psnr": "occluded PSNR (hidden-truth px)", "object_views_psnr": "object views PSNR",
@@ -90,7 +90,7 @@ def parse_variant(text: str) -> tuple[str, dict]:
 
 def finetune_originals_only(cloud, cams, images: torch.Tensor, masks: torch.Tensor, depths: torch.Tensor, occ,
                             config: FinetuneConfig):
-    """Return ``cloud`` fine-tuned as :func:`roodi_toolkit.finetune.refine_object` does, without the inpainted views.
+    """Return ``cloud`` fine-tuned as :func:`roodi_toolkit.pipeline.finetune.refine_object` does, without the inpainted views.
 
     Args:
         cloud: the object before refinement.

@@ -67,7 +67,7 @@ def _args(params):
 def run_fast(n: int, size: int, repeats: int, tile_size: int) -> dict:
     import torch
 
-    from roodi_toolkit.rasterizer import rasterize
+    from roodi_toolkit.render.rasterizer import rasterize
 
     params, w2c, K = _setup(n, size)
     base = _rss_mb()
@@ -100,7 +100,7 @@ def run_dense(n: int, size: int, budget: float, pairs_per_piece: int = 1 << 24) 
     """
     import torch
 
-    from roodi_toolkit.rasterizer import rasterize_dense_reference
+    from roodi_toolkit.render.rasterizer import rasterize_dense_reference
 
     params, w2c, K = _setup(n, size)
     px = max(1, pairs_per_piece // n)  # pixels per piece

@@ -18,9 +18,9 @@ from pathlib import Path
 def step_times(scene: Path, threads: int, gaussians: int, warmup: int, rounds: int, steps: int) -> list[float]:
     import torch
 
-    from roodi_toolkit.datasets import load_dataset
-    from roodi_toolkit.strategy import MCMCStrategy
-    from roodi_toolkit.training import TrainConfig, Trainer
+    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.pipeline.strategy import MCMCStrategy
+    from roodi_toolkit.pipeline.train import TrainConfig, Trainer
 
     torch.set_num_threads(threads)
     ds = load_dataset(scene)

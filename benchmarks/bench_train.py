@@ -35,9 +35,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from roodi_toolkit.datasets import load_dataset
-    from roodi_toolkit.scenegen import SceneSettings, make_scene
-    from roodi_toolkit.training import TrainConfig, Trainer, config_with
+    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.synth.scenegen import SceneSettings, make_scene
+    from roodi_toolkit.pipeline.train import TrainConfig, Trainer, config_with
 
     torch.set_num_threads(2)
     scene = args.scene

@@ -41,7 +41,7 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
     """
     from dataclasses import replace
 
-    from roodi_toolkit.benchmark import METHODS, PRESETS, SIZES, run_benchmark
+    from roodi_toolkit.evaluate.benchmark import METHODS, PRESETS, SIZES, run_benchmark
 
     chosen = SIZES[scale]
     if size is not None:

@@ -80,9 +80,9 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
         raise click.UsageError("--surface is an option of --prune-only")
     from dataclasses import replace
 
-    from roodi_toolkit.demo import ExtractDemoConfig, run_extract_demo
-    from roodi_toolkit.scenegen import SceneSettings
-    from roodi_toolkit.training import config_with
+    from roodi_toolkit.synth.demo import ExtractDemoConfig, run_extract_demo
+    from roodi_toolkit.synth.scenegen import SceneSettings
+    from roodi_toolkit.pipeline.train import config_with
 
     base = ExtractDemoConfig()
     width, height = parse_size(size_text) if size_text is not None else (base.scene.width, base.scene.height)
@@ -122,7 +122,7 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
 
 
 def _prune_demo(out_dir: str, seed: int | None, surface: str | None, overwrite: bool, progress) -> None:
-    from roodi_toolkit.demo import run_prune_demo
+    from roodi_toolkit.synth.demo import run_prune_demo
 
     res = run_prune_demo(out_dir, seed=0 if seed is None else seed, surface=surface or "ant", overwrite=overwrite,
                          progress=progress)

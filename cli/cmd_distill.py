@@ -46,9 +46,9 @@ def distill(model_dir: str, data_dir: str, segmenter: str, clicks: tuple[str, ..
     object_classifier.pt, distill.json (loss, held-out IoU) and distill.png (rendered classes next to the masks)
     into MODEL_DIR. Then take objects out with roodi-toolkit select.
     """
-    from roodi_toolkit.distill import DistillConfig, run_distill
+    from roodi_toolkit.pipeline.distill import DistillConfig, run_distill
     from roodi_toolkit.errors import ConfigError
-    from roodi_toolkit.segmenters import Click
+    from roodi_toolkit.pipeline.segment import Click
 
     opts = {}
     for item in options:

@@ -37,10 +37,10 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     """
     import numpy as np
 
-    from roodi_toolkit import files
-    from roodi_toolkit.datasets import load_dataset
-    from roodi_toolkit.metrics import evaluate_object, find_target
-    from roodi_toolkit.ply import read_ply
+    from roodi_toolkit.io import files
+    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
+    from roodi_toolkit.io.ply import read_ply
 
     if json_path is not None:
         files.check_output(json_path, overwrite=overwrite, inputs=[object_ply])

@@ -49,10 +49,10 @@ def extract(data_dir: str, out_dir: str, object_ids: tuple[int, ...], model_dir:
     """
     from dataclasses import replace
 
-    from roodi_toolkit.distill import DistillConfig
-    from roodi_toolkit.extract import ExtractConfig, extract_objects
-    from roodi_toolkit.outliers import PruneConfig
-    from roodi_toolkit.training import config_with
+    from roodi_toolkit.pipeline.distill import DistillConfig
+    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.prune.outliers import PruneConfig
+    from roodi_toolkit.pipeline.train import config_with
 
     base = ExtractConfig()
     config = replace(base, train=config_with(base.train, iterations=iterations, init=init),

@@ -59,11 +59,11 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     Each Gaussian is drawn with its footprint: oriented, scaled ellipsoids for small clouds, Gaussian splats sized by
     scale for large ones. Without a display, ask for --screenshot, --html or --histogram.
     """
-    from roodi_toolkit import inspect as insp
+    from roodi_toolkit.viz import inspect as insp
     from roodi_toolkit.errors import OutputError, RoodiError
-    from roodi_toolkit.files import check_output, write_image
-    from roodi_toolkit.outliers import remove_statistical_outliers
-    from roodi_toolkit.ply import read_ply
+    from roodi_toolkit.io.files import check_output, write_image
+    from roodi_toolkit.prune.outliers import remove_statistical_outliers
+    from roodi_toolkit.io.ply import read_ply
 
     config = prune_config_from_options(**{name: prune_kwargs[name] for name in PRUNE_OPTION_NAMES})
     size = parse_size(window_size, "--window-size")

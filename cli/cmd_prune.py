@@ -41,9 +41,9 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     import time
 
     from roodi_toolkit.errors import OutputError
-    from roodi_toolkit.files import check_output, write_json
-    from roodi_toolkit.outliers import remove_statistical_outliers
-    from roodi_toolkit.ply import read_ply, write_ply
+    from roodi_toolkit.io.files import check_output, write_json
+    from roodi_toolkit.prune.outliers import remove_statistical_outliers
+    from roodi_toolkit.io.ply import read_ply, write_ply
 
     start = time.perf_counter()
     config = prune_config_from_options(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors,

@@ -43,10 +43,10 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
            renderer: str, overwrite: bool, quiet: bool) -> None:
     """Render PLY into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
     from roodi_toolkit.errors import ConfigError
-    from roodi_toolkit.files import prepare_output_dir
-    from roodi_toolkit.ply import read_ply
-    from roodi_toolkit.render_views import framing_orbit, render_views
-    from roodi_toolkit.renderers import get_renderer
+    from roodi_toolkit.io.files import prepare_output_dir
+    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.render.views import framing_orbit, render_views
+    from roodi_toolkit.render.renderer import get_renderer
 
     bg = parse_floats(background, 3, "--background")
     if not all(0.0 <= v <= 1.0 for v in bg):
@@ -60,7 +60,7 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
     cloud = read_ply(ply)
     cloud.require_finite(ply)
     if cameras_path:
-        from roodi_toolkit.datasets import load_cameras
+        from roodi_toolkit.io.datasets import load_cameras
 
         cams = load_cameras(cameras_path)
         if size is not None:

@@ -29,7 +29,7 @@ EXAMPLE = """Examples:
 def select(model_dir: str, output_ply: str, object_id: int, threshold: float, no_prune: bool, picture: str | None,
            overwrite: bool, quiet: bool) -> None:
     """Write the Gaussians of object --object of the distilled scene MODEL_DIR to OUT.ply."""
-    from roodi_toolkit.distill import run_select
+    from roodi_toolkit.pipeline.distill import run_select
 
     summary = run_select(model_dir, object_id, output_ply, threshold=threshold, prune=not no_prune,
                          picture=picture, overwrite=overwrite, progress=progress_factory(quiet))

@@ -45,7 +45,7 @@ def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | No
     metrics.json, training.png and renders/ (held-out views beside the ground truth).
     """
     from roodi_toolkit.errors import RoodiError
-    from roodi_toolkit.training import TrainConfig, config_with, train_scene
+    from roodi_toolkit.pipeline.train import TrainConfig, config_with, train_scene
 
     if resume and overwrite:
         raise RoodiError("--resume and --overwrite contradict each other; choose one")

@@ -56,9 +56,9 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
 
     Raises:
         click.BadParameter: a malformed ``--filter-box`` or ``--filter-sphere`` (usage error, exit 2).
-        ConfigError: values :class:`~roodi_toolkit.outliers.PruneConfig` refuses (exit 1 with one line).
+        ConfigError: values :class:`~roodi_toolkit.prune.outliers.PruneConfig` refuses (exit 1 with one line).
     """
-    from roodi_toolkit.outliers import PruneConfig
+    from roodi_toolkit.prune.outliers import PruneConfig
 
     box = parse_floats(filter_box, 6, "--filter-box") if filter_box is not None else None
     sphere = parse_floats(filter_sphere, 4, "--filter-sphere") if filter_sphere is not None else None

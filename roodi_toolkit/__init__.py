@@ -7,7 +7,7 @@ The names below are the public API. Modules that need PyTorch (rendering, traini
 from ._version import __version__
 from .errors import (CloudError, ConfigError, DatasetError, OutputError, PlyError, PluginError, RoodiError)
 from .gaussians import GaussianCloud
-from .ply import ply_info, read_ply, write_ply
+from .io.ply import ply_info, read_ply, write_ply
 from .stats import describe_cloud
 
 __all__ = [

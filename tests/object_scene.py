@@ -13,11 +13,11 @@ import numpy as np
 import torch
 
 from roodi_toolkit.cameras import orbit_cameras
-from roodi_toolkit.datasets import Dataset, write_blender_transforms
-from roodi_toolkit.files import write_image, write_json
+from roodi_toolkit.io.datasets import Dataset, write_blender_transforms
+from roodi_toolkit.io.files import write_image, write_json
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.ply import write_ply
-from roodi_toolkit.renderers import render_cloud
+from roodi_toolkit.io.ply import write_ply
+from roodi_toolkit.render.renderer import render_cloud
 
 
 def object_cloud(seed: int = 0) -> tuple[GaussianCloud, np.ndarray]:

@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 import torch
 
-from roodi_toolkit.baselines import click_in_mask, gaussian_grouping
-from roodi_toolkit.distill import DistillConfig, ObjectClassifier, with_features
+from roodi_toolkit.evaluate.baselines import click_in_mask, gaussian_grouping
+from roodi_toolkit.pipeline.distill import DistillConfig, ObjectClassifier, with_features
 from roodi_toolkit.errors import ConfigError, RoodiError
-from roodi_toolkit.extract import ExtractConfig
-from roodi_toolkit.finetune import FinetuneConfig
+from roodi_toolkit.pipeline.extract import ExtractConfig
+from roodi_toolkit.pipeline.finetune import FinetuneConfig
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.occlusion import OcclusionConfig
-from roodi_toolkit.strategy import MCMCStrategy
-from roodi_toolkit.training import TrainConfig
+from roodi_toolkit.pipeline.occlusion import OcclusionConfig
+from roodi_toolkit.pipeline.strategy import MCMCStrategy
+from roodi_toolkit.pipeline.train import TrainConfig
 
 from .conftest import make_cloud
 
@@ -69,7 +69,7 @@ TINY = ExtractConfig(
 
 
 def test_benchmark_runs_every_method_and_writes_the_tables(tiny_kitchen, tmp_path):
-    from roodi_toolkit.benchmark import ABLATIONS, MACHINE_SIZE, METHODS, run_benchmark
+    from roodi_toolkit.evaluate.benchmark import ABLATIONS, MACHINE_SIZE, METHODS, run_benchmark
 
     root = tmp_path / "scenes"
     root.mkdir()

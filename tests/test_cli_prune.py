@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from roodi_toolkit.ply import read_ply, write_ply
-from roodi_toolkit.synthetic import FloaterMix, planted_floater_cloud
+from roodi_toolkit.io.ply import read_ply, write_ply
+from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
 
 
 @pytest.fixture
@@ -40,7 +40,7 @@ def test_prune_writes_kept_floaters_and_report(run_cli, scene, tmp_path):
     assert {"read", "write", "neighbours_and_distances", "rule"} <= set(summary["timings_s"])
     assert path.read_bytes() == before
     # the same keep mask through the library
-    from roodi_toolkit.outliers import remove_statistical_outliers
+    from roodi_toolkit.prune.outliers import remove_statistical_outliers
 
     _, keep, _ = remove_statistical_outliers(read_ply(path))
     np.testing.assert_array_equal(kept.means, cloud.means[keep])

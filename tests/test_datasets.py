@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from roodi_toolkit.cameras import Camera, look_at, orbit_cameras
-from roodi_toolkit.datasets import (
+from roodi_toolkit.io.datasets import (
     ColmapCamera,
     ColmapPoints,
     Dataset,
@@ -29,7 +29,7 @@ from roodi_toolkit.datasets import (
     write_colmap_model,
 )
 from roodi_toolkit.errors import DatasetError, RoodiError
-from roodi_toolkit.files import write_image
+from roodi_toolkit.io.files import write_image
 
 W, H = 16, 12
 

@@ -6,6 +6,8 @@ import math
 from roodi_toolkit import read_ply
 
 # a 6-object picnic whose basket (object 3) covers enough of a 32x32 view to be selected after 20 distillation steps
+
+# a 6-object picnic whose basket (object 3) covers enough of a 32x32 view to be selected after 20 distillation steps
 TINY = ("--preset", "picnic", "--seed", "13", "--object", "3", "--size", "32", "--train-views", "10",
         "--test-views", "2", "--iterations", "100", "--max-gaussians", "1600", "--distill-iterations", "20",
         "--finetune-iterations", "4", "--view-size", "32")

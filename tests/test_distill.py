@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from roodi_toolkit.distill import (DistillConfig, ObjectClassifier, compositing_weights, distill_object_features,
+from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier, compositing_weights, distill_object_features,
                                    evaluate_class_maps, find_model, gaussian_probabilities, load_distillation,
                                    render_features, select_object, with_features, _frozen_tensors)
 from roodi_toolkit.errors import ConfigError, RoodiError
-from roodi_toolkit.ply import read_ply
-from roodi_toolkit.segmenters import ViewMasks
+from roodi_toolkit.io.ply import read_ply
+from roodi_toolkit.pipeline.segment import ViewMasks
 
 from .object_scene import object_dataset, write_object_scene
 
@@ -119,7 +119,7 @@ def test_distill_and_select_commands(tmp_path, run_cli):
     assert find_model(model).iteration == 7
     before = read_ply(model / "point_cloud" / "iteration_7" / "point_cloud.ply")
     cams = object_dataset()[0].cameras
-    from roodi_toolkit.renderers import render_cloud
+    from roodi_toolkit.render.renderer import render_cloud
 
     rgb_before = [render_cloud(before, c, background=(1.0, 1.0, 1.0)).rgb for c in cams[:3]]
     r = run_cli("distill", model, data, "--iterations", "150", "-q")
@@ -171,11 +171,11 @@ def test_distill_command_errors(tmp_path, run_cli):
 def test_generated_scene_end_to_end(tmp_path):
     """make-scene -> train -> distil the scene's masks -> select a target: the figures of benchmarks/RESULTS.md at
     a smaller size (48x48, 600 training steps), so the thresholds here are looser than the issue's."""
-    from roodi_toolkit.datasets import load_dataset
-    from roodi_toolkit.distill import alpha_iou, run_distill
-    from roodi_toolkit.scenegen import SceneSettings, make_scene
-    from roodi_toolkit.strategy import MCMCStrategy
-    from roodi_toolkit.training import TrainConfig, train_scene
+    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.pipeline.distill import alpha_iou, run_distill
+    from roodi_toolkit.synth.scenegen import SceneSettings, make_scene
+    from roodi_toolkit.pipeline.strategy import MCMCStrategy
+    from roodi_toolkit.pipeline.train import TrainConfig, train_scene
 
     data = tmp_path / "scene"
     record = make_scene(data, "bedroom", seed=0, settings=SceneSettings(width=48, height=48, train_views=24,

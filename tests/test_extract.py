@@ -16,12 +16,12 @@ def tiny_scene(tiny_kitchen):
 def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cli):
     from dataclasses import replace
 
-    from roodi_toolkit.distill import DistillConfig
-    from roodi_toolkit.extract import ExtractConfig, extract_objects
-    from roodi_toolkit.finetune import FinetuneConfig
-    from roodi_toolkit.occlusion import OcclusionConfig
-    from roodi_toolkit.strategy import MCMCStrategy
-    from roodi_toolkit.training import TrainConfig
+    from roodi_toolkit.pipeline.distill import DistillConfig
+    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.pipeline.finetune import FinetuneConfig
+    from roodi_toolkit.pipeline.occlusion import OcclusionConfig
+    from roodi_toolkit.pipeline.strategy import MCMCStrategy
+    from roodi_toolkit.pipeline.train import TrainConfig
 
     scene, target = tiny_scene
     config = ExtractConfig(
@@ -65,10 +65,10 @@ def test_extract_command_errors(tiny_scene, tmp_path, run_cli):
 def test_tiny_selection_skips_pruning_and_says_so(tiny_scene, tmp_path):
     from dataclasses import replace
 
-    from roodi_toolkit.distill import DistillConfig
-    from roodi_toolkit.extract import ExtractConfig, extract_objects
-    from roodi_toolkit.outliers import PruneConfig
-    from roodi_toolkit.training import TrainConfig
+    from roodi_toolkit.pipeline.distill import DistillConfig
+    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.prune.outliers import PruneConfig
+    from roodi_toolkit.pipeline.train import TrainConfig
 
     scene, target = tiny_scene
     config = ExtractConfig(train=TrainConfig(iterations=40, init="depth", init_num_points=800, eval_every=0),

@@ -1,7 +1,7 @@
 import pytest
 
 from roodi_toolkit.errors import OutputError, RoodiError
-from roodi_toolkit.files import atomic_path, check_output, prepare_output_dir, read_json, write_json
+from roodi_toolkit.io.files import atomic_path, check_output, prepare_output_dir, read_json, write_json
 
 
 def test_atomic_path_replaces_only_on_success(tmp_path):
@@ -56,7 +56,7 @@ def test_json_roundtrip_and_errors(tmp_path):
 def test_figures_leave_the_matplotlib_backend_alone(tmp_path):
     import matplotlib
 
-    from roodi_toolkit.files import new_figure, save_figure
+    from roodi_toolkit.io.files import new_figure, save_figure
 
     before = matplotlib.get_backend()
     fig, (a, b) = new_figure(1, 2, figsize=(4, 2))

@@ -11,11 +11,11 @@ import torch
 
 from roodi_toolkit.errors import ConfigError
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.finetune import (FinetuneConfig, LaplacianLoss, LPIPSLoss, ViewTargets, finetune_object,
+from roodi_toolkit.pipeline.finetune import (FinetuneConfig, LaplacianLoss, LPIPSLoss, ViewTargets, finetune_object,
                                     object_view_targets, perceptual_loss, refine_object, seed_hole_gaussians)
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.occlusion import OcclusionConfig, OcclusionResult
-from roodi_toolkit.training import cloud_to_params, render_params
+from roodi_toolkit.pipeline.occlusion import OcclusionConfig, OcclusionResult
+from roodi_toolkit.pipeline.train import cloud_to_params, render_params
 
 from .test_inpaint import tiny_refine_inputs
 
@@ -46,7 +46,7 @@ def test_perceptual_choice_without_local_lpips(monkeypatch, tmp_path):
 
 def test_lpips_is_used_when_local_weights_exist(monkeypatch, tmp_path):
     """Random weights written in the test stand in for the real file; the local-weights path is the one taken."""
-    from roodi_toolkit.lpips import LPIPS, save_combined
+    from roodi_toolkit.evaluate.lpips import LPIPS, save_combined
 
     torch.manual_seed(0)
     reference = LPIPS()

@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from roodi_toolkit.errors import ConfigError, PluginError
-from roodi_toolkit.inpaint import (Inpainter, OpenCVInpainter, from_grid, get_inpainter, inpaint_views,
+from roodi_toolkit.pipeline.inpaint import (Inpainter, OpenCVInpainter, from_grid, get_inpainter, inpaint_views,
                                    inpainter_names, to_grid)
 from roodi_toolkit.plugins import discover
 
@@ -149,7 +149,7 @@ def test_get_inpainter_errors():
 PLUGIN_SOURCE = textwrap.dedent('''
     """A third party's inpainter: fills the mask with the mean colour of the unmasked pixels."""
     import torch
-    from roodi_toolkit.inpaint import Inpainter
+    from roodi_toolkit.pipeline.inpaint import Inpainter
 
     class MeanInpainter(Inpainter):
         name = "mean"
@@ -178,7 +178,7 @@ def tiny_refine_inputs():
     scene = GaussianCloud.concatenate([obj, card])
     cams = [Camera(look_at([3 * np.cos(a), 3 * np.sin(a), 1.0], [0, 0, 0]), intrinsics_from_fov(0.8, 24, 24), 24, 24)
             for a in np.linspace(0, 2 * np.pi, 4, endpoint=False)]
-    from roodi_toolkit.training import cloud_to_params, render_params
+    from roodi_toolkit.pipeline.train import cloud_to_params, render_params
 
     params = cloud_to_params(obj)
     with torch.no_grad():
@@ -189,8 +189,8 @@ def tiny_refine_inputs():
 
 
 def _run_refine_with(name, tmp_path):
-    from roodi_toolkit.finetune import FinetuneConfig, refine_object
-    from roodi_toolkit.occlusion import OcclusionConfig
+    from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object
+    from roodi_toolkit.pipeline.occlusion import OcclusionConfig
 
     obj, scene, images, cams, masks = tiny_refine_inputs()
     res = refine_object(obj, scene, images, cams, masks, inpainter=name, occlusion=OcclusionConfig(size=24),
@@ -239,5 +239,5 @@ def test_broken_third_party_inpainter_is_reported_by_name(tmp_path, monkeypatch)
     (tmp_path / "not_an_inpainter.py").write_text("class Thing:\n    pass\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setenv("ROODI_PLUGINS", "inpainters:thing=not_an_inpainter:Thing")
-    with pytest.raises(PluginError, match="not a roodi_toolkit.inpaint.Inpainter"):
+    with pytest.raises(PluginError, match="not a roodi_toolkit.pipeline.inpaint.Inpainter"):
         get_inpainter("thing")

@@ -17,7 +17,7 @@ pytest.importorskip("transformers", reason="the sdxl inpainter tests need transf
 roodi_sdxl = pytest.importorskip("roodi_sdxl", reason="the roodi-sdxl plugin is not installed")
 
 from roodi_toolkit.errors import PluginError  # noqa: E402
-from roodi_toolkit.inpaint import get_inpainter, inpaint_views  # noqa: E402
+from roodi_toolkit.pipeline.inpaint import get_inpainter, inpaint_views  # noqa: E402
 
 from .tiny_sdxl import tiny_pipeline  # noqa: E402
 

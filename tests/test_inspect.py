@@ -1,4 +1,4 @@
-"""Tests of ``roodi_toolkit.inspect`` and ``roodi-toolkit inspect``: off screen, on planted-floater clouds."""
+"""Tests of ``roodi_toolkit.viz.inspect`` and ``roodi-toolkit inspect``: off screen, on planted-floater clouds."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ os.environ["PYVISTA_OFF_SCREEN"] = "true"
 pv = pytest.importorskip("pyvista")
 pv.OFF_SCREEN = True
 
-from roodi_toolkit import inspect as insp  # noqa: E402
+from roodi_toolkit.viz import inspect as insp  # noqa: E402
 from roodi_toolkit.errors import ConfigError  # noqa: E402
-from roodi_toolkit.outliers import remove_statistical_outliers  # noqa: E402
-from roodi_toolkit.synthetic import FAR, NEAR, FloaterMix, planted_floater_cloud  # noqa: E402
+from roodi_toolkit.prune.outliers import remove_statistical_outliers  # noqa: E402
+from roodi_toolkit.synth.floaters import FAR, NEAR, FloaterMix, planted_floater_cloud  # noqa: E402
 
 SIZE = (320, 240)
 RED = np.array([255, 0, 0])
@@ -243,7 +243,7 @@ def test_histogram_figure_marks_the_report_threshold(pruned):
 # ---------------------------------------------------------------------------------------------- CLI
 @pytest.fixture(scope="module")
 def planted_ply(planted, tmp_path_factory):
-    from roodi_toolkit.ply import write_ply
+    from roodi_toolkit.io.ply import write_ply
 
     path = tmp_path_factory.mktemp("inspect") / "planted.ply"
     write_ply(planted.cloud, path)
@@ -269,7 +269,7 @@ def test_cli_histogram_threshold_matches_prune_report(run_cli, planted_ply, tmp_
 
 
 def test_cli_screenshot_size_and_highlight(run_cli, planted_ply, tmp_path):
-    from roodi_toolkit.files import read_image
+    from roodi_toolkit.io.files import read_image
 
     res = run_cli("inspect", planted_ply, "--screenshot", tmp_path / "s.png", "--window-size", "300x200",
                   "--highlight", "#ff00ff", "--camera", "+z")
@@ -323,7 +323,7 @@ def test_inspect_and_prune_share_the_pruning_options():
     from roodi_toolkit.cli.cmd_inspect import inspect as inspect_cmd
     from roodi_toolkit.cli.cmd_prune import prune
     from roodi_toolkit.cli.prune_options import PRUNE_OPTION_NAMES, prune_config_from_options
-    from roodi_toolkit.outliers import PruneConfig
+    from roodi_toolkit.prune.outliers import PruneConfig
 
     def describe(command):
         return {p.name: (tuple(p.opts), repr(p.type), p.default, p.help, p.is_flag, p.show_default)

@@ -2,18 +2,18 @@
 
 import torch
 
-from roodi_toolkit.distill import DistillConfig, load_distillation, select_object
-from roodi_toolkit.strategy import MCMCStrategy
-from roodi_toolkit.training import TrainConfig, render_params
+from roodi_toolkit.pipeline.distill import DistillConfig, load_distillation, select_object
+from roodi_toolkit.pipeline.strategy import MCMCStrategy
+from roodi_toolkit.pipeline.train import TrainConfig, render_params
 
 CONFIG = TrainConfig(iterations=30, init="depth", init_num_points=600, eval_every=0, checkpoint_every=10,
                      strategy=MCMCStrategy(cap_max=900, refine_start_iter=5, refine_every=5))
 
 
 def _trainer(tiny_kitchen):
-    from roodi_toolkit.datasets import load_dataset
-    from roodi_toolkit.joint import JointTrainer
-    from roodi_toolkit.segmenters import FilesSegmenter, SegmentPrompt
+    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.pipeline.joint import JointTrainer
+    from roodi_toolkit.pipeline.segment import FilesSegmenter, SegmentPrompt
 
     ds = load_dataset(tiny_kitchen)
     masks = FilesSegmenter().segment(ds, SegmentPrompt())
@@ -59,7 +59,7 @@ def test_state_round_trip_continues_identically(tiny_kitchen):
 def test_train_joint_writes_a_distilled_model(tiny_kitchen, tmp_path):
     import json
 
-    from roodi_toolkit.joint import train_joint
+    from roodi_toolkit.pipeline.joint import train_joint
 
     train_joint(tiny_kitchen, tmp_path / "m", CONFIG)
     _, cloud, classifier = load_distillation(tmp_path / "m")
@@ -73,7 +73,7 @@ def test_extract_single_stage(tiny_kitchen, tmp_path, run_cli):
     import json
 
     from roodi_toolkit import read_ply
-    from roodi_toolkit.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
 
     target = json.loads((tiny_kitchen / "scene.json").read_text())["targets"][0]["id"]
     config = ExtractConfig(train=CONFIG, distill=DistillConfig(iterations=1), inpaint=False, prune=False,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.errors import ConfigError
-from roodi_toolkit.knn import knn_centres, knn_w2, morton_order
-from roodi_toolkit.wasserstein import gaussian_shapes, w2_sq
+from roodi_toolkit.prune.knn import knn_centres, knn_w2, morton_order
+from roodi_toolkit.prune.wasserstein import gaussian_shapes, w2_sq
 
 
 def test_knn_matches_brute_force():

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from roodi_toolkit.lpips import ALEXNET_CHECKPOINT, ENV_WEIGHTS, LPIPS, LPIPSUnavailable, save_combined
+from roodi_toolkit.evaluate.lpips import ALEXNET_CHECKPOINT, ENV_WEIGHTS, LPIPS, LPIPSUnavailable, save_combined
 
 
 def random_upstream_pair(seed=0):

@@ -12,7 +12,7 @@ import torch
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.errors import CloudError, ConfigError
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.occlusion import (OcclusionConfig, mask_scores, morphological_opening, object_cameras,
+from roodi_toolkit.pipeline.occlusion import (OcclusionConfig, mask_scores, morphological_opening, object_cameras,
                                      object_extent, occlusion_masks, up_from_cameras, write_occlusion_images)
 
 from .mesh_gaussians import hidden_truth, mesh_cloud, nearby
@@ -121,7 +121,7 @@ def test_masks_are_written_as_images(tmp_path):
     paths = write_occlusion_images(res, tmp_path)
     names = {p.name for p in paths}
     assert {"view_0_mask.png", "view_3_occluded.png", "view_2_object.png", "view_1_scene.png"} <= names
-    from roodi_toolkit.files import read_image
+    from roodi_toolkit.io.files import read_image
 
     mask = read_image(tmp_path / "view_0_mask.png")
     assert mask.shape == (24, 24) and set(np.unique(mask)) <= {0, 255}
@@ -129,7 +129,7 @@ def test_masks_are_written_as_images(tmp_path):
 
 def test_generated_scene_masks_match_the_hidden_truth():
     """picnic seed 0, basket_3: about 6% of its object-centred views are hidden by its neighbours."""
-    from roodi_toolkit.scenegen import build_scene
+    from roodi_toolkit.synth.scenegen import build_scene
 
     scene = build_scene("picnic", 0)
     target = next(o for o in scene.targets if o.name == "basket_3")

@@ -7,10 +7,10 @@ import pytest
 
 from roodi_toolkit.errors import CloudError, ConfigError
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.outliers import (NeighborDistances, PruneConfig, outlier_mask, paper_threshold, PruneReport,
+from roodi_toolkit.prune.outliers import (NeighborDistances, PruneConfig, outlier_mask, paper_threshold, PruneReport,
                                     remove_statistical_outliers, robust_threshold)
-from roodi_toolkit.synthetic import FAR, NEAR, OBJECT, STANDARD_MIXES, FloaterMix, planted_floater_cloud
-from roodi_toolkit.wasserstein import w2_sq
+from roodi_toolkit.synth.floaters import FAR, NEAR, OBJECT, STANDARD_MIXES, FloaterMix, planted_floater_cloud
+from roodi_toolkit.prune.wasserstein import w2_sq
 
 
 def _cloud(means: np.ndarray, seed: int = 0, log_scale: float = -4.0) -> GaussianCloud:

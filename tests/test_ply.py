@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
 from roodi_toolkit import PlyError, ply_info, read_ply, write_ply
-from roodi_toolkit.ply import detect_variant
+from roodi_toolkit.io.ply import detect_variant
 
 from .conftest import make_cloud
 

@@ -9,7 +9,7 @@ import torch
 
 from roodi_toolkit.cameras import intrinsics_from_fov, look_at
 from roodi_toolkit.errors import CloudError, ConfigError
-from roodi_toolkit.rasterizer import (ALPHA_MAX, _bin_tiles, _footprints, _RasterizeTiles, project_gaussians,
+from roodi_toolkit.render.rasterizer import (ALPHA_MAX, _bin_tiles, _footprints, _RasterizeTiles, project_gaussians,
                                       rasterize, rasterize_dense_reference)
 from roodi_toolkit.sh import SH_C0, SH_C1
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.files import read_image
+from roodi_toolkit.io.files import read_image
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.ply import write_ply
-from roodi_toolkit.render_views import DepthEncoding, depth_encoding_for, framing_orbit, render_views
+from roodi_toolkit.io.ply import write_ply
+from roodi_toolkit.render.views import DepthEncoding, depth_encoding_for, framing_orbit, render_views
 
 
 def ball_cloud(n=300, seed=0, center=(1.0, 2.0, 0.5)):
@@ -84,13 +84,13 @@ def test_cli_render_orbit_rgb_and_alpha(tmp_path, run_cli):
 
 def test_cli_render_blender_cameras(tmp_path, run_cli):
     from roodi_toolkit.cameras import orbit_cameras
-    from roodi_toolkit.datasets import write_blender_transforms
+    from roodi_toolkit.io.datasets import write_blender_transforms
 
     cloud = ball_cloud(center=(0.0, 0.0, 0.0))
     ply = tmp_path / "ball.ply"
     write_ply(cloud, ply)
     cams = orbit_cameras([0, 0, 0], 3.0, 2, width=24, height=20)
-    from roodi_toolkit.files import write_image
+    from roodi_toolkit.io.files import write_image
 
     (tmp_path / "test").mkdir()
     for name in ("r_0", "r_1"):  # load_cameras checks that the frames' images exist

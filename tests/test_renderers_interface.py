@@ -16,7 +16,7 @@ from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.errors import CloudError, PluginError
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.plugins import discover
-from roodi_toolkit.renderers import GaussianTensors, Renderer, get_renderer, render_cloud, renderer_names
+from roodi_toolkit.render.renderer import GaussianTensors, Renderer, get_renderer, render_cloud, renderer_names
 
 NAMES = [spec.name for spec in discover("renderers")]
 
@@ -114,5 +114,5 @@ def test_render_cloud_helper_and_errors():
 
 def test_a_plugin_that_is_not_a_renderer_is_refused(monkeypatch):
     monkeypatch.setenv("ROODI_PLUGINS", "renderers:fake=roodi_toolkit.errors:RoodiError")
-    with pytest.raises(PluginError, match="not a roodi_toolkit.renderers.Renderer subclass"):
+    with pytest.raises(PluginError, match="not a roodi_toolkit.render.renderer.Renderer subclass"):
         get_renderer("fake")

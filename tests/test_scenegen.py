@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.cli.main import main
-from roodi_toolkit.datasets import load_dataset
+from roodi_toolkit.io.datasets import load_dataset
 from roodi_toolkit.errors import ConfigError, OutputError
-from roodi_toolkit.files import read_image, read_json
-from roodi_toolkit.scenegen import (
+from roodi_toolkit.io.files import read_image, read_json
+from roodi_toolkit.synth.scenegen import (
     PRESETS,
     SceneSettings,
     build_scene,

@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
-from roodi_toolkit.files import write_image
-from roodi_toolkit.renderers import render_cloud
-from roodi_toolkit import segmenters
-from roodi_toolkit.segmenters import (Click, ClickSegmenter, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
+from roodi_toolkit.io.files import write_image
+from roodi_toolkit.render.renderer import render_cloud
+from roodi_toolkit.pipeline import segment as segmenters
+from roodi_toolkit.pipeline.segment import (Click, ClickSegmenter, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
                                       ViewMasks, get_segmenter, mask_iou, segmenter_names)
 
 from .object_scene import object_dataset
@@ -31,10 +31,10 @@ def test_builtins_are_registered_through_entry_points():
 
 
 def test_a_plugin_registered_by_environment(monkeypatch):
-    monkeypatch.setenv("ROODI_PLUGINS", "segmenters:mine=roodi_toolkit.segmenters:FilesSegmenter;"
-                                        "segmenters:bad=roodi_toolkit.segmenters:mask_iou")
+    monkeypatch.setenv("ROODI_PLUGINS", "segmenters:mine=roodi_toolkit.pipeline.segment:FilesSegmenter;"
+                                        "segmenters:bad=roodi_toolkit.pipeline.segment:mask_iou")
     assert isinstance(get_segmenter("mine"), Segmenter)
-    with pytest.raises(PluginError, match="not a roodi_toolkit.segmenters.Segmenter"):
+    with pytest.raises(PluginError, match="not a roodi_toolkit.pipeline.segment.Segmenter"):
         get_segmenter("bad")
 
 

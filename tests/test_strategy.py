@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from roodi_toolkit.strategy import (MCMCStrategy, compute_relocation, grow, inject_position_noise, noise_gate,
+from roodi_toolkit.pipeline.strategy import (MCMCStrategy, compute_relocation, grow, inject_position_noise, noise_gate,
                                     relocate_dead)
 
 

@@ -9,7 +9,7 @@ import pytest
 from scipy.linalg import LinAlgWarning
 
 from roodi_toolkit.gaussians import quat_to_rotmat
-from roodi_toolkit.wasserstein import (W2_ERROR_FACTOR, gaussian_shapes, sum_sqrt_eigenvalues, w2_sq,
+from roodi_toolkit.prune.wasserstein import (W2_ERROR_FACTOR, gaussian_shapes, sum_sqrt_eigenvalues, w2_sq,
                                        w2_sq_covariances, w2_sq_neighbors, w2_sq_reference)
 
 CASES = ("random", "identical", "degenerate", "tiny", "anisotropic", "far")

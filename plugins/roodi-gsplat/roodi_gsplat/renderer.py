@@ -12,7 +12,7 @@ import torch
 
 from roodi_toolkit.cameras import Camera
 from roodi_toolkit.errors import PluginError
-from roodi_toolkit.renderers import GaussianTensors, Renderer, RenderOutput
+from roodi_toolkit.render.renderer import GaussianTensors, Renderer, RenderOutput
 
 INSTALL_HINT = "install it with `pip install gsplat` (or `pip install roodi-gsplat[cuda]`) on a machine with CUDA"
 

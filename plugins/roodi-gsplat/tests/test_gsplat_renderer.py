@@ -11,7 +11,7 @@ import torch
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.errors import PluginError
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.renderers import GaussianTensors, TorchRenderer, get_renderer
+from roodi_toolkit.render.renderer import GaussianTensors, TorchRenderer, get_renderer
 
 from roodi_gsplat import GsplatRenderer
 

@@ -19,11 +19,11 @@ import numpy as np
 import torch
 
 from roodi_toolkit.cameras import Camera
-from roodi_toolkit.datasets import Dataset
+from roodi_toolkit.io.datasets import Dataset
 from roodi_toolkit.errors import ConfigError, PluginError
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.progress import ProgressFactory, null_progress
-from roodi_toolkit.segmenters import Segmenter, SegmentPrompt, ViewMasks, check_clicks
+from roodi_toolkit.pipeline.segment import Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 INSTALL_HINT = ("the sam2 package is not installed: pip install 'roodi-sam2[sam2]' (or install SAM2 from "
                 "https://github.com/facebookresearch/sam2), and download a checkpoint such as "
@@ -102,7 +102,7 @@ class SAM2Segmenter(Segmenter):
             ConfigError: bad clicks, or no / a missing checkpoint.
             PluginError: sam2 missing, or its output is not one mask per frame of the view size.
         """
-        from roodi_toolkit.files import write_image
+        from roodi_toolkit.io.files import write_image
 
         v0 = check_clicks(dataset, prompt.clicks)
         if not self.checkpoint:

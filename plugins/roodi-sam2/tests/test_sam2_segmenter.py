@@ -8,9 +8,9 @@ import torch
 
 from roodi_sam2 import SAM2Segmenter, frame_order
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.datasets import Dataset
+from roodi_toolkit.io.datasets import Dataset
 from roodi_toolkit.errors import ConfigError, PluginError
-from roodi_toolkit.segmenters import Click, SegmentPrompt
+from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
 
 
 def small_dataset(n=5, size=12):
@@ -113,7 +113,7 @@ def test_missing_sam2_is_reported_with_an_install_hint(monkeypatch):
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "sam2" else real(name, *a))
     ok, why = SAM2Segmenter.available()
     assert not ok and "pip install" in why
-    from roodi_toolkit.segmenters import get_segmenter
+    from roodi_toolkit.pipeline.segment import get_segmenter
 
     with pytest.raises(PluginError, match="pip install"):
         get_segmenter("sam2")

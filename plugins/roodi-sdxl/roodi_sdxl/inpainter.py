@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from roodi_toolkit.errors import PluginError
-from roodi_toolkit.inpaint import Inpainter
+from roodi_toolkit.pipeline.inpaint import Inpainter
 
 MODEL_ID = "diffusers/stable-diffusion-xl-1.0-inpainting-0.1"
 """The hub id of SD-XL Inpainting 0.1, looked up in the local hub cache only."""

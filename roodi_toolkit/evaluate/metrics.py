@@ -1,0 +1,255 @@
+"""Extraction quality as the paper measures it (Sec. 4.1): PSNR, SSIM and LPIPS inside 1.2x the tight bounding box
+of the true object, and IoU of the rendered alpha against the true alpha.
+
+The extracted object is rendered from the target's test cameras on a white background, as the ground truth views of
+the object alone are. LPIPS needs weights on this machine (:mod:`roodi_toolkit.evaluate.lpips`); without them it is reported
+as unavailable (``None``), never replaced by another number.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..errors import DatasetError, RoodiError
+from ..gaussians import GaussianCloud
+from ..progress import ProgressFactory, null_progress
+
+BOX_SCALE = 1.2
+"""Metrics are computed inside this multiple of the true object's tight 2D bounding box (paper)."""
+ALPHA_THRESHOLD = 0.5
+"""A pixel belongs to a mask when its alpha exceeds this."""
+LPIPS_MIN_SIDE = 64
+"""Crops smaller than this are resized (bilinear) to it on their short side before LPIPS, which needs >= 32 px."""
+
+
+def box_around(alpha: np.ndarray, scale: float = BOX_SCALE) -> tuple[int, int, int, int] | None:
+    """Return ``(y0, y1, x0, x1)``: ``scale`` x the tight box of ``alpha > 0.5`` about its centre, clipped; or None.
+
+    Example:
+        >>> a = np.zeros((100, 100)); a[40:60, 30:50] = 1
+        >>> box_around(a)
+        (38, 62, 28, 52)
+    """
+    ys, xs = np.nonzero(np.asarray(alpha) > ALPHA_THRESHOLD)
+    if ys.size == 0:
+        return None
+    h, w = alpha.shape
+    cy, cx = (ys.min() + ys.max() + 1) / 2.0, (xs.min() + xs.max() + 1) / 2.0
+    hh, hw = scale * (ys.max() + 1 - ys.min()) / 2.0, scale * (xs.max() + 1 - xs.min()) / 2.0
+    y0, y1 = max(0, int(math.floor(cy - hh))), min(h, int(math.ceil(cy + hh)))
+    x0, x1 = max(0, int(math.floor(cx - hw))), min(w, int(math.ceil(cx + hw)))
+    return y0, y1, x0, x1
+
+
+def zoom_box(mask: np.ndarray, scale: float = 3.0) -> tuple[int, int, int, int]:
+    """Return ``(y0, y1, x0, x1)``: a square ``scale`` x the mask's box about its centre (at least 8 pixels), shifted
+    inside the image; the whole image when the mask is empty. For pictures that zoom in on an object.
+
+    Example:
+        >>> m = np.zeros((64, 64), bool); m[10:14, 20:22] = True
+        >>> zoom_box(m)
+        (6, 18, 15, 27)
+    """
+    h, w = mask.shape
+    ys, xs = np.nonzero(mask)
+    if ys.size == 0:
+        return 0, h, 0, w
+    side = min(h, w, max(8, int(np.ceil(scale * max(ys.max() + 1 - ys.min(), xs.max() + 1 - xs.min())))))
+    cy, cx = int(ys.min() + ys.max() + 1) // 2, int(xs.min() + xs.max() + 1) // 2
+    y0, x0 = min(max(0, cy - side // 2), h - side), min(max(0, cx - side // 2), w - side)
+    return y0, y0 + side, x0, x0 + side
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """Return the PSNR in dB of two images in [0, 1] (inf when identical)."""
+    mse = float(np.mean((np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)) ** 2))
+    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
+
+
+def ssim(a: np.ndarray, b: np.ndarray, window: int = 11) -> float:
+    """Return the mean SSIM of two ``[H, W, 3]`` images in [0, 1] (Gaussian window, shrunk for small crops)."""
+    import kornia
+
+    win = min(window, min(a.shape[:2]))
+    win = win if win % 2 == 1 else win - 1
+    x = torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32).permute(2, 0, 1)[None]
+    y = torch.as_tensor(np.ascontiguousarray(b), dtype=torch.float32).permute(2, 0, 1)[None]
+    return float(kornia.metrics.ssim(x, y, max(win, 1)).mean())
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Return the intersection over union of two alpha maps thresholded at 0.5 (1.0 when both are empty)."""
+    ma, mb = np.asarray(a) > ALPHA_THRESHOLD, np.asarray(b) > ALPHA_THRESHOLD
+    union = np.logical_or(ma, mb).sum()
+    return 1.0 if union == 0 else float(np.logical_and(ma, mb).sum() / union)
+
+
+def lpips_crop(model: Any, a: np.ndarray, b: np.ndarray) -> float:
+    """Return LPIPS of two ``[h, w, 3]`` crops, resized up to :data:`LPIPS_MIN_SIDE` on the short side if smaller."""
+    x = torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32).permute(2, 0, 1)[None]
+    y = torch.as_tensor(np.ascontiguousarray(b), dtype=torch.float32).permute(2, 0, 1)[None]
+    short = min(x.shape[-2:])
+    if short < LPIPS_MIN_SIDE:
+        size = [max(LPIPS_MIN_SIDE, round(s * LPIPS_MIN_SIDE / short)) for s in x.shape[-2:]]
+        x = torch.nn.functional.interpolate(x, size=size, mode="bilinear", align_corners=False)
+        y = torch.nn.functional.interpolate(y, size=size, mode="bilinear", align_corners=False)
+    with torch.no_grad():
+        return float(model(x, y)[0])
+
+
+@dataclass
+class ViewScores:
+    """The paper's metrics for one test view (crop-based ones are None when the true object is not in view)."""
+
+    name: str
+    psnr: Optional[float]
+    ssim: Optional[float]
+    lpips: Optional[float]
+    iou: float
+
+
+@dataclass
+class Evaluation:
+    """Metrics of one extracted object, per view and averaged.
+
+    Attributes:
+        object_id: the target's instance id.
+        object_name: its name in scene.json.
+        views: per-view scores.
+        psnr, ssim, lpips, iou: means over the views (lpips None when unavailable).
+        lpips_status: ``"ok"`` or why LPIPS is unavailable.
+    """
+
+    object_id: int
+    object_name: str
+    views: list[ViewScores] = field(default_factory=list)
+    psnr: float = float("nan")
+    ssim: float = float("nan")
+    lpips: Optional[float] = None
+    iou: float = float("nan")
+    lpips_status: str = "ok"
+
+    @classmethod
+    def from_views(cls, object_id: int, object_name: str, views: list[ViewScores],
+                   lpips_status: str = "ok") -> "Evaluation":
+        """Return the evaluation averaging ``views`` (crop metrics over the views that have them; LPIPS only when
+        ``lpips_status`` is ``"ok"``)."""
+        nan = float("nan")
+        mean_psnr, mean_ssim = _mean([v.psnr for v in views]), _mean([v.ssim for v in views])
+        return cls(object_id, object_name, views, psnr=nan if mean_psnr is None else mean_psnr,
+                   ssim=nan if mean_ssim is None else mean_ssim,
+                   lpips=_mean([v.lpips for v in views]) if lpips_status == "ok" else None,
+                   iou=float(np.mean([v.iou for v in views])), lpips_status=lpips_status)
+
+    def to_dict(self, per_view: bool = True) -> dict[str, Any]:
+        out = {"object_id": self.object_id, "object_name": self.object_name, "psnr": self.psnr, "ssim": self.ssim,
+               "lpips": self.lpips, "iou": self.iou, "lpips_status": self.lpips_status,
+               "views": len(self.views)}
+        if per_view:
+            out["per_view"] = [v.__dict__ for v in self.views]
+        return out
+
+
+def score_views(renders: np.ndarray, alphas: np.ndarray, truth: np.ndarray, truth_alpha: np.ndarray,
+                names: Sequence[str], lpips_model: Any = None) -> list[ViewScores]:
+    """Return per-view scores of renders against the true object-alone views.
+
+    Args:
+        renders: ``[N, H, W, 3]`` the extracted object on white, in [0, 1].
+        alphas: ``[N, H, W]`` its accumulated alpha.
+        truth: ``[N, H, W, 3]`` the true object alone on white.
+        truth_alpha: ``[N, H, W]`` the true object's alpha.
+        names: the views' names.
+        lpips_model: an LPIPS module, or None when unavailable.
+    """
+    scores = []
+    for i, name in enumerate(names):
+        box = box_around(truth_alpha[i])
+        view_iou = iou(alphas[i], truth_alpha[i])
+        if box is None:
+            scores.append(ViewScores(name, None, None, None, view_iou))
+            continue
+        y0, y1, x0, x1 = box
+        a, b = np.clip(renders[i, y0:y1, x0:x1], 0, 1), truth[i, y0:y1, x0:x1]
+        scores.append(ViewScores(name, psnr(a, b), ssim(a, b),
+                                 None if lpips_model is None else lpips_crop(lpips_model, a, b), view_iou))
+    return scores
+
+
+def _mean(values: list[Optional[float]]) -> Optional[float]:
+    """Mean over the views that have a value (an identical crop's PSNR is inf and stays so)."""
+    vals = [v for v in values if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+def find_target(data_dir: str | Path, object_id: int) -> tuple[Path, str]:
+    """Return the folder of target ``object_id``'s object-alone test views and the object's name.
+
+    Raises:
+        DatasetError: no scene.json, or no such target (the message lists the targets).
+    """
+    from ..io.files import read_json
+
+    root = Path(data_dir)
+    record = read_json(root / "scene.json", "scene.json (made by roodi-toolkit make-scene)")
+    targets = {int(t["id"]): t for t in record.get("targets", [])}
+    if object_id not in targets:
+        listed = ", ".join(f"{i} ({t['name']})" for i, t in sorted(targets.items())) or "none"
+        raise DatasetError(f"{root}: object {object_id} is not an extraction target; targets: {listed}")
+    folder = root / targets[object_id]["path"]
+    if not (folder / "transforms_test.json").is_file():
+        raise DatasetError(f"{folder}: missing transforms_test.json of the target's views")
+    return folder, str(targets[object_id]["name"])
+
+
+def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, *, renderer: str = "torch",
+                    lpips_weights: str | None = None, max_views: int | None = None,
+                    progress: ProgressFactory = null_progress) -> tuple[Evaluation, np.ndarray]:
+    """Return the paper's metrics of an extracted object against its true object-alone views, and the renders.
+
+    Args:
+        cloud: the extracted object.
+        data_dir: a scene made by ``roodi-toolkit make-scene``.
+        object_id: the target's instance id.
+        renderer: the renderer plugin.
+        lpips_weights: local LPIPS weights (default: found by :meth:`roodi_toolkit.evaluate.lpips.LPIPS.from_local`).
+        max_views: evaluate on the first this many test views only.
+        progress: progress factory.
+
+    Returns:
+        ``(evaluation, renders)`` with renders ``[N, H, W, 3]`` on white.
+    """
+    from ..io.datasets import load_dataset
+    from .lpips import LPIPS, LPIPSUnavailable
+    from ..render.renderer import render_cloud
+
+    folder, name = find_target(data_dir, object_id)
+    truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
+    if truth.alphas is None:
+        raise DatasetError(f"{folder}: the target's views have no alpha; cannot score IoU")
+    count = len(truth) if max_views is None else min(max_views, len(truth))
+    if len(cloud) == 0:
+        raise RoodiError("the extracted object has no Gaussians")
+    lpips_model, status = None, "ok"
+    try:
+        lpips_model = LPIPS.from_local(lpips_weights)
+    except LPIPSUnavailable as exc:
+        status = f"unavailable: {exc}"
+    renders, alphas = [], []
+    with progress(total=count, desc=f"evaluate {name}") as bar:
+        for i in range(count):
+            out = render_cloud(cloud, truth.cameras[i], renderer=renderer, background=(1.0, 1.0, 1.0))
+            renders.append(out.rgb.clamp(0, 1).numpy())
+            alphas.append(out.alpha[..., 0].numpy())
+            bar.update(1)
+    renders_np, alphas_np = np.stack(renders), np.stack(alphas)
+    views = score_views(renders_np, alphas_np, truth.images[:count].numpy(), truth.alphas[:count].numpy(),
+                        truth.names[:count], lpips_model)
+    return Evaluation.from_views(object_id, name, views, lpips_status=status), renders_np

@@ -1,0 +1,224 @@
+"""File output helpers: atomic writes and output-path policy. With ``ply.py`` the only modules that open files.
+
+Outputs are written to a temporary file in the destination folder and renamed into place, so a reader never sees a
+half-written file and an interrupted run leaves any previous output intact.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+from ..errors import OutputError
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success rename it onto ``path``, on failure remove it.
+
+    Args:
+        path: the final destination.
+        suffix: the temporary file's suffix (defaults to the destination's, so writers that pick a format from the
+            extension keep working).
+    """
+    dest = Path(path)
+    parent = dest.parent if str(dest.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(f"{dest}: the folder {parent} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix,
+                               dir=parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, dest)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp_path.unlink()
+        raise
+
+
+def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[str | os.PathLike] = ()) -> Path:
+    """Return ``path`` as a Path after checking it may be written.
+
+    Raises:
+        OutputError: the path is one of the inputs, exists without ``overwrite``, is a folder, or its folder is missing.
+    """
+    dest = Path(path)
+    for src in inputs:
+        src_path = Path(src)
+        if src_path.exists() and dest.exists() and os.path.samefile(src_path, dest):
+            raise OutputError(f"{dest}: output is the same file as the input; choose another output path")
+        if not dest.exists() and dest.resolve() == src_path.resolve():
+            raise OutputError(f"{dest}: output is the same file as the input; choose another output path")
+    if dest.is_dir():
+        raise OutputError(f"{dest}: is a folder; give a file path for this output")
+    if dest.exists() and not overwrite:
+        raise OutputError(f"{dest}: already exists; pass --overwrite to replace it")
+    parent = dest.parent if str(dest.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(f"{dest}: the folder {parent} does not exist; create it first")
+    return dest
+
+
+def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existing: bool = False) -> Path:
+    """Create an output folder and return it.
+
+    An existing non-empty folder is refused unless ``overwrite`` (its contents are then replaced file by file) or
+    ``allow_existing`` (a stage-reusing command such as ``extract`` or ``train --resume``).
+    """
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (overwrite or allow_existing):
+        raise OutputError(f"{out}: folder exists and is not empty; pass --overwrite to write into it")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot create folder ({exc.strerror})") from None
+    return out
+
+
+def write_json(obj: Any, path: str | os.PathLike) -> Path:
+    """Write ``obj`` as indented JSON atomically; numpy scalars and arrays are converted."""
+
+    def default(o: Any) -> Any:
+        if isinstance(o, np.generic):
+            return o.item()
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+        if isinstance(o, Path):
+            return str(o)
+        raise TypeError(f"cannot write {type(o).__name__} as JSON")
+
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, default=default) + "\n")
+    return Path(path)
+
+
+def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
+    """Read a JSON file, turning every failure into a one-line :class:`~roodi_toolkit.errors.RoodiError`."""
+    from ..errors import RoodiError
+
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except FileNotFoundError:
+        raise RoodiError(f"{p}: {what} not found") from None
+    except IsADirectoryError:
+        raise RoodiError(f"{p}: is a folder, expected a {what}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RoodiError(f"{p}: cannot read {what} ({exc})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RoodiError(f"{p}: malformed {what}: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+
+
+def write_image(image: np.ndarray, path: str | os.PathLike) -> Path:
+    """Write an image atomically as PNG (or the format of the extension).
+
+    Args:
+        image: ``[H, W]``, ``[H, W, 3]`` or ``[H, W, 4]``; float in [0, 1] becomes 8-bit, uint8/uint16 are kept.
+    """
+    from PIL import Image
+
+    arr = np.asarray(image)
+    if arr.dtype.kind == "f":
+        arr = (np.clip(np.nan_to_num(arr), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    elif arr.dtype == np.bool_:
+        arr = arr.astype(np.uint8) * 255
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.dtype == np.uint16:
+        img = Image.fromarray(arr)
+    else:
+        img = Image.fromarray(arr.astype(np.uint8))
+    with atomic_path(path) as tmp:
+        img.save(tmp)
+    return Path(path)
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image file as a numpy array (uint8 or uint16, channels last), with one-line errors."""
+    from PIL import Image, UnidentifiedImageError
+
+    from ..errors import RoodiError
+
+    p = Path(path)
+    try:
+        with Image.open(p) as img:
+            if img.mode in ("I;16", "I;16B", "I;16L", "I"):
+                return np.asarray(img).astype(np.uint16)
+            if img.mode not in ("L", "RGB", "RGBA"):
+                img = img.convert("RGBA" if "A" in img.mode else "RGB")
+            return np.asarray(img).copy()
+    except FileNotFoundError:
+        raise RoodiError(f"{p}: image not found") from None
+    except (UnidentifiedImageError, OSError) as exc:
+        raise RoodiError(f"{p}: cannot read image ({exc})") from None
+
+
+def copy_file(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
+    """Copy a file atomically."""
+    with atomic_path(dst) as tmp:
+        shutil.copyfile(src, tmp)
+    return Path(dst)
+
+
+def new_figure(*args: Any, figsize: tuple[float, float], **subplots: Any) -> tuple[Any, Any]:
+    """Return ``(figure, axes)`` like ``plt.subplots`` but without pyplot, so the caller's matplotlib backend (a
+    notebook's inline one, say) is neither needed nor changed; save it with :func:`save_figure`."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*args, **subplots)
+
+
+def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 110) -> Path:
+    """Save a matplotlib figure atomically (format from the extension) and release it.
+
+    Figures from :func:`new_figure` are not known to pyplot; ones made with pyplot are closed there too.
+    """
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+    finally:
+        import sys
+
+        if "matplotlib.pyplot" in sys.modules:
+            sys.modules["matplotlib.pyplot"].close(fig)
+    return Path(path)
+
+
+def save_checkpoint(obj: Any, path: str | os.PathLike) -> Path:
+    """Write a checkpoint (tensors, numbers, strings, lists, dicts only) atomically with ``torch.save``."""
+    import torch
+
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
+    return Path(path)
+
+
+def load_checkpoint(path: str | os.PathLike) -> Any:
+    """Read a checkpoint written by :func:`save_checkpoint` with ``torch.load(weights_only=True)`` (no code runs)."""
+    import pickle
+
+    import torch
+
+    from ..errors import RoodiError
+
+    p = Path(path)
+    if not p.is_file():
+        raise RoodiError(f"{p}: checkpoint not found")
+    try:
+        return torch.load(p, map_location="cpu", weights_only=True)
+    except (RuntimeError, pickle.UnpicklingError, EOFError, OSError, ValueError) as exc:
+        raise RoodiError(f"{p}: cannot read checkpoint ({' '.join(str(exc).split())[:200]})") from None

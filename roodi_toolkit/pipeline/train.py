@@ -1,0 +1,565 @@
+"""Train a 3DGS model of a whole scene on the CPU: L1 + D-SSIM with the MCMC densification strategy (paper, Sec. 3.1).
+
+The loop follows the reference 3DGS / gsplat trainer: one Adam per parameter with the 3DGS learning rates (position
+learning rate scaled by the scene extent and decayed exponentially by 100x over the run), loss
+``(1 - 0.2) L1 + 0.2 (1 - SSIM)`` with an 11x11 window, SH degree raised every 1000 iterations, and the MCMC
+strategy's regularisers, relocation, growth and position noise (:mod:`roodi_toolkit.pipeline.strategy`).
+
+Everything random draws from one seeded ``torch.Generator`` whose state is checkpointed, so a run killed at any
+moment and resumed from its last checkpoint continues exactly as the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..cameras import Camera
+from ..io.datasets import Dataset
+from ..errors import ConfigError, RoodiError
+from ..gaussians import SH_C0, GaussianCloud
+from ..progress import ProgressFactory, null_progress
+from ..render.rasterizer import RasterOutput, rasterize
+from .strategy import MCMCStrategy, MCMCState
+
+PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh0", "shN")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Hyperparameters of scene training. Sources: 3DGS (learning rates, loss), gsplat/3DGS-MCMC (init, MCMC).
+
+    Attributes:
+        iterations: optimisation steps (one view each).
+        sh_degree: largest SH degree (3DGS: 3), reached by raising it every ``sh_degree_interval`` steps.
+        ssim_lambda: weight of D-SSIM in the loss (3DGS: 0.2).
+        ssim_window: SSIM window (3DGS: 11).
+        means_lr: position learning rate per unit of scene scale (3DGS: 1.6e-4), decayed to
+            ``means_lr * means_lr_final`` at the last step.
+        init: ``"auto"`` (the dataset's sparse points if any, else random), ``"points"``, ``"random"`` (uniform in
+            the scene box, coloured by projection into the views), or ``"depth"`` (pixels of the training views' depth
+            maps lifted to 3D, as from an RGB-D capture; needs a dataset with depth).
+        init_num_points: random initialisation size (ours: sized for the CPU; gsplat uses 100,000).
+        init_opacity: initial opacity (3DGS-MCMC: 0.5).
+        init_scale: initial scale as a fraction of the mean distance to the 3 nearest points (3DGS-MCMC: 0.1).
+        random_background: composite images with alpha on a random colour each step (3DGS option).
+        holdout_every: when the dataset has no test split, hold out every n-th training view for evaluation.
+        seed: seeds every random choice.
+        eval_every: evaluate on the held-out views this often (0: only at the end).
+        checkpoint_every: write a resumable checkpoint this often.
+        strategy: the MCMC hyperparameters; ``cap_max`` sized for the CPU (3DGS-MCMC uses 1-3 million).
+    """
+
+    iterations: int = 3000
+    sh_degree: int = 3
+    sh_degree_interval: int = 1000
+    ssim_lambda: float = 0.2
+    ssim_window: int = 11
+    means_lr: float = 1.6e-4
+    means_lr_final: float = 0.01
+    scales_lr: float = 5e-3
+    quats_lr: float = 1e-3
+    opacities_lr: float = 5e-2
+    sh0_lr: float = 2.5e-3
+    shN_lr: float = 2.5e-3 / 20
+    init: str = "auto"
+    init_num_points: int = 20_000
+    init_opacity: float = 0.5
+    init_scale: float = 0.1
+    random_background: bool = False
+    holdout_every: int = 8
+    seed: int = 0
+    eval_every: int = 500
+    checkpoint_every: int = 250
+    strategy: MCMCStrategy = field(default_factory=lambda: MCMCStrategy(cap_max=60_000))
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1:
+            raise ConfigError(f"iterations must be at least 1, got {self.iterations}")
+        if self.sh_degree not in (0, 1, 2, 3):
+            raise ConfigError(f"sh_degree must be 0..3, got {self.sh_degree}")
+        if self.init not in ("auto", "points", "random", "depth"):
+            raise ConfigError(f"init must be auto, points, random or depth, got {self.init!r}")
+        if not 0 <= self.ssim_lambda <= 1:
+            raise ConfigError(f"ssim_lambda must be in [0, 1], got {self.ssim_lambda}")
+        if self.init_num_points < 1:
+            raise ConfigError(f"init_num_points must be positive, got {self.init_num_points}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "TrainConfig":
+        d = dict(d)
+        strategy = MCMCStrategy(**d.pop("strategy", {}))
+        return cls(**d, strategy=strategy)
+
+
+def scene_scale(cameras: list[Camera]) -> float:
+    """Return 1.1 x the largest camera distance from the cameras' mean centre (3DGS ``cameras_extent``)."""
+    centres = np.stack([c.center for c in cameras])
+    return float(1.1 * np.linalg.norm(centres - centres.mean(axis=0), axis=1).max()) or 1.0
+
+
+def rgb_to_sh0(rgb: Tensor) -> Tensor:
+    """Return the DC SH coefficient whose colour is ``rgb``."""
+    return (rgb - 0.5) / SH_C0
+
+
+def projected_colors(points: np.ndarray, dataset: Dataset, views: list[int], max_views: int = 16) -> np.ndarray:
+    """Return ``[P, 3]`` colours in [0, 1]: the median of the pixels each point projects to in the training views.
+
+    Random initial points get the colour of what the cameras see along their rays instead of noise, which saves the
+    first few hundred iterations of a CPU-sized run. Points seen by no view get grey.
+    """
+    chosen = views[:: max(1, len(views) // max_views)][:max_views]
+    samples = np.full((len(chosen), len(points), 3), np.nan, dtype=np.float32)
+    for j, v in enumerate(chosen):
+        cam = dataset.cameras[v]
+        uv, z = cam.project(points)
+        px = np.floor(uv).astype(np.int64)
+        ok = (z > cam.near) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        img = dataset.images[v].numpy()
+        samples[j, ok] = img[px[ok, 1], px[ok, 0]]
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            colors = np.nanmedian(samples, axis=0)
+    return np.where(np.isnan(colors), 0.5, colors).astype(np.float32)
+
+
+def depth_points(dataset: Dataset, views: list[int], n: int, generator: torch.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``n`` points [n, 3] and colours [n, 3] lifted from random pixels of the views' depth maps."""
+    if dataset.depths is None:
+        raise RoodiError("init 'depth' needs a dataset with depth maps (e.g. one made by make-scene)")
+    pts, cols = [], []
+    per_view = max(1, -(-n // len(views)))
+    for v in views:
+        depth = dataset.depths[v]
+        ys, xs = torch.nonzero(depth > 0, as_tuple=True)
+        if len(ys) == 0:
+            continue
+        pick = torch.randint(len(ys), (min(per_view, len(ys)),), generator=generator)
+        ys, xs = ys[pick].numpy(), xs[pick].numpy()
+        z = depth[ys, xs].numpy().astype(np.float64)
+        cam = dataset.cameras[v]
+        K = cam.K
+        x_cam = np.stack([(xs + 0.5 - K[0, 2]) / K[0, 0] * z, (ys + 0.5 - K[1, 2]) / K[1, 1] * z, z], axis=1)
+        c2w = cam.camera_to_world
+        pts.append(x_cam @ c2w[:3, :3].T + c2w[:3, 3])
+        cols.append(dataset.images[v][ys, xs].numpy())
+    if not pts:
+        raise RoodiError("init 'depth': the depth maps are empty")
+    points, colors = np.concatenate(pts), np.concatenate(cols)
+    keep = torch.randperm(len(points), generator=generator)[:n].numpy()
+    return points[keep], colors[keep]
+
+
+def init_params(points: np.ndarray, colors: np.ndarray | None, config: TrainConfig,
+                generator: torch.Generator) -> dict[str, torch.nn.Parameter]:
+    """Return the initial parameters at ``points`` [P, 3] (3DGS-MCMC: scales from the 3 nearest neighbours)."""
+    from scipy.spatial import cKDTree
+
+    pts = torch.as_tensor(np.asarray(points), dtype=torch.float32)
+    n = len(pts)
+    if n < 4:
+        raise RoodiError(f"need at least 4 initial points, got {n}")
+    dist, _ = cKDTree(pts.numpy()).query(pts.numpy(), k=4)
+    dist_avg = torch.as_tensor(np.sqrt((dist[:, 1:] ** 2).mean(axis=1)), dtype=torch.float32).clamp_min(1e-7)
+    if colors is None:
+        rgb = torch.rand(n, 3, generator=generator)
+    else:
+        rgb = torch.as_tensor(np.asarray(colors), dtype=torch.float32)
+        rgb = rgb / 255.0 if rgb.max() > 1.0 else rgb
+    k = (config.sh_degree + 1) ** 2
+    params = {
+        "means": pts,
+        "quats": torch.rand(n, 4, generator=generator),
+        "scales": torch.log(dist_avg * config.init_scale)[:, None].repeat(1, 3),
+        "opacities": torch.full((n,), math.log(config.init_opacity / (1 - config.init_opacity))),
+        "sh0": rgb_to_sh0(rgb)[:, None, :],
+        "shN": torch.zeros(n, k - 1, 3),
+    }
+    return {name: torch.nn.Parameter(value.contiguous()) for name, value in params.items()}
+
+
+def params_to_cloud(params: dict[str, Tensor]) -> GaussianCloud:
+    """Return the parameters as a GaussianCloud (raw values, as a PLY stores them)."""
+    p = {k: v.detach().cpu().numpy().astype(np.float32) for k, v in params.items()}
+    extras = {}
+    if "features" in p:
+        extras = {f"object_feature_{i}": p["features"][:, i] for i in range(p["features"].shape[1])}
+    return GaussianCloud(means=p["means"], quats_wxyz=p["quats"], log_scales=p["scales"],
+                         opacity_logits=p["opacities"], sh_dc=p["sh0"][:, 0, :], sh_rest=p["shN"], extras=extras)
+
+
+def cloud_to_params(cloud: GaussianCloud, sh_degree: int | None = None) -> dict[str, torch.nn.Parameter]:
+    """Return trainable parameters from a cloud; SH padded with zeros (or cut) to ``sh_degree`` if given."""
+    rest = cloud.sh_rest
+    if sh_degree is not None:
+        k = (sh_degree + 1) ** 2 - 1
+        rest = rest[:, :k] if rest.shape[1] >= k else np.concatenate(
+            [rest, np.zeros((len(cloud), k - rest.shape[1], 3), dtype=np.float32)], axis=1)
+    values = {"means": cloud.means, "quats": cloud.quats_wxyz, "scales": cloud.log_scales,
+              "opacities": cloud.opacity_logits, "sh0": cloud.sh_dc[:, None, :], "shN": rest}
+    # copies: optimizers update parameters in place and must not write into the cloud's arrays
+    return {k: torch.nn.Parameter(torch.tensor(np.asarray(v), dtype=torch.float32)) for k, v in values.items()}
+
+
+def render_params(params: dict[str, Tensor], camera: Camera, *, sh_degree: int | None = None,
+                  background: Tensor | None = None, features: Tensor | None = None) -> RasterOutput:
+    """Return the rendering of trainable parameters in ``camera``."""
+    colors = torch.cat([params["sh0"], params["shN"]], dim=1)
+    return rasterize(params["means"], params["quats"], params["scales"], params["opacities"], colors,
+                     torch.as_tensor(camera.world_to_camera, dtype=torch.float32),
+                     torch.as_tensor(camera.K, dtype=torch.float32), camera.width, camera.height,
+                     near=camera.near, far=camera.far, background=background, sh_degree=sh_degree,
+                     features=features)
+
+
+def psnr(a: Tensor, b: Tensor) -> float:
+    """Return the PSNR in dB of two images in [0, 1]."""
+    mse = torch.mean((a.clamp(0, 1) - b) ** 2).item()
+    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
+
+
+def ssim_value(a: Tensor, b: Tensor, window: int = 11) -> Tensor:
+    """Return the mean SSIM of two ``[H, W, C]`` images (kornia, Gaussian window)."""
+    import kornia
+
+    x = a.permute(2, 0, 1)[None]
+    y = b.permute(2, 0, 1)[None]
+    return kornia.metrics.ssim(x, y, window).mean()
+
+
+class Trainer:
+    """Trains a scene model; holds the parameters, optimizers, strategy state and the random generator.
+
+    Args:
+        dataset: the posed images (train views are used for optimisation).
+        config: hyperparameters.
+        train_indices: views to optimise on (default: the dataset's train split minus held-out views).
+    """
+
+    def __init__(self, dataset: Dataset, config: TrainConfig = TrainConfig(),
+                 train_indices: list[int] | None = None) -> None:
+        self.dataset = dataset
+        self.config = config
+        self.train_indices, self.eval_indices = split_views(dataset, config.holdout_every)
+        if train_indices is not None:
+            self.train_indices = list(train_indices)
+        if not self.train_indices:
+            raise RoodiError("the dataset has no training views")
+        self.generator = torch.Generator().manual_seed(config.seed)
+        self.scale = scene_scale([dataset.cameras[i] for i in self.train_indices])
+        self.strategy = config.strategy
+        self.strategy_state = self.strategy.initialize_state()
+        self.step = 0
+        self._order: Tensor = torch.empty(0, dtype=torch.long)
+        self._pos = 0
+        self.history: list[dict[str, float]] = []
+        self.params = init_params(*self._initial_points(), config, self.generator)
+        self._make_optimizers()
+
+    # ------------------------------------------------------------------------------------------------ set-up
+    def _initial_points(self) -> tuple[np.ndarray, np.ndarray | None]:
+        ds, cfg = self.dataset, self.config
+        if cfg.init == "depth":
+            return depth_points(ds, self.train_indices, cfg.init_num_points, self.generator)
+        use_points = cfg.init == "points" or (cfg.init == "auto" and ds.points is not None and len(ds.points) >= 4)
+        if use_points:
+            if ds.points is None or len(ds.points) < 4:
+                raise RoodiError("init 'points' needs a dataset with sparse points (COLMAP)")
+            return ds.points, ds.point_colors
+        lo, hi = ds.bounds
+        u = torch.rand(cfg.init_num_points, 3, generator=self.generator, dtype=torch.float64).numpy()
+        points = lo + u * (hi - lo)
+        return points, projected_colors(points, ds, self.train_indices)
+
+    def _make_optimizers(self) -> None:
+        cfg = self.config
+        lrs = {"means": cfg.means_lr * self.scale, "quats": cfg.quats_lr, "scales": cfg.scales_lr,
+               "opacities": cfg.opacities_lr, "sh0": cfg.sh0_lr, "shN": cfg.shN_lr}
+        self.optimizers = {name: torch.optim.Adam([self.params[name]], lr=lrs[name], eps=1e-15)
+                           for name in PARAM_NAMES}
+        gamma = cfg.means_lr_final ** (1.0 / max(cfg.iterations, 1))
+        self.scheduler = torch.optim.lr_scheduler.ExponentialLR(self.optimizers["means"], gamma=gamma)
+
+    @property
+    def sh_degree(self) -> int:
+        return min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
+
+    @property
+    def num_gaussians(self) -> int:
+        return len(self.params["means"])
+
+    def _next_view(self) -> int:
+        if self._pos >= len(self._order):
+            self._order = torch.randperm(len(self.train_indices), generator=self.generator)
+            self._pos = 0
+        view = self.train_indices[int(self._order[self._pos])]
+        self._pos += 1
+        return view
+
+    # ------------------------------------------------------------------------------------------------ training
+    def train_step(self) -> dict[str, float]:
+        """Run one optimisation step on the next view; return its loss, PSNR and Gaussian count."""
+        cfg = self.config
+        view = self._next_view()
+        camera = self.dataset.cameras[view]
+        gt = self.dataset.images[view]
+        background = torch.tensor(self.dataset.background, dtype=torch.float32)
+        alpha = None if self.dataset.alphas is None else self.dataset.alphas[view][..., None]
+        if cfg.random_background and alpha is not None:
+            # the images were composited on the dataset background: swap it for a random one
+            old_background = background
+            background = torch.rand(3, generator=self.generator)
+            gt = (gt + (1 - alpha) * (background - old_background)).clamp(0, 1)
+        out = render_params(self.params, camera, sh_degree=self.sh_degree, background=background,
+                            features=self._rendered_features())
+        l1 = torch.abs(out.rgb - gt).mean()
+        ssim = ssim_value(out.rgb, gt, cfg.ssim_window)
+        loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim) + self.strategy.regularization(self.params)
+        extra = self._extra_loss(out, view)
+        if extra is not None:
+            loss = loss + extra
+        loss.backward()
+        for opt in self.optimizers.values():
+            opt.step()
+            opt.zero_grad(set_to_none=True)
+        means_lr = self.optimizers["means"].param_groups[0]["lr"]
+        self.scheduler.step()
+        self.strategy.step_post_backward(self.params, self.optimizers, self.strategy_state, self.step, means_lr,
+                                         self.generator)
+        self.step += 1
+        return {"step": self.step, "loss": float(loss.detach()), "l1": float(l1.detach()),
+                "psnr": psnr(out.rgb.detach(), gt), "count": self.num_gaussians}
+
+    def _rendered_features(self) -> Tensor | None:
+        """Return per-Gaussian features to render beside the colour (none here; see :mod:`roodi_toolkit.pipeline.joint`)."""
+        return None
+
+    def _extra_loss(self, out: RasterOutput, view: int) -> Tensor | None:
+        """Return a loss term added to the photometric loss of ``view`` (none here)."""
+        return None
+
+    @torch.no_grad()
+    def evaluate(self, indices: list[int] | None = None) -> dict[str, float]:
+        """Return mean PSNR and SSIM over ``indices`` (default: the held-out views)."""
+        indices = self.eval_indices if indices is None else indices
+        if not indices:
+            return {}
+        background = torch.tensor(self.dataset.background, dtype=torch.float32)
+        psnrs, ssims = [], []
+        for i in indices:
+            out = render_params(self.params, self.dataset.cameras[i], sh_degree=self.sh_degree, background=background)
+            psnrs.append(psnr(out.rgb, self.dataset.images[i]))
+            ssims.append(float(ssim_value(out.rgb.clamp(0, 1), self.dataset.images[i])))
+        return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims))}
+
+    def to_cloud(self) -> GaussianCloud:
+        """Return the current model as a GaussianCloud."""
+        return params_to_cloud(self.params)
+
+    # ------------------------------------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        """Return everything needed to resume: parameters, optimizers, scheduler, strategy, RNG and view order."""
+        return {
+            "version": 1,
+            "step": self.step,
+            "config": self.config.to_dict(),
+            "params": {k: v.detach().clone() for k, v in self.params.items()},
+            "optimizers": {k: copy.deepcopy(opt.state_dict()) for k, opt in self.optimizers.items()},  # not views of live state
+            "scheduler": self.scheduler.state_dict(),
+            "strategy_state": self.strategy_state.state_dict(),
+            "generator": self.generator.get_state(),
+            "order": self._order.clone(),
+            "pos": self._pos,
+            "history": self.history,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a state from :meth:`state_dict` (the dataset and config must be the run's own)."""
+        try:
+            self.params = {k: torch.nn.Parameter(state["params"][k].clone()) for k in self.params}
+            self._make_optimizers()
+            for k, opt in self.optimizers.items():
+                opt.load_state_dict(state["optimizers"][k])
+            self.scheduler.load_state_dict(state["scheduler"])
+            self.strategy_state = MCMCState()
+            self.strategy_state.load_state_dict(state["strategy_state"])
+            self.generator.set_state(state["generator"])
+            self._order = state["order"].clone()
+            self._pos = int(state["pos"])
+            self.step = int(state["step"])
+            self.history = list(state.get("history", []))
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise RoodiError(f"checkpoint does not match this training run ({type(exc).__name__}: {exc})") from None
+
+
+def split_views(dataset: Dataset, holdout_every: int = 8) -> tuple[list[int], list[int]]:
+    """Return (train, eval) view indices: the test split if the dataset has one, else every n-th train view held out.
+
+    With ``holdout_every`` 0 and no test split, nothing is held out and evaluation is on no views.
+    """
+    train = dataset.train_indices
+    if dataset.test_indices:
+        return train, dataset.test_indices
+    if holdout_every and len(train) > 1:
+        held = train[::holdout_every]
+        return [i for i in train if i not in set(held)], held
+    return train, []
+
+
+# ---------------------------------------------------------------------------------------------------- full runs
+@dataclass
+class TrainResult:
+    """What :func:`train_scene` produced."""
+
+    ply_path: Path
+    iterations: int
+    num_gaussians: int
+    metrics: dict[str, float]
+    seconds: float
+    seconds_per_iteration: float
+    history: list[dict[str, float]]
+
+
+def checkpoint_path(out_dir: Path) -> Path:
+    return out_dir / "checkpoints" / "latest.pt"
+
+
+def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(), *,
+                downscale: float = 1, resume: bool = False, overwrite: bool = False,
+                progress: ProgressFactory = null_progress, iterations_override: int | None = None,
+                on_step: Callable[[Trainer, dict[str, float]], None] | None = None,
+                make_trainer: Callable[[Dataset, TrainConfig], Trainer] | None = None) -> TrainResult:
+    """Train a scene model and write it in the layout other 3DGS tools read; return where it is and its figures.
+
+    Writes ``out_dir/point_cloud/iteration_N/point_cloud.ply`` (Inria PLY), ``checkpoints/latest.pt`` (every
+    ``checkpoint_every`` steps, atomically), ``cfg.json``, ``metrics.json``, ``training.png`` (loss and PSNR curves)
+    and ``renders/`` (test renders beside the ground truth).
+
+    Args:
+        data_dir: a Blender or COLMAP dataset folder.
+        out_dir: the output folder; refused if non-empty unless ``resume`` or ``overwrite``.
+        config: hyperparameters (ignored on resume: the checkpoint's own are used).
+        downscale: image downscale factor.
+        resume: continue from ``out_dir/checkpoints/latest.pt``.
+        overwrite: start afresh in a non-empty ``out_dir``.
+        progress: progress factory (the bar shows loss, PSNR and Gaussian count).
+        iterations_override: on resume, train to this many iterations instead of the checkpoint's (the position
+            learning-rate decay keeps the original schedule).
+        on_step: called after every step (tests use it to interrupt a run).
+        make_trainer: builds the trainer from the dataset and config (default :class:`Trainer`; the single-stage
+            ablation passes one that also trains object features).
+    """
+    from ..io import files
+    from ..io.datasets import load_dataset
+    from ..io.ply import write_ply
+
+    out = Path(out_dir)
+    if resume:
+        ckpt_file = checkpoint_path(out)
+        if not ckpt_file.is_file():
+            raise RoodiError(f"{out}: nothing to resume (no {ckpt_file.relative_to(out)}); run without --resume")
+        state = files.load_checkpoint(ckpt_file)
+        if not isinstance(state, dict) or "config" not in state:
+            raise RoodiError(f"{ckpt_file}: not a roodi-toolkit training checkpoint")
+        config = TrainConfig.from_dict(state["config"])
+        if iterations_override is not None:
+            config = replace(config, iterations=iterations_override)
+    else:
+        files.prepare_output_dir(out, overwrite=overwrite)
+        state = None
+    dataset = load_dataset(data_dir, downscale)
+    trainer = (make_trainer or Trainer)(dataset, config)
+    if state is not None:
+        trainer.load_state_dict(state)
+    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    files.write_json({"data_dir": str(data_dir), "downscale": downscale, "scene_scale": trainer.scale,
+                      "train_views": len(trainer.train_indices), "eval_views": len(trainer.eval_indices),
+                      **config.to_dict()}, out / "cfg.json")
+    start_step = trainer.step
+    t0 = time.perf_counter()
+    with progress(total=config.iterations, desc="train", initial=start_step) as bar:
+        while trainer.step < config.iterations:
+            info = trainer.train_step()
+            if trainer.step % 10 == 0 or trainer.step == config.iterations:
+                trainer.history.append({k: float(v) for k, v in info.items()})
+            if config.eval_every and trainer.step % config.eval_every == 0 and trainer.step < config.iterations:
+                ev = trainer.evaluate()
+                if ev:
+                    trainer.history.append({"step": float(trainer.step), "eval_psnr": ev["psnr"],
+                                            "eval_ssim": ev["ssim"]})
+            if trainer.step % config.checkpoint_every == 0 or trainer.step == config.iterations:
+                files.save_checkpoint(trainer.state_dict(), checkpoint_path(out))
+            bar.update(1)
+            bar.set_postfix_str(f"loss {info['loss']:.4f} psnr {info['psnr']:.2f} n {info['count']}", refresh=False)
+            if on_step is not None:
+                on_step(trainer, info)
+    seconds = time.perf_counter() - t0
+    metrics = trainer.evaluate()
+    if metrics:
+        trainer.history.append({"step": float(trainer.step), "eval_psnr": metrics["psnr"],
+                                "eval_ssim": metrics["ssim"]})
+    ply_path = out / "point_cloud" / f"iteration_{trainer.step}" / "point_cloud.ply"
+    ply_path.parent.mkdir(parents=True, exist_ok=True)
+    write_ply(trainer.to_cloud(), ply_path)
+    steps_run = trainer.step - start_step
+    result = TrainResult(ply_path, trainer.step, trainer.num_gaussians, metrics, seconds,
+                         seconds / steps_run if steps_run else 0.0, trainer.history)
+    files.write_json({"iterations": trainer.step, "num_gaussians": trainer.num_gaussians, "eval": metrics,
+                      "eval_views": [dataset.cameras[i].name for i in trainer.eval_indices],
+                      "seconds_this_run": seconds, "seconds_per_iteration": result.seconds_per_iteration,
+                      "history": trainer.history}, out / "metrics.json")
+    write_training_pictures(trainer, out)
+    return result
+
+
+def write_training_pictures(trainer: Trainer, out: Path, max_renders: int = 4) -> None:
+    """Write the loss/PSNR plot and a few held-out renders beside their ground truth."""
+    from ..io import files
+
+    hist = trainer.history
+    train = [h for h in hist if "loss" in h]
+    evals = [h for h in hist if "eval_psnr" in h]
+    fig, (ax1, ax2) = files.new_figure(1, 2, figsize=(10, 3.5))
+    if train:
+        ax1.plot([h["step"] for h in train], [h["loss"] for h in train], lw=1)
+        ax2.plot([h["step"] for h in train], [h["psnr"] for h in train], lw=1, alpha=0.6, label="train view")
+    if evals:
+        ax2.plot([h["step"] for h in evals], [h["eval_psnr"] for h in evals], "o-", label="held-out views")
+    ax1.set(xlabel="iteration", ylabel="loss", yscale="log", title="training loss")
+    ax2.set(xlabel="iteration", ylabel="PSNR (dB)", title="PSNR")
+    ax2.legend()
+    files.save_figure(fig, out / "training.png")
+    renders = out / "renders"
+    renders.mkdir(exist_ok=True)
+    background = torch.tensor(trainer.dataset.background, dtype=torch.float32)
+    with torch.no_grad():
+        for i in (trainer.eval_indices or trainer.train_indices)[:max_renders]:
+            cam = trainer.dataset.cameras[i]
+            img = render_params(trainer.params, cam, sh_degree=trainer.sh_degree, background=background).rgb
+            pair = torch.cat([img.clamp(0, 1), trainer.dataset.images[i]], dim=1).numpy()
+            files.write_image(pair, renders / f"{cam.name or i}_render_vs_gt.png")
+
+
+def config_with(config: TrainConfig, **changes: Any) -> TrainConfig:
+    """Return ``config`` with top-level fields or strategy fields (``cap_max=...``) changed."""
+    strategy_fields = set(asdict(config.strategy))
+    strat = {k: v for k, v in changes.items() if k in strategy_fields and v is not None}
+    top = {k: v for k, v in changes.items() if k not in strategy_fields and v is not None}
+    if strat:
+        top["strategy"] = replace(config.strategy, **strat)
+    return replace(config, **top)

@@ -1,0 +1,151 @@
+"""Render a Gaussian cloud from many cameras to image files (what ``roodi-toolkit render`` does).
+
+Depth is written as a 16-bit PNG (``value * depth_scale`` = expected depth in scene units along the camera's z axis;
+0 = no surface, i.e. accumulated alpha below ``min_alpha``) plus a coloured preview; ``render.json`` beside the images
+records the depth scale and every camera.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..cameras import Camera, orbit_cameras
+from ..errors import CloudError, ConfigError
+from ..io.files import write_image, write_json
+from ..gaussians import GaussianCloud
+from ..progress import ProgressFactory, null_progress
+from .renderer import Renderer, get_renderer, render_cloud
+
+WHATS = ("rgb", "depth", "alpha")
+
+
+def framing_orbit(cloud: GaussianCloud, n: int, *, elevation_deg: float = 20.0, radius: Optional[float] = None,
+                  width: int = 512, height: int = 512, fov_x_deg: float = 50.0,
+                  up: Sequence[float] = (0.0, 0.0, 1.0)) -> list[Camera]:
+    """Return ``n`` orbit cameras around the cloud's centre that frame it.
+
+    The centre is the per-axis median of the means; without ``radius`` the camera distance makes a sphere holding 95%
+    of the means (distance from the centre, 95th percentile) fill the narrower field of view, with 10% margin.
+    """
+    if len(cloud) == 0:
+        raise CloudError("cannot frame an empty cloud; give --radius and a centre, or render a non-empty file")
+    finite = np.isfinite(cloud.means).all(axis=1)
+    if not finite.any():
+        raise CloudError("all Gaussian means are NaN/Inf; nothing to frame")
+    means = cloud.means[finite].astype(np.float64)
+    center = np.median(means, axis=0)
+    if radius is None:
+        extent = float(np.percentile(np.linalg.norm(means - center, axis=1), 95))
+        extent = max(extent, 1e-6)
+        fov_x = math.radians(fov_x_deg)
+        fov_min = min(fov_x, 2 * math.atan(math.tan(fov_x / 2) * height / width))
+        radius = 1.1 * extent / math.sin(fov_min / 2)
+    near = max(1e-4, radius * 1e-3)
+    return orbit_cameras(center, radius, n, elevation_deg=elevation_deg, width=width, height=height,
+                         fov_x_deg=fov_x_deg, up=up, near=near)
+
+
+@dataclass(frozen=True)
+class DepthEncoding:
+    """How depth maps are stored: ``depth = png_value * scale``; ``png_value == 0`` means no surface."""
+
+    scale: float
+    min_alpha: float = 0.5
+
+    def encode(self, depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+        """Return the uint16 image of a float depth map ``[H, W]`` given its accumulated alpha ``[H, W]``."""
+        q = np.clip(np.round(depth / self.scale), 1, 65535)
+        return np.where((alpha >= self.min_alpha) & np.isfinite(depth), q, 0).astype(np.uint16)
+
+    def decode(self, png: np.ndarray) -> np.ndarray:
+        """Return float depths (NaN where no surface) of an encoded image."""
+        return np.where(png > 0, png.astype(np.float64) * self.scale, np.nan)
+
+
+def depth_encoding_for(cloud: GaussianCloud, cameras: Sequence[Camera], min_alpha: float = 0.5) -> DepthEncoding:
+    """Return an encoding whose range covers the farthest in-range Gaussian mean of every camera.
+
+    Expected depth is a weighted mean of the Gaussians' camera-space z, so it never exceeds that bound.
+    """
+    far = 0.0
+    for cam in cameras:
+        _, z = cam.project(cloud.means)
+        z = z[(z > cam.near) & (z < cam.far) & np.isfinite(z)]
+        if z.size:
+            far = max(far, float(z.max()))
+    return DepthEncoding(scale=(far if far > 0 else 1.0) / 65535.0, min_alpha=min_alpha)
+
+
+def colorize_depth(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Return an RGB preview ``[H, W, 3]`` float of a depth map: turbo colormap, near = red end, black = no surface."""
+    from matplotlib import colormaps
+
+    out = np.zeros(depth.shape + (3,))
+    if valid.any():
+        lo, hi = float(depth[valid].min()), float(depth[valid].max())
+        t = np.clip((depth - lo) / max(hi - lo, 1e-12), 0, 1)
+        out = colormaps["turbo"](1.0 - t)[..., :3]
+        out[~valid] = 0.0
+    return out
+
+
+def render_views(cloud: GaussianCloud, cameras: Sequence[Camera], out_dir: str | os.PathLike, *, what: str = "rgb",
+                 renderer: Renderer | str = "torch", background: Sequence[float] = (0.0, 0.0, 0.0),
+                 min_alpha: float = 0.5, progress: ProgressFactory = null_progress) -> dict:
+    """Render every camera and write the images into an existing folder; return the ``render.json`` record.
+
+    Files per view (named after ``camera.name``, else ``view_###``): ``rgb``: ``NAME.png``; ``alpha``:
+    ``NAME_alpha.png`` (8-bit); ``depth``: ``NAME_depth.png`` (16-bit, see :class:`DepthEncoding`) and
+    ``NAME_depth_preview.png``.
+    """
+    if what not in WHATS:
+        raise ConfigError(f"unknown render output {what!r}; choose one of {', '.join(WHATS)}")
+    if not cameras:
+        raise ConfigError("no cameras to render")
+    out = Path(out_dir)
+    if isinstance(renderer, str):
+        renderer = get_renderer(renderer)
+    names = _view_names(cameras)
+    encoding = depth_encoding_for(cloud, cameras, min_alpha) if what == "depth" else None
+    record: dict = {"what": what, "renderer": type(renderer).__name__, "background": list(background),
+                    "gaussians": len(cloud), "views": []}
+    if encoding is not None:
+        record["depth"] = {"scale": encoding.scale, "units": "scene units per PNG step (depth = value * scale)",
+                           "invalid_value": 0, "min_alpha": encoding.min_alpha,
+                           "definition": "expected (alpha-weighted, normalised) camera-space z"}
+    with progress(total=len(cameras), desc=f"rendering {what}") as bar:
+        for cam, name in zip(cameras, names):
+            res = render_cloud(cloud, cam, renderer=renderer, background=background)
+            files = []
+            if what == "rgb":
+                files.append(write_image(res.rgb.cpu().numpy(), out / f"{name}.png"))
+            elif what == "alpha":
+                files.append(write_image(res.alpha[..., 0].cpu().numpy(), out / f"{name}_alpha.png"))
+            else:
+                depth = res.depth[..., 0].cpu().double().numpy()
+                alpha = res.alpha[..., 0].cpu().double().numpy()
+                png = encoding.encode(depth, alpha)
+                files.append(write_image(png, out / f"{name}_depth.png"))
+                files.append(write_image(colorize_depth(depth, png > 0), out / f"{name}_depth_preview.png"))
+            record["views"].append({"name": name, "files": [f.name for f in files], "width": cam.width,
+                                    "height": cam.height, "world_to_camera": cam.world_to_camera, "K": cam.K,
+                                    "near": cam.near, "far": cam.far})
+            bar.update(1)
+    write_json(record, out / "render.json")
+    return record
+
+
+def _view_names(cameras: Sequence[Camera]) -> list[str]:
+    names, seen = [], set()
+    for i, cam in enumerate(cameras):
+        base = "".join(c if c.isalnum() or c in "-_." else "_" for c in (cam.name or f"view_{i:03d}"))
+        name = base if base not in seen else f"{base}_{i:03d}"
+        seen.add(name)
+        names.append(name)
+    return names

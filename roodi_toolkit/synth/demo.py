@@ -1,0 +1,356 @@
+"""The README's main job on generated data: extract one object from a generated scene and score it (no GPU, no
+downloads, no input files), and the earlier planted-floater pruning demo.
+
+:func:`run_extract_demo` generates a multi-object scene (:mod:`roodi_toolkit.synth.scenegen`), trains it, distils its
+instance masks, extracts one partly hidden target with the offline defaults
+(:func:`roodi_toolkit.pipeline.extract.extract_objects`: ``files`` masks, ``opencv`` inpainter) and scores it with the paper's
+metrics against the target's object-alone views.
+:func:`run_prune_demo` plants floaters around a generated surface and prunes them (:mod:`roodi_toolkit.synth.floaters`).
+
+Layout of the extraction demo's ``OUT_DIR``::
+
+    data/                       the generated scene (roodi-toolkit make-scene layout)
+    extraction/                 roodi-toolkit extract's folder: scene/ (trained, distilled), object_<ID>/...
+    extraction/object_<ID>/object.ply   the extracted object (Inria PLY)
+    summary.png                 a training view, the true object, the object before and after refinement
+    report.json                 settings, stage times, metrics, paths
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..pipeline.extract import ExtractConfig
+from ..gaussians import GaussianCloud
+from ..evaluate.metrics import Evaluation
+from ..progress import ProgressFactory, null_progress
+from .scenegen import PRESETS, SceneSettings
+from ..pipeline.train import TrainConfig, config_with
+
+
+@dataclass
+class DemoResult:
+    """Where the demo wrote its files and how well pruning did against the planted truth."""
+
+    out_dir: Path
+    files: dict[str, Path]
+    scores: dict[str, float]
+    input_count: int
+    kept_count: int
+    seconds: float
+
+
+def _projection_panel(ax, cloud: GaussianCloud, keep: np.ndarray, axes: tuple[int, int], title: str) -> None:
+    rgb = np.clip(cloud.rgb, 0, 1)
+    x, y = cloud.means[:, axes[0]], cloud.means[:, axes[1]]
+    ax.scatter(x[keep], y[keep], s=0.3, c=rgb[keep], linewidths=0, rasterized=True)
+    if (~keep).any():
+        ax.scatter(x[~keep], y[~keep], s=2.5, c="red", linewidths=0, rasterized=True, label="removed")
+        ax.legend(loc="upper right", markerscale=3, fontsize=8)
+    ax.set_title(title, fontsize=9)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
+def run_prune_demo(out_dir: str | Path, *, seed: int = 0, surface: str = "ant", n_object: int = 20_000,
+                   overwrite: bool = False, progress: ProgressFactory = null_progress) -> DemoResult:
+    """Return the figures of a prune run on a generated cloud with planted floaters, after writing its files.
+
+    Writes ``with_floaters.ply`` (the input), ``pruned.ply``, ``floaters.ply`` (what was removed), ``report.json`` and
+    ``prune_demo.png`` (the cloud before and after, removed Gaussians in red) into ``out_dir``.
+    """
+    from ..io import files
+    from ..prune.outliers import remove_statistical_outliers
+    from ..io.ply import write_ply
+    from .floaters import FloaterMix, planted_floater_cloud, removal_scores
+
+    out = files.prepare_output_dir(out_dir, overwrite=overwrite)
+    t0 = time.perf_counter()
+    planted = planted_floater_cloud(FloaterMix(surface, n_object=n_object), seed=seed)
+    paths = {"input": out / "with_floaters.ply", "pruned": out / "pruned.ply", "floaters": out / "floaters.ply",
+             "report": out / "report.json", "picture": out / "prune_demo.png"}
+    write_ply(planted.cloud, paths["input"])
+    pruned, keep, report = remove_statistical_outliers(planted.cloud, progress=progress)
+    write_ply(pruned, paths["pruned"])
+    if (~keep).any():
+        write_ply(planted.cloud.select(~keep), paths["floaters"])
+    else:
+        del paths["floaters"]
+    scores = removal_scores(planted.labels, keep)
+    summary = report.to_dict()
+    summary["planted_truth"] = {"object_lost": scores["object"], "far_removed": scores["far"],
+                                "near_removed": scores["near"]}
+    files.write_json(summary, paths["report"])
+
+    # look along the axis in which the object is thinnest, so its outline is clearest
+    extent = np.ptp(pruned.means, axis=0)
+    thin = int(np.argmin(extent))
+    view = tuple(i for i in range(3) if i != thin)
+    along = "xyz"[thin]
+    fig, axes = files.new_figure(1, 3, figsize=(12, 4.2))
+    _projection_panel(axes[0], planted.cloud, np.ones(len(keep), dtype=bool), view,
+                      f"input: {len(keep):,} Gaussians (view along {along})")
+    _projection_panel(axes[1], planted.cloud, keep, view, f"flagged by pruning: {(~keep).sum():,}")
+    _projection_panel(axes[2], pruned, np.ones(len(pruned), dtype=bool), view, f"pruned: {len(pruned):,}")
+    fig.suptitle(f"W2 statistical outlier pruning: far floaters removed {scores['far']:.1%}, near-surface floaters "
+                 f"removed {scores['near']:.1%}, object lost {scores['object']:.2%}", fontsize=10)
+    files.save_figure(fig, paths["picture"])
+    return DemoResult(out, paths, scores, len(keep), int(keep.sum()), time.perf_counter() - t0)
+
+
+# ------------------------------------------------------------------------------------------------ extraction demo
+
+
+def _demo_train() -> TrainConfig:
+    # 2000 steps with --init depth reach 32.5 dB held-out on the 128x128 bedroom scene in 3.4 min on a quiet 2-core
+    # machine (benchmarks/RESULTS.md, "Scene training"; the glossy kitchen: 24.5 dB). A 30,000 cap (15,000 lifted from
+    # depth) rather than 40,000 (20,000) took the whole demo from 15.8 to 11.3 min on a shared machine, distillation
+    # being the larger share, and scored the kitchen pot better (IoU 0.83 against 0.78; "Extraction demo" in
+    # RESULTS.md).
+    return config_with(TrainConfig(), iterations=2000, init="depth", init_num_points=15_000, cap_max=30_000,
+                       eval_every=0)
+
+
+@dataclass(frozen=True)
+class ExtractDemoConfig:
+    """Settings of the extraction demo; the defaults finish within 20 minutes on 2 CPU cores (benchmarks/RESULTS.md).
+
+    Attributes:
+        preset: the generated scene's preset (kitchen: glossy pots, bowls and vases on and around a table).
+        seed: its seed (kitchen 2: a metal pot by the table, 13% of it hidden by the table top and the bottles on it).
+        object_id: the target to extract; None picks the target with the most hidden pixels in the training views.
+        scene: image size and view counts of the generated scene (the test views are the object-alone views scored).
+        extract: every extraction stage; the offline defaults except the scene training, sized for the CPU.
+    """
+
+    preset: str = "kitchen"
+    seed: int = 2
+    object_id: Optional[int] = None
+    scene: SceneSettings = SceneSettings(width=128, height=128, train_views=50, test_views=12)
+    extract: ExtractConfig = field(default_factory=lambda: ExtractConfig(train=_demo_train()))
+
+    def __post_init__(self) -> None:
+        if self.preset not in PRESETS:
+            raise ConfigError(f"unknown preset {self.preset!r}; choose one of {', '.join(PRESETS)}")
+
+
+@dataclass
+class ExtractDemoResult:
+    """What the extraction demo wrote and measured.
+
+    Attributes:
+        out_dir: the demo's folder.
+        object_id: the extracted target's instance id.
+        object_name: its name in scene.json.
+        files: name -> path of the outputs (``object_ply``, ``summary``, ``object_picture``, ``debug``, ``report`` ...).
+        evaluation: the paper's metrics of the extracted object.
+        before: the same metrics of the object after selection and pruning, before inpainting and fine-tuning.
+        stages: wall seconds per stage.
+        cpu_stages: process CPU seconds per stage, all threads together (``extract``: its four stages).
+        gaussians: Gaussian counts (``scene``, ``selected``, ``object``).
+        hidden_fraction: fraction of the target's pixels hidden by other objects over the training views.
+        scene_psnr: held-out PSNR of the trained scene model (None when it has no held-out views).
+        seconds: wall time of the whole demo.
+        load_average: the machine's 1-minute load average at the start and at the end.
+    """
+
+    out_dir: Path
+    object_id: int
+    object_name: str
+    files: dict[str, Path]
+    evaluation: Evaluation
+    before: Evaluation
+    stages: dict[str, float]
+    cpu_stages: dict[str, float]
+    gaussians: dict[str, int]
+    hidden_fraction: float
+    scene_psnr: Optional[float]
+    seconds: float
+    load_average: tuple[float, float]
+
+
+class _Clock:
+    """Wall and process CPU seconds of named stages."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+        self._t = (time.perf_counter(), time.process_time())
+
+    def lap(self, name: str) -> None:
+        now = (time.perf_counter(), time.process_time())
+        self.wall[name] = self.wall.get(name, 0.0) + now[0] - self._t[0]
+        self.cpu[name] = self.cpu.get(name, 0.0) + now[1] - self._t[1]
+        self._t = now
+
+
+def _alone_masks(scene: Any, cameras: list, target_ids: list[int]) -> dict[int, np.ndarray]:
+    """Return per target ``[V, H, W]`` True where it covers the views' pixel centres when rendered alone."""
+    from .scenegen import render_views
+
+    alone = {}
+    for tid in target_ids:
+        renders = render_views(scene, cameras, object_ids=[tid], with_ground=False, supersample=1)
+        alone[tid] = np.stack([r.ids == tid for r in renders])
+    return alone
+
+
+def _outline(mask: np.ndarray) -> np.ndarray:
+    from scipy.ndimage import binary_erosion
+
+    return mask & ~binary_erosion(mask)
+
+
+def _view_scores(view: Any) -> str:
+    return "" if view.psnr is None else f"\nPSNR {view.psnr:.1f} dB, IoU {view.iou:.2f}"
+
+
+def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visible: np.ndarray, truth: np.ndarray,
+                    truth_alpha: np.ndarray, before: np.ndarray, after: np.ndarray, titles: list[str],
+                    suptitle: str) -> None:
+    """Write five panels: a training view, its close-up (the target outlined, its hidden part in red), then, zoomed
+    in on the object in one test view, the true object and the object before and after refinement."""
+    from matplotlib.patches import Rectangle
+
+    from ..io import files
+    from ..evaluate.metrics import ALPHA_THRESHOLD, zoom_box
+
+    view = train_image.copy()
+    hidden = alone & ~visible
+    view[hidden] = 0.45 * view[hidden] + 0.55 * np.array([1.0, 0.0, 0.0])
+    view[_outline(alone)] = (1.0, 0.9, 0.0)
+    y0, y1, x0, x1 = zoom_box(alone)
+    t0, t1, s0, s1 = zoom_box(truth_alpha > ALPHA_THRESHOLD, 2.0)
+    test = [img[t0:t1, s0:s1] for img in (truth, before, after)]
+    fig, axes = files.new_figure(1, 5, figsize=(16, 3.9))
+    for ax, img, title in zip(axes, [train_image, view[y0:y1, x0:x1], *test], titles):
+        ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
+        ax.set_title(title, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    axes[0].add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, edgecolor=(1.0, 0.9, 0.0),
+                                linewidth=1.5))
+    fig.suptitle(suptitle, fontsize=10)
+    files.save_figure(fig, path)
+
+
+def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDemoConfig(), *,
+                     overwrite: bool = False, progress: ProgressFactory = null_progress) -> ExtractDemoResult:
+    """Return the figures of an extraction on a generated scene, after writing the scene, the object and pictures.
+
+    Generates the scene into ``out_dir/data``, extracts the target into ``out_dir/extraction`` (train, distil with
+    the scene's own instance masks, select, prune, occlusion-reasoned ``opencv`` inpainting, fine-tune), scores the
+    object before and after refinement against the target's object-alone test views, and writes ``summary.png`` and
+    ``report.json``.
+
+    Args:
+        out_dir: the demo's folder; an existing non-empty one is refused unless ``overwrite`` (then everything is
+            regenerated and retrained).
+        config: scene, target and extraction settings.
+        overwrite: write into an existing folder.
+        progress: progress factory (one bar per stage).
+
+    Raises:
+        ConfigError: bad settings, or ``config.object_id`` is not one of the scene's targets.
+        OutputError: ``out_dir`` exists and is not empty without ``overwrite``.
+    """
+    from ..io import files
+    from ..io.datasets import load_dataset
+    from ..pipeline.extract import extract_objects
+    from ..evaluate.metrics import evaluate_object, find_target
+    from ..io.ply import read_ply
+    from .scenegen import build_scene, make_scene
+
+    load_start = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    clock = _Clock()
+    settings = config.scene
+    scene = build_scene(config.preset, config.seed, n_objects=settings.n_objects, n_targets=settings.n_targets)
+    target_ids = [o.id for o in scene.targets]
+    if config.object_id is not None and config.object_id not in target_ids:
+        listed = ", ".join(f"{o.id} ({o.name})" for o in scene.targets)
+        raise ConfigError(f"object {config.object_id} is not a target of the {config.preset} scene with seed "
+                          f"{config.seed}; its targets are {listed}")
+    out = files.prepare_output_dir(out_dir, overwrite=overwrite)
+    data = out / "data"
+    make_scene(data, config.preset, config.seed, settings=settings, overwrite=overwrite, progress=progress)
+    clock.lap("make_scene")
+
+    # which target other objects hide most: its object-alone silhouette against the scene's instance masks
+    dataset = load_dataset(data)
+    masks = dataset.masks.numpy()
+    alone = _alone_masks(scene, dataset.cameras, target_ids)
+    hidden = {tid: int((a & (masks != tid)).sum()) for tid, a in alone.items()}
+    if config.object_id is None:
+        object_id = max(target_ids, key=lambda t: (hidden[t], int(alone[t].sum())))
+    else:
+        object_id = int(config.object_id)
+    name = scene.object(object_id).name
+    total = int(alone[object_id].sum())
+    hidden_fraction = hidden[object_id] / total if total else 0.0
+    clock.lap("choose_target")
+
+    ex_dir = out / "extraction"
+    report = extract_objects(data, ex_dir, [object_id], config=config.extract, overwrite=overwrite, progress=progress)
+    entry = report["objects"][str(object_id)]
+    for stage in ("train", "distill"):
+        clock.wall[stage] = report["stages"][f"{stage}_s"]
+    clock.wall["select_prune"] = entry["select_s"]
+    clock.wall["refine"] = entry["refine_s"]
+    clock.lap("extract")  # the CPU seconds of the four stages together; wall seconds kept per stage above
+    clock.wall.pop("extract")
+
+    odir = ex_dir / f"object_{object_id}"
+    final, selected = read_ply(odir / "object.ply"), read_ply(odir / "selected.ply")
+    evaluation, renders = evaluate_object(final, data, object_id, progress=progress)
+    before, before_renders = evaluate_object(selected, data, object_id, progress=progress)
+    clock.lap("evaluate")
+
+    # the test view of median PSNR (a representative one), and the training view hiding most of the target
+    scored = [i for i, v in enumerate(evaluation.views) if v.psnr is not None] or list(range(len(evaluation.views)))
+    j = sorted(scored, key=lambda i: evaluation.views[i].psnr or 0.0)[len(scored) // 2]
+    a, visible = alone[object_id], masks == object_id
+    seen = visible.sum(axis=(1, 2)) >= 0.3 * np.maximum(a.sum(axis=(1, 2)), 1)
+    hidden_per_view = np.where(seen, (a & ~visible).sum(axis=(1, 2)), -1)
+    k = int(np.argmax(hidden_per_view)) if seen.any() else int(np.argmax(visible.sum(axis=(1, 2))))
+    truth = load_dataset(find_target(data, object_id)[0], background=(1.0, 1.0, 1.0))
+    vj = evaluation.views[j]
+    paths = {"object_ply": odir / "object.ply", "summary": out / "summary.png", "object_picture": odir / "object.png",
+             "debug": odir / "debug", "selected_ply": odir / "selected.ply", "scene_model": ex_dir / "scene",
+             "data": data, "overview": data / "overview.png", "report": out / "report.json"}
+    _summary_figure(paths["summary"], dataset.images[k].numpy(), a[k], visible[k], truth.images[j].numpy(),
+                    truth.alphas[j].numpy(), before_renders[j], renders[j],
+                    [f"training view {dataset.cameras[k].name}", f"close-up: {name} outlined,\nits hidden part in red",
+                     f"true {name} alone, test view {vj.name} (zoom)",
+                     f"selected + pruned (before inpainting){_view_scores(before.views[j])}",
+                     f"extracted (inpainted + fine-tuned){_view_scores(vj)}"],
+                    f"ROODI on a generated {config.preset} scene (seed {config.seed}, "
+                    f"{settings.width}x{settings.height}): {name}, {hidden_fraction:.0%} of it hidden "
+                    "in the training views")
+    clock.lap("pictures")
+
+    trained = files.read_json(ex_dir / "scene" / "metrics.json", "training metrics")
+    scene_psnr = (trained.get("eval") or {}).get("psnr")
+    gaussians = {"scene": int(trained.get("num_gaussians", 0)), "selected": int(entry["gaussians_selected_and_pruned"]),
+                 "object": int(entry["gaussians"])}
+    seconds = time.perf_counter() - t0
+    load = (load_start, os.getloadavg()[0])
+    files.write_json({
+        "preset": config.preset, "seed": config.seed, "object_id": object_id, "object_name": name,
+        "hidden_fraction": hidden_fraction, "hidden_pixels_per_target": {str(t): h for t, h in hidden.items()},
+        "metrics": evaluation.to_dict(), "metrics_before_refinement": before.to_dict(),
+        "stages_s": clock.wall, "stages_cpu_s": clock.cpu, "seconds": seconds, "load_average_1min": list(load),
+        "cpu_count": os.cpu_count(), "gaussians": gaussians, "scene_heldout_psnr": scene_psnr,
+        "summary_views": {"train": dataset.cameras[k].name, "test": vj.name},
+        "scene_settings": asdict(settings), "extract_config": asdict(config.extract),
+        "files": {key: str(p) for key, p in paths.items()}}, paths["report"])
+    return ExtractDemoResult(out, object_id, name, paths, evaluation, before, clock.wall, clock.cpu, gaussians,
+                             hidden_fraction, scene_psnr, seconds, load)

@@ -1,0 +1,556 @@
+"""PyVista views of a Gaussian cloud and of what pruning removes, and the histogram to tune the threshold by eye.
+
+Each Gaussian is drawn with its footprint:
+
+- ``ellipsoids``: the surface at ``sigmas`` standard deviations of every Gaussian, a low-resolution icosphere
+  transformed by ``R diag(sigmas * scale)`` in numpy (exact orientation and anisotropy, normals from the inverse
+  transpose so lighting shows the shape). For small clouds (at most :data:`ELLIPSOID_MAX_GAUSSIANS`).
+- ``splats``: PyVista's ``points_gaussian`` style, a screen-facing Gaussian splat whose standard deviation is the
+  geometric mean of the Gaussian's two largest scales (the face-on area of the ellipsoid). Isotropic, but it draws a
+  million Gaussians in a couple of seconds on a CPU.
+
+Kept Gaussians show their own colour (SH DC, clipped to [0, 1]) with their opacity as alpha, or a quantity through a
+colour map (``color_by``); the ones pruning removes are drawn in the highlight colour, unlit: the
+footprint as a wireframe ellipsoid or a splat with the Gaussian's opacity (so a large floater does not hide the
+object), and an opaque square of :data:`HIGHLIGHT_MARKER_PIXELS` pixels marks its centre, so a floater smaller
+than a pixel still shows and its centre is exactly the highlight colour whatever the lights.
+
+Off screen needs no display and no GPU (VTK renders through EGL or OSMesa).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
+
+from ..errors import ConfigError, OutputError, RoodiError
+from ..gaussians import GaussianCloud
+
+if TYPE_CHECKING:  # pragma: no cover
+    import pyvista as pv
+    from matplotlib.figure import Figure
+
+    from ..prune.outliers import PruneReport
+
+GLYPHS = ("auto", "ellipsoids", "splats")
+SHOW = ("both", "kept", "removed")
+COLOR_BY = ("rgb", "opacity", "scale", "distance")
+CAMERAS = ("iso", "xy", "xz", "yz", "+x", "-x", "+y", "-y", "+z", "-z")
+ELLIPSOID_MAX_GAUSSIANS = 20_000
+"""``glyphs='auto'`` draws ellipsoids up to this many Gaussians (1.6 M triangles), splats above."""
+ELLIPSOID_SIGMAS = 2.0
+"""Ellipsoids are drawn at this many standard deviations: about the visible extent of a splat."""
+HIGHLIGHT_MARKER_PIXELS = 4.0
+"""Side of the opaque square marking each removed Gaussian's centre, in pixels."""
+HIGHLIGHT_WIREFRAME_OPACITY = 0.35
+"""Opacity of the removed Gaussians' ellipsoid wireframes."""
+DEFAULT_WINDOW_SIZE = (1024, 768)
+DEFAULT_BACKGROUND = "#1c1c20"
+"""Dark and neutral: no Gaussian colour or highlight is lost against it."""
+VIEW_ANGLE_DEG = 30.0
+"""VTK's default vertical view angle."""
+ROBUST_QUANTILE = 0.005
+"""The framed box spans these quantiles of the kept centres, so stray Gaussians do not shrink the object."""
+
+_DIRECTIONS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    # name: (direction from the focal point to the camera, view up); z is up, as make-scene scenes stand on z=0
+    "iso": ((1.0, 1.0, 1.0), (0.0, 0.0, 1.0)),
+    "+x": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "-x": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "+y": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "-y": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+    "+z": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    "-z": ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
+}
+_DIRECTIONS["xy"] = _DIRECTIONS["+z"]  # the xy plane seen from above
+_DIRECTIONS["xz"] = _DIRECTIONS["-y"]  # the xz plane seen from the front: x right, z up
+_DIRECTIONS["yz"] = _DIRECTIONS["+x"]  # the yz plane seen from +x
+
+
+# ------------------------------------------------------------------------------------------------------ helpers
+def _check_choice(value: str, choices: Sequence[str], name: str) -> str:
+    if value not in choices:
+        raise ConfigError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+def display_available() -> bool:
+    """Return whether an interactive window can open (an X11 or Wayland display on Linux; assumed elsewhere)."""
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
+
+
+def _quiet_vtk() -> None:
+    """Silence VTK's stderr log (it warns about the missing X server before falling back to EGL)."""
+    try:
+        from vtkmodules.vtkCommonCore import vtkLogger
+
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+    except ImportError:  # pragma: no cover - older VTK
+        pass
+
+
+def distances_per_gaussian(report: "PruneReport", n: int | None = None) -> np.ndarray:
+    """Return ``[N]`` float64 mean neighbour distances from a prune report, NaN for Gaussians the filters dropped.
+
+    Args:
+        report: the report of :func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers`.
+        n: the input cloud's size (defaults to ``report.input_count``).
+    """
+    n = report.input_count if n is None else int(n)
+    out = np.full(n, np.nan)
+    out[np.asarray(report.evaluated, dtype=np.int64)] = report.mean_distances
+    return out
+
+
+def footprint_scales(cloud: GaussianCloud) -> np.ndarray:
+    """Return ``[N]`` float32 splat standard deviations: the geometric mean of each Gaussian's two largest scales."""
+    s = np.sort(cloud.scales.astype(np.float64), axis=1)
+    return np.sqrt(s[:, 1] * s[:, 2]).astype(np.float32)
+
+
+def robust_bounds(points: np.ndarray, quantile: float = ROBUST_QUANTILE) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(low [3], high [3])``: per-axis quantiles of the points (min/max for fewer than 200 points)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) == 0:
+        return np.full(3, -1.0), np.full(3, 1.0)
+    if len(pts) < 200:
+        return pts.min(axis=0), pts.max(axis=0)
+    return np.quantile(pts, quantile, axis=0), np.quantile(pts, 1.0 - quantile, axis=0)
+
+
+# ------------------------------------------------------------------------------------------------------ geometry
+def ellipsoid_mesh(means: np.ndarray, rotations: np.ndarray, scales: np.ndarray, *, sigmas: float = ELLIPSOID_SIGMAS,
+                   subdivisions: int = 1) -> "pv.PolyData":
+    """Return one triangle mesh holding the ellipsoid of every Gaussian, with a ``gaussian`` index per point.
+
+    Each ellipsoid is an icosphere (42 points at ``subdivisions=1``) mapped by ``x -> mean + R diag(sigmas * s) x``;
+    normals are ``R diag(1 / s) x`` normalised, the inverse transpose, so flat Gaussians light as discs.
+
+    Args:
+        means: ``[N, 3]`` centres.
+        rotations: ``[N, 3, 3]`` rotation matrices (``GaussianCloud.rotations()``).
+        scales: ``[N, 3]`` standard deviations (``GaussianCloud.scales``).
+        sigmas: the surface drawn, in standard deviations.
+        subdivisions: icosphere subdivisions (0: 12 points, 1: 42, 2: 162).
+    """
+    import pyvista as pv
+
+    means = np.asarray(means, dtype=np.float64)
+    n = len(means)
+    if means.shape != (n, 3) or np.shape(rotations) != (n, 3, 3) or np.shape(scales) != (n, 3):
+        raise ConfigError(f"ellipsoid_mesh needs means [N, 3], rotations [N, 3, 3], scales [N, 3]; got "
+                          f"{means.shape}, {np.shape(rotations)}, {np.shape(scales)}")
+    sphere = pv.Icosphere(radius=1.0, nsub=subdivisions)
+    unit = np.asarray(sphere.points, dtype=np.float64)
+    tri = np.asarray(sphere.faces, dtype=np.int64).reshape(-1, 4)[:, 1:]
+    v = len(unit)
+    s = np.asarray(scales, dtype=np.float64)
+    rot = np.asarray(rotations, dtype=np.float64)
+    points = means[:, None, :] + np.einsum("nij,nj,vj->nvi", rot, sigmas * s, unit)
+    # a zero scale axis (flat Gaussian) has a normal along it: clamp 1/s instead of dividing by zero
+    inv = 1.0 / np.maximum(s, 1e-12 * np.maximum(s.max(axis=1, keepdims=True), 1e-30))
+    normals = np.einsum("nij,nj,vj->nvi", rot, inv, unit)
+    normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-30)
+    faces = tri[None, :, :] + (np.arange(n, dtype=np.int64) * v)[:, None, None]
+    cells = np.concatenate([np.full((n * len(tri), 1), 3, dtype=np.int64), faces.reshape(-1, 3)], axis=1)
+    mesh = pv.PolyData(points.reshape(-1, 3).astype(np.float32), cells.ravel())
+    mesh.point_data["Normals"] = normals.reshape(-1, 3).astype(np.float32)
+    mesh.point_data.active_normals_name = "Normals"
+    mesh.point_data["gaussian"] = np.repeat(np.arange(n, dtype=np.int64), v)
+    return mesh
+
+
+def _per_point(mesh: "pv.PolyData", values: np.ndarray, is_ellipsoids: bool) -> np.ndarray:
+    """Return per-Gaussian ``values`` spread to the mesh's points (one row per Gaussian for splats)."""
+    return values[mesh.point_data["gaussian"]] if is_ellipsoids else values
+
+
+# ------------------------------------------------------------------------------------------------------ camera
+def robust_sphere(points: np.ndarray, quantile: float = ROBUST_QUANTILE) -> tuple[np.ndarray, float]:
+    """Return ``(centre [3], radius)`` of a sphere holding all but a ``quantile`` share of the points.
+
+    The centre is the middle of the per-axis quantile box, the radius the ``1 - quantile`` quantile of the distances
+    to it, so a few stray Gaussians neither move nor inflate the framed object.
+    """
+    low, high = robust_bounds(points, quantile)
+    centre = 0.5 * (low + high)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) == 0:
+        return centre, 1.0
+    dist = np.linalg.norm(pts - centre, axis=1)
+    radius = float(dist.max() if len(pts) < 200 else np.quantile(dist, 1.0 - quantile))
+    return centre, max(radius, 1e-6)
+
+
+def frame_camera(plotter: "pv.Plotter", centre: Sequence[float], radius: float, camera: str = "iso",
+                 margin: float = 1.1) -> float:
+    """Return the camera distance after pointing ``plotter`` at the sphere ``(centre, radius)`` from ``camera``.
+
+    The sphere fits the narrower of the two view angles, times ``margin``. Directions are those of
+    :data:`CAMERAS`: ``+x`` puts the camera on the +x side looking back; ``xy`` is the xy plane seen from +z;
+    the view up is +z (+y for views along z).
+    """
+    _check_choice(camera, CAMERAS, "camera")
+    centre = np.asarray(centre, dtype=np.float64)
+    radius = max(float(radius), 1e-6)
+    direction, up = (np.asarray(v, dtype=np.float64) for v in _DIRECTIONS[camera])
+    direction /= np.linalg.norm(direction)
+    width, height = plotter.window_size
+    vfov = math.radians(VIEW_ANGLE_DEG)
+    hfov = 2.0 * math.atan(math.tan(vfov / 2.0) * width / max(height, 1))
+    distance = margin * radius / math.sin(min(vfov, hfov) / 2.0)
+    plotter.camera.view_angle = VIEW_ANGLE_DEG
+    plotter.camera_position = [tuple(centre + distance * direction), tuple(centre), tuple(up)]
+    plotter.renderer.ResetCameraClippingRange()
+    return distance
+
+
+def project_points(plotter: "pv.Plotter", points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(pixels [N, 2], in_front [N])``: (column, row from the top) of world points in the plotter's image.
+
+    Example (tests use it to find where a Gaussian lands in a screenshot):
+        >>> import pyvista as pv
+        >>> pl = pv.Plotter(off_screen=True, window_size=(200, 100))
+        >>> _ = frame_camera(pl, [0, 0, 0], 1.0, "+z")
+        >>> px, ok = project_points(pl, np.zeros((1, 3)))
+        >>> px.round(1).tolist(), ok.tolist()
+        ([[100.0, 50.0]], [True])
+        >>> pl.close()
+    """
+    width, height = plotter.window_size
+    cam = plotter.renderer.GetActiveCamera()
+    m = cam.GetCompositeProjectionTransformMatrix(width / height, -1.0, 1.0)
+    mat = np.array([[m.GetElement(i, j) for j in range(4)] for i in range(4)])
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    clip = np.concatenate([pts, np.ones((len(pts), 1))], axis=1) @ mat.T
+    w = clip[:, 3]
+    safe = np.where(np.abs(w) > 1e-30, w, 1e-30)
+    ndc = clip[:, :2] / safe[:, None]
+    col = (ndc[:, 0] + 1.0) * 0.5 * width
+    row = (1.0 - (ndc[:, 1] + 1.0) * 0.5) * height
+    return np.stack([col, row], axis=1), w > 0
+
+
+# ------------------------------------------------------------------------------------------------------ plotting
+def _colors_rgba(cloud: GaussianCloud) -> np.ndarray:
+    """Return ``[N, 4]`` uint8: SH DC colour clipped to [0, 1], opacity as alpha."""
+    rgba = np.concatenate([np.clip(cloud.rgb, 0.0, 1.0), cloud.opacities[:, None]], axis=1)
+    return (rgba * 255.0 + 0.5).astype(np.uint8)
+
+
+def _scalar(cloud: GaussianCloud, color_by: str, distances: np.ndarray | None) -> tuple[np.ndarray, str, bool]:
+    """Return per-Gaussian scalars, the colour bar title and whether the bar is logarithmic."""
+    if color_by == "opacity":
+        return cloud.opacities.astype(np.float64), "opacity", False
+    if color_by == "scale":
+        return cloud.scales.max(axis=1).astype(np.float64), "largest scale", True
+    if distances is None:
+        raise ConfigError("color_by='distance' needs the per-Gaussian mean distances (distances=...; "
+                          "distances_per_gaussian(report) gives them)")
+    d = np.asarray(distances, dtype=np.float64)
+    if d.shape != (len(cloud),):
+        raise ConfigError(f"distances must be [N] = [{len(cloud)}], got {d.shape}")
+    # log colour scale: d = 0 (duplicate centres) has no logarithm, show it as "no value"
+    return np.where(d > 0, d, np.nan), "mean distance to neighbours", True
+
+
+def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, show: str = "both",
+               color_by: str = "rgb", distances: np.ndarray | None = None, highlight: Any = "red",
+               glyphs: str = "auto", camera: str = "iso", off_screen: bool | None = None,
+               window_size: Sequence[int] = DEFAULT_WINDOW_SIZE, background: Any = DEFAULT_BACKGROUND,
+               sigmas: float = ELLIPSOID_SIGMAS, distance_label: str | None = None) -> "pv.Plotter":
+    """Return a configured ``pyvista.Plotter`` showing the cloud, the Gaussians pruning removes highlighted.
+
+    Call ``.show()`` for a window, or ``.screenshot(None, return_img=True)`` off screen.
+
+    Args:
+        cloud: the Gaussians.
+        keep_mask: ``[N]`` bool, False for the removed (``PruneResult.keep_mask``); None keeps everything.
+        show: ``both``, ``kept`` or ``removed``.
+        color_by: ``rgb`` (own colour, opacity as alpha), ``opacity``, ``scale`` (largest axis, log colour bar) or
+            ``distance`` (mean neighbour distance, log colour bar; needs ``distances``). Colour-mapped Gaussians
+            are drawn opaque so that faint ones stay visible.
+        distances: ``[N]`` mean neighbour distances (:func:`distances_per_gaussian`), NaN where not evaluated.
+        highlight: colour of the removed Gaussians (any PyVista colour); None colours them like the kept ones.
+        glyphs: ``auto`` (ellipsoids up to :data:`ELLIPSOID_MAX_GAUSSIANS` drawn Gaussians, splats above),
+            ``ellipsoids`` or ``splats``.
+        camera: view direction, one of :data:`CAMERAS`; the camera frames a robust bounding sphere of the kept
+            Gaussians (:func:`robust_sphere`).
+        off_screen: render without a window; None: off screen when no display is available.
+        window_size: ``(width, height)`` in pixels.
+        background: background colour.
+        sigmas: standard deviations at which ellipsoids are drawn.
+        distance_label: colour bar title for ``color_by='distance'`` (e.g. "mean W2^2 to 16 neighbours").
+
+    Raises:
+        ConfigError: an unknown option, a mask or distances of the wrong shape, or nothing to draw.
+    """
+    import pyvista as pv
+
+    _check_choice(show, SHOW, "show")
+    _check_choice(color_by, COLOR_BY, "color_by")
+    _check_choice(glyphs, GLYPHS, "glyphs")
+    _check_choice(camera, CAMERAS, "camera")
+    n = len(cloud)
+    keep = np.ones(n, dtype=bool) if keep_mask is None else np.asarray(keep_mask)
+    if keep.shape != (n,) or keep.dtype != np.bool_:
+        raise ConfigError(f"keep_mask must be a bool array [N] = [{n}], got {keep.dtype} {keep.shape}")
+    if highlight is not None:
+        try:
+            pv.Color(highlight)
+        except ValueError:
+            raise ConfigError(f"highlight is not a colour: {highlight!r} (use a name such as 'red' or "
+                              "'#ff00ff', or None)") from None
+    size = tuple(int(v) for v in window_size)
+    if len(size) != 2 or min(size) < 1:
+        raise ConfigError(f"window_size must be (width, height) in pixels, got {window_size}")
+    finite = ~cloud.nonfinite_rows()
+    kept_idx = np.flatnonzero(keep & finite) if show in ("both", "kept") else np.zeros(0, dtype=np.int64)
+    removed_idx = np.flatnonzero(~keep & finite) if show in ("both", "removed") else np.zeros(0, dtype=np.int64)
+    if kept_idx.size + removed_idx.size == 0:
+        raise ConfigError(f"nothing to show: no {'removed' if show == 'removed' else 'kept'} Gaussians "
+                          "(with finite values)")
+    use_ellipsoids = glyphs == "ellipsoids" or (
+        glyphs == "auto" and kept_idx.size + removed_idx.size <= ELLIPSOID_MAX_GAUSSIANS)
+
+    _quiet_vtk()
+    if off_screen is None:
+        off_screen = bool(pv.OFF_SCREEN) or not display_available()
+    plotter = pv.Plotter(off_screen=off_screen, window_size=list(size))
+    plotter.set_background(background)
+
+    # frame the object (the kept Gaussians); actors are added with reset_camera=False so the framing stays
+    frame_idx = np.flatnonzero(keep & finite)
+    if frame_idx.size == 0:
+        frame_idx = np.flatnonzero(finite)
+    centre, radius = robust_sphere(cloud.means[frame_idx])
+    # a tiny or single-Gaussian object: frame at least its own footprint
+    radius = max(radius, 3.0 * float(np.median(cloud.scales[frame_idx].max(axis=1))))
+    frame_camera(plotter, centre, radius, camera)
+
+    scalars = colormap = None
+    bar_title, log_bar = "", False
+    if color_by != "rgb":
+        scalars, bar_title, log_bar = _scalar(cloud, color_by, distances)
+        if color_by == "distance" and distance_label:
+            bar_title = distance_label
+        colormap = "viridis"
+
+    groups = [(kept_idx, False), (removed_idx, highlight is not None)]
+    if highlight is None:  # removed drawn like the kept: one actor
+        groups = [(np.union1d(kept_idx, removed_idx), False)]
+    clim = None
+    if scalars is not None:
+        drawn = np.concatenate([idx for idx, lit in groups if not lit])
+        values = scalars[drawn]
+        values = values[np.isfinite(values)]
+        if values.size:
+            clim = [float(values.min()), float(values.max())]
+            if clim[0] == clim[1]:
+                clim[1] = clim[0] * 1.01 + 1e-12
+    for idx, is_highlight in groups:
+        if idx.size == 0:
+            continue
+        sub = cloud.select(idx)
+        if use_ellipsoids:
+            mesh = ellipsoid_mesh(sub.means, sub.rotations(), sub.scales, sigmas=sigmas)
+        else:
+            mesh = pv.PolyData(np.ascontiguousarray(sub.means, dtype=np.float32))
+            mesh.point_data["gaussian"] = np.arange(len(idx), dtype=np.int64)
+            mesh.point_data["footprint"] = footprint_scales(sub)
+        kwargs: dict[str, Any] = {}
+        if is_highlight:
+            # the footprint, unlit in the highlight colour without hiding what it covers: ellipsoids as wireframes,
+            # splats with the Gaussian's own opacity (how much it shows in a render)
+            alpha = sub.opacities.astype(np.float32)
+            if use_ellipsoids:
+                kwargs.update(color=highlight, lighting=False, style="wireframe",
+                              opacity=HIGHLIGHT_WIREFRAME_OPACITY, line_width=1.0)
+            else:
+                colour = np.asarray(pv.Color(highlight).int_rgb, dtype=np.uint8)
+                mesh.point_data["rgba"] = np.concatenate(
+                    [np.broadcast_to(colour, (len(idx), 3)), (alpha[:, None] * 255 + 0.5).astype(np.uint8)], axis=1)
+                kwargs.update(scalars="rgba", rgb=True, lighting=False)
+        elif scalars is not None:
+            mesh.point_data[bar_title] = _per_point(mesh, scalars[idx], use_ellipsoids)
+            kwargs.update(scalars=bar_title, cmap=colormap, clim=clim, log_scale=log_bar, nan_color="grey",
+                          opacity=1.0, scalar_bar_args={"title": bar_title, "fmt": "%.3g", "color": "white"})
+        else:
+            mesh.point_data["rgba"] = _per_point(mesh, _colors_rgba(sub), use_ellipsoids)
+            kwargs.update(scalars="rgba", rgb=True)
+        if use_ellipsoids:
+            if not is_highlight:
+                kwargs.update(smooth_shading=True, ambient=0.35, diffuse=0.65, specular=0.0)
+            plotter.add_mesh(mesh, reset_camera=False, **kwargs)
+        else:
+            actor = plotter.add_mesh(mesh, style="points_gaussian", emissive=False, reset_camera=False,
+                                     render_points_as_spheres=False, **kwargs)
+            actor.mapper.scale_array = "footprint"
+            if is_highlight or color_by == "rgb":
+                # splats ignore the colour's alpha channel: per-Gaussian opacity goes through the mapper
+                mesh.point_data["alpha"] = (alpha if is_highlight else sub.opacities).astype(np.float32)
+                actor.mapper.SetOpacityArray("alpha")
+        if is_highlight:
+            # an opaque, unlit square at every removed centre: exactly the highlight colour, seen at any size
+            plotter.add_points(np.ascontiguousarray(sub.means, dtype=np.float32), color=highlight,
+                               point_size=HIGHLIGHT_MARKER_PIXELS, render_points_as_spheres=False, lighting=False,
+                               reset_camera=False)
+    plotter.renderer.ResetCameraClippingRange()
+    return plotter
+
+
+# ------------------------------------------------------------------------------------------------------ outputs
+def screenshot_image(plotter: "pv.Plotter") -> np.ndarray:
+    """Return the plotter's current image ``[H, W, 3]`` uint8, rendering it off screen if needed."""
+    img = plotter.screenshot(None, return_img=True)
+    return np.asarray(img)[..., :3].copy()
+
+
+def html_export_supported(plotter: "pv.Plotter | None" = None) -> tuple[bool, str]:
+    """Return ``(supported, reason)``: whether ``export_html`` works with the installed PyVista and its extras."""
+    try:
+        import pyvista as pv
+    except ImportError as exc:  # pragma: no cover - pyvista is a dependency
+        return False, f"pyvista cannot be imported ({exc})"
+    if not hasattr(pv.Plotter, "export_html"):
+        return False, f"pyvista {pv.__version__} has no Plotter.export_html"
+    if plotter is not None and getattr(plotter, "trame", None) is None:
+        return False, (f"pyvista {pv.__version__} exports HTML through trame, which is not installed "
+                       "(pip install trame-pyvista)")
+    if plotter is None:
+        import importlib.util
+
+        if importlib.util.find_spec("trame") is None and importlib.util.find_spec("trame_vtk") is None:
+            return False, (f"pyvista {pv.__version__} exports HTML through trame, which is not installed "
+                           "(pip install trame-pyvista)")
+    return True, ""
+
+
+def export_html(plotter: "pv.Plotter", path: str | os.PathLike) -> None:
+    """Write the plotter's scene as an interactive HTML page (atomically).
+
+    Raises:
+        RoodiError: the installed PyVista cannot export HTML (the message says what to install).
+    """
+    import warnings
+
+    from ..io.files import atomic_path
+
+    ok, reason = html_export_supported(plotter)
+    if not ok:
+        raise RoodiError(f"{path}: cannot export HTML: {reason}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # export_html is deprecated in favour of plotter.trame.export_html
+        try:
+            with atomic_path(path, suffix=".html") as tmp:
+                plotter.export_html(str(tmp))
+        except ImportError as exc:
+            raise RoodiError(f"{path}: cannot export HTML: {' '.join(str(exc).split())}") from None
+
+
+# ------------------------------------------------------------------------------------------------------ histogram
+def distance_label(report: "PruneReport") -> str:
+    """Return what the report's distances are, e.g. ``"mean W2² to the 16 nearest"``, for axis and bar titles."""
+    cfg = report.config
+    k = cfg.get("k", "K")
+    if cfg.get("distance", "w2") == "w2":
+        return f"mean W2² to {k} neighbours"
+    return f"mean distance to {k} neighbours"
+
+
+def histogram_figure(report: "PruneReport", *, bins: int = 80, figsize: tuple[float, float] = (7.5, 4.2),
+                     title: str | None = None) -> "Figure":
+    """Return a matplotlib figure of the per-Gaussian mean distances (log x axis) with the rule's threshold marked.
+
+    The Gaussians past the threshold (the statistical stage's removals) are shaded and their share annotated;
+    for iterative rules the first-round threshold is drawn dashed. The threshold drawn is ``report.threshold``,
+    the one ``prune --report`` writes.
+
+    Args:
+        report: the report of :func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers`.
+        bins: histogram bins (log-spaced).
+        figsize: figure size in inches.
+        title: figure title (defaults to the rule and its alpha).
+
+    Example:
+        >>> from roodi_toolkit.prune.outliers import remove_statistical_outliers
+        >>> from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
+        >>> report = remove_statistical_outliers(planted_floater_cloud(FloaterMix(n_object=2000), 0).cloud).report
+        >>> fig = histogram_figure(report)
+        >>> bool(fig.axes[0].get_xscale() == "log"), fig._roodi_threshold == report.threshold
+        (True, True)
+    """
+    from matplotlib.figure import Figure
+
+    d = np.asarray(report.mean_distances, dtype=np.float64)
+    if d.size == 0:
+        raise ConfigError("the report has no per-Gaussian distances (nothing reached the statistics)")
+    threshold = float(report.threshold)
+    flagged = d > threshold
+    positive = d[d > 0]
+    zeros = int((d <= 0).sum())
+    cfg = report.config
+    rule, alpha = cfg.get("rule", "?"), cfg.get("alpha", float("nan"))
+
+    fig = Figure(figsize=figsize)
+    ax = fig.add_subplot(1, 1, 1)
+    if positive.size:
+        lo, hi = float(positive.min()), float(positive.max())
+        if np.isfinite(threshold) and threshold > 0:
+            lo, hi = min(lo, threshold), max(hi, threshold)
+        if hi <= lo:
+            hi = lo * 1.01 + 1e-30
+        edges = np.geomspace(lo, hi, bins + 1)
+        ax.hist(positive[positive <= threshold], bins=edges, color="#4c78a8", label="kept")
+        if flagged.any():
+            ax.hist(positive[positive > threshold], bins=edges, color="#e45756", label="removed")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(distance_label(report) + " (log scale)")
+    ax.set_ylabel("Gaussians")
+    if np.isfinite(threshold) and threshold > 0:
+        ax.axvline(threshold, color="black", linewidth=1.5, label=f"threshold {threshold:.4g}")
+    first = report.thresholds[0] if report.thresholds else float("nan")
+    if len(report.thresholds) > 1 and np.isfinite(first) and first > 0 and not np.isclose(first, threshold):
+        ax.axvline(first, color="grey", linestyle="--", linewidth=1, label=f"first round {first:.4g}")
+    share = float(flagged.mean())
+    note = f"removed {share:.2%} ({int(flagged.sum()):,} of {d.size:,} evaluated)"
+    if zeros:
+        note += f"\n{zeros:,} at distance 0 not shown"
+    ax.text(0.98, 0.95, note, transform=ax.transAxes, ha="right", va="top", fontsize=9,
+            bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "none"})
+    ax.legend(loc="best", fontsize=8, frameon=False)
+    ax.set_title(title if title is not None else f"rule {rule}, alpha {alpha:g}, K {cfg.get('k', '?')}")
+    fig.tight_layout()
+    # what the picture shows, for save_histogram's PNG metadata and for tests
+    fig._roodi_threshold = threshold  # type: ignore[attr-defined]
+    fig._roodi_removed_share = share  # type: ignore[attr-defined]
+    return fig
+
+
+def save_histogram(fig: "Figure", path: str | os.PathLike, dpi: int = 110) -> None:
+    """Write the histogram figure atomically; a PNG carries the threshold and removed share as text metadata.
+
+    The metadata (keys ``roodi:threshold``, ``roodi:removed_share``, full precision) lets a script read back
+    exactly which threshold the picture marks.
+    """
+    from ..io.files import atomic_path
+
+    metadata: dict[str, str] = {}
+    if str(path).lower().endswith(".png"):
+        for key, attr in (("roodi:threshold", "_roodi_threshold"), ("roodi:removed_share", "_roodi_removed_share")):
+            if hasattr(fig, attr):
+                metadata[key] = repr(float(getattr(fig, attr)))
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight", metadata=metadata or None)
+    except ValueError as exc:  # unknown format from the extension
+        raise OutputError(f"{path}: cannot write the histogram ({exc})") from None
