@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import tempfile
 import time
@@ -37,17 +36,16 @@ def main() -> int:
     torch.set_num_threads(int(os.environ.get("ROODI_THREADS", "1")))  # as the CLI does; 2 threads are slower here
 
     from roodi_toolkit.io.datasets import load_dataset
-    from roodi_toolkit.pipeline.distill import (DistillConfig, alpha_iou, load_distillation, run_distill, select_object)
     from roodi_toolkit.io.files import read_json
+    from roodi_toolkit.io.model import find_model
     from roodi_toolkit.io.ply import read_ply
-    from roodi_toolkit.pipeline.distill import find_model
+    from roodi_toolkit.pipeline.distill import DistillConfig, alpha_iou, load_distillation, run_distill
+    from roodi_toolkit.pipeline.select import select_object
 
     data = Path(args.data_dir)
     record = read_json(data / "scene.json")
     if args.click_only:
-        from roodi_toolkit.pipeline.distill import find_model as _find
-
-        found = _find(Path(args.model_dir))
+        found = find_model(Path(args.model_dir))
         scale = float(found.config.get("downscale", 1) or 1)
         ds = load_dataset(data, scale)
         scene = read_ply(found.ply_path)
@@ -58,12 +56,11 @@ def main() -> int:
         print(json.dumps(out, indent=1))
         return 0
     with tempfile.TemporaryDirectory() as tmp:
-        model = Path(tmp) / "model"
-        shutil.copytree(args.model_dir, model, ignore=shutil.ignore_patterns("checkpoints"))
+        model = Path(args.model_dir)  # only read: the distillation goes to a folder of its own
         t0 = time.perf_counter()
-        summary = run_distill(model, data, config=DistillConfig(iterations=args.iterations))
+        summary = run_distill(model, data, Path(tmp) / "distill", config=DistillConfig(iterations=args.iterations))
         total = time.perf_counter() - t0
-        _, cloud, classifier = load_distillation(model)
+        _, cloud, classifier = load_distillation(Path(tmp) / "distill")
         out = {"model": args.model_dir, "gaussians": len(cloud), "iterations": args.iterations,
                "distill_seconds_optimisation": round(summary["seconds"], 1), "distill_seconds_command": round(total, 1),
                "held_out_views": len(summary["held_out"]["views"]),

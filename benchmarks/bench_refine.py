@@ -1,8 +1,8 @@
 """Occlusion reasoning, inpainting and fine-tuning of trained object models, scored against the generator's truth.
 
 For every target of a ``roodi-toolkit benchmark`` output (``OUT/<preset>/full``: the trained and distilled scene in
-``scene/``, and per target ``object_<ID>/selected.ply``, the object after selection and pruning, and ``refined.ply``,
-after occlusion-reasoned inpainting and fine-tuning), this compares ``selected.ply`` ("before") with ``refined.ply``
+``scene/``, and per target ``object_<ID>/selected.ply``, the object after selection and pruning, and ``object.ply``,
+after occlusion-reasoned inpainting and fine-tuning), this compares ``selected.ply`` ("before") with ``object.ply``
 ("after"); nothing is trained or fine-tuned again:
 
 - occlusion masks: recomputed from ``selected.ply`` and the scene model with the run's occlusion settings (same seed
@@ -20,7 +20,7 @@ after occlusion-reasoned inpainting and fine-tuning), this compares ``selected.p
 
 With ``--control``, ``selected.ply`` is also fine-tuned again with the run's settings but on the original views only
 (the same steps in the same order, without the inpainted views' terms), which tells what the inpainted views add
-beyond more fitting to the training views. (Re-running the whole refinement reproduces ``refined.ply`` exactly.)
+beyond more fitting to the training views. (Re-running the whole refinement reproduces ``object.ply`` exactly.)
 With ``--variant NAME:KEY=VALUE[,KEY=VALUE...]`` (repeatable) the whole refinement runs again from ``selected.ply``
 with those :class:`~roodi_toolkit.pipeline.finetune.FinetuneConfig` fields changed, e.g. ``--variant lr10:sh0_lr=0.025``;
 ``--seed-holes`` is ``--variant seeded:seed_holes=true``.
@@ -49,7 +49,7 @@ from benchmarks.bench_inpaint import (finetune_overrides, object_view_truth, psn
                                       seen_in_views)
 from roodi_toolkit.evaluate.benchmark import MACHINE_SIZE, PRESETS, extract_config  # noqa: E402
 from roodi_toolkit.io.datasets import load_dataset  # noqa: E402
-from roodi_toolkit.pipeline.distill import load_distillation  # noqa: E402
+from roodi_toolkit.io.model import find_model  # noqa: E402
 from roodi_toolkit.io.files import read_json, write_json  # noqa: E402
 from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,  # noqa: E402
                                     refine_object)
@@ -133,7 +133,7 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
     t0 = time.perf_counter()
     odir = out_dir / f"object_{object_id}"
     target = next(o for o in scene.objects if o.id == object_id)
-    before, after = read_ply(odir / "selected.ply"), read_ply(odir / "refined.ply")
+    before, after = read_ply(odir / "selected.ply"), read_ply(odir / "object.ply")
     record = odir / "debug" / "refine.json"
     rec = read_json(record, "refine record") if record.is_file() else None
     config, fine = run_configs(rec)
@@ -179,7 +179,7 @@ def measure_preset(out_root: Path, scenes_root: Path, preset: str, control: bool
     scene = scene_from_record(record)
     dataset = load_dataset(data)
     full = out_root / preset / "full"
-    _, scene_cloud, _ = load_distillation(full / "scene")  # feature columns are ignored by the renderer
+    scene_cloud = read_ply(find_model(full / "scene").ply_path)
     depths = None
     if control:  # as refine_object: where the scene may hide the object in the training views
         params = cloud_to_params(scene_cloud)

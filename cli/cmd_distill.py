@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import click
 
-from .common import progress_factory, quiet_option
+from .common import overwrite_option, progress_factory, quiet_option
 
 EXAMPLE = """Examples:
 
 \b
-  roodi-toolkit distill models/bedroom scenes/bedroom                     # the dataset's own masks
-  roodi-toolkit distill models/bedroom scenes/bedroom --masks my_masks/   # PNGs named like the views
-  roodi-toolkit distill models/bedroom scenes/bedroom --segmenter click --click r_003:41,57
-  roodi-toolkit distill models/bedroom scenes/bedroom --segmenter sam2 --click r_003:41,57 \\
+  roodi-toolkit distill models/bedroom scenes/bedroom dist/bedroom              # the dataset's own masks
+  roodi-toolkit distill models/bedroom scenes/bedroom dist/mine --masks my_masks/   # PNGs named like the views
+  roodi-toolkit distill models/bedroom scenes/bedroom dist/ball --segmenter click --click r_003:41,57
+  roodi-toolkit select dist/bedroom --object 2 ball.ply
+  roodi-toolkit distill models/bedroom scenes/bedroom dist/sam --segmenter sam2 --click r_003:41,57 \\
       --option checkpoint=sam2.1_hiera_tiny.pt --option config=configs/sam2.1/sam2.1_hiera_t.yaml
 """
 
@@ -20,6 +21,7 @@ EXAMPLE = """Examples:
 @click.command(epilog=EXAMPLE)
 @click.argument("model_dir", type=click.Path(path_type=str))
 @click.argument("data_dir", type=click.Path(path_type=str))
+@click.argument("out_dir", type=click.Path(path_type=str))
 @click.option("--segmenter", default="files", show_default=True,
               help="Segmenter plugin: files (mask PNGs or the dataset's masks), click, sam2, ...")
 @click.option("--click", "clicks", multiple=True, metavar="VIEW:X,Y",
@@ -36,15 +38,17 @@ EXAMPLE = """Examples:
 @click.option("--downscale", type=click.FloatRange(1.0), default=None,
               help="Image downscale (default: the training run's, from MODEL_DIR/cfg.json).")
 @click.option("--seed", type=int, default=0, show_default=True)
+@overwrite_option
 @quiet_option
-def distill(model_dir: str, data_dir: str, segmenter: str, clicks: tuple[str, ...], mask_dir: str | None,
+def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks: tuple[str, ...], mask_dir: str | None,
             options: tuple[str, ...], iterations: int, feature_lr: float | None, classifier_lr: float | None,
-            downscale: float | None, seed: int, quiet: bool) -> None:
-    """Distil object masks of DATA_DIR's views into the scene model in MODEL_DIR (a roodi-toolkit train output).
+            downscale: float | None, seed: int, overwrite: bool, quiet: bool) -> None:
+    """Distil object masks of DATA_DIR's views into per-Gaussian features of the scene model in MODEL_DIR (a
+    roodi-toolkit train output), written to the folder OUT_DIR.
 
-    Adds object_feature_0..15 columns to MODEL_DIR's point_cloud.ply (geometry and colours unchanged) and writes
-    object_classifier.pt, distill.json (loss, held-out IoU) and distill.png (rendered classes next to the masks)
-    into MODEL_DIR. Then take objects out with roodi-toolkit select.
+    OUT_DIR gets features.npy (16 per Gaussian, in the model PLY's order), object_classifier.pt, object_masks/,
+    distill.json (which model file, settings, loss, held-out IoU) and distill.png (rendered classes next to the masks).
+    MODEL_DIR and DATA_DIR are only read. Then take objects out with roodi-toolkit select OUT_DIR.
     """
     from roodi_toolkit.pipeline.distill import DistillConfig, run_distill
     from roodi_toolkit.errors import ConfigError
@@ -64,11 +68,11 @@ def distill(model_dir: str, data_dir: str, segmenter: str, clicks: tuple[str, ..
             raise click.BadParameter(str(exc), param_hint="--click") from None
     changes = {k: v for k, v in (("feature_lr", feature_lr), ("classifier_lr", classifier_lr)) if v is not None}
     config = DistillConfig(iterations=iterations, seed=seed, **changes)
-    summary = run_distill(model_dir, data_dir, segmenter=segmenter, clicks=parsed, mask_dir=mask_dir,
-                          segmenter_options=opts, config=config, downscale=downscale,
+    summary = run_distill(model_dir, data_dir, out_dir, segmenter=segmenter, clicks=parsed, mask_dir=mask_dir,
+                          segmenter_options=opts, config=config, downscale=downscale, overwrite=overwrite,
                           progress=progress_factory(quiet))
     ev = summary["held_out"]
     iou = f", held-out mean IoU {ev['mean_iou']:.3f} over {len(ev['views'])} views" if ev.get("views") else ""
     click.echo(f"distilled {summary['num_classes']} classes into {summary['num_gaussians']:,} Gaussians in "
                f"{summary['seconds']:.1f} s (final loss {summary['final_loss']:.4f}{iou})")
-    click.echo(f"wrote {summary['ply']}, {summary['classifier']}, {summary['picture']}")
+    click.echo(f"wrote {summary['out_dir']} (record {summary['record']}, picture {summary['picture']})")

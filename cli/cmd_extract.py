@@ -11,7 +11,8 @@ EXAMPLE = """Example:
 \b
   roodi-toolkit make-scene scenes/bedroom --preset bedroom --size 128x128
   roodi-toolkit extract scenes/bedroom out/ --object 2 --object 3 --iterations 2500
-  roodi-toolkit extract scenes/bedroom out_noinpaint/ --object 2 --model out/scene --no-inpaint   # ablation
+  roodi-toolkit extract scenes/bedroom out_noinpaint/ --object 2 --model out/scene --distill out/distill \\
+      --no-inpaint                                                     # ablation, reusing the first run's stages
 """
 
 
@@ -21,7 +22,11 @@ EXAMPLE = """Example:
 @click.option("--object", "object_ids", type=int, multiple=True, required=True,
               help="Instance id of an object to extract (repeat for several; they share one scene and distillation).")
 @click.option("--model", "model_dir", type=click.Path(path_type=str), default=None,
-              help="Use this trained scene (roodi-toolkit train output) instead of training one.")
+              help="Use this trained scene (roodi-toolkit train output) instead of training one; only read.")
+@click.option("--distill", "distill_dir", type=click.Path(path_type=str), default=None,
+              help="Use this distillation of --model (roodi-toolkit distill output) instead of distilling; only read.")
+@click.option("--downscale", type=click.FloatRange(1.0), default=None,
+              help="Image downscale [the --model's own, from its cfg.json; else 1].")
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Scene training iterations [3000].")
 @click.option("--init", type=click.Choice(["auto", "points", "random", "depth"]), default="auto", show_default=True,
               help="Scene initialisation (see roodi-toolkit train).")
@@ -39,13 +44,15 @@ EXAMPLE = """Example:
 @click.option("--inpainter", default="opencv", show_default=True, help="Inpainter plugin (see roodi-toolkit plugins).")
 @overwrite_option
 @quiet_option
-def extract(data_dir: str, out_dir: str, object_ids: tuple[int, ...], model_dir: str | None, iterations: int | None,
+def extract(data_dir: str, out_dir: str, object_ids: tuple[int, ...], model_dir: str | None,
+            distill_dir: str | None, downscale: float | None, iterations: int | None,
             init: str, distill_iterations: int, threshold: float, no_prune: bool, no_inpaint: bool, distance: str,
             rule: str, single_stage: bool, inpainter: str, overwrite: bool, quiet: bool) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
 
-    Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object's selection and
-    refinement); --overwrite starts afresh.
+    Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object) that were made
+    with the same settings, and says which it reused and which it made again; --overwrite makes every stage again.
+    DATA_DIR, --model and --distill are only read.
     """
     from dataclasses import replace
 
@@ -55,14 +62,16 @@ def extract(data_dir: str, out_dir: str, object_ids: tuple[int, ...], model_dir:
     from roodi_toolkit.pipeline.train import config_with
 
     base = ExtractConfig()
-    config = replace(base, train=config_with(base.train, iterations=iterations, init=init),
+    config = replace(base, downscale=downscale, train=config_with(base.train, iterations=iterations, init=init),
                      distill=DistillConfig(iterations=distill_iterations), threshold=threshold, prune=not no_prune,
                      prune_config=PruneConfig(distance=distance, rule=rule), inpaint=not no_inpaint,
                      inpainter=inpainter, single_stage=single_stage)
-    report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, config=config, overwrite=overwrite,
-                             progress=progress_factory(quiet))
+    report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
+                             config=config, overwrite=overwrite, progress=progress_factory(quiet))
     if report["reused"]:
         click.echo(f"reused finished stages: {', '.join(report['reused'])}")
+    if report["recomputed"]:
+        click.echo(f"made again: {', '.join(report['recomputed'])}")
     for oid, entry in report["objects"].items():
         note = f" (pruning skipped: {entry['prune_skipped']})" if "prune_skipped" in entry else ""
         click.echo(f"object {oid}: {entry['gaussians']:,} Gaussians -> {entry['object_ply']}{note}")

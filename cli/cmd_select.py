@@ -9,13 +9,14 @@ from .common import overwrite_option, progress_factory, quiet_option
 EXAMPLE = """Examples:
 
 \b
-  roodi-toolkit select models/bedroom --object 2 ball.ply
-  roodi-toolkit select models/bedroom --object 1 chair.ply --threshold 0.5 --no-prune
+  roodi-toolkit distill models/bedroom scenes/bedroom dist/bedroom
+  roodi-toolkit select dist/bedroom --object 2 ball.ply
+  roodi-toolkit select dist/bedroom --object 1 chair.ply --threshold 0.5 --no-prune
 """
 
 
 @click.command(epilog=EXAMPLE)
-@click.argument("model_dir", type=click.Path(path_type=str))
+@click.argument("distill_dir", type=click.Path(path_type=str))
 @click.argument("output_ply", metavar="OUT.ply", type=click.Path(path_type=str))
 @click.option("--object", "object_id", type=click.IntRange(0), required=True,
               help="Class id of the object (its instance id in the masks; 1 for click/binary masks).")
@@ -26,12 +27,13 @@ EXAMPLE = """Examples:
               help="Where to write the picture of rendered probabilities beside the masks [OUT.png].")
 @overwrite_option
 @quiet_option
-def select(model_dir: str, output_ply: str, object_id: int, threshold: float, no_prune: bool, picture: str | None,
+def select(distill_dir: str, output_ply: str, object_id: int, threshold: float, no_prune: bool, picture: str | None,
            overwrite: bool, quiet: bool) -> None:
-    """Write the Gaussians of object --object of the distilled scene MODEL_DIR to OUT.ply."""
-    from roodi_toolkit.pipeline.distill import run_select
+    """Write the Gaussians of object --object of the distillation DISTILL_DIR (a roodi-toolkit distill output) to
+    OUT.ply; the scene is read from the model file the distillation names."""
+    from roodi_toolkit.pipeline.select import run_select
 
-    summary = run_select(model_dir, object_id, output_ply, threshold=threshold, prune=not no_prune,
+    summary = run_select(distill_dir, object_id, output_ply, threshold=threshold, prune=not no_prune,
                          picture=picture, overwrite=overwrite, progress=progress_factory(quiet))
     pruned = f", {summary['pruned']:,} pruned as outliers" if summary["pruned"] is not None else ""
     name = f" ({summary['label']})" if summary.get("label") else ""

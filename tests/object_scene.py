@@ -79,3 +79,15 @@ def write_object_scene(root: Path, size: int = 32, views: int = 12) -> tuple[Pat
     write_ply(cloud.select(np.arange(10)), model / "point_cloud" / "iteration_3" / "point_cloud.ply")
     write_json({"data_dir": str(data), "downscale": 1, "holdout_every": 4}, model / "cfg.json")
     return data, model, ids
+
+
+def tree_digest(root: Path) -> dict[str, tuple[int, str]]:
+    """Return every file under ``root`` (relative path -> size, SHA-256) and every folder (-> None): equal digests
+    mean a byte-identical tree, nothing added or removed."""
+    import hashlib
+
+    out: dict = {}
+    for p in sorted(Path(root).rglob("*")):
+        rel = p.relative_to(root).as_posix()
+        out[rel] = (p.stat().st_size, hashlib.sha256(p.read_bytes()).hexdigest()) if p.is_file() else None
+    return out

@@ -8,14 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier, compositing_weights, distill_object_features,
-                                   evaluate_class_maps, find_model, gaussian_probabilities, load_distillation,
-                                   render_features, select_object, with_features, _frozen_tensors)
+from roodi_toolkit.io.model import find_model
+from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier, compositing_weights,
+                                            distill_object_features, evaluate_class_maps, load_distillation,
+                                            render_features, with_features, _frozen_tensors)
+from roodi_toolkit.pipeline.select import gaussian_probabilities, select_object
 from roodi_toolkit.errors import ConfigError, RoodiError
 from roodi_toolkit.io.ply import read_ply
 from roodi_toolkit.pipeline.segment import ViewMasks
 
-from .object_scene import object_dataset, write_object_scene
+from .object_scene import object_dataset, tree_digest, write_object_scene
 
 HELD_OUT = [0, 4, 8]
 
@@ -118,17 +120,20 @@ def test_distill_and_select_commands(tmp_path, run_cli):
     data, model, ids = write_object_scene(tmp_path)
     assert find_model(model).iteration == 7
     before = read_ply(model / "point_cloud" / "iteration_7" / "point_cloud.ply")
+    inputs = {d: tree_digest(d) for d in (model, data)}
     cams = object_dataset()[0].cameras
     from roodi_toolkit.render.renderer import render_cloud
 
     rgb_before = [render_cloud(before, c, background=(1.0, 1.0, 1.0)).rgb for c in cams[:3]]
-    r = run_cli("distill", model, data, "--iterations", "150", "-q")
+    dist = tmp_path / "dist"
+    r = run_cli("distill", model, data, dist, "--iterations", "150", "-q")
     assert r.exit_code == 0, r.stderr
     assert "held-out mean IoU" in r.stdout
-    for name in ("object_classifier.pt", "distill.json", "distill.png", "object_masks/r_000.png"):
-        assert (model / name).is_file(), name
-    _, after, classifier = load_distillation(model)
-    # the scene model is not damaged: every original column is bit-identical and RGB renders are identical
+    for name in ("features.npy", "object_classifier.pt", "distill.json", "distill.png", "object_masks/r_000.png"):
+        assert (dist / name).is_file(), name
+    # the model and data folders are inputs: byte-identical afterwards
+    assert {d: tree_digest(d) for d in (model, data)} == inputs
+    _, after, classifier = load_distillation(dist)
     for field in ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest"):
         np.testing.assert_array_equal(getattr(after, field), getattr(before, field))
     assert [k for k in after.extras] == [f"object_feature_{i}" for i in range(16)]
@@ -137,33 +142,53 @@ def test_distill_and_select_commands(tmp_path, run_cli):
     assert classifier.num_classes == 3 and classifier.feature_dim == 16
     import json
 
-    summary = json.loads((model / "distill.json").read_text())
+    summary = json.loads((dist / "distill.json").read_text())
     assert summary["held_out"]["views"] == ["r_000", "r_004", "r_008"]  # cfg.json's holdout_every = 4
     assert summary["held_out"]["mean_iou"] >= 0.85
+    # an existing distillation is replaced only with --overwrite; never into the model or data folder
+    assert run_cli("distill", model, data, dist, "--iterations", "2", "-q").exit_code == 1
+    r = run_cli("distill", model, data, model / "dist", "--iterations", "2", "-q")
+    assert r.exit_code == 1 and "inside the input folder" in r.stderr
 
     out = tmp_path / "box.ply"
-    r = run_cli("select", model, "--object", "2", out, "-q")
+    r = run_cli("select", dist, "--object", "2", out, "-q")
     assert r.exit_code == 0, r.stderr
     obj = read_ply(out)
     probs = gaussian_probabilities(after, classifier)[:, 2].numpy()
     assert 0 < len(obj) <= (probs > 0.3).sum()
     assert (tmp_path / "box.png").is_file()
     # a second object from the same distillation, without pruning
-    r = run_cli("select", model, "--object", "1", tmp_path / "ball.ply", "--no-prune", "--threshold", "0.5", "-q")
+    r = run_cli("select", dist, "--object", "1", tmp_path / "ball.ply", "--no-prune", "--threshold", "0.5", "-q")
     assert r.exit_code == 0, r.stderr
     assert len(read_ply(tmp_path / "ball.ply")) == (gaussian_probabilities(after, classifier)[:, 1] > 0.5).sum()
-    # refusing to overwrite, unknown objects, a model without distillation
-    assert run_cli("select", model, "--object", "2", out, "-q").exit_code == 1
-    assert "not one of" in run_cli("select", model, "--object", "9", tmp_path / "x.ply", "-q").stderr
-    (model / "object_classifier.pt").unlink()
+    # refusing to overwrite, to write into the distillation, unknown objects, a model folder instead of a distillation
+    assert run_cli("select", dist, "--object", "2", out, "-q").exit_code == 1
+    r = run_cli("select", dist, "--object", "2", dist / "x.ply", "-q")
+    assert r.exit_code == 1 and "inside the input folder" in r.stderr
+    assert "not one of" in run_cli("select", dist, "--object", "9", tmp_path / "x.ply", "-q").stderr
     r = run_cli("select", model, "--object", "1", tmp_path / "y.ply", "-q")
-    assert r.exit_code == 1 and "run roodi-toolkit distill" in r.stderr
+    assert r.exit_code == 1 and "not a distillation folder" in r.stderr
+    assert {d: tree_digest(d) for d in (model, data)} == inputs
+
+
+def test_a_changed_model_invalidates_its_distillation(tmp_path, run_cli):
+    data, model, _ = write_object_scene(tmp_path)
+    dist = tmp_path / "dist"
+    assert run_cli("distill", model, data, dist, "--iterations", "2", "-q").exit_code == 0
+    ply = model / "point_cloud" / "iteration_7" / "point_cloud.ply"
+    from roodi_toolkit.io.ply import write_ply
+
+    cloud = read_ply(ply)
+    cloud.means[0] += 1.0
+    write_ply(cloud, ply)
+    r = run_cli("select", dist, "--object", "1", tmp_path / "y.ply", "-q")
+    assert r.exit_code == 1 and "changed since it was distilled" in r.stderr
 
 
 def test_distill_command_errors(tmp_path, run_cli):
-    r = run_cli("distill", tmp_path / "nope", tmp_path, "-q")
+    r = run_cli("distill", tmp_path / "nope", tmp_path, tmp_path / "d", "-q")
     assert r.exit_code == 1 and "model folder not found" in r.stderr
-    r = run_cli("distill", tmp_path, tmp_path, "--click", "garbage", "-q")
+    r = run_cli("distill", tmp_path, tmp_path, tmp_path / "d", "--click", "garbage", "-q")
     assert r.exit_code == 2
 
 
@@ -182,9 +207,9 @@ def test_generated_scene_end_to_end(tmp_path):
                                                                         test_views=6, supersample=1))
     train_scene(data, tmp_path / "model", TrainConfig(iterations=600, init_num_points=3000, eval_every=0,
                                                       strategy=MCMCStrategy(cap_max=5000)))
-    summary = run_distill(tmp_path / "model", data)
+    summary = run_distill(tmp_path / "model", data, tmp_path / "dist")
     assert summary["held_out"]["mean_iou"] > 0.5, summary["held_out"]
-    _, cloud, classifier = load_distillation(tmp_path / "model")
+    _, cloud, classifier = load_distillation(tmp_path / "dist")
     target = record["targets"][0]
     sel = select_object(cloud, classifier, int(target["id"]))
     tds = load_dataset(data / target["path"])

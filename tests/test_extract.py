@@ -6,6 +6,8 @@ import pytest
 
 from roodi_toolkit import read_ply
 
+from .object_scene import tree_digest
+
 
 @pytest.fixture
 def tiny_scene(tiny_kitchen):
@@ -34,24 +36,37 @@ def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cl
     obj = read_ply(out / f"object_{target}" / "object.ply")
     assert len(obj) == report["objects"][str(target)]["gaussians"] > 0
     assert not any(k.startswith("object_feature_") for k in obj.extras)
-    assert (out / "scene" / "object_classifier.pt").is_file()
+    assert (out / "distill" / "object_classifier.pt").is_file()
     assert (out / f"object_{target}" / "object.png").is_file()
     assert list((out / f"object_{target}" / "debug").iterdir())
     saved = json.loads((out / "report.json").read_text())
     assert saved["objects"][str(target)]["inpainter"] == "opencv" and saved["reused"] == []
     again = extract_objects(scene, out, [target], config=config)
-    assert again["reused"] == ["train", "distill", f"select {target}", f"refine {target}"]
-    # the ablation without inpainting reuses the trained and distilled scene
+    assert again["reused"] == ["train", "distill", f"object {target}"] and again["recomputed"] == []
+    # other settings: only the stages they change are made again, and the report says why
+    changed = extract_objects(scene, out, [target], config=replace(config, threshold=0.4))
+    assert changed["reused"] == ["train", "distill"]
+    assert changed["recomputed"] == [f"object {target} (threshold changed)"]
+    changed = extract_objects(scene, out, [target], config=replace(config, distill=DistillConfig(iterations=41)))
+    assert changed["reused"] == ["train"] and changed["recomputed"][0] == "distill (config changed)"
+    # the ablation without inpainting starts from the trained and distilled scene, which are only read
+    inputs = {d: tree_digest(d) for d in (scene, out / "scene", out / "distill")}
     ablation = extract_objects(scene, tmp_path / "no_inpaint", [target], model_dir=out / "scene",
-                               config=replace(config, inpaint=False, prune=False))
-    assert ablation["reused"] == ["distill"]
-    # --overwrite replaces the run's outputs, never the given model's distillation
-    stamp = (out / "scene" / "object_classifier.pt").stat().st_mtime_ns
+                               distill_dir=out / "distill", config=replace(config, inpaint=False, prune=False))
+    assert ablation["reused"] == [] and ablation["distill_dir"] == str(out / "distill")
     again = extract_objects(scene, tmp_path / "no_inpaint", [target], model_dir=out / "scene", overwrite=True,
-                            config=replace(config, inpaint=False, prune=False))
-    assert again["reused"] == ["distill"] and (out / "scene" / "object_classifier.pt").stat().st_mtime_ns == stamp
+                            distill_dir=out / "distill", config=replace(config, inpaint=False, prune=False))
     assert len(read_ply(tmp_path / "no_inpaint" / f"object_{target}" / "object.ply")) >= len(
         read_ply(out / f"object_{target}" / "selected.ply"))
+    # with --model alone it distils into its own folder; the model and data folders stay byte-identical
+    alone = extract_objects(scene, tmp_path / "from_model", [target], model_dir=out / "scene",
+                            config=replace(config, inpaint=False))
+    assert alone["distill_dir"] == str(tmp_path / "from_model" / "distill")
+    assert {d: tree_digest(d) for d in (scene, out / "scene", out / "distill")} == inputs
+    from roodi_toolkit.errors import OutputError
+
+    with pytest.raises(OutputError, match="inside the input folder"):
+        extract_objects(scene, out / "scene" / "x", [target], model_dir=out / "scene", config=config)
 
 
 def test_extract_command_errors(tiny_scene, tmp_path, run_cli):

@@ -193,9 +193,12 @@ def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: Pr
 
 def _extract_one(method: str, data: Path, out: Path, object_id: int, config: ExtractConfig, model: Optional[Path],
                  progress: ProgressFactory) -> Path:
+    """Extract one object; a method that starts from another's run reuses its scene and distillation (read only)."""
     from ..pipeline.extract import extract_objects
 
-    extract_objects(data, out, [object_id], model_dir=model, config=method_config(method, config), progress=progress)
+    distill = None if model is None else model.parent / "distill"
+    extract_objects(data, out, [object_id], model_dir=model, distill_dir=distill,
+                    config=method_config(method, config), progress=progress)
     return out / f"object_{object_id}" / "object.ply"
 
 
@@ -218,15 +221,15 @@ def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Pat
         if method not in GG_RULE or read_json(record, "baseline selection").get("rule") == GG_RULE[method]:
             return path, False
     if "cloud" not in loaded:
-        loaded["folder"], loaded["cloud"], loaded["classifier"] = load_distillation(model)
-    folder, cloud = loaded["folder"], loaded["cloud"]
+        loaded["distillation"], loaded["cloud"], loaded["classifier"] = load_distillation(model.parent / "distill")
+    settings, cloud = loaded["distillation"].record, loaded["cloud"]
     if method in GG_RULE:
         sel = gaussian_grouping(cloud, loaded["classifier"], object_id, rule=GG_RULE[method])
     else:
         if "dataset" not in loaded:
-            loaded["dataset"] = load_dataset(data, float(folder.config.get("downscale", 1) or 1))
+            loaded["dataset"] = load_dataset(data, float(settings.get("downscale", 1) or 1))
             loaded["masks"] = FilesSegmenter().segment(loaded["dataset"], SegmentPrompt()).masks
-            loaded["views"] = split_views(loaded["dataset"], int(folder.config.get("holdout_every", 8)))[0]
+            loaded["views"] = split_views(loaded["dataset"], int(settings.get("holdout_every", 8)))[0]
         sel = feature_similarity(cloud, loaded["dataset"], loaded["masks"], object_id, views=loaded["views"])
     path.parent.mkdir(parents=True, exist_ok=True)
     write_ply(sel.cloud, path)

@@ -58,6 +58,7 @@ def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[s
             raise OutputError(f"{dest}: output is the same file as the input; choose another output path")
         if not dest.exists() and dest.resolve() == src_path.resolve():
             raise OutputError(f"{dest}: output is the same file as the input; choose another output path")
+    refuse_inside_inputs(dest, inputs)
     if dest.is_dir():
         raise OutputError(f"{dest}: is a folder; give a file path for this output")
     if dest.exists() and not overwrite:
@@ -68,13 +69,34 @@ def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[s
     return dest
 
 
-def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existing: bool = False) -> Path:
+def refuse_inside_inputs(dest: str | os.PathLike, inputs: Sequence[str | os.PathLike | None]) -> None:
+    """Raise OutputError if ``dest`` is an input folder or lies inside one, however the paths are spelled (symbolic
+    links and ``..`` resolved, the same folder by another name found with ``os.path.samefile``)."""
+    target = Path(os.path.realpath(dest))
+    for src in inputs:
+        if src is None or not Path(src).is_dir():
+            continue
+        folder = Path(os.path.realpath(src))
+        probe = target
+        while True:  # walk up from the output to the first folder that exists, then compare each ancestor
+            if probe.exists() and os.path.samefile(probe, folder):
+                raise OutputError(f"{dest}: is inside the input folder {src}; write outputs elsewhere (inputs are "
+                                  "never written)")
+            if probe.parent == probe:
+                break
+            probe = probe.parent
+
+
+def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existing: bool = False,
+                       inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Create an output folder and return it.
 
     An existing non-empty folder is refused unless ``overwrite`` (its contents are then replaced file by file) or
-    ``allow_existing`` (a stage-reusing command such as ``extract`` or ``train --resume``).
+    ``allow_existing`` (a stage-reusing command such as ``extract`` or ``train --resume``); so is a folder that is,
+    or lies inside, one of the ``inputs`` folders.
     """
     out = Path(path)
+    refuse_inside_inputs(out, inputs)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not (overwrite or allow_existing):

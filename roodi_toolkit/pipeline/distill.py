@@ -1,18 +1,15 @@
-"""Object features: distil per-view masks into the Gaussians of a trained scene, then select one object's Gaussians.
+"""Object features: distil per-view masks into the Gaussians of a trained scene (ROODI Sec. 3.1).
 
-ROODI (Sec. 3.1) follows Gaussian Grouping: every Gaussian gets a 16-dim object feature, rendered like colour (the
-same alpha-compositing weights, no background); a 1x1 convolution maps the rendered feature map to C class logits,
-trained with cross-entropy against the masks divided by log(C) so the loss starts near 1 whatever C is. The scene's
-geometry and appearance stay frozen: only the features and the classifier change, so the scene's RGB renders are
-untouched. 500 iterations, one training view each (paper).
+ROODI follows Gaussian Grouping: every Gaussian gets a 16-dim object feature, rendered like colour (the same
+alpha-compositing weights, no background); a 1x1 convolution maps the rendered feature map to C class logits, trained
+with cross-entropy against the masks divided by log(C) so the loss starts near 1 whatever C is. The scene's geometry and
+appearance stay frozen: only the features and the classifier change, so the scene's RGB renders are untouched. 500
+iterations, one training view each (paper).
 
-Selection applies the same classifier to each Gaussian's own feature (a 1x1 convolution is a linear map per
-pixel, hence per feature vector) and keeps the Gaussians whose softmax probability of the target exceeds 0.3
-(Gaussian Grouping's removal threshold); the statistical outlier removal of :mod:`roodi_toolkit.prune.outliers` then drops the
-floaters, giving the crude object model of the paper's Fig. 2d.
-
-The features are stored as extra PLY columns ``object_feature_0..15`` and the classifier beside the model as
-``object_classifier.pt``, so any number of objects can be selected from one distillation.
+In memory a distilled scene is the scene's :class:`~roodi_toolkit.gaussians.GaussianCloud` with extra columns
+``object_feature_0..15`` plus its :class:`ObjectClassifier`; on disk it is a distillation folder of its own
+(:mod:`roodi_toolkit.io.model`) that names the model file it belongs to, so the model folder is never written and any
+number of objects can be selected (:mod:`roodi_toolkit.pipeline.select`) from one distillation.
 """
 
 from __future__ import annotations
@@ -32,13 +29,12 @@ from torch import Tensor
 from ..cameras import Camera
 from ..io.datasets import Dataset
 from ..errors import ConfigError, RoodiError
+from ..io.model import Distillation
 from ..gaussians import GaussianCloud
-from ..prune.outliers import PruneConfig, PruneReport
 from ..progress import ProgressFactory, null_progress
-from .segment import ViewMasks, mask_iou
+from .segment import SegmentPrompt, ViewMasks, mask_iou
 
 FEATURE_PREFIX = "object_feature_"
-CLASSIFIER_FILE = "object_classifier.pt"
 CLASSIFIER_FORMAT = "roodi-object-classifier"
 
 
@@ -339,88 +335,6 @@ def cloud_features(cloud: GaussianCloud) -> Tensor:
     return torch.as_tensor(np.stack([cloud.extras[k].astype(np.float32) for k in names], axis=1))
 
 
-def gaussian_probabilities(cloud: GaussianCloud, classifier: ObjectClassifier) -> Tensor:
-    """Return each Gaussian's class probabilities ``[N, C]``: the classifier applied to its own feature."""
-    feats = cloud_features(cloud)
-    if feats.shape[1] != classifier.feature_dim:
-        raise RoodiError(f"the model has {feats.shape[1]} object features but the classifier expects "
-                         f"{classifier.feature_dim}; were they saved by different distillations?")
-    with torch.no_grad():
-        return classifier.probabilities(feats)
-
-
-def render_probabilities(cloud: GaussianCloud, classifier: ObjectClassifier, camera: Camera,
-                         features: Tensor | None = None) -> Tensor:
-    """Return the rendered class probabilities ``[H, W, C]`` (softmax of the classifier on the rendered features)."""
-    feats = cloud_features(cloud) if features is None else features
-    with torch.no_grad():
-        return classifier.probabilities(render_features(_frozen_tensors(cloud), feats, camera))
-
-
-# ---------------------------------------------------------------------------------------------------- selection
-
-
-@dataclass
-class Selection:
-    """One object taken out of a distilled scene.
-
-    Attributes:
-        cloud: the object's Gaussians after pruning (or before, without pruning).
-        selected: Gaussians over the scene whose target probability exceeds the threshold. [N] bool
-        keep: Gaussians over the scene in ``cloud``. [N] bool
-        probabilities: each scene Gaussian's target probability. [N]
-        prune_report: the pruning report, or None without pruning.
-    """
-
-    cloud: GaussianCloud
-    selected: np.ndarray
-    keep: np.ndarray
-    probabilities: np.ndarray
-    prune_report: Optional[PruneReport]
-
-
-def select_object(cloud: GaussianCloud, classifier: ObjectClassifier, object_id: int, *, threshold: float = 0.3,
-                  prune: bool = True, prune_config: PruneConfig | None = None,
-                  progress: ProgressFactory = null_progress) -> Selection:
-    """Return the Gaussians of object ``object_id``: probability above ``threshold``, then outlier removal.
-
-    Args:
-        cloud: a distilled scene (with ``object_feature_*`` columns).
-        classifier: its classifier.
-        object_id: the class id of the object (an instance id of the masks; 1 for binary masks).
-        threshold: softmax probability the Gaussian's own feature must exceed (Gaussian Grouping: 0.3).
-        prune: remove statistical outliers from the selection (paper: at this point).
-        prune_config: pruning settings (default: the pruning module's defaults).
-        progress: progress factory for the pruning.
-
-    Raises:
-        ConfigError: a bad id or threshold, or no Gaussian above the threshold.
-    """
-    from ..prune.outliers import remove_statistical_outliers
-
-    if not 0 <= object_id < classifier.num_classes:
-        raise ConfigError(f"object id {object_id} is not one of the classifier's classes 0..{classifier.num_classes - 1}")
-    if not 0 < threshold < 1:
-        raise ConfigError(f"threshold is a probability in (0, 1), got {threshold}")
-    prob = gaussian_probabilities(cloud, classifier)[:, object_id].numpy()
-    selected = prob > threshold
-    if not selected.any():
-        raise ConfigError(f"no Gaussian has a probability above {threshold} for object {object_id} (highest "
-                          f"{prob.max():.3f}); check the id or lower --threshold")
-    index = np.flatnonzero(selected)
-    obj = cloud.select(index)
-    keep = selected.copy()
-    report = None
-    if prune:
-        config = prune_config or PruneConfig()
-        if len(obj) <= config.k:
-            raise ConfigError(f"only {len(obj)} Gaussians selected, too few to prune with k = {config.k}; use "
-                              "--no-prune or check the object id")
-        obj, sub_keep, report = remove_statistical_outliers(obj, config, progress=progress)
-        keep = np.zeros(len(cloud), bool)
-        keep[index[sub_keep]] = True
-    return Selection(obj, selected, keep, prob, report)
-
 
 # ---------------------------------------------------------------------------------------------------- evaluation
 
@@ -476,138 +390,6 @@ def alpha_iou(cloud: GaussianCloud, cameras: Sequence[Camera], alphas: Sequence[
     return out
 
 
-# ---------------------------------------------------------------------------------------------------- pictures
-
-
-def colorize_ids(ids: np.ndarray) -> np.ndarray:
-    """Return ``[H, W, 3]`` float colours of a class map: 0 black, others distinct hues (golden-angle spaced)."""
-    import colorsys
-
-    ids = np.asarray(ids)
-    top = int(ids.max()) if ids.size else 0
-    palette = np.zeros((top + 1, 3), np.float32)
-    for i in range(1, top + 1):
-        palette[i] = colorsys.hsv_to_rgb((i * 0.618034) % 1.0, 0.75, 0.95)
-    return palette[ids]
-
-
-def probability_grid(rows: Sequence[Sequence[np.ndarray]], gap: int = 2) -> np.ndarray:
-    """Return one ``[H', W', 3]`` image of equally sized ``[H, W, 3]`` tiles laid out row by row on white."""
-    if not rows or not rows[0]:
-        raise ConfigError("a picture needs at least one tile")
-    H, W = rows[0][0].shape[:2]
-    cols = max(len(r) for r in rows)
-    out = np.ones((len(rows) * (H + gap) - gap, cols * (W + gap) - gap, 3), np.float32)
-    for r, row in enumerate(rows):
-        for c, tile in enumerate(row):
-            t = np.asarray(tile, np.float32)
-            if t.ndim == 2:
-                t = np.repeat(t[..., None], 3, axis=2)
-            out[r * (H + gap):r * (H + gap) + H, c * (W + gap):c * (W + gap) + W] = t
-    return out
-
-
-def heat(prob: np.ndarray) -> np.ndarray:
-    """Return ``[H, W, 3]`` viridis colours of probabilities ``[H, W]`` in [0, 1]."""
-    from matplotlib import colormaps
-
-    return colormaps["viridis"](np.clip(prob, 0, 1))[..., :3].astype(np.float32)
-
-
-# ---------------------------------------------------------------------------------------------------- model folders
-
-
-@dataclass
-class ModelFolder:
-    """A ``roodi-toolkit train`` output folder.
-
-    Attributes:
-        root: the folder.
-        ply_path: ``point_cloud/iteration_N/point_cloud.ply`` with the highest N.
-        iteration: that N.
-        config: ``cfg.json`` (data_dir, downscale, holdout_every ...), empty if absent.
-    """
-
-    root: Path
-    ply_path: Path
-    iteration: int
-    config: dict[str, Any]
-
-    @property
-    def classifier_path(self) -> Path:
-        return self.root / CLASSIFIER_FILE
-
-
-def find_model(model_dir: str | Path) -> ModelFolder:
-    """Return the trained model in ``model_dir`` (the highest ``point_cloud/iteration_N``).
-
-    Raises:
-        RoodiError: not a folder, or no ``point_cloud/iteration_N/point_cloud.ply`` in it.
-    """
-    from ..io.files import read_json
-
-    root = Path(model_dir)
-    if not root.is_dir():
-        raise RoodiError(f"{root}: model folder not found (give a roodi-toolkit train output folder)")
-    found = []
-    pc = root / "point_cloud"
-    if pc.is_dir():
-        for d in pc.iterdir():
-            m = re.fullmatch(r"iteration_(\d+)", d.name)
-            if m and (d / "point_cloud.ply").is_file():
-                found.append((int(m.group(1)), d / "point_cloud.ply"))
-    if not found:
-        raise RoodiError(f"{root}: no point_cloud/iteration_N/point_cloud.ply; is it a roodi-toolkit train output "
-                         "folder?")
-    iteration, ply = max(found)
-    cfg_path = root / "cfg.json"
-    config = read_json(cfg_path, "training config") if cfg_path.is_file() else {}
-    return ModelFolder(root, ply, iteration, config if isinstance(config, dict) else {})
-
-
-def save_distillation(model: ModelFolder, cloud: GaussianCloud, result: DistillResult,
-                      extra: dict[str, Any] | None = None) -> Path:
-    """Write the features into the model's PLY (atomically; every other column unchanged) and the classifier beside
-    it; return the classifier's path."""
-    from ..io.files import save_checkpoint
-    from ..io.ply import write_ply
-
-    write_ply(with_features(cloud, result.features), model.ply_path)
-    state = result.classifier.state_dict()
-    state.update({"iteration": model.iteration, "ply": str(model.ply_path.relative_to(model.root)),
-                  "num_gaussians": len(cloud), "feature_dim": int(result.features.shape[1])})
-    if extra:
-        state.update(extra)
-    return save_checkpoint(state, model.classifier_path)
-
-
-def load_distillation(model_dir: str | Path) -> tuple[ModelFolder, GaussianCloud, ObjectClassifier]:
-    """Return the model folder, its distilled cloud and classifier.
-
-    Raises:
-        RoodiError: no trained model, no classifier, or a classifier from another model.
-    """
-    from ..io.files import load_checkpoint
-    from ..io.ply import read_ply
-
-    model = find_model(model_dir)
-    if not model.classifier_path.is_file():
-        raise RoodiError(f"{model.root}: no {CLASSIFIER_FILE}; run roodi-toolkit distill {model.root} DATA_DIR first")
-    state = load_checkpoint(model.classifier_path)
-    classifier = ObjectClassifier.from_state_dict(state, str(model.classifier_path))
-    cloud = read_ply(model.ply_path)
-    if int(state.get("num_gaussians", len(cloud))) != len(cloud) or int(state.get("iteration", model.iteration)) \
-            != model.iteration:
-        raise RoodiError(f"{model.classifier_path} belongs to another model (iteration {state.get('iteration')}, "
-                         f"{state.get('num_gaussians')} Gaussians) than {model.ply_path}; run distill again")
-    return model, cloud, classifier
-
-
-def config_dict(config: DistillConfig) -> dict[str, Any]:
-    """Return the config as a JSON-ready dict."""
-    return asdict(config)
-
-
 # ---------------------------------------------------------------------------------------------------- commands
 
 
@@ -632,45 +414,79 @@ def _picture_views(eval_views: Sequence[int], train_views: Sequence[int], n: int
     return views + rest[::step][:n - len(views)]
 
 
-def run_distill(model_dir: str | Path, data_dir: str | Path, *, segmenter: str = "files",
-                clicks: Sequence[Any] = (), mask_dir: str | Path | None = None,
-                segmenter_options: dict[str, Any] | None = None, config: DistillConfig = DistillConfig(),
-                downscale: float | None = None, progress: ProgressFactory = null_progress) -> dict[str, Any]:
-    """Segment, distil and save into a trained model folder; return a JSON-ready summary.
 
-    Reads ``MODEL_DIR/point_cloud/iteration_N/point_cloud.ply`` (highest N) and ``cfg.json`` (downscale and the
-    held-out views of training, which are scored here too); writes the PLY back with ``object_feature_*`` columns,
-    ``object_classifier.pt``, ``object_masks/<view>.png`` (the segmenter's masks), ``distill.json`` and
-    ``distill.png`` (per view: image, masks, rendered classes, rendered probability of the predicted class).
+
+# ---------------------------------------------------------------------------------------------------- whole stage
+
+
+@dataclass
+class DistilledScene:
+    """A distilled scene in memory, what :func:`distill_scene` hands to the next stage.
+
+    Attributes:
+        cloud: the scene with ``object_feature_*`` columns (its own columns unchanged).
+        classifier: the trained classifier, with class labels.
+        masks: the segmenter's masks, one per view.
+        picture: per picture view: image, masks, rendered classes, rendered probability of that class. [H', W', 3]
+        summary: JSON-ready figures (loss, held-out IoU, settings, seconds).
     """
-    from ..io import files
-    from ..io.datasets import load_dataset
-    from ..io.ply import read_ply
-    from .segment import SegmentPrompt, get_segmenter
+
+    cloud: GaussianCloud
+    classifier: ObjectClassifier
+    masks: ViewMasks
+    picture: np.ndarray
+    summary: dict[str, Any]
+
+
+def distill_scene(cloud: GaussianCloud, dataset: Dataset, *, segmenter: str = "files",
+                  prompt: SegmentPrompt = SegmentPrompt(), segmenter_options: dict[str, Any] | None = None,
+                  config: DistillConfig = DistillConfig(), holdout_every: int = 8,
+                  labels: dict[int, str] | None = None,
+                  progress: ProgressFactory = null_progress) -> DistilledScene:
+    """Return the scene distilled from a segmenter's masks: segment, distil, score the held-out views, picture.
+
+    Args:
+        cloud: the trained scene (object feature columns it may have are replaced).
+        dataset: its posed images, decoded once by the caller.
+        segmenter: the segmenter plugin's name.
+        prompt: clicks or a mask folder for the segmenter.
+        segmenter_options: keyword options of the segmenter.
+        config: distillation hyperparameters.
+        holdout_every: the training run's held-out split (every n-th view is scored, not trained on).
+        labels: class names by id (default: "rest"/"target" for binary masks).
+        progress: progress factory.
+    """
+    from .segment import get_segmenter
     from .train import split_views
 
-    model = find_model(model_dir)
-    ds_scale = float(downscale if downscale is not None else model.config.get("downscale", 1) or 1)
-    dataset = load_dataset(data_dir, ds_scale, progress=progress)
-    cloud = read_ply(model.ply_path)
+    cloud = _without_features(cloud)
     seg = get_segmenter(segmenter, **(segmenter_options or {}))
-    prompt = SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir))
     t0 = time.perf_counter()
     masks = seg.segment(dataset, prompt, scene=cloud if seg.needs_scene else None, progress=progress)
     seg_seconds = time.perf_counter() - t0
-    train_views, eval_views = split_views(dataset, int(model.config.get("holdout_every", 8)))
+    train_views, _ = split_views(dataset, holdout_every)
     result = distill_object_features(cloud, dataset, masks, config, train_views=train_views, progress=progress)
-    labels = scene_labels(data_dir) if masks.kind == "instances" else {0: "rest", 1: "target"}
+    distilled = finish_distillation(cloud, result, dataset, masks, holdout_every=holdout_every, labels=labels,
+                                    progress=progress)
+    distilled.summary.update({"segmenter": segmenter, "config": asdict(config), "segment_seconds": seg_seconds})
+    return distilled
+
+
+def finish_distillation(cloud: GaussianCloud, result: DistillResult, dataset: Dataset, masks: ViewMasks, *,
+                        holdout_every: int = 8, labels: dict[int, str] | None = None,
+                        progress: ProgressFactory = null_progress) -> DistilledScene:
+    """Return the distilled scene of features learned from ``masks``: class labels set, the held-out views scored
+    and the picture made (shared by the two-stage distillation and single-stage training)."""
+    from ..render.pictures import colorize_ids, heat, probability_grid
+    from .train import split_views
+
+    train_views, eval_views = split_views(dataset, holdout_every)
+    if masks.kind != "instances" or labels is None:
+        labels = {0: "rest", 1: "target"} if masks.kind != "instances" else {}
     result.classifier.labels = {i: n for i, n in labels.items() if i < masks.num_classes}
     distilled = with_features(cloud, result.features)
     held = evaluate_class_maps(distilled, result.classifier, dataset, masks, eval_views, progress=progress) \
         if eval_views else {"views": [], "mean_iou": float("nan"), "per_object": {}, "pairs": 0}
-    classifier_path = save_distillation(model, cloud, result, {"data_dir": str(data_dir), "downscale": ds_scale,
-                                                               "segmenter": segmenter})
-    mask_out = model.root / "object_masks"
-    mask_out.mkdir(exist_ok=True)
-    for name, m in zip(masks.names, masks.masks.numpy()):
-        files.write_image(m.astype(np.uint8 if masks.num_classes <= 256 else np.uint16), mask_out / f"{name}.png")
     rows = []
     frozen = _frozen_tensors(distilled)
     with torch.no_grad():
@@ -679,69 +495,88 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, *, segmenter: str =
             pred = prob.argmax(-1).numpy()
             rows.append([dataset.images[v].numpy(), colorize_ids(masks.masks[v].numpy()), colorize_ids(pred),
                          heat(prob.max(-1).values.numpy())])
-    picture = files.write_image(probability_grid(rows), model.root / "distill.png")
     summary = {
-        "model": str(model.ply_path), "data_dir": str(data_dir), "downscale": ds_scale, "segmenter": segmenter,
-        "mask_kind": masks.kind, "mask_source": masks.source, "num_classes": masks.num_classes,
-        "labels": {str(k): v for k, v in result.classifier.labels.items()}, "num_gaussians": len(cloud),
-        "config": config_dict(config), "train_views": len(train_views), "seconds": result.seconds,
-        "segment_seconds": seg_seconds, "final_loss": result.history[-1]["loss"] if result.history else float("nan"),
-        "history": result.history,
+        "mask_kind": masks.kind, "mask_source": masks.source,
+        "num_classes": masks.num_classes, "labels": {str(k): v for k, v in result.classifier.labels.items()},
+        "num_gaussians": len(cloud), "holdout_every": holdout_every,
+        "train_views": len(result.train_views), "seconds": result.seconds,
+        "final_loss": result.history[-1]["loss"] if result.history else float("nan"), "history": result.history,
         "held_out": {**held, "per_object": {str(k): v for k, v in held["per_object"].items()}},
-        "ply": str(model.ply_path), "classifier": str(classifier_path), "picture": str(picture),
         "picture_columns": ["image", "masks", "rendered classes", "rendered probability of that class"],
     }
-    files.write_json(summary, model.root / "distill.json")
-    return summary
+    return DistilledScene(distilled, result.classifier, masks, probability_grid(rows), summary)
 
 
-def run_select(model_dir: str | Path, object_id: int, output_ply: str | Path, *, threshold: float = 0.3,
-               prune: bool = True, prune_config: PruneConfig | None = None, picture: str | Path | None = None,
-               overwrite: bool = False, progress: ProgressFactory = null_progress) -> dict[str, Any]:
-    """Select object ``object_id`` of a distilled model folder, write it as a PLY and a picture; return a summary.
+def _without_features(cloud: GaussianCloud) -> GaussianCloud:
+    """Return the cloud without object feature columns (the scene as trained)."""
+    if not any(k.startswith(FEATURE_PREFIX) for k in cloud.extras):
+        return cloud
+    out = cloud.copy()
+    out.extras = {k: v for k, v in out.extras.items() if not k.startswith(FEATURE_PREFIX)}
+    return out
 
-    The picture (default ``OUT.png`` beside ``OUT.ply``) shows per view: the image, the object's mask, the rendered
-    probability of the object, and the selected Gaussians rendered alone on white. It needs the dataset the
-    distillation used; without it no picture is written.
+
+def save_distilled(out_dir: str | Path, distilled: DistilledScene, model_ply: str | Path,
+                   record: dict[str, Any] | None = None) -> Path:
+    """Write a distilled scene as a distillation folder of its own (features, classifier, masks, picture, record);
+    return the record's path. ``model_ply`` is the scene file the features belong to (never written)."""
+    from ..io.model import write_distillation
+
+    masks = distilled.masks
+    dtype = np.uint8 if masks.num_classes <= 256 else np.uint16
+    return write_distillation(
+        out_dir, model_ply=Path(model_ply), features=cloud_features(distilled.cloud).numpy(),
+        classifier_state=distilled.classifier.state_dict(), record={**distilled.summary, **(record or {})},
+        masks={name: m.astype(dtype) for name, m in zip(masks.names, masks.masks.numpy())},
+        picture=distilled.picture)
+
+
+def load_distillation(distill_dir: str | Path) -> tuple[Distillation, GaussianCloud, ObjectClassifier]:
+    """Return a distillation folder, its scene with the object features as columns, and its classifier.
+
+    Raises:
+        ModelError: not a distillation folder, or its model file changed or is gone.
+    """
+    from ..io.model import read_distillation
+    from ..io.ply import read_ply
+
+    distillation = read_distillation(distill_dir)
+    cloud = read_ply(distillation.model_ply)
+    if len(cloud) != len(distillation.features):
+        raise ConfigError(f"{distillation.root}: {len(distillation.features)} features for the "
+                          f"{len(cloud)} Gaussians of {distillation.model_ply}; run roodi-toolkit distill again")
+    classifier = ObjectClassifier.from_state_dict(distillation.classifier_state, str(distillation.root))
+    return distillation, with_features(_without_features(cloud), distillation.features), classifier
+
+
+def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, *, segmenter: str = "files",
+                clicks: Sequence[Any] = (), mask_dir: str | Path | None = None,
+                segmenter_options: dict[str, Any] | None = None, config: DistillConfig = DistillConfig(),
+                downscale: float | None = None, overwrite: bool = False,
+                progress: ProgressFactory = null_progress) -> dict[str, Any]:
+    """Segment and distil a trained model folder into a distillation folder ``out_dir``; return its record.
+
+    Reads ``MODEL_DIR/point_cloud/iteration_N/point_cloud.ply`` (highest N) and ``cfg.json`` (downscale and the
+    held-out views of training, which are scored here too). Writes into ``out_dir`` only (see
+    :mod:`roodi_toolkit.io.model`): ``features.npy``, ``object_classifier.pt``, ``object_masks/<view>.png``,
+    ``distill.png`` (per view: image, masks, rendered classes, rendered probability of the predicted class) and
+    ``distill.json``. The model folder and the data folder are inputs and are never written.
     """
     from ..io import files
-    from ..io.ply import write_ply
-    from ..render.renderer import render_cloud
+    from ..io.datasets import load_dataset
+    from ..io.model import DISTILL_RECORD, find_model
+    from ..io.ply import read_ply
 
-    out = files.check_output(output_ply, overwrite=overwrite)
-    pic = Path(picture) if picture is not None else out.with_suffix(".png")
-    files.check_output(pic, overwrite=overwrite)
-    model, cloud, classifier = load_distillation(model_dir)
-    sel = select_object(cloud, classifier, object_id, threshold=threshold, prune=prune, prune_config=prune_config,
-                        progress=progress)
-    write_ply(sel.cloud, out)
-    state = files.load_checkpoint(model.classifier_path)
-    summary: dict[str, Any] = {
-        "object": object_id, "label": classifier.labels.get(object_id, ""), "threshold": threshold,
-        "num_gaussians": len(cloud), "selected": int(sel.selected.sum()), "kept": len(sel.cloud),
-        "pruned": None if sel.prune_report is None else int(sel.selected.sum() - len(sel.cloud)),
-        "output": str(out), "picture": None,
-    }
-    data_dir = state.get("data_dir")
-    mask_dir = model.root / "object_masks"
-    if data_dir and Path(data_dir).exists() and mask_dir.is_dir():
-        from ..io.datasets import load_dataset
-        from .segment import FilesSegmenter, SegmentPrompt
-        from .train import split_views
-
-        dataset = load_dataset(data_dir, float(state.get("downscale", 1)))
-        masks = FilesSegmenter(mask_dir).segment(dataset, SegmentPrompt())
-        train_views, eval_views = split_views(dataset, int(model.config.get("holdout_every", 8)))
-        feats = cloud_features(cloud)
-        frozen = _frozen_tensors(cloud)
-        rows = []
-        with torch.no_grad():
-            for v in _picture_views(eval_views, train_views):
-                cam = dataset.cameras[v]
-                prob = classifier.probabilities(render_features(frozen, feats, cam))[..., object_id].numpy()
-                alone = render_cloud(sel.cloud, cam, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy()
-                target = (masks.masks[v].numpy() == object_id).astype(np.float32)
-                rows.append([dataset.images[v].numpy(), target, heat(prob), alone])
-        summary["picture"] = str(files.write_image(probability_grid(rows), pic))
-        summary["picture_columns"] = ["image", "mask of the object", "rendered probability", "selection alone"]
-    return summary
+    model = find_model(model_dir)
+    out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=[model.root, data_dir])
+    ds_scale = float(downscale if downscale is not None else model.config.get("downscale", 1) or 1)
+    dataset = load_dataset(data_dir, ds_scale, progress=progress)
+    distilled = distill_scene(read_ply(model.ply_path), dataset, segmenter=segmenter,
+                              prompt=SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)),
+                              segmenter_options=segmenter_options, config=config,
+                              holdout_every=int(model.config.get("holdout_every", 8)), labels=scene_labels(data_dir),
+                              progress=progress)
+    save_distilled(out, distilled, model.ply_path, {"data_dir": str(Path(data_dir).resolve()), "downscale": ds_scale,
+                                                    "model_dir": str(model.root.resolve())})
+    return {**distilled.summary, "model": str(model.ply_path), "data_dir": str(data_dir), "downscale": ds_scale,
+            "out_dir": str(out), "record": str(out / DISTILL_RECORD), "picture": str(out / "distill.png")}

@@ -1,17 +1,21 @@
 """From posed images to clean objects in one call (paper Fig. 2): train the scene, distil the object masks, select each
 object, prune it, reason about occlusion, inpaint and fine-tune.
 
-Every stage writes its result atomically into the output folder and a re-run with the same folder reuses the stages
-that finished (the scene model, the distillation, each object's selection and refinement), so an interrupted run
-continues where it stopped and several objects share one scene and one distillation.
+The stages run in memory: the dataset is decoded once and each stage hands its result to the next. Files are written
+only as outputs and as the checkpoints a re-run resumes from (the trained scene, the distillation, each object's
+result), each with the settings that made it: a re-run with the same folder reuses a finished stage only when its
+settings are the same, and says which stages it reused and which it made again and why. Nothing is ever written
+into the data folder, a given ``--model`` folder or a given ``--distill`` folder.
 
 Layout of ``OUT_DIR``::
 
-    scene/                      the trained scene (roodi-toolkit train layout), distilled in place
+    scene/                      the trained scene (roodi-toolkit train layout), unless --model was given
+    distill/                    the distillation (roodi-toolkit distill layout), unless --distill was given
     object_<ID>/selected.ply    the object after selection and pruning (the crude model of the paper's Fig. 2d)
     object_<ID>/object.ply      the final object (Inria PLY)
-    object_<ID>/debug/          occlusion masks, inpainting grids, renders before and after fine-tuning
     object_<ID>/object.png      the final object from four directions
+    object_<ID>/debug/          occlusion masks, inpainting grids, renders before and after fine-tuning
+    object_<ID>/stage.json      the settings and inputs the object was made with (how a re-run knows to reuse it)
     report.json                 counts, thresholds and times of every stage
 """
 
@@ -20,12 +24,12 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 import torch
 
-from .distill import CLASSIFIER_FILE, FEATURE_PREFIX, DistillConfig
+from .distill import DistillConfig
 from ..errors import ConfigError, RoodiError
 from .finetune import FinetuneConfig
 from ..gaussians import GaussianCloud
@@ -41,7 +45,8 @@ class ExtractConfig:
 
     Attributes:
         train: scene training (used only when no trained model is given).
-        downscale: image downscale factor of the dataset.
+        downscale: image downscale factor of the dataset (None: the trained model's own, from its ``cfg.json``,
+            else 1).
         distill: mask distillation.
         threshold: selection probability (Gaussian Grouping: 0.3).
         prune: prune the selection (paper: yes; ``--no-prune`` for the ablation).
@@ -55,7 +60,7 @@ class ExtractConfig:
     """
 
     train: TrainConfig = field(default_factory=lambda: TrainConfig(init="auto"))
-    downscale: float = 1.0
+    downscale: Optional[float] = None
     distill: DistillConfig = DistillConfig()
     threshold: float = 0.3
     prune: bool = True
@@ -69,41 +74,67 @@ class ExtractConfig:
     def __post_init__(self) -> None:
         if not 0 < self.threshold < 1:
             raise ConfigError(f"threshold is a probability in (0, 1), got {self.threshold}")
+        if self.downscale is not None and not self.downscale >= 1:
+            raise ConfigError(f"downscale must be at least 1, got {self.downscale}")
 
 
-def _scene_only(cloud: GaussianCloud) -> GaussianCloud:
-    """Return the cloud without the object-feature columns (what renders and fine-tuning use)."""
-    out = cloud.copy()
-    out.extras = {k: v for k, v in out.extras.items() if not k.startswith(FEATURE_PREFIX)}
-    return out
+def _settings(config: Any) -> Any:
+    """Return settings as plain JSON values, the form stage records compare."""
+    import json
+
+    return json.loads(json.dumps(asdict(config) if hasattr(config, "__dataclass_fields__") else config, default=str))
 
 
-def _trained(model_dir: Path, iterations: int) -> bool:
-    return (model_dir / "point_cloud" / f"iteration_{iterations}" / "point_cloud.ply").is_file()
+class _Stages:
+    """Which finished stages a run reused and which it made again, and why (into the report)."""
+
+    def __init__(self, report: dict[str, Any]) -> None:
+        self.reused: list[str] = report.setdefault("reused", [])
+        self.remade: list[str] = report.setdefault("recomputed", [])
+
+    def fresh(self, name: str, record: dict[str, Any] | None, wanted: dict[str, Any], overwrite: bool) -> bool:
+        """Return True if the stage's earlier result can be reused (same settings, no ``overwrite``)."""
+        if record is None:
+            return False
+        if overwrite:
+            self.remade.append(f"{name} (--overwrite)")
+            return False
+        changed = sorted(k for k in set(wanted) | set(record) if k in wanted and record.get(k) != wanted[k])
+        if changed:
+            self.remade.append(f"{name} ({', '.join(changed)} changed)")
+            return False
+        self.reused.append(name)
+        return True
 
 
-def _object_masks(dataset: Any, model_dir: Path, object_id: int, views: Sequence[int]) -> torch.Tensor:
-    """Return the object's masks ``[V, H, W]`` in ``views``: the dataset's instance maps, else the distilled masks."""
-    from ..io.files import read_image
+def _train_record(model_root: Path) -> dict[str, Any] | None:
+    """Return the finished training run's record in ``model_root`` (None while unfinished or absent)."""
+    from ..io.files import read_json
+    from ..io.model import MODEL_RECORD, model_iterations
 
-    if dataset.masks is not None:
-        return dataset.masks[list(views)] == object_id
-    folder = model_dir / "object_masks"
-    masks = []
-    for v in views:
-        path = folder / f"{dataset.cameras[v].name}.png"
-        if not path.is_file():
-            raise RoodiError(f"{path}: no mask of view {dataset.cameras[v].name}; the dataset has no instance masks "
-                             "and the distillation's masks are missing")
-        masks.append(torch.as_tensor(read_image(path).astype(np.int64)) == object_id)
-    return torch.stack(masks)
+    cfg = model_root / MODEL_RECORD
+    if not cfg.is_file():
+        return None
+    record = read_json(cfg, "training record")
+    if not isinstance(record, dict) or int(record.get("iterations", -1)) not in model_iterations(model_root):
+        return None
+    return record
+
+
+def _train_wanted(config: ExtractConfig, data_dir: Path, downscale: float) -> dict[str, Any]:
+    return {**_settings(config.train.to_dict()), "downscale": downscale, "data_dir": str(data_dir)}
+
+
+def _object_masks(masks: torch.Tensor, object_id: int, views: Sequence[int]) -> torch.Tensor:
+    """Return the object's masks ``[V, H, W]`` in ``views`` from class maps ``[N, H, W]``."""
+    return masks[list(views)] == object_id
 
 
 def _picture(cloud: GaussianCloud, path: Path, size: int = 192) -> None:
     """Write the object from four directions on white."""
     from ..io.files import write_image
-    from ..render.views import framing_orbit
     from ..render.renderer import render_cloud
+    from ..render.views import framing_orbit
 
     cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size)
     row = [render_cloud(cloud, c, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy() for c in cams]
@@ -111,121 +142,170 @@ def _picture(cloud: GaussianCloud, path: Path, size: int = 192) -> None:
 
 
 def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Sequence[int], *,
-                    model_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
-                    overwrite: bool = False, progress: ProgressFactory = null_progress) -> dict[str, Any]:
+                    model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
+                    config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
+                    progress: ProgressFactory = null_progress) -> dict[str, Any]:
     """Return a report of every stage after writing each object's clean model into ``out_dir``.
 
     Args:
         data_dir: the posed images (Blender or COLMAP; masks from the dataset's instance maps).
-        out_dir: the output folder; an existing one is reused stage by stage (``overwrite`` starts afresh).
+        out_dir: the output folder; finished stages in it are reused when made with the same settings
+            (``overwrite`` makes every stage again).
         object_ids: the instance ids of the objects to extract (they share the scene and the distillation).
-        model_dir: a trained scene (``roodi-toolkit train`` output) to use instead of training one; it is distilled
-            in place if it has no classifier yet.
+        model_dir: a trained scene (``roodi-toolkit train`` output) to use instead of training one; only read.
+        distill_dir: a distillation of that scene (``roodi-toolkit distill`` output) to use instead of distilling;
+            only read.
         config: settings of every stage.
-        overwrite: remove what a previous run left instead of reusing it.
+        overwrite: make every stage again instead of reusing what a previous run left.
         progress: progress factory.
     """
     from ..io import files
     from ..io.datasets import load_dataset
-    from .distill import load_distillation, run_distill, select_object
-    from .finetune import refine_object
+    from ..io.model import DISTILL_RECORD, checkpoint_file, find_model
     from ..io.ply import read_ply, write_ply
+    from .distill import _without_features, distill_scene, load_distillation, save_distilled, scene_labels
+    from .finetune import refine_object
+    from .segment import FilesSegmenter, SegmentPrompt
+    from .select import prune_selection, select_object
     from .train import train_scene
 
     if not object_ids:
         raise ConfigError("give at least one object id to extract")
-    if config.single_stage and model_dir is not None:
-        raise ConfigError("single-stage training trains the scene itself; it cannot start from a trained model")
-    out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True)
-    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}, "reused": []}
+    if config.single_stage and (model_dir is not None or distill_dir is not None):
+        raise ConfigError("single-stage training trains the scene and its features together; it cannot start from "
+                          "--model or --distill")
+    if distill_dir is not None and model_dir is None:
+        raise ConfigError("--distill needs the --model it was distilled from")
+    data_dir = Path(data_dir)
+    out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
+                                   inputs=[data_dir, model_dir, distill_dir])
+    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}}
+    stages = _Stages(report)
     timings = report["stages"]
+    model = find_model(model_dir) if model_dir is not None else None
+    downscale = config.downscale
+    if downscale is None:
+        downscale = float(model.config.get("downscale", 1) or 1) if model is not None else 1.0
+    report["downscale"] = downscale
+    dataset = load_dataset(data_dir, downscale, progress=progress)  # decoded once; every stage reads it from memory
+    distill_out = out / "distill"
+    distill_wanted = {"config": _settings(config.distill), "segmenter": "files", "downscale": downscale,
+                      "data_dir": str(data_dir.resolve()), "single_stage": config.single_stage}
+    distill_old = files.read_json(distill_out / DISTILL_RECORD, "distillation record") \
+        if (distill_out / DISTILL_RECORD).is_file() else None
 
+    # the scene
     t = time.perf_counter()
-    if model_dir is None:
-        model = out / "scene"
-        if _trained(model, config.train.iterations) and not overwrite:
-            report["reused"].append("train")
+    distilled = None
+    if model is None:
+        model_root = out / "scene"
+        train_wanted = _train_wanted(config, data_dir, downscale)
+        old = _train_record(model_root)
+        if config.single_stage and old is not None and not _Stages({}).fresh("", distill_old, distill_wanted, False):
+            old = None  # the features are learned with the scene: a changed distillation means training again
+        if stages.fresh("train", old, train_wanted, overwrite):
+            model = find_model(model_root)
+            scene = read_ply(model.ply_path)
         else:
-            resume = (model / "checkpoints" / "latest.pt").is_file() and not overwrite
+            record = files.read_json(model_root / "cfg.json", "training record") \
+                if (model_root / "cfg.json").is_file() else None
+            same = isinstance(record, dict) and all(record.get(k) == v for k, v in train_wanted.items())
+            resume = same and checkpoint_file(model_root).is_file() and not overwrite
             if config.single_stage:
                 from .joint import train_joint
 
-                train_joint(data_dir, model, config.train, config.distill, downscale=config.downscale,
-                            resume=resume, overwrite=not resume, progress=progress)
+                result, distilled = train_joint(data_dir.resolve(), model_root, config.train, config.distill,
+                                                downscale=downscale, resume=resume, overwrite=not resume,
+                                                dataset=dataset, progress=progress)
             else:
-                train_scene(data_dir, model, config.train, downscale=config.downscale, resume=resume,
-                            overwrite=not resume, progress=progress)
+                result = train_scene(data_dir.resolve(), model_root, config.train, downscale=downscale, resume=resume,
+                                     overwrite=not resume, dataset=dataset, progress=progress)
+            model = find_model(model_root)
+            scene = result.cloud
     else:
-        model = Path(model_dir)
+        scene = read_ply(model.ply_path)
+    scene = _without_features(scene)
     timings["train_s"] = time.perf_counter() - t
 
+    # the distillation
     t = time.perf_counter()
-    if config.single_stage:
-        pass  # learned with the scene
-    elif (model / CLASSIFIER_FILE).is_file() and (not overwrite or model_dir is not None):
-        # a given model is an input: --overwrite replaces this run's outputs, never its distillation
-        report["reused"].append("distill")
+    if distill_dir is not None:
+        distillation, cloud, classifier = load_distillation(distill_dir)
+        if not distillation.model_ply.samefile(model.ply_path):
+            raise ConfigError(f"{distill_dir} is a distillation of {distillation.model_ply}, not of --model "
+                              f"{model.ply_path}")
+        masks_dir = distillation.masks_dir
+        report["distill_dir"] = str(distill_dir)
     else:
-        report["distill"] = run_distill(model, data_dir, config=config.distill, downscale=config.downscale,
-                                        progress=progress)
-    folder, cloud, classifier = load_distillation(model)
+        wanted = {**distill_wanted, "model_ply": str(model.ply_path.resolve())}
+        if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite):
+            _, cloud, classifier = load_distillation(distill_out)
+        else:
+            if distilled is None:
+                distilled = distill_scene(scene, dataset, config=config.distill,
+                                          holdout_every=int(model.config.get("holdout_every", 8)),
+                                          labels=scene_labels(data_dir), progress=progress)
+            save_distilled(distill_out, distilled, model.ply_path,
+                           {"downscale": downscale, "data_dir": wanted["data_dir"],
+                            "single_stage": config.single_stage, "model_dir": str(model.root.resolve())})
+            report["distill"] = {k: v for k, v in distilled.summary.items() if k != "history"}
+            cloud, classifier = distilled.cloud, distilled.classifier
+        masks_dir = distill_out / "object_masks"
+        report["distill_dir"] = str(distill_out)
     timings["distill_s"] = time.perf_counter() - t
-    scene_cloud = _scene_only(cloud)
-    dataset = None
+    masks = dataset.masks
+    if masks is None and config.inpaint:  # the masks the features were distilled from
+        masks = FilesSegmenter(masks_dir).segment(dataset, SegmentPrompt()).masks
+    distill_record = files.read_json(Path(report["distill_dir"]) / DISTILL_RECORD, "distillation record")
 
     for object_id in object_ids:
         odir = out / f"object_{object_id}"
         odir.mkdir(exist_ok=True)
+        wanted = {"object": int(object_id), "threshold": config.threshold, "prune": config.prune,
+                  "prune_config": _settings(config.prune_config), "inpaint": config.inpaint,
+                  "inpainter": config.inpainter, "occlusion": _settings(config.occlusion),
+                  "finetune": _settings(config.finetune), "downscale": downscale,
+                  "features_of": distill_record.get("model_ply_sha256"),
+                  "distillation": {k: distill_record.get(k) for k in ("config", "segmenter", "data_dir")}}
+        stage_file = odir / "stage.json"
+        old = files.read_json(stage_file, "object record") if stage_file.is_file() else None
+        if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite):
+            report["objects"][str(object_id)] = old["entry"]
+            continue
         entry: dict[str, Any] = {}
         t = time.perf_counter()
-        selected_path = odir / "selected.ply"
-        if selected_path.is_file() and not overwrite:
-            selected = read_ply(selected_path)
-            report["reused"].append(f"select {object_id}")
-        else:
-            sel = select_object(cloud, classifier, int(object_id), threshold=config.threshold, prune=False)
-            if len(sel.cloud) == 0:
-                raise RoodiError(f"object {object_id}: no Gaussian has probability > {config.threshold}; check the "
-                                 "object id (an instance id of the masks) or lower the threshold")
-            if config.prune and int(sel.selected.sum()) > config.prune_config.k:
-                sel = select_object(cloud, classifier, int(object_id), threshold=config.threshold, prune=True,
-                                    prune_config=config.prune_config, progress=progress)
-            elif config.prune:
-                entry["prune_skipped"] = (f"only {int(sel.selected.sum())} Gaussians selected, not more than "
-                                          f"k = {config.prune_config.k} neighbours")
-            selected = _scene_only(sel.cloud)
-            write_ply(selected, selected_path)
-            entry["selected"] = int(sel.selected.sum())
-            if sel.prune_report is not None:
-                entry["prune"] = sel.prune_report.to_dict()
+        sel = select_object(cloud, classifier, int(object_id), threshold=config.threshold, prune=False)
+        if config.prune and int(sel.selected.sum()) > config.prune_config.k:
+            sel = prune_selection(sel, config.prune_config, progress=progress)
+        elif config.prune:
+            entry["prune_skipped"] = (f"only {int(sel.selected.sum())} Gaussians selected, not more than "
+                                      f"k = {config.prune_config.k} neighbours")
+        selected = _without_features(sel.cloud)
+        write_ply(selected, odir / "selected.ply")
+        entry["selected"] = int(sel.selected.sum())
+        if sel.prune_report is not None:
+            entry["prune"] = sel.prune_report.to_dict()
         entry["select_s"] = time.perf_counter() - t
         entry["gaussians_selected_and_pruned"] = len(selected)
         final = selected
         t = time.perf_counter()
         if config.inpaint:
-            refined_path = odir / "refined.ply"
-            if refined_path.is_file() and not overwrite:
-                final = read_ply(refined_path)
-                report["reused"].append(f"refine {object_id}")
-            else:
-                if dataset is None:
-                    dataset = load_dataset(data_dir, config.downscale)
-                views = dataset.train_indices
-                res = refine_object(selected, scene_cloud, dataset.images[views], [dataset.cameras[v] for v in views],
-                                    _object_masks(dataset, model, int(object_id), views), inpainter=config.inpainter,
-                                    occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
-                                    progress=progress)
-                final = res.cloud
-                write_ply(final, refined_path)
-                entry["perceptual_loss"] = res.finetune.perceptual
-                entry["inpainter"] = res.inpainter
+            views = dataset.train_indices
+            res = refine_object(selected, scene, dataset.images[views], [dataset.cameras[v] for v in views],
+                                _object_masks(masks, int(object_id), views), inpainter=config.inpainter,
+                                occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
+                                progress=progress)
+            final = res.cloud
+            entry["perceptual_loss"] = res.finetune.perceptual
+            entry["inpainter"] = res.inpainter
         entry["refine_s"] = time.perf_counter() - t
         write_ply(final, odir / "object.ply")
         _picture(final, odir / "object.png")
         entry["object_ply"] = str(odir / "object.ply")
         entry["gaussians"] = len(final)
+        files.write_json({**wanted, "entry": entry}, stage_file)  # last: marks the object as finished
         report["objects"][str(object_id)] = entry
-    report["model"] = str(folder.root)
+    report["model"] = str(model.root)
     report["config"] = asdict(config)
     files.write_json(report, out / "report.json")
     return report

@@ -5,14 +5,15 @@ ROODI trains the scene first and distils the masks into object features afterwar
 every training step renders the features beside the colour, and the classifier's cross-entropy against the view's
 mask, divided by log(C), is added to the photometric loss with weight 1 (Gaussian Grouping's ``loss_obj``), so the
 object loss also moves the geometry. Relocation and growth of the MCMC strategy copy the features with the other
-per-Gaussian parameters. The result is written like a trained and distilled model (the PLY with
-``object_feature_*`` columns and ``object_classifier.pt``), so selection and everything after it run unchanged.
+per-Gaussian parameters. The result is a trained model folder plus a distilled scene in memory, saved like any
+distillation, so selection and everything after it run unchanged.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..io.datasets import Dataset
-from .distill import DistillConfig, DistillResult, ObjectClassifier
+from .distill import DistillConfig, DistilledScene, DistillResult, ObjectClassifier
 from ..errors import ConfigError
 from ..progress import ProgressFactory, null_progress
 from ..render.rasterizer import RasterOutput
@@ -96,15 +97,16 @@ class JointTrainer(Trainer):
 
 def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(),
                 distill: DistillConfig = DistillConfig(), *, downscale: float = 1, resume: bool = False,
-                overwrite: bool = False, progress: ProgressFactory = null_progress) -> TrainResult:
+                overwrite: bool = False, dataset: Dataset | None = None,
+                progress: ProgressFactory = null_progress) -> tuple[TrainResult, DistilledScene]:
     """Train a scene and its object features together from the dataset's own instance masks; return the training
-    result after writing the model folder as :func:`~roodi_toolkit.pipeline.train.train_scene` and the distillation as
-    :func:`~roodi_toolkit.pipeline.distill.save_distillation` do.
+    result (the model folder written as :func:`~roodi_toolkit.pipeline.train.train_scene` does) and the distilled
+    scene (for :func:`~roodi_toolkit.pipeline.distill.save_distilled`).
 
     Raises:
         RoodiError: no masks in the dataset, or what training raises.
     """
-    from .distill import find_model, save_distillation, scene_labels
+    from .distill import finish_distillation, scene_labels
     from .segment import FilesSegmenter, SegmentPrompt
     from .train import train_scene
 
@@ -116,16 +118,14 @@ def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
 
     t0 = time.perf_counter()
     result = train_scene(data_dir, out_dir, config, downscale=downscale, resume=resume, overwrite=overwrite,
-                         progress=progress, make_trainer=make)
+                         progress=progress, make_trainer=make, dataset=dataset)
     trainer = trainers[-1]
-    classifier = trainer.classifier()
-    labels = scene_labels(data_dir)
-    classifier.labels = {i: n for i, n in labels.items() if i < trainer.masks.num_classes}
     cloud = trainer.to_cloud()
-    features = trainer.params["features"].detach().clone()
     cloud.extras = {}
-    save_distillation(find_model(out_dir), cloud,
-                      DistillResult(features, classifier, [], time.perf_counter() - t0, list(trainer.train_indices)),
-                      {"data_dir": str(data_dir), "downscale": downscale, "segmenter": "files",
-                       "single_stage": True})
-    return result
+    features = trainer.params["features"].detach().clone()
+    learned = DistillResult(features, trainer.classifier(), [], time.perf_counter() - t0, list(trainer.train_indices))
+    distilled = finish_distillation(cloud, learned, trainer.dataset, trainer.masks,
+                                    holdout_every=config.holdout_every, labels=scene_labels(data_dir),
+                                    progress=progress)
+    distilled.summary.update({"segmenter": "files", "config": asdict(distill), "single_stage": True})
+    return result, distilled

@@ -433,17 +433,15 @@ class TrainResult:
     seconds: float
     seconds_per_iteration: float
     history: list[dict[str, float]]
-
-
-def checkpoint_path(out_dir: Path) -> Path:
-    return out_dir / "checkpoints" / "latest.pt"
+    cloud: GaussianCloud | None = None
 
 
 def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(), *,
                 downscale: float = 1, resume: bool = False, overwrite: bool = False,
                 progress: ProgressFactory = null_progress, iterations_override: int | None = None,
                 on_step: Callable[[Trainer, dict[str, float]], None] | None = None,
-                make_trainer: Callable[[Dataset, TrainConfig], Trainer] | None = None) -> TrainResult:
+                make_trainer: Callable[[Dataset, TrainConfig], Trainer] | None = None,
+                dataset: Dataset | None = None) -> TrainResult:
     """Train a scene model and write it in the layout other 3DGS tools read; return where it is and its figures.
 
     Writes ``out_dir/point_cloud/iteration_N/point_cloud.ply`` (Inria PLY), ``checkpoints/latest.pt`` (every
@@ -463,14 +461,16 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
         on_step: called after every step (tests use it to interrupt a run).
         make_trainer: builds the trainer from the dataset and config (default :class:`Trainer`; the single-stage
             ablation passes one that also trains object features).
+        dataset: ``data_dir`` already decoded at ``downscale`` (the caller's copy is used, not read again).
     """
     from ..io import files
     from ..io.datasets import load_dataset
+    from ..io.model import checkpoint_file, iteration_ply
     from ..io.ply import write_ply
 
     out = Path(out_dir)
     if resume:
-        ckpt_file = checkpoint_path(out)
+        ckpt_file = checkpoint_file(out)
         if not ckpt_file.is_file():
             raise RoodiError(f"{out}: nothing to resume (no {ckpt_file.relative_to(out)}); run without --resume")
         state = files.load_checkpoint(ckpt_file)
@@ -482,7 +482,8 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     else:
         files.prepare_output_dir(out, overwrite=overwrite)
         state = None
-    dataset = load_dataset(data_dir, downscale)
+    if dataset is None:
+        dataset = load_dataset(data_dir, downscale)
     trainer = (make_trainer or Trainer)(dataset, config)
     if state is not None:
         trainer.load_state_dict(state)
@@ -503,7 +504,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
                     trainer.history.append({"step": float(trainer.step), "eval_psnr": ev["psnr"],
                                             "eval_ssim": ev["ssim"]})
             if trainer.step % config.checkpoint_every == 0 or trainer.step == config.iterations:
-                files.save_checkpoint(trainer.state_dict(), checkpoint_path(out))
+                files.save_checkpoint(trainer.state_dict(), checkpoint_file(out))
             bar.update(1)
             bar.set_postfix_str(f"loss {info['loss']:.4f} psnr {info['psnr']:.2f} n {info['count']}", refresh=False)
             if on_step is not None:
@@ -513,12 +514,13 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     if metrics:
         trainer.history.append({"step": float(trainer.step), "eval_psnr": metrics["psnr"],
                                 "eval_ssim": metrics["ssim"]})
-    ply_path = out / "point_cloud" / f"iteration_{trainer.step}" / "point_cloud.ply"
+    ply_path = iteration_ply(out, trainer.step)
     ply_path.parent.mkdir(parents=True, exist_ok=True)
-    write_ply(trainer.to_cloud(), ply_path)
+    cloud = trainer.to_cloud()
+    write_ply(cloud, ply_path)
     steps_run = trainer.step - start_step
     result = TrainResult(ply_path, trainer.step, trainer.num_gaussians, metrics, seconds,
-                         seconds / steps_run if steps_run else 0.0, trainer.history)
+                         seconds / steps_run if steps_run else 0.0, trainer.history, cloud)
     files.write_json({"iterations": trainer.step, "num_gaussians": trainer.num_gaussians, "eval": metrics,
                       "eval_views": [dataset.cameras[i].name for i in trainer.eval_indices],
                       "seconds_this_run": seconds, "seconds_per_iteration": result.seconds_per_iteration,
