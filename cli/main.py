@@ -21,6 +21,7 @@ from roodi_toolkit._version import __version__
 
 # name -> "module:attribute" of a click.Command. One line per command.
 COMMANDS: dict[str, str] = {
+    "batch": "roodi_toolkit.cli.cmd_batch:batch",
     "benchmark": "roodi_toolkit.cli.cmd_benchmark:benchmark",
     "demo": "roodi_toolkit.cli.cmd_demo:demo",
     "evaluate": "roodi_toolkit.cli.cmd_evaluate:evaluate",

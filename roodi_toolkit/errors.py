@@ -30,3 +30,11 @@ class PluginError(RoodiError):
 
 class ConfigError(RoodiError):
     """An option or configuration value is out of range or inconsistent."""
+
+
+class InputError(RoodiError):
+    """A file or option the user gave is wrong: missing, malformed, out of range or inconsistent."""
+
+
+class EnvironmentProblemError(RoodiError):
+    """The machine is at fault, not the input: a missing system library, a read-only folder, a full disk, no display."""

@@ -1,0 +1,84 @@
+"""One output function for batch results: a local path (atomic rename) or any fsspec URL (``s3://``, ``gs://``,
+``memory://`` ...) where the user has the driver installed.
+
+Writers in this package take a local file path (formats pick their encoding from the extension), so a result is
+first written to a temporary file beside a local destination, or in a temporary folder for a URL, and then moved or
+uploaded whole: a reader never sees half an output, and a killed batch leaves none under the final name.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+from typing import Callable
+
+from ..errors import EnvironmentProblemError, OutputError
+
+
+def is_url(path: str) -> bool:
+    """Return True for an fsspec URL (``scheme://...``), False for a local path (``file://`` counts as a URL)."""
+    return "://" in str(path)
+
+
+def _filesystem(url: str):
+    try:
+        import fsspec
+    except ImportError:
+        raise EnvironmentProblemError(f"{url}: writing to URLs needs fsspec (pip install fsspec)") from None
+    try:
+        fs, path = fsspec.core.url_to_fs(url)
+    except (ImportError, ValueError) as exc:
+        raise EnvironmentProblemError(f"{url}: no fsspec driver for this URL ({exc}); install the driver (for example "
+                                      "s3fs or gcsfs)") from None
+    return fs, path
+
+
+def output_exists(dest: str) -> bool:
+    """Return whether ``dest`` (a path or URL) exists."""
+    if is_url(dest):
+        fs, path = _filesystem(dest)
+        return bool(fs.exists(path))
+    return Path(dest).is_file()
+
+
+def write_output(dest: str, write: Callable[[Path], None]) -> str:
+    """Call ``write(tmp_path)`` and put what it wrote at ``dest`` whole; return ``dest``.
+
+    The temporary file keeps ``dest``'s name (hence its extension, which writers read the format from).
+    """
+    if not is_url(dest):
+        from ..io.files import atomic_path
+
+        Path(dest).parent.mkdir(parents=True, exist_ok=True)
+        suffix = "".join(Path(dest).suffixes[-2:]) if dest.lower().endswith(".compressed.ply") else None
+        with atomic_path(dest, suffix=suffix) as tmp:
+            write(tmp)
+        return dest
+    fs, path = _filesystem(dest)
+    with tempfile.TemporaryDirectory(prefix="roodi-batch-") as folder:
+        tmp = Path(folder) / Path(path).name
+        write(tmp)
+        try:
+            parent = path.rsplit("/", 1)[0] if "/" in path else ""
+            if parent:
+                fs.makedirs(parent, exist_ok=True)
+            fs.put_file(str(tmp), path + ".part")
+            with contextlib.suppress(FileNotFoundError):
+                fs.rm_file(path)
+            fs.mv(path + ".part", path)
+        except OSError as exc:
+            raise OutputError(f"{dest}: upload failed ({exc})") from None
+    return dest
+
+
+def remove_output(dest: str) -> None:
+    """Remove ``dest`` if it exists (a path or URL)."""
+    if is_url(dest):
+        fs, path = _filesystem(dest)
+        with contextlib.suppress(FileNotFoundError):
+            fs.rm_file(path)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(dest)
