@@ -6,6 +6,7 @@ from typing import Any
 
 import click
 
+from roodi_toolkit.cli.cmd_extract import extract_config_from_options, extract_options
 from roodi_toolkit.cli.common import progress_factory, quiet_option
 from roodi_toolkit.cli.prune_options import prune_config_from_options, prune_options
 
@@ -22,6 +23,7 @@ Examples:
   roodi-toolkit batch prune manifest.csv s3://my-bucket/clean --ray ray://head:10001
   roodi-toolkit batch convert captures/ web/ --to .spz --ray local
   roodi-toolkit batch info captures/ info/
+  roodi-toolkit batch extract scenes/kitchen out/ --object all --jobs 2
 
 Results go to OUT/results.jsonl (or --results), one line per item as it finishes; a re-run skips the items whose
 output exists and whose input and settings are unchanged, so a killed batch resumes where it stopped.
@@ -48,7 +50,8 @@ def _common(func: Any) -> Any:
 
 @click.group(epilog=EPILOG)
 def batch() -> None:
-    """Run prune, convert or info over many splat files: one item per worker, results as JSON lines."""
+    """Run prune, convert or info over many splat files, or extract every object of a scene: one item per worker,
+    results as JSON lines."""
 
 
 def _run(task: str, source: str, out: str, suffix: str | None, settings: dict[str, Any], jobs: int,
@@ -67,6 +70,11 @@ def _run(task: str, source: str, out: str, suffix: str | None, settings: dict[st
             raise click.BadParameter("with a URL as OUT, give a local --results file", param_hint="--results")
     summary = run_batch(task, items, results, settings=settings, jobs=jobs, ray=ray_address, rerun=rerun,
                         progress=progress_factory(quiet))
+    _report(task, summary, results)
+
+
+def _report(task: str, summary: Any, results: str) -> None:
+    """Echo the batch's outcome; raise (exit 1) if any item failed."""
     failed = [line for line in summary.lines if line["status"] == "failed"]
     for line in failed[:10]:
         click.echo(f"failed: {line['item']}: {line.get('error')}", err=True)
@@ -109,3 +117,40 @@ def batch_info(source: str, out: str, jobs: int, ray_address: str | None, result
                quiet: bool) -> None:
     """Describe every splat of SOURCE (count, SH degree, bounds, opacities, scales, bad rows) as OUT/<name>.json."""
     _run("info", source, out, ".json", {}, jobs, ray_address, results, rerun, quiet)
+
+
+@batch.command("extract")
+@click.argument("data_dir", type=str)
+@click.argument("out", type=str)
+@click.option("--object", "object_ids", multiple=True, required=True, metavar="ID|all",
+              help="An object to extract (repeat), or 'all' for every object of the distillation.")
+@click.option("--jobs", "-j", type=click.IntRange(1, 256), default=1, show_default=True,
+              help="Worker processes on this machine (one object each at a time); with --ray local, its CPUs.")
+@click.option("--ray", "ray_address", default=None, metavar="ADDRESS",
+              help="Run the objects as Ray tasks on this cluster, or 'local' to start Ray here.")
+@click.option("--results", default=None, help="The JSON-lines results file [OUT/results.jsonl].")
+@click.option("--rerun", is_flag=True, help="Extract every object again, even those an earlier run finished.")
+@extract_options
+@quiet_option
+def batch_extract(data_dir: str, out: str, object_ids: tuple[str, ...], jobs: int, ray_address: str | None,
+                  results: str | None, rerun: bool, model_dir: str | None, distill_dir: str | None, quiet: bool,
+                  **stage_options: Any) -> None:
+    """Extract objects of DATA_DIR into OUT/object_<ID>/: the scene is trained and distilled once (or taken from
+    --model and --distill), then every object is an item of the batch."""
+    from roodi_toolkit.batch.items import Item
+    from roodi_toolkit.batch.runner import run_batch
+    from roodi_toolkit.pipeline.extract import prepare_scene
+
+    config = extract_config_from_options(**stage_options)
+    progress = progress_factory(quiet)
+    prepared = prepare_scene(data_dir, out, model_dir=model_dir, distill_dir=distill_dir, config=config,
+                             progress=progress)
+    ids = prepared.object_ids(object_ids)
+    items = [Item(f"object_{i}", data_dir, str(prepared.out / f"object_{i}" / "object.ply"), {"object": i})
+             for i in ids]
+    results = results or str(prepared.out / "results.jsonl")
+    settings = {"config": config, "out": str(prepared.out), "model_dir": model_dir, "distill_dir": distill_dir}
+    del prepared  # the workers load the scene themselves
+    summary = run_batch("extract", items, results, settings=settings, jobs=jobs, ray=ray_address, rerun=rerun,
+                        progress=progress)
+    _report("extract", summary, results)

@@ -86,8 +86,26 @@ def _info(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
     return {"count": stats["count"], "sh_degree": stats["sh_degree"], "nonfinite_rows": stats["nonfinite_rows"]}
 
 
+_PREPARED: dict[tuple[str, str], Any] = {}
+"""The scene a worker process has loaded (dataset, model, distillation), reused by its next object of that scene."""
+
+
+def _extract(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
+    from ..pipeline.extract import extract_object, prepare_scene
+
+    config = settings["config"]
+    key = (item.input, settings["out"])
+    if key not in _PREPARED:
+        _PREPARED.clear()  # one scene held per worker
+        # the shared stages are made by the batch before its items start: here they are only reused
+        _PREPARED[key] = prepare_scene(item.input, settings["out"], model_dir=settings.get("model_dir"),
+                                       distill_dir=settings.get("distill_dir"), config=config)
+    entry = extract_object(_PREPARED[key], int(item.options["object"]), config=config)
+    return {k: entry[k] for k in ("gaussians", "gaussians_selected_and_pruned", "object_ply") if k in entry}
+
+
 TASKS: dict[str, Callable[[Item, dict[str, Any]], dict[str, Any]]] = {
-    "prune": _prune, "convert": _convert, "info": _info}
+    "prune": _prune, "convert": _convert, "info": _info, "extract": _extract}
 
 
 def run_item(task: str, item: Item, settings: dict[str, Any]) -> dict[str, Any]:

@@ -141,36 +141,79 @@ def _picture(cloud: GaussianCloud, path: Path, size: int = 192) -> None:
     write_image(np.concatenate(row, axis=1), path)
 
 
-def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Sequence[int], *,
-                    model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
-                    config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
-                    progress: ProgressFactory = null_progress) -> dict[str, Any]:
-    """Return a report of every stage after writing each object's clean model into ``out_dir``.
+@dataclass
+class PreparedScene:
+    """The stages every object of a scene shares, in memory: what :func:`prepare_scene` hands to
+    :func:`extract_object`.
 
-    Args:
-        data_dir: the posed images (Blender or COLMAP; masks from the dataset's instance maps).
-        out_dir: the output folder; finished stages in it are reused when made with the same settings
-            (``overwrite`` makes every stage again).
-        object_ids: the instance ids of the objects to extract (they share the scene and the distillation).
-        model_dir: a trained scene (``roodi-toolkit train`` output) to use instead of training one; only read.
-        distill_dir: a distillation of that scene (``roodi-toolkit distill`` output) to use instead of distilling;
-            only read.
-        config: settings of every stage.
-        overwrite: make every stage again instead of reusing what a previous run left.
-        progress: progress factory.
+    Attributes:
+        out: the extraction's output folder.
+        dataset: the posed images, decoded once.
+        scene: the trained scene without object features.
+        cloud: the scene with its object features as columns.
+        classifier: the distillation's classifier.
+        masks: class maps ``[N, H, W]`` of the dataset's views (the dataset's own, or the distilled masks), or None.
+        model: the trained model folder.
+        distill_dir: the distillation folder.
+        distill_record: its ``distill.json``.
+        downscale: the image downscale of every stage.
+        report: the shared stages' part of the report (timings, reused and remade stages).
+    """
+
+    out: Path
+    dataset: Any
+    scene: GaussianCloud
+    cloud: GaussianCloud
+    classifier: Any
+    masks: Optional[torch.Tensor]
+    model: Any
+    distill_dir: Path
+    distill_record: dict[str, Any]
+    downscale: float
+    report: dict[str, Any]
+
+    def object_ids(self, requested: Sequence[int | str]) -> list[int]:
+        """Return the object ids to extract: ``requested`` as integers, ``"all"`` meaning every class of the
+        distillation but the background (0).
+
+        Raises:
+            ConfigError: an id that is not an integer or not one of the distillation's classes.
+        """
+        ids: list[int] = []
+        for value in requested:
+            if str(value).strip().lower() == "all":
+                ids += [i for i in range(1, self.classifier.num_classes) if i not in ids]
+                continue
+            try:
+                i = int(value)
+            except (TypeError, ValueError):
+                raise ConfigError(f"--object: expected an instance id or 'all', got {value!r}") from None
+            if not 0 < i < self.classifier.num_classes:
+                raise ConfigError(f"--object {i}: not one of the distillation's objects "
+                                  f"1..{self.classifier.num_classes - 1}")
+            if i not in ids:
+                ids.append(i)
+        if not ids:
+            raise ConfigError("give at least one object id to extract (or --object all)")
+        return ids
+
+
+def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str | Path | None = None,
+                  distill_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
+                  overwrite: bool = False, progress: ProgressFactory = null_progress) -> PreparedScene:
+    """Return the stages the objects of a scene share: the decoded dataset, the trained scene (trained into
+    ``out_dir/scene`` unless ``model_dir`` is given) and its distillation (into ``out_dir/distill`` unless
+    ``distill_dir`` is given), each reused when a previous run made it with the same settings.
+    Arguments as :func:`extract_objects`.
     """
     from ..io import files
     from ..io.datasets import load_dataset
     from ..io.model import DISTILL_RECORD, checkpoint_file, find_model
-    from ..io.ply import read_ply, write_ply
+    from ..io.ply import read_ply
     from .distill import _without_features, distill_scene, load_distillation, save_distilled, scene_labels
-    from .finetune import refine_object
     from .segment import FilesSegmenter, SegmentPrompt
-    from .select import prune_selection, select_object
     from .train import train_scene
 
-    if not object_ids:
-        raise ConfigError("give at least one object id to extract")
     if config.single_stage and (model_dir is not None or distill_dir is not None):
         raise ConfigError("single-stage training trains the scene and its features together; it cannot start from "
                           "--model or --distill")
@@ -234,8 +277,7 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
         if not distillation.model_ply.samefile(model.ply_path):
             raise ConfigError(f"{distill_dir} is a distillation of {distillation.model_ply}, not of --model "
                               f"{model.ply_path}")
-        masks_dir = distillation.masks_dir
-        report["distill_dir"] = str(distill_dir)
+        distill_out = Path(distill_dir)
     else:
         wanted = {**distill_wanted, "model_ply": str(model.ply_path.resolve())}
         if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite):
@@ -250,62 +292,105 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
                             "single_stage": config.single_stage, "model_dir": str(model.root.resolve())})
             report["distill"] = {k: v for k, v in distilled.summary.items() if k != "history"}
             cloud, classifier = distilled.cloud, distilled.classifier
-        masks_dir = distill_out / "object_masks"
-        report["distill_dir"] = str(distill_out)
+    report["distill_dir"] = str(distill_out)
     timings["distill_s"] = time.perf_counter() - t
     masks = dataset.masks
     if masks is None and config.inpaint:  # the masks the features were distilled from
-        masks = FilesSegmenter(masks_dir).segment(dataset, SegmentPrompt()).masks
-    distill_record = files.read_json(Path(report["distill_dir"]) / DISTILL_RECORD, "distillation record")
-
-    for object_id in object_ids:
-        odir = out / f"object_{object_id}"
-        odir.mkdir(exist_ok=True)
-        wanted = {"object": int(object_id), "threshold": config.threshold, "prune": config.prune,
-                  "prune_config": _settings(config.prune_config), "inpaint": config.inpaint,
-                  "inpainter": config.inpainter, "occlusion": _settings(config.occlusion),
-                  "finetune": _settings(config.finetune), "downscale": downscale,
-                  "features_of": distill_record.get("model_ply_sha256"),
-                  "distillation": {k: distill_record.get(k) for k in ("config", "segmenter", "data_dir")}}
-        stage_file = odir / "stage.json"
-        old = files.read_json(stage_file, "object record") if stage_file.is_file() else None
-        if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite):
-            report["objects"][str(object_id)] = old["entry"]
-            continue
-        entry: dict[str, Any] = {}
-        t = time.perf_counter()
-        sel = select_object(cloud, classifier, int(object_id), threshold=config.threshold, prune=False)
-        if config.prune and int(sel.selected.sum()) > config.prune_config.k:
-            sel = prune_selection(sel, config.prune_config, progress=progress)
-        elif config.prune:
-            entry["prune_skipped"] = (f"only {int(sel.selected.sum())} Gaussians selected, not more than "
-                                      f"k = {config.prune_config.k} neighbours")
-        selected = _without_features(sel.cloud)
-        write_ply(selected, odir / "selected.ply")
-        entry["selected"] = int(sel.selected.sum())
-        if sel.prune_report is not None:
-            entry["prune"] = sel.prune_report.to_dict()
-        entry["select_s"] = time.perf_counter() - t
-        entry["gaussians_selected_and_pruned"] = len(selected)
-        final = selected
-        t = time.perf_counter()
-        if config.inpaint:
-            views = dataset.train_indices
-            res = refine_object(selected, scene, dataset.images[views], [dataset.cameras[v] for v in views],
-                                _object_masks(masks, int(object_id), views), inpainter=config.inpainter,
-                                occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
-                                progress=progress)
-            final = res.cloud
-            entry["perceptual_loss"] = res.finetune.perceptual
-            entry["inpainter"] = res.inpainter
-        entry["refine_s"] = time.perf_counter() - t
-        write_ply(final, odir / "object.ply")
-        _picture(final, odir / "object.png")
-        entry["object_ply"] = str(odir / "object.ply")
-        entry["gaussians"] = len(final)
-        files.write_json({**wanted, "entry": entry}, stage_file)  # last: marks the object as finished
-        report["objects"][str(object_id)] = entry
+        masks = FilesSegmenter(distill_out / "object_masks").segment(dataset, SegmentPrompt()).masks
     report["model"] = str(model.root)
+    return PreparedScene(out, dataset, scene, cloud, classifier, masks, model, distill_out,
+                         files.read_json(distill_out / DISTILL_RECORD, "distillation record"), downscale, report)
+
+
+def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractConfig = ExtractConfig(),
+                   overwrite: bool = False, progress: ProgressFactory = null_progress) -> dict[str, Any]:
+    """Return the report entry of one object after writing it into ``OUT/object_<ID>/`` (selection, pruning,
+    occlusion-reasoned inpainting, fine-tuning); an earlier result made with the same settings is reused."""
+    from ..io import files
+    from ..io.ply import write_ply
+    from .distill import _without_features
+    from .finetune import refine_object
+    from .select import prune_selection, select_object
+
+    stages = _Stages(prepared.report)
+    odir = prepared.out / f"object_{object_id}"
+    odir.mkdir(exist_ok=True)
+    record = prepared.distill_record
+    wanted = {"object": int(object_id), "threshold": config.threshold, "prune": config.prune,
+              "prune_config": _settings(config.prune_config), "inpaint": config.inpaint,
+              "inpainter": config.inpainter, "occlusion": _settings(config.occlusion),
+              "finetune": _settings(config.finetune), "downscale": prepared.downscale,
+              "features_of": record.get("model_ply_sha256"),
+              "distillation": {k: record.get(k) for k in ("config", "segmenter", "data_dir")}}
+    stage_file = odir / "stage.json"
+    old = files.read_json(stage_file, "object record") if stage_file.is_file() else None
+    if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite):
+        return old["entry"]
+    entry: dict[str, Any] = {}
+    t = time.perf_counter()
+    sel = select_object(prepared.cloud, prepared.classifier, int(object_id), threshold=config.threshold, prune=False)
+    if config.prune and int(sel.selected.sum()) > config.prune_config.k:
+        sel = prune_selection(sel, config.prune_config, progress=progress)
+    elif config.prune:
+        entry["prune_skipped"] = (f"only {int(sel.selected.sum())} Gaussians selected, not more than "
+                                  f"k = {config.prune_config.k} neighbours")
+    selected = _without_features(sel.cloud)
+    write_ply(selected, odir / "selected.ply")
+    entry["selected"] = int(sel.selected.sum())
+    if sel.prune_report is not None:
+        entry["prune"] = sel.prune_report.to_dict()
+    entry["select_s"] = time.perf_counter() - t
+    entry["gaussians_selected_and_pruned"] = len(selected)
+    final = selected
+    t = time.perf_counter()
+    if config.inpaint:
+        ds = prepared.dataset
+        views = ds.train_indices
+        res = refine_object(selected, prepared.scene, ds.images[views], [ds.cameras[v] for v in views],
+                            _object_masks(prepared.masks, int(object_id), views), inpainter=config.inpainter,
+                            occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
+                            progress=progress)
+        final = res.cloud
+        entry["perceptual_loss"] = res.finetune.perceptual
+        entry["inpainter"] = res.inpainter
+    entry["refine_s"] = time.perf_counter() - t
+    write_ply(final, odir / "object.ply")
+    _picture(final, odir / "object.png")
+    entry["object_ply"] = str(odir / "object.ply")
+    entry["gaussians"] = len(final)
+    files.write_json({**wanted, "entry": entry}, stage_file)  # last: marks the object as finished
+    return entry
+
+
+def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Sequence[int | str], *,
+                    model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
+                    config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
+                    progress: ProgressFactory = null_progress) -> dict[str, Any]:
+    """Return a report of every stage after writing each object's clean model into ``out_dir``.
+
+    Args:
+        data_dir: the posed images (Blender or COLMAP; masks from the dataset's instance maps).
+        out_dir: the output folder; finished stages in it are reused when made with the same settings
+            (``overwrite`` makes every stage again).
+        object_ids: the instance ids of the objects to extract, or ``"all"`` (they share the scene and the
+            distillation).
+        model_dir: a trained scene (``roodi-toolkit train`` output) to use instead of training one; only read.
+        distill_dir: a distillation of that scene (``roodi-toolkit distill`` output) to use instead of distilling;
+            only read.
+        config: settings of every stage.
+        overwrite: make every stage again instead of reusing what a previous run left.
+        progress: progress factory.
+    """
+    from ..io import files
+
+    if not object_ids:
+        raise ConfigError("give at least one object id to extract (or --object all)")
+    prepared = prepare_scene(data_dir, out_dir, model_dir=model_dir, distill_dir=distill_dir, config=config,
+                             overwrite=overwrite, progress=progress)
+    report = prepared.report
+    for object_id in prepared.object_ids(object_ids):
+        report["objects"][str(object_id)] = extract_object(prepared, object_id, config=config, overwrite=overwrite,
+                                                           progress=progress)
     report["config"] = asdict(config)
-    files.write_json(report, out / "report.json")
+    files.write_json(report, prepared.out / "report.json")
     return report
