@@ -99,20 +99,22 @@ def _object_masks(dataset: Any, model_dir: Path, object_id: int, views: Sequence
     return torch.stack(masks)
 
 
-def _picture(cloud: GaussianCloud, path: Path, size: int = 192) -> None:
+def _picture(cloud: GaussianCloud, path: Path, size: int = 192, renderer: Any = None) -> None:
     """Write the object from four directions on white."""
     from ..io.files import write_image
     from ..render.views import framing_orbit
     from ..render.renderer import render_cloud
 
     cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size)
-    row = [render_cloud(cloud, c, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy() for c in cams]
+    row = [render_cloud(cloud, c, renderer=renderer, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy()
+           for c in cams]
     write_image(np.concatenate(row, axis=1), path)
 
 
 def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Sequence[int], *,
                     model_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
-                    overwrite: bool = False, progress: ProgressFactory = null_progress) -> dict[str, Any]:
+                    overwrite: bool = False, progress: ProgressFactory = null_progress,
+                    renderer: Any = None) -> dict[str, Any]:
     """Return a report of every stage after writing each object's clean model into ``out_dir``.
 
     Args:
@@ -124,8 +126,11 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
         config: settings of every stage.
         overwrite: remove what a previous run left instead of reusing it.
         progress: progress factory.
+        renderer: a :class:`~roodi_toolkit.render.renderer.Renderer` (or registered name) every stage renders with;
+            default the built-in CPU renderer.
     """
     from ..io import files
+    from ..render.renderer import resolve_renderer
     from ..io.datasets import load_dataset
     from .distill import load_distillation, run_distill, select_object
     from .finetune import refine_object
@@ -139,6 +144,7 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True)
     report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}, "reused": []}
     timings = report["stages"]
+    renderer = resolve_renderer(renderer)
 
     t = time.perf_counter()
     if model_dir is None:
@@ -151,10 +157,10 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
                 from .joint import train_joint
 
                 train_joint(data_dir, model, config.train, config.distill, downscale=config.downscale,
-                            resume=resume, overwrite=not resume, progress=progress)
+                            resume=resume, overwrite=not resume, progress=progress, renderer=renderer)
             else:
                 train_scene(data_dir, model, config.train, downscale=config.downscale, resume=resume,
-                            overwrite=not resume, progress=progress)
+                            overwrite=not resume, progress=progress, renderer=renderer)
     else:
         model = Path(model_dir)
     timings["train_s"] = time.perf_counter() - t
@@ -167,7 +173,7 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
         report["reused"].append("distill")
     else:
         report["distill"] = run_distill(model, data_dir, config=config.distill, downscale=config.downscale,
-                                        progress=progress)
+                                        progress=progress, renderer=renderer)
     folder, cloud, classifier = load_distillation(model)
     timings["distill_s"] = time.perf_counter() - t
     scene_cloud = _scene_only(cloud)
@@ -214,14 +220,14 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
                 res = refine_object(selected, scene_cloud, dataset.images[views], [dataset.cameras[v] for v in views],
                                     _object_masks(dataset, model, int(object_id), views), inpainter=config.inpainter,
                                     occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
-                                    progress=progress)
+                                    progress=progress, renderer=renderer)
                 final = res.cloud
                 write_ply(final, refined_path)
                 entry["perceptual_loss"] = res.finetune.perceptual
                 entry["inpainter"] = res.inpainter
         entry["refine_s"] = time.perf_counter() - t
         write_ply(final, odir / "object.ply")
-        _picture(final, odir / "object.png")
+        _picture(final, odir / "object.png", renderer=renderer)
         entry["object_ply"] = str(odir / "object.ply")
         entry["gaussians"] = len(final)
         report["objects"][str(object_id)] = entry
