@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import progress_factory, quiet_option
+from .common import progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Examples:
 
@@ -36,10 +38,11 @@ EXAMPLE = """Examples:
 @click.option("--downscale", type=click.FloatRange(1.0), default=None,
               help="Image downscale (default: the training run's, from MODEL_DIR/cfg.json).")
 @click.option("--seed", type=int, default=0, show_default=True)
+@renderer_option
 @quiet_option
 def distill(model_dir: str, data_dir: str, segmenter: str, clicks: tuple[str, ...], mask_dir: str | None,
             options: tuple[str, ...], iterations: int, feature_lr: float | None, classifier_lr: float | None,
-            downscale: float | None, seed: int, quiet: bool) -> None:
+            downscale: float | None, seed: int, renderer: Any, quiet: bool) -> None:
     """Distil object masks of DATA_DIR's views into the scene model in MODEL_DIR (a roodi-toolkit train output).
 
     Adds object_feature_0..15 columns to MODEL_DIR's point_cloud.ply (geometry and colours unchanged) and writes
@@ -66,7 +69,7 @@ def distill(model_dir: str, data_dir: str, segmenter: str, clicks: tuple[str, ..
     config = DistillConfig(iterations=iterations, seed=seed, **changes)
     summary = run_distill(model_dir, data_dir, segmenter=segmenter, clicks=parsed, mask_dir=mask_dir,
                           segmenter_options=opts, config=config, downscale=downscale,
-                          progress=progress_factory(quiet))
+                          progress=progress_factory(quiet), renderer=renderer)
     ev = summary["held_out"]
     iou = f", held-out mean IoU {ev['mean_iou']:.3f} over {len(ev['views'])} views" if ev.get("views") else ""
     click.echo(f"distilled {summary['num_classes']} classes into {summary['num_gaussians']:,} Gaussians in "

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option
+from .common import overwrite_option, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Example:
 
@@ -38,10 +40,11 @@ EXAMPLE = """Example:
               help="Learn the object features together with the scene instead of after it (ablation: w/o two-stage).")
 @click.option("--inpainter", default="opencv", show_default=True, help="Inpainter plugin (see roodi-toolkit plugins).")
 @overwrite_option
+@renderer_option
 @quiet_option
 def extract(data_dir: str, out_dir: str, object_ids: tuple[int, ...], model_dir: str | None, iterations: int | None,
             init: str, distill_iterations: int, threshold: float, no_prune: bool, no_inpaint: bool, distance: str,
-            rule: str, single_stage: bool, inpainter: str, overwrite: bool, quiet: bool) -> None:
+            rule: str, single_stage: bool, inpainter: str, overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
 
     Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object's selection and
@@ -60,7 +63,7 @@ def extract(data_dir: str, out_dir: str, object_ids: tuple[int, ...], model_dir:
                      prune_config=PruneConfig(distance=distance, rule=rule), inpaint=not no_inpaint,
                      inpainter=inpainter, single_stage=single_stage)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, config=config, overwrite=overwrite,
-                             progress=progress_factory(quiet))
+                             progress=progress_factory(quiet), renderer=renderer)
     if report["reused"]:
         click.echo(f"reused finished stages: {', '.join(report['reused'])}")
     for oid, entry in report["objects"].items():

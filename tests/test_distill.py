@@ -10,7 +10,8 @@ import torch
 
 from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier, compositing_weights, distill_object_features,
                                    evaluate_class_maps, find_model, gaussian_probabilities, load_distillation,
-                                   render_features, select_object, with_features, _frozen_tensors)
+                                   render_features, select_object, with_features)
+from roodi_toolkit.params import GaussianParams
 from roodi_toolkit.errors import ConfigError, RoodiError
 from roodi_toolkit.io.ply import read_ply
 from roodi_toolkit.pipeline.segment import ViewMasks
@@ -36,7 +37,7 @@ def distilled(scene):
 
 def test_cached_weights_render_what_the_rasterizer_renders(scene):
     ds, cloud, _ = scene
-    frozen = _frozen_tensors(cloud)
+    frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
     feats = torch.randn(len(cloud), 5, generator=torch.Generator().manual_seed(0))
     for v in (0, 5):
         expected = render_features(frozen, feats, ds.cameras[v])
