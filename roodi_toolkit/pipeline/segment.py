@@ -33,7 +33,6 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import torch
 
-from ..cameras import Camera
 from ..io.datasets import Dataset
 from ..errors import ConfigError, DatasetError, PluginError, RoodiError
 from ..gaussians import GaussianCloud
