@@ -33,7 +33,8 @@ from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object  # noq
 from roodi_toolkit.gaussians import GaussianCloud  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores  # noqa: E402
 from roodi_toolkit.synth.scenegen import build_scene, render_views, training_cameras  # noqa: E402
-from roodi_toolkit.pipeline.train import cloud_to_params, render_params  # noqa: E402
+from roodi_toolkit.params import GaussianParams  # noqa: E402
+from roodi_toolkit.render.renderer import TorchRenderer  # noqa: E402
 from tests.mesh_gaussians import hidden_truth, mesh_cloud, nearby  # noqa: E402
 
 
@@ -91,10 +92,11 @@ def psnr_figures(cloud: GaussianCloud, train_cams, images: torch.Tensor, masks: 
     """Return the object's PSNR on white: in the training views inside its mask ``[N, H, W]`` ("unoccluded"), and in
     the object-centred views against ``gt`` over the hidden-truth pixels ("occluded") and over the whole view."""
     white = torch.ones(3)
-    p = cloud_to_params(cloud)
+    p = GaussianParams.from_cloud(cloud)
+    renderer = TorchRenderer()
     with torch.no_grad():
-        tr = torch.stack([render_params(p, c, background=white).rgb for c in train_cams])
-        ov = torch.stack([render_params(p, c, background=white).rgb for c in object_cams])
+        tr = torch.stack([renderer.render(p, c, background=white).rgb for c in train_cams])
+        ov = torch.stack([renderer.render(p, c, background=white).rgb for c in object_cams])
     return {
         "unoccluded_train_psnr": masked_psnr(tr, images, masks),
         "occluded_hidden_psnr": masked_psnr(ov, gt, torch.as_tensor(truth)),

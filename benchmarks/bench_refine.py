@@ -57,7 +57,8 @@ from roodi_toolkit.evaluate.metrics import evaluate_object  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores, occlusion_masks, up_from_cameras  # noqa: E402
 from roodi_toolkit.io.ply import read_ply  # noqa: E402
 from roodi_toolkit.synth.scenegen import render_views, scene_from_record  # noqa: E402
-from roodi_toolkit.pipeline.train import cloud_to_params, render_params  # noqa: E402
+from roodi_toolkit.params import GaussianParams  # noqa: E402
+from roodi_toolkit.render.renderer import TorchRenderer  # noqa: E402
 
 FIGURES = ("occluded_hidden_psnr", "object_views_psnr", "unoccluded_train_psnr", "test_psnr", "test_iou")
 LABELS = {"occluded_hidden_psnr": "occluded PSNR (hidden-truth px)", "object_views_psnr": "object views PSNR",
@@ -182,9 +183,9 @@ def measure_preset(out_root: Path, scenes_root: Path, preset: str, control: bool
     scene_cloud = read_ply(find_model(full / "scene").ply_path)
     depths = None
     if control:  # as refine_object: where the scene may hide the object in the training views
-        params = cloud_to_params(scene_cloud)
+        params = GaussianParams.from_cloud(scene_cloud)
         with torch.no_grad():
-            depths = torch.stack([render_params(params, dataset.cameras[v]).depth[..., 0]
+            depths = torch.stack([TorchRenderer().render(params, dataset.cameras[v]).depth[..., 0]
                                   for v in dataset.train_indices])
     train_renders = render_views(scene, [dataset.cameras[v] for v in dataset.train_indices], supersample=1)
     rows = []

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option
+from .common import overwrite_option, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Example:
 
@@ -30,9 +32,11 @@ EXAMPLE = """Example:
 @click.option("--size", type=click.IntRange(16, 2048), default=None, help="Image size of the generated scenes.")
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Scene training iterations.")
 @overwrite_option
+@renderer_option
 @quiet_option
 def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[str, ...], seed: int,
-              scale: str, size: int | None, iterations: int | None, overwrite: bool, quiet: bool) -> None:
+              scale: str, size: int | None, iterations: int | None, overwrite: bool, renderer: Any,
+              quiet: bool) -> None:
     """Generate (or reuse) the preset scenes in ROOT, run ROODI, its baselines and ablations, and write
     OUT_DIR/results.md and results.json (the paper's Tables 1 and 2) and a picture grid per scene.
 
@@ -49,7 +53,8 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
     if iterations is not None:
         chosen = replace(chosen, iterations=iterations)
     results = run_benchmark(root, out_dir, presets=presets or PRESETS, seed=seed, size=chosen,
-                            methods=methods or tuple(METHODS), overwrite=overwrite, progress=progress_factory(quiet))
+                            methods=methods or tuple(METHODS), overwrite=overwrite, progress=progress_factory(quiet),
+                            renderer=renderer)
     for m, scores in results["mean"].items():
         iou = "n/a" if scores["iou"] is None else f"{scores['iou']:.3f}"
         psnr = "n/a" if scores["psnr"] is None else f"{scores['psnr']:.2f}"

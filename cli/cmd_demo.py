@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import overwrite_option, parse_size, progress_factory, quiet_option
+from .common import overwrite_option, parse_size, progress_factory, quiet_option, renderer_option
 
 PRESET_NAMES = ("bedroom", "kitchen", "livingroom", "picnic")
 SURFACES = ("ant", "sphere", "torus", "box")
@@ -56,11 +58,12 @@ def _scores(ev) -> str:
 @click.option("--surface", type=click.Choice(SURFACES), default=None,
               help="With --prune-only: the generated object's surface [ant].")
 @overwrite_option
+@renderer_option
 @quiet_option
 def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | None, size_text: str | None,
          train_views: int | None, test_views: int | None, iterations: int | None, max_gaussians: int | None,
          distill_iterations: int | None, finetune_iterations: int | None, view_size: int | None, prune_only: bool,
-         surface: str | None, overwrite: bool, quiet: bool) -> None:
+         surface: str | None, overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Extract one object from a generated scene into OUT_DIR, score it, and say where the PLY and pictures are.
 
     Generates a cluttered scene (make-scene), trains it, distils its instance masks, then selects, prunes, inpaints
@@ -98,7 +101,7 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
                       occlusion=replace(ex.occlusion, size=view_size or ex.occlusion.size))
     config = replace(base, preset=preset or base.preset, seed=base.seed if seed is None else seed,
                      object_id=object_id, scene=scene, extract=extract)
-    res = run_extract_demo(out_dir, config, overwrite=overwrite, progress=progress)
+    res = run_extract_demo(out_dir, config, overwrite=overwrite, progress=progress, renderer=renderer)
 
     st, g = res.stages, res.gaussians
     psnr = f", held-out PSNR {res.scene_psnr:.2f} dB" if res.scene_psnr is not None else ""

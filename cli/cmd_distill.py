@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option
+from .common import overwrite_option, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Examples:
 
@@ -39,10 +41,11 @@ EXAMPLE = """Examples:
               help="Image downscale (default: the training run's, from MODEL_DIR/cfg.json).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @overwrite_option
+@renderer_option
 @quiet_option
 def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks: tuple[str, ...], mask_dir: str | None,
             options: tuple[str, ...], iterations: int, feature_lr: float | None, classifier_lr: float | None,
-            downscale: float | None, seed: int, overwrite: bool, quiet: bool) -> None:
+            downscale: float | None, seed: int, overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Distil object masks of DATA_DIR's views into per-Gaussian features of the scene model in MODEL_DIR (a
     roodi-toolkit train output), written to the folder OUT_DIR.
 
@@ -70,7 +73,7 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
     config = DistillConfig(iterations=iterations, seed=seed, **changes)
     summary = run_distill(model_dir, data_dir, out_dir, segmenter=segmenter, clicks=parsed, mask_dir=mask_dir,
                           segmenter_options=opts, config=config, downscale=downscale, overwrite=overwrite,
-                          progress=progress_factory(quiet))
+                          progress=progress_factory(quiet), renderer=renderer)
     ev = summary["held_out"]
     iou = f", held-out mean IoU {ev['mean_iou']:.3f} over {len(ev['views'])} views" if ev.get("views") else ""
     click.echo(f"distilled {summary['num_classes']} classes into {summary['num_gaussians']:,} Gaussians in "

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option
+from .common import overwrite_option, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Example:
 
@@ -24,12 +26,12 @@ EXAMPLE = """Example:
               help="Write each render beside its ground truth into this folder.")
 @click.option("--lpips-weights", type=click.Path(path_type=str), default=None,
               help="Local LPIPS weights (default: $ROODI_LPIPS_WEIGHTS or the upstream local caches).")
-@click.option("--renderer", default="torch", show_default=True, help="Renderer plugin.")
+@renderer_option
 @click.option("--max-views", type=click.IntRange(1), default=None, help="Score only the first N test views.")
 @overwrite_option
 @quiet_option
 def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | None, renders_dir: str | None,
-             lpips_weights: str | None, renderer: str, max_views: int | None, overwrite: bool, quiet: bool) -> None:
+             lpips_weights: str | None, renderer: Any, max_views: int | None, overwrite: bool, quiet: bool) -> None:
     """Score OBJECT.ply against the true views of target --object in DATA_DIR (a make-scene folder).
 
     PSNR, SSIM and LPIPS inside 1.2x the true object's tight bounding box, and IoU of the rendered alpha, on a

@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option
+from .common import overwrite_option, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Example:
 
@@ -80,9 +80,10 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
                    "or 'all' for every object of the distillation.")
 @extract_options
 @overwrite_option
+@renderer_option
 @quiet_option
 def extract(data_dir: str, out_dir: str, object_ids: tuple[str, ...], model_dir: str | None,
-            distill_dir: str | None, overwrite: bool, quiet: bool, **stage_options: Any) -> None:
+            distill_dir: str | None, overwrite: bool, renderer: Any, quiet: bool, **stage_options: Any) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
 
     Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object) that were made
@@ -93,7 +94,7 @@ def extract(data_dir: str, out_dir: str, object_ids: tuple[str, ...], model_dir:
 
     config = extract_config_from_options(**stage_options)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
-                             config=config, overwrite=overwrite, progress=progress_factory(quiet))
+                             config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
     if report["reused"]:
         click.echo(f"reused finished stages: {', '.join(report['reused'])}")
     if report["recomputed"]:

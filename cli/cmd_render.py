@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import overwrite_option, parse_floats, parse_size, progress_factory, quiet_option
+from .common import overwrite_option, parse_floats, parse_size, progress_factory, quiet_option, renderer_option
 
 EPILOG = """Examples:
 
@@ -34,19 +36,17 @@ EPILOG = """Examples:
 @click.option("--what", type=click.Choice(["rgb", "depth", "alpha"]), default="rgb", show_default=True,
               help="rgb: colour PNG; depth: 16-bit PNG + coloured preview (scale in render.json); alpha: 8-bit PNG.")
 @click.option("--background", default="0,0,0", show_default=True, help="Background colour r,g,b in [0, 1].")
-@click.option("--renderer", default="torch", show_default=True,
-              help="Renderer plugin: torch (built-in, CPU) or an installed one such as gsplat (CUDA).")
+@renderer_option
 @overwrite_option
 @quiet_option
 def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, elevation: float,
            radius: float | None, fov: float, up: str, size_text: str | None, what: str, background: str,
-           renderer: str, overwrite: bool, quiet: bool) -> None:
+           renderer: Any, overwrite: bool, quiet: bool) -> None:
     """Render PLY into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
     from roodi_toolkit.errors import ConfigError
     from roodi_toolkit.io.files import prepare_output_dir
     from roodi_toolkit.io.ply import read_ply
     from roodi_toolkit.render.views import framing_orbit, render_views
-    from roodi_toolkit.render.renderer import get_renderer
 
     bg = parse_floats(background, 3, "--background")
     if not all(0.0 <= v <= 1.0 for v in bg):
@@ -56,7 +56,6 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
     if cameras_path and orbit is not None:
         raise click.UsageError("give either --cameras or --orbit, not both")
 
-    backend = get_renderer(renderer)  # fail on a missing plugin before reading anything
     cloud = read_ply(ply)
     cloud.require_finite(ply)
     if cameras_path:
@@ -72,7 +71,7 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         cams = framing_orbit(cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
                              fov_x_deg=fov, up=up_axis)
     out = prepare_output_dir(out_dir, overwrite=overwrite)
-    record = render_views(cloud, cams, out, what=what, renderer=backend, background=bg,
+    record = render_views(cloud, cams, out, what=what, renderer=renderer, background=bg,
                           progress=progress_factory(quiet))
     if not quiet:
         click.echo(f"wrote {len(record['views'])} {what} view(s) to {out}", err=True)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option
+from .common import overwrite_option, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Examples:
 
@@ -26,15 +28,16 @@ EXAMPLE = """Examples:
 @click.option("--picture", type=click.Path(path_type=str), default=None,
               help="Where to write the picture of rendered probabilities beside the masks [OUT.png].")
 @overwrite_option
+@renderer_option
 @quiet_option
 def select(distill_dir: str, output_ply: str, object_id: int, threshold: float, no_prune: bool, picture: str | None,
-           overwrite: bool, quiet: bool) -> None:
+           overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Write the Gaussians of object --object of the distillation DISTILL_DIR (a roodi-toolkit distill output) to
     OUT.ply; the scene is read from the model file the distillation names."""
     from roodi_toolkit.pipeline.select import run_select
 
     summary = run_select(distill_dir, object_id, output_ply, threshold=threshold, prune=not no_prune,
-                         picture=picture, overwrite=overwrite, progress=progress_factory(quiet))
+                         picture=picture, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
     pruned = f", {summary['pruned']:,} pruned as outliers" if summary["pruned"] is not None else ""
     name = f" ({summary['label']})" if summary.get("label") else ""
     click.echo(f"object {object_id}{name}: {summary['selected']:,} of {summary['num_gaussians']:,} Gaussians above "

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option
+from .common import overwrite_option, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Example:
 
@@ -34,11 +36,12 @@ EXAMPLE = """Example:
 @click.option("--resume", is_flag=True, help="Continue from OUT_DIR/checkpoints/latest.pt (its settings are kept; "
               "--iterations may extend the run).")
 @overwrite_option
+@renderer_option
 @quiet_option
 def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | None, sh_degree: int | None,
           downscale: float, init: str | None, init_points: int | None, random_background: bool,
           eval_every: int | None, checkpoint_every: int | None, seed: int | None, resume: bool, overwrite: bool,
-          quiet: bool) -> None:
+          renderer: Any, quiet: bool) -> None:
     """Train a 3DGS scene from posed images (Blender or COLMAP) into OUT_DIR.
 
     Writes OUT_DIR/point_cloud/iteration_N/point_cloud.ply (Inria PLY), checkpoints/latest.pt, cfg.json,
@@ -53,7 +56,8 @@ def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | No
                          init_num_points=init_points, random_background=random_background or None,
                          eval_every=eval_every, checkpoint_every=checkpoint_every, seed=seed)
     result = train_scene(data_dir, out_dir, config, downscale=downscale, resume=resume, overwrite=overwrite,
-                         progress=progress_factory(quiet), iterations_override=iterations if resume else None)
+                         progress=progress_factory(quiet), iterations_override=iterations if resume else None,
+                         renderer=renderer)
     ev = result.metrics
     figures = f", held-out PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}" if ev else ""
     click.echo(f"trained {result.iterations} iterations, {result.num_gaussians:,} Gaussians{figures} "

@@ -50,3 +50,17 @@ def parse_size(text: str, name: str = "--size") -> tuple[int, int]:
     if w <= 0 or h <= 0 or w > 16384 or h > 16384:
         raise click.BadParameter(f"size must be between 1 and 16384 pixels, got {text!r}", param_hint=name)
     return w, h
+
+
+def _load_renderer(ctx: click.Context, param: click.Parameter, value: str) -> Any:
+    """Return the renderer registered as ``value``: a missing or unavailable plugin fails before any work."""
+    from roodi_toolkit.render.renderer import get_renderer
+
+    return get_renderer(value)
+
+
+renderer_option = click.option(
+    "--renderer", default="torch", show_default=True, metavar="NAME", callback=_load_renderer,
+    help="Renderer plugin for every rendering of the command: torch (built-in, CPU) or an installed one such as "
+         "gsplat (CUDA); see roodi-toolkit plugins.")
+"""``--renderer NAME``: the command receives the :class:`~roodi_toolkit.render.renderer.Renderer` instance."""

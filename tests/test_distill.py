@@ -9,9 +9,10 @@ import pytest
 import torch
 
 from roodi_toolkit.io.model import find_model
+from roodi_toolkit.params import GaussianParams
 from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier, compositing_weights,
                                             distill_object_features, evaluate_class_maps, load_distillation,
-                                            render_features, with_features, _frozen_tensors)
+                                            render_features, with_features)
 from roodi_toolkit.pipeline.select import gaussian_probabilities, select_object
 from roodi_toolkit.errors import ConfigError, RoodiError
 from roodi_toolkit.io.ply import read_ply
@@ -38,7 +39,7 @@ def distilled(scene):
 
 def test_cached_weights_render_what_the_rasterizer_renders(scene):
     ds, cloud, _ = scene
-    frozen = _frozen_tensors(cloud)
+    frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
     feats = torch.randn(len(cloud), 5, generator=torch.Generator().manual_seed(0))
     for v in (0, 5):
         expected = render_features(frozen, feats, ds.cameras[v])

@@ -15,7 +15,6 @@ from roodi_toolkit.pipeline.finetune import (FinetuneConfig, LaplacianLoss, LPIP
                                     object_view_targets, perceptual_loss, refine_object, seed_hole_gaussians)
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, OcclusionResult
-from roodi_toolkit.pipeline.train import cloud_to_params, render_params
 
 from .test_inpaint import tiny_refine_inputs
 

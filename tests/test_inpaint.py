@@ -178,11 +178,12 @@ def tiny_refine_inputs():
     scene = GaussianCloud.concatenate([obj, card])
     cams = [Camera(look_at([3 * np.cos(a), 3 * np.sin(a), 1.0], [0, 0, 0]), intrinsics_from_fov(0.8, 24, 24), 24, 24)
             for a in np.linspace(0, 2 * np.pi, 4, endpoint=False)]
-    from roodi_toolkit.pipeline.train import cloud_to_params, render_params
+    from roodi_toolkit.params import GaussianParams
+    from roodi_toolkit.render.renderer import TorchRenderer
 
-    params = cloud_to_params(obj)
+    params = GaussianParams.from_cloud(obj)
     with torch.no_grad():
-        outs = [render_params(params, c, background=torch.ones(3)) for c in cams]
+        outs = [TorchRenderer().render(params, c, background=torch.ones(3)) for c in cams]
     images = torch.stack([o.rgb.clamp(0, 1) for o in outs])
     masks = torch.stack([o.alpha[..., 0] > 0.5 for o in outs])
     return obj, scene, images, cams, masks

@@ -5,7 +5,7 @@ import torch
 from roodi_toolkit.pipeline.distill import DistillConfig
 from roodi_toolkit.pipeline.select import select_object
 from roodi_toolkit.pipeline.strategy import MCMCStrategy
-from roodi_toolkit.pipeline.train import TrainConfig, render_params
+from roodi_toolkit.pipeline.train import TrainConfig
 
 CONFIG = TrainConfig(iterations=30, init="depth", init_num_points=600, eval_every=0, checkpoint_every=10,
                      strategy=MCMCStrategy(cap_max=900, refine_start_iter=5, refine_every=5))
@@ -25,7 +25,7 @@ def test_object_loss_falls_and_moves_the_geometry(tiny_kitchen):
     trainer = _trainer(tiny_kitchen)
 
     def object_loss():
-        out = render_params(trainer.params, trainer.dataset.cameras[0], features=trainer.params["features"])
+        out = trainer.renderer.render(trainer.params, trainer.dataset.cameras[0])  # features set: rendered
         return trainer._extra_loss(out, 0)
 
     before = float(object_loss().detach())

@@ -16,7 +16,8 @@ from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.errors import CloudError, PluginError
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.plugins import discover
-from roodi_toolkit.render.renderer import GaussianTensors, Renderer, get_renderer, render_cloud, renderer_names
+from roodi_toolkit.params import GaussianParams
+from roodi_toolkit.render.renderer import Renderer, get_renderer, render_cloud, renderer_names
 
 NAMES = [spec.name for spec in discover("renderers")]
 
@@ -42,7 +43,7 @@ def scene(n=400, seed=0, features=0):
     cloud = GaussianCloud.from_activated(rng.normal(size=(n, 3)) * 0.4, scales=np.exp(rng.normal(-3, 0.3, (n, 3))),
                                          opacities=rng.uniform(0.3, 0.98, n), rgb=rng.uniform(0, 1, (n, 3)),
                                          quats_wxyz=rng.normal(size=(n, 4)), sh_degree=1)
-    g = GaussianTensors.from_cloud(cloud)
+    g = GaussianParams.from_cloud(cloud)
     if features:
         g.features = torch.as_tensor(rng.normal(size=(n, features)), dtype=torch.float32)
     cam = Camera(look_at([0.2, -2.5, 0.8], [0, 0, 0]), intrinsics_from_fov(math.radians(55), 48, 36), 48, 36,
@@ -90,11 +91,10 @@ def test_depth_is_sane(renderer):
 
 def test_gradients_reach_every_input(renderer):
     _, g, cam = scene(features=3)
-    for t in g.tensors().values():
-        t.requires_grad_()
+    g.requires_grad_()
     out = renderer.render(g, cam, background=(0.3, 0.3, 0.3))
     (out.rgb.sum() + out.depth.sum() + out.features.sum() + out.alpha.sum()).backward()
-    for name, t in g.tensors().items():
+    for name, t in g.items():
         assert t.grad is not None and torch.isfinite(t.grad).all() and t.grad.abs().sum() > 0, name
     g2d = out.means2d_grad()
     assert g2d.shape == (len(g), 2) and (g2d[out.visible].abs().sum(-1) > 0).any()

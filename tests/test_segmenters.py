@@ -9,9 +9,10 @@ import torch
 from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
 from roodi_toolkit.io.files import write_image
 from roodi_toolkit.render.renderer import render_cloud
-from roodi_toolkit.pipeline import segment as segmenters
-from roodi_toolkit.pipeline.segment import (Click, ClickSegmenter, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
-                                      ViewMasks, get_segmenter, mask_iou, segmenter_names)
+from roodi_toolkit.pipeline import click as click_segmenter
+from roodi_toolkit.pipeline.click import ClickSegmenter
+from roodi_toolkit.pipeline.segment import (Click, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
+                                            ViewMasks, get_segmenter, mask_iou, segmenter_names)
 
 from .object_scene import object_dataset
 
@@ -139,6 +140,33 @@ def test_click_propagates_to_the_other_views(scene, obj):
     assert abs(masks.info["selected_gaussians"] - n_true) <= 0.1 * n_true, (masks.info, n_true)
 
 
+def test_click_uses_its_renderers_compositing_weights(scene):
+    """The renderer argument is real: its weights are used; one without weights falls back on the built-in's."""
+    from roodi_toolkit.render.renderer import Renderer, TorchRenderer
+
+    class Counting(TorchRenderer):
+        calls = 0
+
+        def compositing_weights(self, params, camera, *, max_elements=None):
+            Counting.calls += 1
+            return super().compositing_weights(params, camera, max_elements=max_elements)
+
+    class DenseOnly(Renderer):
+        def render(self, params, camera, *, background=None, sh_degree=None):
+            return TorchRenderer().render(params, camera, background=background, sh_degree=sh_degree)
+
+    ds, cloud, _ = scene
+    ys, xs = np.nonzero((ds.masks[3] == 1).numpy())
+    k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
+    prompt = SegmentPrompt((Click(ds.names[3], xs[k] + 0.5, ys[k] + 0.5),))
+    counted = ClickSegmenter(renderer=Counting()).segment(ds, prompt, scene=cloud)
+    assert Counting.calls == len(ds)
+    dense = ClickSegmenter(renderer=DenseOnly()).segment(ds, prompt, scene=cloud)
+    assert torch.equal(counted.masks, dense.masks)
+    with pytest.raises(PluginError, match="registered name"):
+        ClickSegmenter(renderer=object())
+
+
 def test_click_on_empty_space_is_refused(scene):
     ds, cloud, _ = scene
     alpha = [render_cloud(cloud, cam).alpha[..., 0] for cam in ds.cameras[:1]][0]
@@ -162,7 +190,7 @@ def test_click_keeps_the_depth_region_when_grabcut_throws_it_away(scene, monkeyp
     ys, xs = np.nonzero((ds.masks[v] == 1).numpy())
     k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
     click = Click(ds.names[v], xs[k] + 0.5, ys[k] + 0.5)
-    monkeypatch.setattr(segmenters, "_grabcut", lambda image, init, iterations, seed: np.zeros(init.shape, bool))
+    monkeypatch.setattr(click_segmenter, "_grabcut", lambda image, init, iterations, seed: np.zeros(init.shape, bool))
     kept = ClickSegmenter().segment(ds, SegmentPrompt((click,)), scene=cloud)  # the depth fill's region is used
     assert mask_iou(kept.masks[v] == 1, ds.masks[v] == 1) > 0.6
     with pytest.raises(SegmentationError, match="1 seeds"):  # trusting GrabCut leaves the click alone: nothing

@@ -44,11 +44,11 @@ def make_params(n=200, seed=0):
     g = torch.Generator().manual_seed(seed)
     params = {
         "means": torch.randn(n, 3, generator=g),
-        "quats": torch.randn(n, 4, generator=g),
-        "scales": torch.randn(n, 3, generator=g) - 3,
-        "opacities": torch.randn(n, generator=g),
-        "sh0": torch.randn(n, 1, 3, generator=g),
-        "shN": torch.randn(n, 3, 3, generator=g),
+        "quats_wxyz": torch.randn(n, 4, generator=g),
+        "log_scales": torch.randn(n, 3, generator=g) - 3,
+        "opacity_logits": torch.randn(n, generator=g),
+        "sh_dc": torch.randn(n, 3, generator=g),
+        "sh_rest": torch.randn(n, 3, 3, generator=g),
     }
     params = {k: torch.nn.Parameter(v) for k, v in params.items()}
     optimizers = {k: torch.optim.Adam([p], lr=1e-3) for k, p in params.items()}
@@ -62,12 +62,12 @@ def make_params(n=200, seed=0):
 def test_relocate_moves_dead_onto_live_and_resets_their_optimizer_state():
     params, opts = make_params()
     with torch.no_grad():
-        params["opacities"][:20] = -10.0  # dead
+        params["opacity_logits"][:20] = -10.0  # dead
     before = {k: v.detach().clone() for k, v in params.items()}
     moved = relocate_dead(params, opts, 0.005, torch.Generator().manual_seed(1))
     assert moved == 20
     assert len(params["means"]) == 200
-    o = torch.sigmoid(params["opacities"])
+    o = torch.sigmoid(params["opacity_logits"])
     assert (o[:20] > 0.005).all()
     # each dead slot now sits exactly on a live Gaussian's centre
     same = (params["means"][:20, None, :] == before["means"][None, 20:, :]).all(dim=2)
@@ -81,8 +81,8 @@ def test_relocate_moves_dead_onto_live_and_resets_their_optimizer_state():
 def test_grow_adds_five_percent_up_to_the_cap():
     params, opts = make_params(200)
     assert grow(params, opts, cap_max=1000, grow_rate=0.05, min_opacity=0.005) == 10
-    assert len(params["means"]) == 210 and len(params["shN"]) == 210
-    assert opts["scales"].state[params["scales"]]["exp_avg"].shape == (210, 3)
+    assert len(params["means"]) == 210 and len(params["sh_rest"]) == 210
+    assert opts["log_scales"].state[params["log_scales"]]["exp_avg"].shape == (210, 3)
     assert grow(params, opts, cap_max=215, grow_rate=0.05, min_opacity=0.005) == 5
     assert grow(params, opts, cap_max=215, grow_rate=0.05, min_opacity=0.005) == 0
     # training continues with the edited parameters
@@ -94,10 +94,10 @@ def test_grow_adds_five_percent_up_to_the_cap():
 
 def test_growth_preserves_rendered_opacity_of_split_gaussians():
     params, opts = make_params(50)
-    o_before = torch.sigmoid(params["opacities"]).detach().clone()
+    o_before = torch.sigmoid(params["opacity_logits"]).detach().clone()
     g = torch.Generator().manual_seed(3)
     grow(params, opts, cap_max=1000, grow_rate=1.0, min_opacity=0.0, generator=g)
-    o_after = torch.sigmoid(params["opacities"]).detach()
+    o_after = torch.sigmoid(params["opacity_logits"]).detach()
     # group each original with its copies by identical means: 1 - prod(1 - o_copies) = o_original
     means = params["means"].detach()
     for i in range(50):
@@ -111,8 +111,8 @@ def test_noise_gate_spares_opaque_gaussians():
     assert gate[0] > 0.5 and gate[2] < 1e-9 and gate[1] < 1e-10
     params, _ = make_params(100)
     with torch.no_grad():
-        params["opacities"][:50] = 10.0  # opaque: must not move
-        params["opacities"][50:] = -10.0  # transparent: moves
+        params["opacity_logits"][:50] = 10.0  # opaque: must not move
+        params["opacity_logits"][50:] = -10.0  # transparent: moves
     before = params["means"].detach().clone()
     inject_position_noise(params, 1e3, torch.Generator().manual_seed(0))
     moved = (params["means"].detach() - before).norm(dim=1)
@@ -128,5 +128,5 @@ def test_strategy_schedule_and_validation():
     params, _ = make_params(10)
     with torch.no_grad():
         reg = s.regularization(params)
-        expected = 0.01 * torch.sigmoid(params["opacities"]).mean() + 0.01 * torch.exp(params["scales"]).mean()
+        expected = 0.01 * torch.sigmoid(params["opacity_logits"]).mean() + 0.01 * torch.exp(params["log_scales"]).mean()
     assert float(reg) == pytest.approx(float(expected))

@@ -154,15 +154,15 @@ def test_depth_initialisation_lies_on_the_surfaces(tiny_scene):
         Trainer(dataclasses.replace(ds, depths=None), small_config(init="depth"))
 
 
-def test_cloud_to_params_copies():
+def test_params_from_cloud_copies():
     """Optimizer steps on the parameters must not write into the cloud they came from."""
-    from roodi_toolkit.pipeline.train import cloud_to_params
+    from roodi_toolkit.params import GaussianParams
 
     from .conftest import make_cloud
 
     cloud = make_cloud(10, sh_degree=1)
     before = cloud.means.copy()
-    params = cloud_to_params(cloud)
+    params = GaussianParams.from_cloud(cloud, requires_grad=True)
     with torch.no_grad():
         params["means"].add_(1.0)
     np.testing.assert_array_equal(cloud.means, before)

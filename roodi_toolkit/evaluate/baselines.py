@@ -26,10 +26,12 @@ import numpy as np
 import torch
 
 from ..io.datasets import Dataset
-from ..pipeline.distill import ObjectClassifier, _frozen_tensors, cloud_features, render_features
+from ..params import GaussianParams
+from ..pipeline.distill import ObjectClassifier, cloud_features, render_features
 from ..errors import ConfigError, RoodiError
 from ..gaussians import GaussianCloud
 from ..pipeline.segment import mask_iou
+from ..render.renderer import Renderer, resolve_renderer
 
 SIMILARITY_THRESHOLDS = tuple(np.round(np.arange(0.50, 0.991, 0.02), 2))
 
@@ -129,7 +131,8 @@ def _unit(x: torch.Tensor) -> torch.Tensor:
 
 def feature_similarity(cloud: GaussianCloud, dataset: Dataset, masks: torch.Tensor, object_id: int, *,
                        views: Sequence[int], threshold: float | None = None,
-                       candidates: Sequence[float] = SIMILARITY_THRESHOLDS) -> BaselineSelection:
+                       candidates: Sequence[float] = SIMILARITY_THRESHOLDS,
+                       renderer: Renderer | None = None) -> BaselineSelection:
     """Return the SAGA/OmniSeg3D-style extraction of ``object_id`` from one click.
 
     Args:
@@ -141,6 +144,7 @@ def feature_similarity(cloud: GaussianCloud, dataset: Dataset, masks: torch.Tens
         threshold: cosine similarity to keep a Gaussian; None chooses it among ``candidates`` by the 2D IoU with the
             training views' masks.
         candidates: thresholds to choose from.
+        renderer: renders the features (default: the built-in CPU renderer).
     """
     views = [int(v) for v in views]
     areas = [int((masks[v] == object_id).sum()) for v in views]
@@ -149,9 +153,10 @@ def feature_similarity(cloud: GaussianCloud, dataset: Dataset, masks: torch.Tens
     view = views[int(np.argmax(areas))]
     x, y = click_in_mask((masks[view] == object_id).numpy())
     feats = cloud_features(cloud)
-    frozen = _frozen_tensors(cloud)
+    frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
+    renderer = resolve_renderer(renderer)
     with torch.no_grad():
-        rendered = {v: _unit(render_features(frozen, feats, dataset.cameras[v])) for v in views}
+        rendered = {v: _unit(render_features(frozen, feats, dataset.cameras[v], renderer=renderer)) for v in views}
         query = rendered[view][y, x]
         chosen_iou = None
         if threshold is None:

@@ -44,6 +44,7 @@ from ..errors import ConfigError, RoodiError
 from ..pipeline.extract import ExtractConfig
 from ..prune.outliers import PruneConfig
 from ..progress import ProgressFactory, null_progress
+from ..render.renderer import Renderer, resolve_renderer
 from ..pipeline.strategy import MCMCStrategy
 from ..pipeline.train import TrainConfig
 
@@ -192,18 +193,18 @@ def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: Pr
 
 
 def _extract_one(method: str, data: Path, out: Path, object_id: int, config: ExtractConfig, model: Optional[Path],
-                 progress: ProgressFactory) -> Path:
+                 progress: ProgressFactory, renderer: Renderer) -> Path:
     """Extract one object; a method that starts from another's run reuses its scene and distillation (read only)."""
     from ..pipeline.extract import extract_objects
 
     distill = None if model is None else model.parent / "distill"
     extract_objects(data, out, [object_id], model_dir=model, distill_dir=distill,
-                    config=method_config(method, config), progress=progress)
+                    config=method_config(method, config), progress=progress, renderer=renderer)
     return out / f"object_{object_id}" / "object.ply"
 
 
 def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Path,
-                  loaded: dict[str, Any]) -> tuple[Path, bool]:
+                  loaded: dict[str, Any], renderer: Renderer) -> tuple[Path, bool]:
     """Write one baseline extraction and return its path and whether it was made now (False: an earlier run's,
     made with the same selection rule, is reused); ``loaded`` keeps the scene's distillation, dataset and masks for
     the next target of the same scene."""
@@ -230,7 +231,8 @@ def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Pat
             loaded["dataset"] = load_dataset(data, float(settings.get("downscale", 1) or 1))
             loaded["masks"] = FilesSegmenter().segment(loaded["dataset"], SegmentPrompt()).masks
             loaded["views"] = split_views(loaded["dataset"], int(settings.get("holdout_every", 8)))[0]
-        sel = feature_similarity(cloud, loaded["dataset"], loaded["masks"], object_id, views=loaded["views"])
+        sel = feature_similarity(cloud, loaded["dataset"], loaded["masks"], object_id, views=loaded["views"],
+                                 renderer=renderer)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_ply(sel.cloud, path)
     write_json({**sel.details, "model": str(model)}, record)  # last: it marks the extraction as complete
@@ -240,7 +242,7 @@ def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Pat
 def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[str] = PRESETS, seed: int = 0,
                   size: BenchmarkSize = MACHINE_SIZE, methods: Sequence[str] = tuple(METHODS),
                   config: ExtractConfig | None = None, overwrite: bool = False,
-                  progress: ProgressFactory = null_progress) -> dict[str, Any]:
+                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> dict[str, Any]:
     """Run every method on every preset scene; write ``results.json``, ``results.md`` and a picture grid per scene
     into ``out_dir``; return the results.
 
@@ -255,6 +257,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
         config: the full method's settings (default :func:`extract_config` at ``size``); the methods change it.
         overwrite: start afresh in ``out_dir``.
         progress: progress factory.
+        renderer: every rendering of every method, training included (default: the built-in CPU renderer).
     """
     from ..io import files
     from .metrics import evaluate_object
@@ -278,6 +281,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     legacy = out / "scores.json"
     cache: dict[str, Any] = files.read_json(legacy, "scores") if legacy.is_file() and not overwrite else {}
     config = config or extract_config(size, seed)
+    renderer = resolve_renderer(renderer)
     results: dict[str, Any] = {"root": str(root), "seed": seed, "size": asdict(size), "methods": methods,
                                "iterations": config.train.iterations, "labels": {m: METHODS[m] for m in methods}, "scenes": {}}
     t_all = time.perf_counter()
@@ -302,16 +306,18 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                 try:
                     if method in BASELINES:
                         path, fresh = _baseline_one(method, data, mout, target["id"], model,
-                                                    loaded.setdefault(MODEL_OF[method], {}))
+                                                    loaded.setdefault(MODEL_OF[method], {}), renderer)
                         if fresh:  # an earlier score belongs to an earlier extraction
                             cache.pop(key, None)
                     else:
-                        path = _extract_one(method, data, mout, target["id"], config, model, progress)
+                        path = _extract_one(method, data, mout, target["id"], config, model, progress, renderer)
                     cloud = read_ply(path)
                     if key in cache:  # scored by an earlier run: render the picture's view only
-                        row, renders = cache[key], evaluate_object(cloud, data, target["id"], max_views=1)[1]
+                        row, renders = cache[key], evaluate_object(cloud, data, target["id"], max_views=1,
+                                                                   renderer=renderer)[1]
                     else:
-                        ev, renders = evaluate_object(cloud, data, target["id"], progress=progress)
+                        ev, renders = evaluate_object(cloud, data, target["id"], progress=progress,
+                                                      renderer=renderer)
                         row = {**ev.to_dict(per_view=False), "gaussians": len(cloud), "ply": str(path),
                                "seconds": time.perf_counter() - t}
                     pictures[method][target["id"]] = renders[0]

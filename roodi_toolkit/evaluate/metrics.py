@@ -20,6 +20,7 @@ from torch import Tensor
 from ..errors import DatasetError, RoodiError
 from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
+from ..render.renderer import Renderer
 
 BOX_SCALE = 1.2
 """Metrics are computed inside this multiple of the true object's tight 2D bounding box (paper)."""
@@ -209,7 +210,7 @@ def find_target(data_dir: str | Path, object_id: int) -> tuple[Path, str]:
     return folder, str(targets[object_id]["name"])
 
 
-def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, *, renderer: str = "torch",
+def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, *, renderer: Renderer | None = None,
                     lpips_weights: str | None = None, max_views: int | None = None,
                     progress: ProgressFactory = null_progress) -> tuple[Evaluation, np.ndarray]:
     """Return the paper's metrics of an extracted object against its true object-alone views, and the renders.
@@ -218,7 +219,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         cloud: the extracted object.
         data_dir: a scene made by ``roodi-toolkit make-scene``.
         object_id: the target's instance id.
-        renderer: the renderer plugin.
+        renderer: draws the object (default: the built-in CPU renderer).
         lpips_weights: local LPIPS weights (default: found by :meth:`roodi_toolkit.evaluate.lpips.LPIPS.from_local`).
         max_views: evaluate on the first this many test views only.
         progress: progress factory.
@@ -228,7 +229,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
     """
     from ..io.datasets import load_dataset
     from .lpips import LPIPS, LPIPSUnavailable
-    from ..render.renderer import render_cloud
+    from ..render.renderer import render_cloud, resolve_renderer
 
     folder, name = find_target(data_dir, object_id)
     truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
@@ -242,6 +243,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         lpips_model = LPIPS.from_local(lpips_weights)
     except LPIPSUnavailable as exc:
         status = f"unavailable: {exc}"
+    renderer = resolve_renderer(renderer)
     renders, alphas = [], []
     with progress(total=count, desc=f"evaluate {name}") as bar:
         for i in range(count):

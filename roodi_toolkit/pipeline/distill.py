@@ -31,6 +31,8 @@ from ..io.datasets import Dataset
 from ..errors import ConfigError, RoodiError
 from ..io.model import Distillation
 from ..gaussians import GaussianCloud
+from ..params import GaussianParams
+from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer, to_csr
 from ..progress import ProgressFactory, null_progress
 from .segment import SegmentPrompt, ViewMasks, mask_iou
 
@@ -149,60 +151,40 @@ class DistillResult:
     train_views: list[int]
 
 
-def _frozen_tensors(cloud: GaussianCloud) -> dict[str, Tensor]:
-    t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)  # noqa: E731
-    return {"means": t(cloud.means), "quats": t(cloud.quats_wxyz), "scales": t(cloud.log_scales),
-            "opacities": t(cloud.opacity_logits)}
-
-
-def render_features(cloud_tensors: dict[str, Tensor], features: Tensor, camera: Camera) -> Tensor:
+def render_features(params: GaussianParams, features: Tensor, camera: Camera, *,
+                    renderer: Renderer | None = None) -> Tensor:
     """Return the composited object features ``[H, W, F]`` of Gaussians ``features`` ``[N, F]`` seen from ``camera``.
 
     Args:
-        cloud_tensors: frozen ``means`` [N, 3], ``quats`` [N, 4], ``scales`` [N, 3] (log), ``opacities`` [N] (logits).
+        params: the frozen Gaussians (only their geometry and opacities matter).
         features: per-Gaussian features (may require grad). [N, F]
         camera: the view.
+        renderer: draws the features (default: the built-in CPU renderer).
     """
-    from ..render.rasterizer import rasterize
-
     n = features.shape[0]
-    if cloud_tensors["means"].shape[0] != n:
-        raise ConfigError(f"features must be [N, F] with N = {cloud_tensors['means'].shape[0]}, got "
-                          f"{list(features.shape)}")
-    colors = torch.zeros(n, 3, dtype=features.dtype)  # RGB is not needed: skip the SH evaluation
-    out = rasterize(cloud_tensors["means"], cloud_tensors["quats"], cloud_tensors["scales"],
-                    cloud_tensors["opacities"], colors, torch.as_tensor(camera.world_to_camera, dtype=torch.float32),
-                    torch.as_tensor(camera.K, dtype=torch.float32), camera.width, camera.height, near=camera.near,
-                    far=camera.far, features=features)
-    return out.features
+    if len(params) != n:
+        raise ConfigError(f"features must be [N, F] with N = {len(params)}, got {list(features.shape)}")
+    # the colours are not needed: zero degree-0 SH skips the higher bands' evaluation
+    geometry = GaussianParams(params.means, params.quats_wxyz, params.log_scales, params.opacity_logits,
+                              torch.zeros(n, 3, dtype=features.dtype), torch.zeros(n, 0, 3, dtype=features.dtype),
+                              features)
+    return resolve_renderer(renderer).render(geometry, camera).features
 
 
-def compositing_weights(cloud_tensors: dict[str, Tensor], camera: Camera, *, max_elements: int = 1 << 22) -> Tensor:
-    """Return the sparse ``[H*W, N]`` matrix of alpha-compositing weights of the Gaussians in ``camera``.
+def compositing_weights(params: GaussianParams, camera: Camera, *, renderer: Renderer | None = None,
+                        max_elements: int = 1 << 22) -> Tensor:
+    """Return the sparse CSR ``[H*W, N]`` matrix of alpha-compositing weights of the Gaussians in ``camera``, from a
+    renderer with that capability (:class:`~roodi_toolkit.render.renderer.CompositingWeights`; default the built-in
+    one): ``W @ features`` is the rendered feature image, to float rounding.
 
-    Row ``p`` holds ``alpha_i T_i`` of every Gaussian that contributes to pixel ``p`` (pixels in row-major order),
-    computed by the rasterizer's own tiles (:func:`roodi_toolkit.render.rasterizer.compositing_pairs`), so ``W @ features``
-    is the rendered feature image that ``rasterize(..., features=...)`` returns, to float rounding.
-    ``max_elements`` bounds the (pixel, Gaussian) pairs held at once.
+    Raises:
+        ConfigError: the renderer cannot list compositing weights.
     """
-    from ..render.rasterizer import compositing_pairs
-
-    n = cloud_tensors["means"].shape[0]
-    rows, cols, vals = compositing_pairs(
-        cloud_tensors["means"], cloud_tensors["quats"], cloud_tensors["scales"], cloud_tensors["opacities"],
-        torch.as_tensor(camera.world_to_camera, dtype=torch.float32), torch.as_tensor(camera.K, dtype=torch.float32),
-        camera.width, camera.height, near=camera.near, far=camera.far, max_elements=max_elements)
-    indices = torch.stack([rows, cols])
-    return _csr(torch.sparse_coo_tensor(indices, vals, (camera.height * camera.width, n), check_invariants=False))
-
-
-def _csr(coo: Tensor) -> Tensor:
-    """Return a sparse COO matrix in CSR form (torch warns that CSR is beta; the products used here are stable)."""
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        return coo.coalesce().to_sparse_csr()
+    renderer = resolve_renderer(renderer)
+    if not has_compositing_weights(renderer):
+        raise ConfigError(f"the {renderer.name or type(renderer).__name__} renderer cannot list compositing weights; "
+                          "render the features instead (DistillConfig(cache_weights=False))")
+    return renderer.compositing_weights(params, camera, max_elements=max_elements)
 
 
 class _SparseRender(torch.autograd.Function):
@@ -220,7 +202,8 @@ class _SparseRender(torch.autograd.Function):
 
 def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewMasks,
                             config: DistillConfig = DistillConfig(), *, train_views: Sequence[int] | None = None,
-                            progress: ProgressFactory = null_progress) -> DistillResult:
+                            progress: ProgressFactory = null_progress,
+                            renderer: Renderer | None = None) -> DistillResult:
     """Return per-Gaussian object features and a classifier trained so the rendered class map matches ``masks``.
 
     The cloud's geometry and colours are only read (no gradient reaches them).
@@ -232,6 +215,8 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
         config: hyperparameters.
         train_views: views to train on (default: every view).
         progress: progress factory (the bar shows the loss).
+        renderer: renders the features (default: the built-in CPU renderer); its compositing weights are cached
+            when ``config.cache_weights`` and it has them, else it renders every step.
 
     Raises:
         ConfigError: masks that do not match the dataset, or no training views.
@@ -244,7 +229,9 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
         raise ConfigError("no views to distil the masks from")
     C = masks.num_classes
     gen = torch.Generator().manual_seed(config.seed)
-    frozen = _frozen_tensors(cloud)
+    renderer = resolve_renderer(renderer)
+    cached = config.cache_weights and has_compositing_weights(renderer)
+    frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
     n = len(cloud)
     features = torch.nn.Parameter(torch.randn(n, config.feature_dim, generator=gen) * config.feature_init_std)
     # nn.Conv2d's default initialisation, drawn from our generator so runs repeat exactly
@@ -259,11 +246,11 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     pos = 0
     t0 = time.perf_counter()
     cache: dict[int, tuple[Tensor, Tensor]] = {}
-    if config.cache_weights:
+    if cached:
         with progress(total=len(views), desc="compositing weights") as bar:
             for v in views:
-                w = compositing_weights(frozen, dataset.cameras[v])
-                cache[v] = (w, _csr(w.to_sparse_coo().t()))
+                w = compositing_weights(frozen, dataset.cameras[v], renderer=renderer)
+                cache[v] = (w, to_csr(w.to_sparse_coo().t()))
                 bar.update(1)
     with progress(total=config.iterations, desc="distill") as bar:
         for step in range(1, config.iterations + 1):
@@ -272,10 +259,11 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
                 pos = 0
             v = views[int(order[pos])]
             pos += 1
-            if config.cache_weights:
+            if cached:
                 rendered = _SparseRender.apply(features, *cache[v])  # [H*W, F]
             else:
-                rendered = render_features(frozen, features, dataset.cameras[v]).reshape(-1, config.feature_dim)
+                rendered = render_features(frozen, features, dataset.cameras[v], renderer=renderer).reshape(
+                    -1, config.feature_dim)
             # the 1x1 convolution, written as the per-pixel linear map it is
             logits = rendered @ weight.T + bias  # [H*W, C]
             loss = F.cross_entropy(logits.reshape(-1, C), masks.masks[v].reshape(-1)) / log_c
@@ -352,18 +340,20 @@ def class_map_ious(pred: np.ndarray, true: np.ndarray, ids: Sequence[int] | None
 
 def evaluate_class_maps(cloud: GaussianCloud, classifier: ObjectClassifier, dataset: Dataset, masks: ViewMasks,
                         views: Sequence[int], *, object_ids: Sequence[int] | None = None,
-                        progress: ProgressFactory = null_progress) -> dict[str, Any]:
+                        progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> dict[str, Any]:
     """Return IoUs of the rendered class map (argmax) against ``masks`` on ``views``.
 
     ``mean_iou`` is the mean over (view, object) pairs of the objects present in the view's mask (background
     excluded); ``per_object`` averages each object over the views it appears in.
     """
     feats = cloud_features(cloud)
-    frozen = _frozen_tensors(cloud)
+    frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
+    renderer = resolve_renderer(renderer)
     pairs: list[tuple[int, int, float]] = []
     with progress(total=len(views), desc="evaluate") as bar, torch.no_grad():
         for v in views:
-            pred = classifier.logits(render_features(frozen, feats, dataset.cameras[v])).argmax(-1).numpy()
+            pred = classifier.logits(render_features(frozen, feats, dataset.cameras[v], renderer=renderer)).argmax(
+                -1).numpy()
             true = masks.masks[v].numpy()
             ids = None if object_ids is None else [i for i in object_ids if (true == i).any()]
             for i, iou in class_map_ious(pred, true, ids).items():
@@ -379,13 +369,14 @@ def evaluate_class_maps(cloud: GaussianCloud, classifier: ObjectClassifier, data
 
 
 def alpha_iou(cloud: GaussianCloud, cameras: Sequence[Camera], alphas: Sequence[np.ndarray] | Tensor, *,
-              level: float = 0.5) -> list[float]:
+              level: float = 0.5, renderer: Renderer | None = None) -> list[float]:
     """Return per view the IoU of ``alpha > level`` of the rendered ``cloud`` and of the given alpha maps."""
     from ..render.renderer import render_cloud
 
+    renderer = resolve_renderer(renderer)
     out = []
     for cam, a in zip(cameras, alphas):
-        rendered = render_cloud(cloud, cam).alpha[..., 0].numpy()
+        rendered = render_cloud(cloud, cam, renderer=renderer).alpha[..., 0].numpy()
         out.append(mask_iou(rendered > level, np.asarray(a) > level))
     return out
 
@@ -441,8 +432,8 @@ class DistilledScene:
 def distill_scene(cloud: GaussianCloud, dataset: Dataset, *, segmenter: str = "files",
                   prompt: SegmentPrompt = SegmentPrompt(), segmenter_options: dict[str, Any] | None = None,
                   config: DistillConfig = DistillConfig(), holdout_every: int = 8,
-                  labels: dict[int, str] | None = None,
-                  progress: ProgressFactory = null_progress) -> DistilledScene:
+                  labels: dict[int, str] | None = None, progress: ProgressFactory = null_progress,
+                  renderer: Renderer | None = None) -> DistilledScene:
     """Return the scene distilled from a segmenter's masks: segment, distil, score the held-out views, picture.
 
     Args:
@@ -455,43 +446,53 @@ def distill_scene(cloud: GaussianCloud, dataset: Dataset, *, segmenter: str = "f
         holdout_every: the training run's held-out split (every n-th view is scored, not trained on).
         labels: class names by id (default: "rest"/"target" for binary masks).
         progress: progress factory.
+        renderer: draws every view, the click segmenter's included (default: the built-in CPU renderer).
     """
     from .segment import get_segmenter
     from .train import split_views
 
     cloud = _without_features(cloud)
-    seg = get_segmenter(segmenter, **(segmenter_options or {}))
+    renderer = resolve_renderer(renderer)
+    options = dict(segmenter_options or {})
+    if segmenter == "click":
+        options.setdefault("renderer", renderer)
+    seg = get_segmenter(segmenter, **options)
     t0 = time.perf_counter()
     masks = seg.segment(dataset, prompt, scene=cloud if seg.needs_scene else None, progress=progress)
     seg_seconds = time.perf_counter() - t0
     train_views, _ = split_views(dataset, holdout_every)
-    result = distill_object_features(cloud, dataset, masks, config, train_views=train_views, progress=progress)
+    result = distill_object_features(cloud, dataset, masks, config, train_views=train_views, progress=progress,
+                                     renderer=renderer)
     distilled = finish_distillation(cloud, result, dataset, masks, holdout_every=holdout_every, labels=labels,
-                                    progress=progress)
+                                    progress=progress, renderer=renderer)
     distilled.summary.update({"segmenter": segmenter, "config": asdict(config), "segment_seconds": seg_seconds})
     return distilled
 
 
 def finish_distillation(cloud: GaussianCloud, result: DistillResult, dataset: Dataset, masks: ViewMasks, *,
                         holdout_every: int = 8, labels: dict[int, str] | None = None,
-                        progress: ProgressFactory = null_progress) -> DistilledScene:
+                        progress: ProgressFactory = null_progress,
+                        renderer: Renderer | None = None) -> DistilledScene:
     """Return the distilled scene of features learned from ``masks``: class labels set, the held-out views scored
     and the picture made (shared by the two-stage distillation and single-stage training)."""
     from ..render.pictures import colorize_ids, heat, probability_grid
     from .train import split_views
 
     train_views, eval_views = split_views(dataset, holdout_every)
+    renderer = resolve_renderer(renderer)
     if masks.kind != "instances" or labels is None:
         labels = {0: "rest", 1: "target"} if masks.kind != "instances" else {}
     result.classifier.labels = {i: n for i, n in labels.items() if i < masks.num_classes}
     distilled = with_features(cloud, result.features)
-    held = evaluate_class_maps(distilled, result.classifier, dataset, masks, eval_views, progress=progress) \
+    held = evaluate_class_maps(distilled, result.classifier, dataset, masks, eval_views, progress=progress,
+                               renderer=renderer) \
         if eval_views else {"views": [], "mean_iou": float("nan"), "per_object": {}, "pairs": 0}
     rows = []
-    frozen = _frozen_tensors(distilled)
+    frozen = GaussianParams.from_cloud(distilled, sh_degree=0)
     with torch.no_grad():
         for v in _picture_views(eval_views, train_views):
-            prob = result.classifier.probabilities(render_features(frozen, result.features, dataset.cameras[v]))
+            prob = result.classifier.probabilities(render_features(frozen, result.features, dataset.cameras[v],
+                                                                   renderer=renderer))
             pred = prob.argmax(-1).numpy()
             rows.append([dataset.images[v].numpy(), colorize_ids(masks.masks[v].numpy()), colorize_ids(pred),
                          heat(prob.max(-1).values.numpy())])
@@ -553,8 +554,9 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
                 clicks: Sequence[Any] = (), mask_dir: str | Path | None = None,
                 segmenter_options: dict[str, Any] | None = None, config: DistillConfig = DistillConfig(),
                 downscale: float | None = None, overwrite: bool = False,
-                progress: ProgressFactory = null_progress) -> dict[str, Any]:
-    """Segment and distil a trained model folder into a distillation folder ``out_dir``; return its record.
+                progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> dict[str, Any]:
+    """Segment and distil a trained model folder into a distillation folder ``out_dir``; return its record
+    (``renderer``: draws every view, the click segmenter's included; default the built-in CPU renderer).
 
     Reads ``MODEL_DIR/point_cloud/iteration_N/point_cloud.ply`` (highest N) and ``cfg.json`` (downscale and the
     held-out views of training, which are scored here too). Writes into ``out_dir`` only (see
@@ -575,7 +577,7 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
                               prompt=SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)),
                               segmenter_options=segmenter_options, config=config,
                               holdout_every=int(model.config.get("holdout_every", 8)), labels=scene_labels(data_dir),
-                              progress=progress)
+                              progress=progress, renderer=renderer)
     save_distilled(out, distilled, model.ply_path, {"data_dir": str(Path(data_dir).resolve()), "downscale": ds_scale,
                                                     "model_dir": str(model.root.resolve())})
     return {**distilled.summary, "model": str(model.ply_path), "data_dir": str(data_dir), "downscale": ds_scale,

@@ -130,14 +130,15 @@ def _object_masks(masks: torch.Tensor, object_id: int, views: Sequence[int]) -> 
     return masks[list(views)] == object_id
 
 
-def _picture(cloud: GaussianCloud, path: Path, size: int = 192) -> None:
+def _picture(cloud: GaussianCloud, path: Path, size: int = 192, renderer: Any = None) -> None:
     """Write the object from four directions on white."""
     from ..io.files import write_image
     from ..render.renderer import render_cloud
     from ..render.views import framing_orbit
 
     cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size)
-    row = [render_cloud(cloud, c, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy() for c in cams]
+    row = [render_cloud(cloud, c, renderer=renderer, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy()
+           for c in cams]
     write_image(np.concatenate(row, axis=1), path)
 
 
@@ -158,6 +159,7 @@ class PreparedScene:
         distill_record: its ``distill.json``.
         downscale: the image downscale of every stage.
         report: the shared stages' part of the report (timings, reused and remade stages).
+        renderer: the :class:`~roodi_toolkit.render.renderer.Renderer` every stage renders with.
     """
 
     out: Path
@@ -171,6 +173,7 @@ class PreparedScene:
     distill_record: dict[str, Any]
     downscale: float
     report: dict[str, Any]
+    renderer: Any
 
     def object_ids(self, requested: Sequence[int | str]) -> list[int]:
         """Return the object ids to extract: ``requested`` as integers, ``"all"`` meaning every class of the
@@ -200,7 +203,8 @@ class PreparedScene:
 
 def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str | Path | None = None,
                   distill_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
-                  overwrite: bool = False, progress: ProgressFactory = null_progress) -> PreparedScene:
+                  overwrite: bool = False, progress: ProgressFactory = null_progress,
+                  renderer: Any = None) -> PreparedScene:
     """Return the stages the objects of a scene share: the decoded dataset, the trained scene (trained into
     ``out_dir/scene`` unless ``model_dir`` is given) and its distillation (into ``out_dir/distill`` unless
     ``distill_dir`` is given), each reused when a previous run made it with the same settings.
@@ -210,6 +214,7 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
     from ..io.datasets import load_dataset
     from ..io.model import DISTILL_RECORD, checkpoint_file, find_model
     from ..io.ply import read_ply
+    from ..render.renderer import resolve_renderer
     from .distill import _without_features, distill_scene, load_distillation, save_distilled, scene_labels
     from .segment import FilesSegmenter, SegmentPrompt
     from .train import train_scene
@@ -222,6 +227,7 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
     data_dir = Path(data_dir)
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
                                    inputs=[data_dir, model_dir, distill_dir])
+    renderer = resolve_renderer(renderer)
     report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}}
     stages = _Stages(report)
     timings = report["stages"]
@@ -259,10 +265,11 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
 
                 result, distilled = train_joint(data_dir.resolve(), model_root, config.train, config.distill,
                                                 downscale=downscale, resume=resume, overwrite=not resume,
-                                                dataset=dataset, progress=progress)
+                                                dataset=dataset, progress=progress, renderer=renderer)
             else:
                 result = train_scene(data_dir.resolve(), model_root, config.train, downscale=downscale, resume=resume,
-                                     overwrite=not resume, dataset=dataset, progress=progress)
+                                     overwrite=not resume, dataset=dataset, progress=progress,
+                                     renderer=renderer)
             model = find_model(model_root)
             scene = result.cloud
     else:
@@ -286,7 +293,7 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
             if distilled is None:
                 distilled = distill_scene(scene, dataset, config=config.distill,
                                           holdout_every=int(model.config.get("holdout_every", 8)),
-                                          labels=scene_labels(data_dir), progress=progress)
+                                          labels=scene_labels(data_dir), progress=progress, renderer=renderer)
             save_distilled(distill_out, distilled, model.ply_path,
                            {"downscale": downscale, "data_dir": wanted["data_dir"],
                             "single_stage": config.single_stage, "model_dir": str(model.root.resolve())})
@@ -299,7 +306,8 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
         masks = FilesSegmenter(distill_out / "object_masks").segment(dataset, SegmentPrompt()).masks
     report["model"] = str(model.root)
     return PreparedScene(out, dataset, scene, cloud, classifier, masks, model, distill_out,
-                         files.read_json(distill_out / DISTILL_RECORD, "distillation record"), downscale, report)
+                         files.read_json(distill_out / DISTILL_RECORD, "distillation record"), downscale, report,
+                         renderer)
 
 
 def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractConfig = ExtractConfig(),
@@ -349,13 +357,13 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
         res = refine_object(selected, prepared.scene, ds.images[views], [ds.cameras[v] for v in views],
                             _object_masks(prepared.masks, int(object_id), views), inpainter=config.inpainter,
                             occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
-                            progress=progress)
+                            progress=progress, renderer=prepared.renderer)
         final = res.cloud
         entry["perceptual_loss"] = res.finetune.perceptual
         entry["inpainter"] = res.inpainter
     entry["refine_s"] = time.perf_counter() - t
     write_ply(final, odir / "object.ply")
-    _picture(final, odir / "object.png")
+    _picture(final, odir / "object.png", renderer=prepared.renderer)
     entry["object_ply"] = str(odir / "object.ply")
     entry["gaussians"] = len(final)
     files.write_json({**wanted, "entry": entry}, stage_file)  # last: marks the object as finished
@@ -365,7 +373,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
 def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Sequence[int | str], *,
                     model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
                     config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
-                    progress: ProgressFactory = null_progress) -> dict[str, Any]:
+                    progress: ProgressFactory = null_progress, renderer: Any = None) -> dict[str, Any]:
     """Return a report of every stage after writing each object's clean model into ``out_dir``.
 
     Args:
@@ -380,13 +388,15 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
         config: settings of every stage.
         overwrite: make every stage again instead of reusing what a previous run left.
         progress: progress factory.
+        renderer: a :class:`~roodi_toolkit.render.renderer.Renderer` (or registered name) every stage renders with;
+            default the built-in CPU renderer.
     """
     from ..io import files
 
     if not object_ids:
         raise ConfigError("give at least one object id to extract (or --object all)")
     prepared = prepare_scene(data_dir, out_dir, model_dir=model_dir, distill_dir=distill_dir, config=config,
-                             overwrite=overwrite, progress=progress)
+                             overwrite=overwrite, progress=progress, renderer=renderer)
     report = prepared.report
     for object_id in prepared.object_ids(object_ids):
         report["objects"][str(object_id)] = extract_object(prepared, object_id, config=config, overwrite=overwrite,

@@ -32,6 +32,8 @@ from torch import Tensor
 from ..cameras import Camera
 from ..errors import ConfigError, RoodiError
 from ..gaussians import GaussianCloud
+from ..params import GaussianParams
+from ..render.renderer import Renderer, resolve_renderer
 from .occlusion import OcclusionConfig, OcclusionResult, object_extent, occlusion_masks, write_occlusion_images
 from ..progress import ProgressFactory, null_progress
 
@@ -248,7 +250,7 @@ def _l1(render: Tensor, target: Tensor, weight: Optional[Tensor] = None) -> Tens
 
 def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: ViewTargets,
                     config: FinetuneConfig = FinetuneConfig(), *,
-                    progress: ProgressFactory = null_progress) -> FinetuneResult:
+                    progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> FinetuneResult:
     """Return the object model fine-tuned to the original views and the inpainted views (no densification).
 
     Args:
@@ -257,18 +259,17 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
         inpainted: the inpainted object-centred views, used every ``config.inpaint_every`` steps.
         config: hyperparameters.
         progress: progress factory.
+        renderer: draws every view (default: the built-in CPU renderer).
     """
-    from .train import cloud_to_params, params_to_cloud, render_params
-
     if len(originals.cameras) == 0:
         raise RoodiError("fine-tuning needs at least one original view of the object")
     t0 = time.perf_counter()
     perceptual = perceptual_loss(config.perceptual, config.lpips_weights)
-    # cloud_to_params shares memory with the cloud's arrays: copy, so that the caller's cloud is left as it was
-    params = cloud_to_params(cloud)
+    renderer = resolve_renderer(renderer)
+    params = GaussianParams.from_cloud(cloud, requires_grad=True)  # copies: the caller's cloud is left as it was
     _, radius = object_extent(cloud)
-    lrs = {"means": config.means_lr * radius, "quats": config.quats_lr, "scales": config.scales_lr,
-           "opacities": config.opacities_lr, "sh0": config.sh0_lr, "shN": config.shN_lr}
+    lrs = {"means": config.means_lr * radius, "quats_wxyz": config.quats_lr, "log_scales": config.scales_lr,
+           "opacity_logits": config.opacities_lr, "sh_dc": config.sh0_lr, "sh_rest": config.shN_lr}
     optimizers = [torch.optim.Adam([params[k]], lr=lr, eps=1e-15) for k, lr in lrs.items()]
     bg = torch.as_tensor(config.background, dtype=torch.float32)
     gen = torch.Generator().manual_seed(config.seed)
@@ -277,13 +278,13 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
     with progress(total=config.iterations, desc="fine-tune") as bar:
         for step in range(config.iterations):
             i = order_o[step % len(order_o)]
-            out = render_params(params, originals.cameras[i], background=bg)
+            out = renderer.render(params, originals.cameras[i], background=bg)
             l1_orig = _l1(out.rgb, originals.images[i], originals.weights[i])
             loss = l1_orig
             record = {"step": float(step + 1), "l1_original": float(l1_orig.detach())}
             if len(inpainted.cameras) and step % config.inpaint_every == config.inpaint_every - 1:
                 j = (step // config.inpaint_every) % len(inpainted.cameras)
-                out_j = render_params(params, inpainted.cameras[j], background=bg)
+                out_j = renderer.render(params, inpainted.cameras[j], background=bg)
                 l1_inp = _l1(out_j.rgb, inpainted.images[j], inpainted.weights[j])
                 perc = perceptual(out_j.rgb.clamp(0, 1), inpainted.images[j])
                 loss = loss + config.l1_inpaint_weight * l1_inp + config.perceptual_weight * perc
@@ -295,7 +296,7 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
             record["loss"] = float(loss.detach())
             history.append(record)
             bar.update(1)
-    return FinetuneResult(params_to_cloud(params), perceptual.name, history, time.perf_counter() - t0)
+    return FinetuneResult(params.to_cloud(), perceptual.name, history, time.perf_counter() - t0)
 
 
 def seed_hole_gaussians(object_cloud: GaussianCloud, occlusion: OcclusionResult, inpainted: Tensor, *,
@@ -401,7 +402,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                   occlusion: OcclusionConfig = OcclusionConfig(), finetune: FinetuneConfig = FinetuneConfig(),
                   up: Optional[Sequence[float]] = None, prompt: Optional[str] = None,
                   debug_dir: Optional[str | os.PathLike] = None,
-                  progress: ProgressFactory = null_progress) -> RefineResult:
+                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> RefineResult:
     """Return the object model after occlusion reasoning, inpainting (one 2x2 grid) and fine-tuning.
 
     Args:
@@ -418,11 +419,11 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         prompt: inpainting prompt (the paper uses none).
         debug_dir: write the debug images here (renders, masks, grids, before/after).
         progress: progress factory.
+        renderer: draws every view of occlusion reasoning and fine-tuning (default: the built-in CPU renderer).
     """
     from ..io.files import write_image, write_json
     from .inpaint import Inpainter, get_inpainter, inpaint_views
     from .occlusion import up_from_cameras
-    from .train import cloud_to_params, render_params
 
     if occlusion.num_views != 4:
         raise ConfigError(f"the inpainting grid is 2x2: occlusion.num_views must be 4, got {occlusion.num_views}")
@@ -433,7 +434,8 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     cameras = list(cameras)
     up = up_from_cameras(cameras) if up is None else np.asarray(up, dtype=np.float64)
     bg = finetune.background
-    occ = occlusion_masks(object_cloud, scene_cloud, None, occlusion, up=up, background=bg)
+    renderer = resolve_renderer(renderer)
+    occ = occlusion_masks(object_cloud, scene_cloud, None, occlusion, up=up, background=bg, renderer=renderer)
     inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt)
     seeded = 0
     if finetune.seed_holes:
@@ -445,22 +447,23 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         if seeded:
             object_cloud = GaussianCloud.concatenate([object_cloud, seeds])
     # scene depth in the training views tells where something may hide the object
-    scene_params = cloud_to_params(scene_cloud)
+    scene_params = GaussianParams.from_cloud(scene_cloud)
     with torch.no_grad():
-        depths = torch.stack([render_params(scene_params, c).depth[..., 0] for c in cameras])
+        depths = torch.stack([renderer.render(scene_params, c).depth[..., 0] for c in cameras])
     originals = object_view_targets(images, cameras, object_masks, depths=depths, centre=occ.centre,
                                     radius=occ.radius, background=bg)
     inpainted_targets = ViewTargets(occ.cameras, inpainted, torch.ones(inpainted.shape[:3]))
-    result = finetune_object(object_cloud, originals, inpainted_targets, finetune, progress=progress)
+    result = finetune_object(object_cloud, originals, inpainted_targets, finetune, progress=progress,
+                             renderer=renderer)
     out_dir = None
     if debug_dir is not None:
         out_dir = Path(debug_dir)
         write_occlusion_images(occ, out_dir)
         for name, img in grids.items():
             write_image(img.numpy(), out_dir / f"grid_{name}.png")
-        after_params = cloud_to_params(result.cloud)
+        after_params = GaussianParams.from_cloud(result.cloud)
         with torch.no_grad():
-            after = torch.stack([render_params(after_params, c, background=torch.tensor(bg)).rgb.clamp(0, 1)
+            after = torch.stack([renderer.render(after_params, c, background=bg).rgb.clamp(0, 1)
                                  for c in occ.cameras])
         for k in range(len(occ.cameras)):
             write_image(inpainted[k].numpy(), out_dir / f"view_{k}_inpainted.png")

@@ -25,7 +25,7 @@ from ..io.datasets import Dataset
 from .distill import DistillConfig, DistilledScene, DistillResult, ObjectClassifier
 from ..errors import ConfigError
 from ..progress import ProgressFactory, null_progress
-from ..render.rasterizer import RasterOutput
+from ..render.renderer import Renderer, RenderOutput
 from .segment import ViewMasks
 from .train import TrainConfig, Trainer, TrainResult
 
@@ -40,10 +40,12 @@ class JointTrainer(Trainer):
         distill: feature size, learning rates and initial spread of the features (the distillation's own).
         object_weight: weight of the object loss (Gaussian Grouping: 1).
         train_indices: views to optimise on (default as :class:`Trainer`).
+        renderer: draws colour and features of every view (default: the built-in CPU renderer).
     """
 
     def __init__(self, dataset: Dataset, config: TrainConfig, masks: ViewMasks, distill: DistillConfig = DistillConfig(),
-                 *, object_weight: float = 1.0, train_indices: list[int] | None = None) -> None:
+                 *, object_weight: float = 1.0, train_indices: list[int] | None = None,
+                 renderer: Renderer | None = None) -> None:
         if len(masks) != len(dataset) or tuple(masks.masks.shape[1:]) != (dataset.height, dataset.width):
             raise ConfigError(f"masks are {list(masks.masks.shape)} but the dataset has {len(dataset)} views of "
                               f"{dataset.width}x{dataset.height}")
@@ -51,28 +53,25 @@ class JointTrainer(Trainer):
         self.distill = distill
         self.object_weight = float(object_weight)
         self.classifier_params: dict[str, torch.nn.Parameter] = {}
-        super().__init__(dataset, config, train_indices)
+        super().__init__(dataset, config, train_indices, renderer=renderer)
 
     def _make_optimizers(self) -> None:
         super()._make_optimizers()
-        dim, n, C = self.distill.feature_dim, len(self.params["means"]), self.masks.num_classes
-        if "features" not in self.params:
-            self.params["features"] = torch.nn.Parameter(
+        dim, n, C = self.distill.feature_dim, len(self.params), self.masks.num_classes
+        if self.params.features is None:  # set: rendered beside the colour, moved by the strategy's edits
+            self.params.features = torch.nn.Parameter(
                 torch.randn(n, dim, generator=self.generator) * self.distill.feature_init_std)
         if not self.classifier_params:
             bound = 1.0 / math.sqrt(dim)  # nn.Conv2d's default initialisation, from our generator
             self.classifier_params = {
                 "weight": torch.nn.Parameter((torch.rand(C, dim, generator=self.generator) * 2 - 1) * bound),
                 "bias": torch.nn.Parameter((torch.rand(C, generator=self.generator) * 2 - 1) * bound)}
-        self.optimizers["features"] = torch.optim.Adam([self.params["features"]], lr=self.distill.feature_lr,
+        self.optimizers["features"] = torch.optim.Adam([self.params.features], lr=self.distill.feature_lr,
                                                        eps=1e-15)
         self.optimizers["classifier"] = torch.optim.Adam(list(self.classifier_params.values()),
                                                          lr=self.distill.classifier_lr)
 
-    def _rendered_features(self) -> Tensor | None:
-        return self.params["features"]
-
-    def _extra_loss(self, out: RasterOutput, view: int) -> Tensor | None:
+    def _extra_loss(self, out: RenderOutput, view: int) -> Tensor | None:
         C = self.masks.num_classes
         logits = out.features.reshape(-1, self.distill.feature_dim) @ self.classifier_params["weight"].T \
             + self.classifier_params["bias"]
@@ -97,8 +96,8 @@ class JointTrainer(Trainer):
 
 def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(),
                 distill: DistillConfig = DistillConfig(), *, downscale: float = 1, resume: bool = False,
-                overwrite: bool = False, dataset: Dataset | None = None,
-                progress: ProgressFactory = null_progress) -> tuple[TrainResult, DistilledScene]:
+                overwrite: bool = False, dataset: Dataset | None = None, progress: ProgressFactory = null_progress,
+                renderer: Renderer | None = None) -> tuple[TrainResult, DistilledScene]:
     """Train a scene and its object features together from the dataset's own instance masks; return the training
     result (the model folder written as :func:`~roodi_toolkit.pipeline.train.train_scene` does) and the distilled
     scene (for :func:`~roodi_toolkit.pipeline.distill.save_distilled`).
@@ -113,7 +112,8 @@ def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     trainers: list[JointTrainer] = []
 
     def make(ds: Dataset, cfg: TrainConfig) -> JointTrainer:
-        trainers.append(JointTrainer(ds, cfg, FilesSegmenter().segment(ds, SegmentPrompt()), distill))
+        trainers.append(JointTrainer(ds, cfg, FilesSegmenter().segment(ds, SegmentPrompt()), distill,
+                                     renderer=renderer))
         return trainers[-1]
 
     t0 = time.perf_counter()
@@ -122,10 +122,10 @@ def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     trainer = trainers[-1]
     cloud = trainer.to_cloud()
     cloud.extras = {}
-    features = trainer.params["features"].detach().clone()
+    features = trainer.params.features.detach().clone()
     learned = DistillResult(features, trainer.classifier(), [], time.perf_counter() - t0, list(trainer.train_indices))
     distilled = finish_distillation(cloud, learned, trainer.dataset, trainer.masks,
                                     holdout_every=config.holdout_every, labels=scene_labels(data_dir),
-                                    progress=progress)
+                                    progress=progress, renderer=renderer)
     distilled.summary.update({"segmenter": "files", "config": asdict(distill), "single_stage": True})
     return result, distilled

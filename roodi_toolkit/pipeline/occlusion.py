@@ -23,6 +23,8 @@ from torch import Tensor
 from ..cameras import Camera, horizontal_basis, intrinsics_from_fov, look_at
 from ..errors import CloudError, ConfigError
 from ..gaussians import GaussianCloud
+from ..params import GaussianParams
+from ..render.renderer import Renderer, resolve_renderer
 
 
 @dataclass(frozen=True)
@@ -206,14 +208,12 @@ def morphological_opening(masks: Tensor, size: int) -> Tensor:
     return opened[:, 0] > 0.5
 
 
-def _render_stack(cloud: GaussianCloud, cameras: Sequence[Camera], background: Tensor):
-    from .train import cloud_to_params, render_params
-
-    params = cloud_to_params(cloud)
+def _render_stack(cloud: GaussianCloud, cameras: Sequence[Camera], background: Tensor, renderer: Renderer):
+    params = GaussianParams.from_cloud(cloud)
     rgb, alpha, depth = [], [], []
     with torch.no_grad():
         for cam in cameras:
-            out = render_params(params, cam, background=background)
+            out = renderer.render(params, cam, background=background)
             rgb.append(out.rgb.clamp(0, 1))
             alpha.append(out.alpha[..., 0])
             depth.append(out.depth[..., 0])
@@ -222,7 +222,8 @@ def _render_stack(cloud: GaussianCloud, cameras: Sequence[Camera], background: T
 
 def occlusion_masks(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, cameras: Sequence[Camera] | None = None,
                     config: OcclusionConfig = OcclusionConfig(), *, up: Sequence[float] = (0.0, 0.0, 1.0),
-                    background: Sequence[float] = (1.0, 1.0, 1.0)) -> OcclusionResult:
+                    background: Sequence[float] = (1.0, 1.0, 1.0),
+                    renderer: Renderer | None = None) -> OcclusionResult:
     """Return the object-centred renders and the occlusion / inpainting masks of an object in its scene.
 
     Args:
@@ -232,14 +233,16 @@ def occlusion_masks(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, cam
         config: settings.
         up: the scene's up axis (for the default cameras).
         background: RGB behind the renders.
+        renderer: draws the object and the scene (default: the built-in CPU renderer).
     """
     centre, radius = object_extent(object_cloud)
     if cameras is None:
         cameras = object_cameras(centre, radius, config, up=up)
     cameras = list(cameras)
     bg = torch.as_tensor(background, dtype=torch.float32)
-    o_rgb, o_alpha, o_depth = _render_stack(object_cloud, cameras, bg)
-    s_rgb, _, s_depth = _render_stack(scene_cloud, cameras, bg)
+    renderer = resolve_renderer(renderer)
+    o_rgb, o_alpha, o_depth = _render_stack(object_cloud, cameras, bg, renderer)
+    s_rgb, _, s_depth = _render_stack(scene_cloud, cameras, bg, renderer)
     present = o_alpha >= config.alpha_threshold
     scene_d = torch.where(s_depth > 0, s_depth, torch.full_like(s_depth, float("inf")))
     occluded_raw = present & (scene_d < o_depth - config.depth_tolerance * radius)

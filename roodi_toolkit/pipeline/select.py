@@ -19,6 +19,7 @@ from torch import Tensor
 from ..errors import ConfigError, RoodiError
 from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
+from ..render.renderer import Renderer
 from ..prune.outliers import PruneConfig, PruneReport
 from .distill import ObjectClassifier, cloud_features
 
@@ -103,8 +104,10 @@ def prune_selection(selection: Selection, config: PruneConfig | None = None, *,
 
 def run_select(distill_dir: str | Path, object_id: int, output_ply: str | Path, *, threshold: float = 0.3,
                prune: bool = True, prune_config: PruneConfig | None = None, picture: str | Path | None = None,
-               overwrite: bool = False, progress: ProgressFactory = null_progress) -> dict[str, Any]:
-    """Select object ``object_id`` of a distillation folder, write it as a PLY and a picture; return a summary.
+               overwrite: bool = False, progress: ProgressFactory = null_progress,
+               renderer: Renderer | None = None) -> dict[str, Any]:
+    """Select object ``object_id`` of a distillation folder, write it as a PLY and a picture (drawn by ``renderer``,
+    default the built-in CPU one); return a summary.
 
     The picture (default ``OUT.png`` beside ``OUT.ply``) shows per view: the image, the object's mask, the rendered
     probability of the object, and the selected Gaussians rendered alone on white. It needs the dataset the
@@ -113,8 +116,9 @@ def run_select(distill_dir: str | Path, object_id: int, output_ply: str | Path, 
     from ..io import files
     from ..io.ply import write_ply
     from ..render.pictures import heat, probability_grid
-    from ..render.renderer import render_cloud
-    from .distill import _frozen_tensors, _picture_views, load_distillation, render_features
+    from ..params import GaussianParams
+    from ..render.renderer import render_cloud, resolve_renderer
+    from .distill import _picture_views, load_distillation, render_features
 
     distillation, cloud, classifier = load_distillation(distill_dir)
     inputs = [distillation.root, distillation.model_ply.parent]
@@ -141,13 +145,16 @@ def run_select(distill_dir: str | Path, object_id: int, output_ply: str | Path, 
         masks = FilesSegmenter(distillation.masks_dir).segment(dataset, SegmentPrompt())
         train_views, eval_views = split_views(dataset, int(record.get("holdout_every", 8)))
         feats = cloud_features(cloud)
-        frozen = _frozen_tensors(cloud)
+        frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
+        renderer = resolve_renderer(renderer)
         rows = []
         with torch.no_grad():
             for v in _picture_views(eval_views, train_views):
                 cam = dataset.cameras[v]
-                prob = classifier.probabilities(render_features(frozen, feats, cam))[..., object_id].numpy()
-                alone = render_cloud(sel.cloud, cam, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy()
+                prob = classifier.probabilities(render_features(frozen, feats, cam, renderer=renderer))[
+                    ..., object_id].numpy()
+                alone = render_cloud(sel.cloud, cam, renderer=renderer, background=(1.0, 1.0, 1.0)).rgb.clamp(
+                    0, 1).numpy()
                 target = (masks.masks[v].numpy() == object_id).astype(np.float32)
                 rows.append([dataset.images[v].numpy(), target, heat(prob), alone])
         summary["picture"] = str(files.write_image(probability_grid(rows), pic))

@@ -4,21 +4,25 @@ The strategy is a frozen dataclass of hyperparameters; what changes during train
 Parameter edits that must also touch the optimizer state (relocation, growth) are the small no-grad functions at the
 bottom of this module, in one place.
 
-Parameters are a dict of ``torch.nn.Parameter`` with the raw 3DGS value spaces: ``means [N, 3]``,
-``quats [N, 4]`` (wxyz), ``scales [N, 3]`` (log), ``opacities [N]`` (logits), ``sh0 [N, 1, 3]``,
-``shN [N, K-1, 3]`` and optionally ``features [N, F]``; optimizers is a dict with one Adam per parameter.
+Parameters are a :class:`~roodi_toolkit.params.GaussianParams` (or any mutable mapping of the same names to
+``torch.nn.Parameter``): ``means [N, 3]``, ``quats_wxyz [N, 4]``, ``log_scales [N, 3]``, ``opacity_logits [N]``,
+``sh_dc [N, 3]``, ``sh_rest [N, K-1, 3]`` and optionally ``features [N, F]``; every per-Gaussian tensor follows the
+edits. Optimizers is a dict with one optimizer per parameter name.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, MutableMapping
 
 import torch
 from torch import Tensor
 
 from ..errors import ConfigError
+
+Params = MutableMapping[str, Tensor]
+"""A :class:`~roodi_toolkit.params.GaussianParams` or a name -> Parameter mapping with its names."""
 
 N_MAX = 51
 """Largest number of copies a Gaussian is split into in one relocation (as gsplat)."""
@@ -68,12 +72,12 @@ class MCMCStrategy:
         """Return whether relocation and growth happen after ``step`` (0-based, as gsplat counts)."""
         return (self.refine_start_iter < step < self.refine_stop_iter) and step % self.refine_every == 0
 
-    def regularization(self, params: dict[str, Tensor]) -> Tensor:
+    def regularization(self, params: Params) -> Tensor:
         """Return opacity_reg * mean(opacity) + scale_reg * mean(scale), the MCMC regularisers (activated values)."""
-        reg = self.opacity_reg * torch.sigmoid(params["opacities"]).mean()
-        return reg + self.scale_reg * torch.exp(params["scales"]).mean()
+        reg = self.opacity_reg * torch.sigmoid(params["opacity_logits"]).mean()
+        return reg + self.scale_reg * torch.exp(params["log_scales"]).mean()
 
-    def step_post_backward(self, params: dict[str, torch.nn.Parameter], optimizers: dict[str, torch.optim.Optimizer],
+    def step_post_backward(self, params: Params, optimizers: dict[str, torch.optim.Optimizer],
                            state: "MCMCState", step: int, means_lr: float,
                            generator: torch.Generator | None = None) -> dict[str, int]:
         """Relocate dead Gaussians and grow (on refinement steps), then add position noise; return what was done.
@@ -151,7 +155,7 @@ _Edit = Callable[[str, Tensor], Tensor]
 
 
 @torch.no_grad()
-def update_params_and_optimizers(params: dict[str, torch.nn.Parameter], optimizers: dict[str, torch.optim.Optimizer],
+def update_params_and_optimizers(params: Params, optimizers: dict[str, torch.optim.Optimizer],
                                  param_fn: _Edit, state_fn: _Edit) -> None:
     """Replace every parameter by ``param_fn(name, p)`` and each optimizer state tensor by ``state_fn(name, v)``."""
     for name in list(params):
@@ -178,14 +182,14 @@ def _sample_by_opacity(opacities: Tensor, candidates: Tensor, n: int, generator:
 
 
 @torch.no_grad()
-def _split_into_copies(params: dict[str, torch.nn.Parameter], sampled: Tensor,
+def _split_into_copies(params: Params, sampled: Tensor,
                        min_opacity: float) -> tuple[Tensor, Tensor, Tensor]:
     """Return the unique sampled sources and their new opacity logits and log-scales after sharing with copies."""
     counts = torch.bincount(sampled, minlength=len(params["means"]))
     sources = torch.unique(sampled)
     ratios = counts[sources] + 1  # the source itself plus its copies
-    new_o, new_s = compute_relocation(torch.sigmoid(params["opacities"][sources]),
-                                      torch.exp(params["scales"][sources]), ratios)
+    new_o, new_s = compute_relocation(torch.sigmoid(params["opacity_logits"][sources]),
+                                      torch.exp(params["log_scales"][sources]), ratios)
     new_o = new_o.clamp(min=min_opacity, max=1.0 - torch.finfo(new_o.dtype).eps)
     return sources, torch.logit(new_o), torch.log(new_s)
 
@@ -193,18 +197,18 @@ def _split_into_copies(params: dict[str, torch.nn.Parameter], sampled: Tensor,
 def _with_split_sources(name: str, p: Tensor, sources: Tensor, new_logits: Tensor, new_log_scales: Tensor) -> Tensor:
     """Return a copy of parameter ``name`` with the split sources' opacity or scale set to their shared value."""
     p = p.clone()
-    if name == "opacities":
+    if name == "opacity_logits":
         p[sources] = new_logits.to(p.dtype)
-    elif name == "scales":
+    elif name == "log_scales":
         p[sources] = new_log_scales.to(p.dtype)
     return p
 
 
 @torch.no_grad()
-def relocate_dead(params: dict[str, torch.nn.Parameter], optimizers: dict[str, torch.optim.Optimizer],
+def relocate_dead(params: Params, optimizers: dict[str, torch.optim.Optimizer],
                   min_opacity: float, generator: torch.Generator | None = None) -> int:
     """Move Gaussians with opacity <= min_opacity onto live ones sampled by opacity; return how many moved."""
-    opac = torch.sigmoid(params["opacities"])
+    opac = torch.sigmoid(params["opacity_logits"])
     dead = torch.nonzero(opac <= min_opacity).squeeze(1)
     alive = torch.nonzero(opac > min_opacity).squeeze(1)
     if len(dead) == 0 or len(alive) == 0:
@@ -228,14 +232,14 @@ def relocate_dead(params: dict[str, torch.nn.Parameter], optimizers: dict[str, t
 
 
 @torch.no_grad()
-def grow(params: dict[str, torch.nn.Parameter], optimizers: dict[str, torch.optim.Optimizer], cap_max: int,
+def grow(params: Params, optimizers: dict[str, torch.optim.Optimizer], cap_max: int,
          grow_rate: float, min_opacity: float, generator: torch.Generator | None = None) -> int:
     """Add min(cap_max, (1+grow_rate) N) - N Gaussians as copies of ones sampled by opacity; return how many."""
     n = len(params["means"])
     n_new = max(0, min(cap_max, int((1.0 + grow_rate) * n)) - n)
     if n_new == 0:
         return 0
-    opac = torch.sigmoid(params["opacities"])
+    opac = torch.sigmoid(params["opacity_logits"])
     sampled = _sample_by_opacity(opac, torch.arange(n), n_new, generator)
     sources, new_logits, new_log_scales = _split_into_copies(params, sampled, min_opacity)
 
@@ -258,19 +262,19 @@ def noise_gate(opacities: Tensor, k: float = 100.0, x0: float = 0.995) -> Tensor
 
 
 @torch.no_grad()
-def inject_position_noise(params: dict[str, torch.nn.Parameter], scale: float,
+def inject_position_noise(params: Params, scale: float,
                           generator: torch.Generator | None = None) -> None:
     """Add Gaussian noise to the means, shaped by each covariance and gated by opacity (3DGS-MCMC, Eq. 10)."""
     means = params["means"]
-    opac = torch.sigmoid(params["opacities"])
-    q = torch.nn.functional.normalize(params["quats"], dim=-1)
+    opac = torch.sigmoid(params["opacity_logits"])
+    q = torch.nn.functional.normalize(params["quats_wxyz"], dim=-1)
     w, x, y, z = q.unbind(-1)
     R = torch.stack([
         1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
         2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
     ], dim=-1).reshape(-1, 3, 3)
-    s2 = torch.exp(2.0 * params["scales"])
+    s2 = torch.exp(2.0 * params["log_scales"])
     covars = R @ torch.diag_embed(s2) @ R.transpose(1, 2)
     noise = torch.randn(means.shape, generator=generator, dtype=means.dtype) * noise_gate(opac)[:, None] * scale
     means.add_(torch.einsum("nij,nj->ni", covars, noise))

@@ -27,10 +27,12 @@ from ..io.datasets import Dataset
 from ..errors import ConfigError, RoodiError
 from ..gaussians import SH_C0, GaussianCloud
 from ..progress import ProgressFactory, null_progress
-from ..render.rasterizer import RasterOutput, rasterize
+from ..params import PARAM_NAMES, GaussianParams
+from ..render.renderer import Renderer, RenderOutput, resolve_renderer
 from .strategy import MCMCStrategy, MCMCState
 
-PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh0", "shN")
+CHECKPOINT_VERSION = 2
+"""Version 2: parameters under GaussianParams' names (``log_scales``, ``opacity_logits``, ``sh_dc [N, 3]``)."""
 
 
 @dataclass(frozen=True)
@@ -165,9 +167,9 @@ def depth_points(dataset: Dataset, views: list[int], n: int, generator: torch.Ge
     return points[keep], colors[keep]
 
 
-def init_params(points: np.ndarray, colors: np.ndarray | None, config: TrainConfig,
-                generator: torch.Generator) -> dict[str, torch.nn.Parameter]:
-    """Return the initial parameters at ``points`` [P, 3] (3DGS-MCMC: scales from the 3 nearest neighbours)."""
+def initial_params(points: np.ndarray, colors: np.ndarray | None, config: TrainConfig,
+                   generator: torch.Generator) -> GaussianParams:
+    """Return the initial trainable Gaussians at ``points`` [P, 3] (3DGS-MCMC: scales from the 3 nearest neighbours)."""
     from scipy.spatial import cKDTree
 
     pts = torch.as_tensor(np.asarray(points), dtype=torch.float32)
@@ -182,49 +184,15 @@ def init_params(points: np.ndarray, colors: np.ndarray | None, config: TrainConf
         rgb = torch.as_tensor(np.asarray(colors), dtype=torch.float32)
         rgb = rgb / 255.0 if rgb.max() > 1.0 else rgb
     k = (config.sh_degree + 1) ** 2
-    params = {
-        "means": pts,
-        "quats": torch.rand(n, 4, generator=generator),
-        "scales": torch.log(dist_avg * config.init_scale)[:, None].repeat(1, 3),
-        "opacities": torch.full((n,), math.log(config.init_opacity / (1 - config.init_opacity))),
-        "sh0": rgb_to_sh0(rgb)[:, None, :],
-        "shN": torch.zeros(n, k - 1, 3),
-    }
-    return {name: torch.nn.Parameter(value.contiguous()) for name, value in params.items()}
-
-
-def params_to_cloud(params: dict[str, Tensor]) -> GaussianCloud:
-    """Return the parameters as a GaussianCloud (raw values, as a PLY stores them)."""
-    p = {k: v.detach().cpu().numpy().astype(np.float32) for k, v in params.items()}
-    extras = {}
-    if "features" in p:
-        extras = {f"object_feature_{i}": p["features"][:, i] for i in range(p["features"].shape[1])}
-    return GaussianCloud(means=p["means"], quats_wxyz=p["quats"], log_scales=p["scales"],
-                         opacity_logits=p["opacities"], sh_dc=p["sh0"][:, 0, :], sh_rest=p["shN"], extras=extras)
-
-
-def cloud_to_params(cloud: GaussianCloud, sh_degree: int | None = None) -> dict[str, torch.nn.Parameter]:
-    """Return trainable parameters from a cloud; SH padded with zeros (or cut) to ``sh_degree`` if given."""
-    rest = cloud.sh_rest
-    if sh_degree is not None:
-        k = (sh_degree + 1) ** 2 - 1
-        rest = rest[:, :k] if rest.shape[1] >= k else np.concatenate(
-            [rest, np.zeros((len(cloud), k - rest.shape[1], 3), dtype=np.float32)], axis=1)
-    values = {"means": cloud.means, "quats": cloud.quats_wxyz, "scales": cloud.log_scales,
-              "opacities": cloud.opacity_logits, "sh0": cloud.sh_dc[:, None, :], "shN": rest}
-    # copies: optimizers update parameters in place and must not write into the cloud's arrays
-    return {k: torch.nn.Parameter(torch.tensor(np.asarray(v), dtype=torch.float32)) for k, v in values.items()}
-
-
-def render_params(params: dict[str, Tensor], camera: Camera, *, sh_degree: int | None = None,
-                  background: Tensor | None = None, features: Tensor | None = None) -> RasterOutput:
-    """Return the rendering of trainable parameters in ``camera``."""
-    colors = torch.cat([params["sh0"], params["shN"]], dim=1)
-    return rasterize(params["means"], params["quats"], params["scales"], params["opacities"], colors,
-                     torch.as_tensor(camera.world_to_camera, dtype=torch.float32),
-                     torch.as_tensor(camera.K, dtype=torch.float32), camera.width, camera.height,
-                     near=camera.near, far=camera.far, background=background, sh_degree=sh_degree,
-                     features=features)
+    params = GaussianParams(
+        means=pts,
+        quats_wxyz=torch.rand(n, 4, generator=generator),
+        log_scales=torch.log(dist_avg * config.init_scale)[:, None].repeat(1, 3),
+        opacity_logits=torch.full((n,), math.log(config.init_opacity / (1 - config.init_opacity))),
+        sh_dc=rgb_to_sh0(rgb),
+        sh_rest=torch.zeros(n, k - 1, 3),
+    )
+    return params.requires_grad_()
 
 
 def psnr(a: Tensor, b: Tensor) -> float:
@@ -249,11 +217,13 @@ class Trainer:
         dataset: the posed images (train views are used for optimisation).
         config: hyperparameters.
         train_indices: views to optimise on (default: the dataset's train split minus held-out views).
+        renderer: draws every training and evaluation view (default: the built-in CPU renderer).
     """
 
     def __init__(self, dataset: Dataset, config: TrainConfig = TrainConfig(),
-                 train_indices: list[int] | None = None) -> None:
+                 train_indices: list[int] | None = None, *, renderer: Renderer | None = None) -> None:
         self.dataset = dataset
+        self.renderer = resolve_renderer(renderer)
         self.config = config
         self.train_indices, self.eval_indices = split_views(dataset, config.holdout_every)
         if train_indices is not None:
@@ -268,7 +238,7 @@ class Trainer:
         self._order: Tensor = torch.empty(0, dtype=torch.long)
         self._pos = 0
         self.history: list[dict[str, float]] = []
-        self.params = init_params(*self._initial_points(), config, self.generator)
+        self.params = initial_params(*self._initial_points(), config, self.generator)
         self._make_optimizers()
 
     # ------------------------------------------------------------------------------------------------ set-up
@@ -288,8 +258,8 @@ class Trainer:
 
     def _make_optimizers(self) -> None:
         cfg = self.config
-        lrs = {"means": cfg.means_lr * self.scale, "quats": cfg.quats_lr, "scales": cfg.scales_lr,
-               "opacities": cfg.opacities_lr, "sh0": cfg.sh0_lr, "shN": cfg.shN_lr}
+        lrs = {"means": cfg.means_lr * self.scale, "quats_wxyz": cfg.quats_lr, "log_scales": cfg.scales_lr,
+               "opacity_logits": cfg.opacities_lr, "sh_dc": cfg.sh0_lr, "sh_rest": cfg.shN_lr}
         self.optimizers = {name: torch.optim.Adam([self.params[name]], lr=lrs[name], eps=1e-15)
                            for name in PARAM_NAMES}
         gamma = cfg.means_lr_final ** (1.0 / max(cfg.iterations, 1))
@@ -301,7 +271,7 @@ class Trainer:
 
     @property
     def num_gaussians(self) -> int:
-        return len(self.params["means"])
+        return len(self.params)
 
     def _next_view(self) -> int:
         if self._pos >= len(self._order):
@@ -325,8 +295,7 @@ class Trainer:
             old_background = background
             background = torch.rand(3, generator=self.generator)
             gt = (gt + (1 - alpha) * (background - old_background)).clamp(0, 1)
-        out = render_params(self.params, camera, sh_degree=self.sh_degree, background=background,
-                            features=self._rendered_features())
+        out = self.renderer.render(self.params, camera, sh_degree=self.sh_degree, background=background)
         l1 = torch.abs(out.rgb - gt).mean()
         ssim = ssim_value(out.rgb, gt, cfg.ssim_window)
         loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim) + self.strategy.regularization(self.params)
@@ -345,11 +314,7 @@ class Trainer:
         return {"step": self.step, "loss": float(loss.detach()), "l1": float(l1.detach()),
                 "psnr": psnr(out.rgb.detach(), gt), "count": self.num_gaussians}
 
-    def _rendered_features(self) -> Tensor | None:
-        """Return per-Gaussian features to render beside the colour (none here; see :mod:`roodi_toolkit.pipeline.joint`)."""
-        return None
-
-    def _extra_loss(self, out: RasterOutput, view: int) -> Tensor | None:
+    def _extra_loss(self, out: RenderOutput, view: int) -> Tensor | None:
         """Return a loss term added to the photometric loss of ``view`` (none here)."""
         return None
 
@@ -361,21 +326,23 @@ class Trainer:
             return {}
         background = torch.tensor(self.dataset.background, dtype=torch.float32)
         psnrs, ssims = [], []
+        colour_only = self.params.with_features(None)  # features (joint training) are not scored here
         for i in indices:
-            out = render_params(self.params, self.dataset.cameras[i], sh_degree=self.sh_degree, background=background)
+            out = self.renderer.render(colour_only, self.dataset.cameras[i], sh_degree=self.sh_degree,
+                                       background=background)
             psnrs.append(psnr(out.rgb, self.dataset.images[i]))
             ssims.append(float(ssim_value(out.rgb.clamp(0, 1), self.dataset.images[i])))
         return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims))}
 
     def to_cloud(self) -> GaussianCloud:
         """Return the current model as a GaussianCloud."""
-        return params_to_cloud(self.params)
+        return self.params.to_cloud()
 
     # ------------------------------------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:
         """Return everything needed to resume: parameters, optimizers, scheduler, strategy, RNG and view order."""
         return {
-            "version": 1,
+            "version": CHECKPOINT_VERSION,
             "step": self.step,
             "config": self.config.to_dict(),
             "params": {k: v.detach().clone() for k, v in self.params.items()},
@@ -390,8 +357,12 @@ class Trainer:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore a state from :meth:`state_dict` (the dataset and config must be the run's own)."""
+        if state.get("version") != CHECKPOINT_VERSION:
+            raise RoodiError(f"checkpoint version {state.get('version')} is not {CHECKPOINT_VERSION} (written by an "
+                             "older roodi-toolkit, before the parameters were renamed); train afresh with --overwrite")
         try:
-            self.params = {k: torch.nn.Parameter(state["params"][k].clone()) for k in self.params}
+            self.params = GaussianParams(**{k: torch.nn.Parameter(state["params"][k].clone())
+                                            for k in self.params.keys()})
             self._make_optimizers()
             for k, opt in self.optimizers.items():
                 opt.load_state_dict(state["optimizers"][k])
@@ -441,7 +412,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
                 progress: ProgressFactory = null_progress, iterations_override: int | None = None,
                 on_step: Callable[[Trainer, dict[str, float]], None] | None = None,
                 make_trainer: Callable[[Dataset, TrainConfig], Trainer] | None = None,
-                dataset: Dataset | None = None) -> TrainResult:
+                dataset: Dataset | None = None, renderer: Renderer | None = None) -> TrainResult:
     """Train a scene model and write it in the layout other 3DGS tools read; return where it is and its figures.
 
     Writes ``out_dir/point_cloud/iteration_N/point_cloud.ply`` (Inria PLY), ``checkpoints/latest.pt`` (every
@@ -460,8 +431,9 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
             learning-rate decay keeps the original schedule).
         on_step: called after every step (tests use it to interrupt a run).
         make_trainer: builds the trainer from the dataset and config (default :class:`Trainer`; the single-stage
-            ablation passes one that also trains object features).
+            ablation passes one that also trains object features, with its own renderer).
         dataset: ``data_dir`` already decoded at ``downscale`` (the caller's copy is used, not read again).
+        renderer: draws the training views (default: the built-in CPU renderer).
     """
     from ..io import files
     from ..io.datasets import load_dataset
@@ -484,7 +456,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
         state = None
     if dataset is None:
         dataset = load_dataset(data_dir, downscale)
-    trainer = (make_trainer or Trainer)(dataset, config)
+    trainer = make_trainer(dataset, config) if make_trainer else Trainer(dataset, config, renderer=renderer)
     if state is not None:
         trainer.load_state_dict(state)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
@@ -549,10 +521,11 @@ def write_training_pictures(trainer: Trainer, out: Path, max_renders: int = 4) -
     renders = out / "renders"
     renders.mkdir(exist_ok=True)
     background = torch.tensor(trainer.dataset.background, dtype=torch.float32)
+    colour_only = trainer.params.with_features(None)
     with torch.no_grad():
         for i in (trainer.eval_indices or trainer.train_indices)[:max_renders]:
             cam = trainer.dataset.cameras[i]
-            img = render_params(trainer.params, cam, sh_degree=trainer.sh_degree, background=background).rgb
+            img = trainer.renderer.render(colour_only, cam, sh_degree=trainer.sh_degree, background=background).rgb
             pair = torch.cat([img.clamp(0, 1), trainer.dataset.images[i]], dim=1).numpy()
             files.write_image(pair, renders / f"{cam.name or i}_render_vs_gt.png")
 

@@ -1,4 +1,4 @@
-"""The renderer plugin interface: Gaussians as tensors + a :class:`~roodi_toolkit.cameras.Camera` -> images.
+"""The renderer plugin interface: :class:`~roodi_toolkit.params.GaussianParams` + a camera -> images.
 
 A renderer is a class registered under the entry-point group ``roodi_toolkit.renderers``; the built-in ``torch``
 renderer (:class:`TorchRenderer`, this package's ``setup.cfg``) registers exactly as a third-party one does, e.g. the
@@ -9,78 +9,38 @@ renderer (:class:`TorchRenderer`, this package's ``setup.cfg``) registers exactl
         torch = roodi_toolkit.render.renderer:TorchRenderer
 
 A renderer class subclasses :class:`Renderer`: ``available()`` says whether it can run here (and why not), and
-``render(gaussians, camera, ...)`` returns a :class:`RenderOutput` (channels-last images, differentiable w.r.t. every
-tensor in ``gaussians``).
+``render(params, camera, ...)`` returns a :class:`RenderOutput` (channels-last images, differentiable w.r.t. every
+tensor in ``params``; ``params.features`` are rendered when set).
+
+Optional capability: a renderer that can list the alpha-compositing weights of a view as a sparse matrix implements
+``compositing_weights(params, camera)`` (:class:`CompositingWeights`; the built-in one does). Distillation and the
+click segmenter use it as a fast path when the renderer has it, and the dense ``render`` of features otherwise.
+
+Every pipeline stage that renders takes ``renderer: Renderer | None = None``; :func:`resolve_renderer` turns that
+(or a registered name) into an instance, None meaning the built-in :class:`TorchRenderer`.
 """
 
 from __future__ import annotations
 
+import warnings
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, fields
-from typing import Any, Optional, Sequence
+from typing import Any, Optional, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..errors import CloudError, PluginError
+from ..errors import PluginError
 from ..gaussians import GaussianCloud
+from ..params import GaussianParams
 from ..plugins import discover, instantiate
-from .rasterizer import RasterOutput, rasterize
+from . import rasterizer as _rasterizer
+from .rasterizer import RasterOutput
 
 RenderOutput = RasterOutput
 """What every renderer returns: rgb [H, W, 3], alpha [H, W, 1], depth [H, W, 1] (expected depth), features
 [H, W, F] or None, means2d [N, 2] (see ``means2d_grad()``), radii [N, 2], depths [N], visible [N]."""
-
-
-@dataclass
-class GaussianTensors:
-    """Gaussians as (possibly trainable) tensors in their raw value spaces, the renderers' input.
-
-    Attributes:
-        means: centres. [N, 3]
-        quats_wxyz: rotations, w first, not necessarily normalised. [N, 4]
-        log_scales: log standard deviations. [N, 3]
-        opacity_logits: pre-sigmoid opacities. [N]
-        colors: SH coefficients, DC first, coefficient-major ([N, K, 3]), or plain RGB ([N, 3]).
-        features: extra channels composited with the same weights, e.g. object features, or None. [N, F]
-
-    Example:
-        >>> cloud = GaussianCloud.from_activated(np.zeros((2, 3)), scales=np.full((2, 3), 0.1),
-        ...                                      opacities=np.array([0.5, 0.9]), rgb=np.full((2, 3), 0.5))
-        >>> g = GaussianTensors.from_cloud(cloud)
-        >>> len(g), tuple(g.colors.shape)
-        (2, (2, 1, 3))
-    """
-
-    means: Tensor
-    quats_wxyz: Tensor
-    log_scales: Tensor
-    opacity_logits: Tensor
-    colors: Tensor
-    features: Optional[Tensor] = None
-
-    def __len__(self) -> int:
-        return int(self.means.shape[0])
-
-    @classmethod
-    def from_cloud(cls, cloud: GaussianCloud, *, dtype: torch.dtype = torch.float32, device: str = "cpu",
-                   features: Optional[Sequence[str]] = None) -> "GaussianTensors":
-        """Return the cloud's arrays as tensors; ``features`` names extra columns to stack as feature channels."""
-        t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=dtype, device=device)  # noqa: E731
-        feats = None
-        if features:
-            missing = [name for name in features if name not in cloud.extras]
-            if missing:
-                raise CloudError(f"the cloud has no extra column(s) {missing}; it has {list(cloud.extras) or 'none'}")
-            feats = t(np.stack([cloud.extras[name].astype(np.float64) for name in features], axis=1))
-        return cls(t(cloud.means), t(cloud.quats_wxyz), t(cloud.log_scales), t(cloud.opacity_logits), t(cloud.sh),
-                   feats)
-
-    def tensors(self) -> dict[str, Optional[Tensor]]:
-        """Return the fields by name."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 class Renderer(ABC):
@@ -94,16 +54,26 @@ class Renderer(ABC):
         return True, ""
 
     @abstractmethod
-    def render(self, gaussians: GaussianTensors, camera: Camera, *, background: Optional[Sequence[float]] = None,
+    def render(self, params: GaussianParams, camera: Camera, *, background: Optional[Sequence[float]] = None,
                sh_degree: Optional[int] = None) -> RenderOutput:
-        """Return the rendering of ``gaussians`` seen by ``camera``.
+        """Return the rendering of ``params`` seen by ``camera``.
 
         Args:
-            gaussians: the Gaussians (any tensor may require grad).
+            params: the Gaussians (any tensor may require grad); ``params.features`` ``[N, F]`` are composited with
+                the same weights into ``RenderOutput.features`` when set.
             camera: the view; ``near``/``far`` cull Gaussians by camera-space depth.
             background: RGB behind the Gaussians (default black); not applied to depth or features.
             sh_degree: evaluate SH only up to this degree (default: all coefficients given).
         """
+
+
+@runtime_checkable
+class CompositingWeights(Protocol):
+    """The optional capability of a renderer to list a view's alpha-compositing weights (see the module doc)."""
+
+    def compositing_weights(self, params: GaussianParams, camera: Camera, *,
+                            max_elements: Optional[int] = None) -> Tensor:
+        """Return the sparse CSR ``[H*W, N]`` matrix of ``alpha_i T_i`` per pixel (row-major) and Gaussian."""
 
 
 class TorchRenderer(Renderer):
@@ -114,9 +84,11 @@ class TorchRenderer(Renderer):
         >>> cloud = GaussianCloud.from_activated(np.zeros((1, 3)), scales=np.full((1, 3), 0.2),
         ...                                      opacities=np.array([0.99]), rgb=np.array([[1.0, 0.0, 0.0]]))
         >>> cam = Camera(look_at([0, -3, 0], [0, 0, 0]), intrinsics_from_fov(0.8, 33, 33), 33, 33)
-        >>> out = TorchRenderer().render(GaussianTensors.from_cloud(cloud), cam, background=(0, 0, 1))
+        >>> out = TorchRenderer().render(GaussianParams.from_cloud(cloud), cam, background=(0, 0, 1))
         >>> [round(v, 3) for v in out.rgb[16, 16].tolist()], round(out.depth[16, 16].item(), 3)
         ([0.99, 0.0, 0.01], 3.0)
+        >>> isinstance(TorchRenderer(), CompositingWeights)
+        True
     """
 
     name = "torch"
@@ -126,15 +98,42 @@ class TorchRenderer(Renderer):
         self.chunk = chunk
         self.max_elements = max_elements
 
-    def render(self, gaussians: GaussianTensors, camera: Camera, *, background: Optional[Sequence[float]] = None,
+    def render(self, params: GaussianParams, camera: Camera, *, background: Optional[Sequence[float]] = None,
                sh_degree: Optional[int] = None) -> RenderOutput:
-        dtype = gaussians.means.dtype
+        dtype = params.dtype
         bg = None if background is None else torch.as_tensor(background, dtype=dtype)
-        return rasterize(gaussians.means, gaussians.quats_wxyz, gaussians.log_scales, gaussians.opacity_logits,
-                         gaussians.colors, torch.as_tensor(camera.world_to_camera, dtype=dtype),
-                         torch.as_tensor(camera.K, dtype=dtype), camera.width, camera.height, near=camera.near,
-                         far=camera.far, features=gaussians.features, background=bg, sh_degree=sh_degree,
-                         tile_size=self.tile_size, chunk=self.chunk, max_elements=self.max_elements)
+        return _rasterizer.rasterize(
+            params.means, params.quats_wxyz, params.log_scales, params.opacity_logits, params.colors,
+            torch.as_tensor(camera.world_to_camera, dtype=dtype), torch.as_tensor(camera.K, dtype=dtype),
+            camera.width, camera.height, near=camera.near, far=camera.far, features=params.features, background=bg,
+            sh_degree=sh_degree, tile_size=self.tile_size, chunk=self.chunk, max_elements=self.max_elements)
+
+    def compositing_weights(self, params: GaussianParams, camera: Camera, *,
+                            max_elements: Optional[int] = None) -> Tensor:
+        """Return the sparse CSR ``[H*W, N]`` matrix of the alpha-compositing weights of ``params`` in ``camera``.
+
+        Row ``p`` holds ``alpha_i T_i`` of every Gaussian that contributes to pixel ``p`` (row-major), computed by
+        the rasterizer's own tiles (:func:`roodi_toolkit.render.rasterizer.compositing_pairs`), so ``W @ features``
+        is the feature image :meth:`render` returns, to float rounding. ``max_elements`` (default this renderer's)
+        bounds the (pixel, Gaussian) pairs held at once.
+        """
+        dtype = params.dtype
+        rows, cols, vals = _rasterizer.compositing_pairs(
+            params.means.detach(), params.quats_wxyz.detach(), params.log_scales.detach(),
+            params.opacity_logits.detach(), torch.as_tensor(camera.world_to_camera, dtype=dtype),
+            torch.as_tensor(camera.K, dtype=dtype), camera.width, camera.height, near=camera.near, far=camera.far,
+            tile_size=self.tile_size, chunk=self.chunk,
+            max_elements=self.max_elements if max_elements is None else max_elements)
+        coo = torch.sparse_coo_tensor(torch.stack([rows, cols]), vals, (camera.height * camera.width, len(params)),
+                                      check_invariants=False)
+        return to_csr(coo)
+
+
+def to_csr(coo: Tensor) -> Tensor:
+    """Return a sparse COO matrix in CSR form (torch warns that CSR is beta; the products used here are stable)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return coo.coalesce().to_sparse_csr()
 
 
 def renderer_names() -> list[str]:
@@ -152,7 +151,30 @@ def get_renderer(name: str = "torch", **options: Any) -> Renderer:
     return instantiate("renderers", name, Renderer, **options)
 
 
-def render_cloud(cloud: GaussianCloud, camera: Camera, *, renderer: Renderer | str = "torch",
+def resolve_renderer(renderer: Renderer | str | None = None) -> Renderer:
+    """Return ``renderer`` itself, the renderer registered under that name, or the built-in :class:`TorchRenderer`
+    for None: the one place every stage turns its ``renderer`` argument into an instance.
+
+    Example:
+        >>> type(resolve_renderer()).__name__, resolve_renderer("torch").name
+        ('TorchRenderer', 'torch')
+    """
+    if renderer is None:
+        return TorchRenderer()
+    if isinstance(renderer, str):
+        return get_renderer(renderer)
+    if not isinstance(renderer, Renderer):
+        raise PluginError(f"a renderer must be a roodi_toolkit Renderer or a registered name, got "
+                          f"{type(renderer).__name__}")
+    return renderer
+
+
+def has_compositing_weights(renderer: Renderer) -> bool:
+    """Return whether ``renderer`` has the optional :class:`CompositingWeights` capability."""
+    return isinstance(renderer, CompositingWeights)
+
+
+def render_cloud(cloud: GaussianCloud, camera: Camera, *, renderer: Renderer | str | None = None,
                  background: Optional[Sequence[float]] = None, sh_degree: Optional[int] = None,
                  features: Optional[Sequence[str]] = None) -> RenderOutput:
     """Return the rendering of a :class:`GaussianCloud` in ``camera`` (no gradients).
@@ -160,13 +182,12 @@ def render_cloud(cloud: GaussianCloud, camera: Camera, *, renderer: Renderer | s
     Args:
         cloud: the Gaussians.
         camera: the view.
-        renderer: a renderer instance or a registered name.
+        renderer: a renderer instance, a registered name, or None for the built-in one.
         background: RGB behind the Gaussians (default black).
         sh_degree: evaluate SH only up to this degree.
         features: names of extra columns of the cloud to render as feature channels.
     """
-    if isinstance(renderer, str):
-        renderer = get_renderer(renderer)
-    gaussians = GaussianTensors.from_cloud(cloud, features=features)
+    renderer = resolve_renderer(renderer)
+    params = GaussianParams.from_cloud(cloud, features=features)
     with torch.no_grad():
-        return renderer.render(gaussians, camera, background=background, sh_degree=sh_degree)
+        return renderer.render(params, camera, background=background, sh_degree=sh_degree)

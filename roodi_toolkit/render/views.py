@@ -14,13 +14,15 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
+import torch
 
 from ..cameras import Camera, orbit_cameras
 from ..errors import CloudError, ConfigError
 from ..io.files import write_image, write_json
 from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
-from .renderer import Renderer, get_renderer, render_cloud
+from ..params import GaussianParams
+from .renderer import Renderer, resolve_renderer
 
 WHATS = ("rgb", "depth", "alpha")
 
@@ -96,21 +98,21 @@ def colorize_depth(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def render_views(cloud: GaussianCloud, cameras: Sequence[Camera], out_dir: str | os.PathLike, *, what: str = "rgb",
-                 renderer: Renderer | str = "torch", background: Sequence[float] = (0.0, 0.0, 0.0),
+                 renderer: Renderer | str | None = None, background: Sequence[float] = (0.0, 0.0, 0.0),
                  min_alpha: float = 0.5, progress: ProgressFactory = null_progress) -> dict:
     """Render every camera and write the images into an existing folder; return the ``render.json`` record.
 
     Files per view (named after ``camera.name``, else ``view_###``): ``rgb``: ``NAME.png``; ``alpha``:
     ``NAME_alpha.png`` (8-bit); ``depth``: ``NAME_depth.png`` (16-bit, see :class:`DepthEncoding`) and
-    ``NAME_depth_preview.png``.
+    ``NAME_depth_preview.png``. ``renderer``: an instance, a registered name, or None for the built-in one.
     """
     if what not in WHATS:
         raise ConfigError(f"unknown render output {what!r}; choose one of {', '.join(WHATS)}")
     if not cameras:
         raise ConfigError("no cameras to render")
     out = Path(out_dir)
-    if isinstance(renderer, str):
-        renderer = get_renderer(renderer)
+    renderer = resolve_renderer(renderer)
+    params = GaussianParams.from_cloud(cloud)
     names = _view_names(cameras)
     encoding = depth_encoding_for(cloud, cameras, min_alpha) if what == "depth" else None
     record: dict = {"what": what, "renderer": type(renderer).__name__, "background": list(background),
@@ -121,7 +123,8 @@ def render_views(cloud: GaussianCloud, cameras: Sequence[Camera], out_dir: str |
                            "definition": "expected (alpha-weighted, normalised) camera-space z"}
     with progress(total=len(cameras), desc=f"rendering {what}") as bar:
         for cam, name in zip(cameras, names):
-            res = render_cloud(cloud, cam, renderer=renderer, background=background)
+            with torch.no_grad():
+                res = renderer.render(params, cam, background=background)
             files = []
             if what == "rgb":
                 files.append(write_image(res.rgb.cpu().numpy(), out / f"{name}.png"))

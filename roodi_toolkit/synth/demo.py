@@ -31,6 +31,7 @@ from ..pipeline.extract import ExtractConfig
 from ..gaussians import GaussianCloud
 from ..evaluate.metrics import Evaluation
 from ..progress import ProgressFactory, null_progress
+from ..render.renderer import Renderer, resolve_renderer
 from .scenegen import PRESETS, SceneSettings
 from ..pipeline.train import TrainConfig, config_with
 
@@ -243,7 +244,8 @@ def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visi
 
 
 def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDemoConfig(), *,
-                     overwrite: bool = False, progress: ProgressFactory = null_progress) -> ExtractDemoResult:
+                     overwrite: bool = False, progress: ProgressFactory = null_progress,
+                     renderer: Renderer | None = None) -> ExtractDemoResult:
     """Return the figures of an extraction on a generated scene, after writing the scene, the object and pictures.
 
     Generates the scene into ``out_dir/data``, extracts the target into ``out_dir/extraction`` (train, distil with
@@ -257,6 +259,7 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
         config: scene, target and extraction settings.
         overwrite: write into an existing folder.
         progress: progress factory (one bar per stage).
+        renderer: every rendering of the extraction and its scoring (default: the built-in CPU renderer).
 
     Raises:
         ConfigError: bad settings, or ``config.object_id`` is not one of the scene's targets.
@@ -269,6 +272,7 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     from ..io.ply import read_ply
     from .scenegen import build_scene, make_scene
 
+    renderer = resolve_renderer(renderer)
     load_start = os.getloadavg()[0]
     t0 = time.perf_counter()
     clock = _Clock()
@@ -299,7 +303,8 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     clock.lap("choose_target")
 
     ex_dir = out / "extraction"
-    report = extract_objects(data, ex_dir, [object_id], config=config.extract, overwrite=overwrite, progress=progress)
+    report = extract_objects(data, ex_dir, [object_id], config=config.extract, overwrite=overwrite, progress=progress,
+                             renderer=renderer)
     entry = report["objects"][str(object_id)]
     for stage in ("train", "distill"):
         clock.wall[stage] = report["stages"][f"{stage}_s"]
@@ -310,8 +315,8 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
 
     odir = ex_dir / f"object_{object_id}"
     final, selected = read_ply(odir / "object.ply"), read_ply(odir / "selected.ply")
-    evaluation, renders = evaluate_object(final, data, object_id, progress=progress)
-    before, before_renders = evaluate_object(selected, data, object_id, progress=progress)
+    evaluation, renders = evaluate_object(final, data, object_id, progress=progress, renderer=renderer)
+    before, before_renders = evaluate_object(selected, data, object_id, progress=progress, renderer=renderer)
     clock.lap("evaluate")
 
     # the test view of median PSNR (a representative one), and the training view hiding most of the target

@@ -12,7 +12,8 @@ import torch
 
 from roodi_toolkit.cameras import Camera
 from roodi_toolkit.errors import PluginError
-from roodi_toolkit.render.renderer import GaussianTensors, Renderer, RenderOutput
+from roodi_toolkit.params import GaussianParams
+from roodi_toolkit.render.renderer import Renderer, RenderOutput
 
 INSTALL_HINT = "install it with `pip install gsplat` (or `pip install roodi-gsplat[cuda]`) on a machine with CUDA"
 
@@ -26,7 +27,11 @@ def _import_gsplat() -> Any:
 
 
 class GsplatRenderer(Renderer):
-    """Render with gsplat's CUDA rasterizer in 3DGS "classic" mode (the conventions of the built-in renderer)."""
+    """Render with gsplat's CUDA rasterizer in 3DGS "classic" mode (the conventions of the built-in renderer).
+
+    It has no ``compositing_weights``: distillation renders the features densely through :meth:`render`, and the
+    click segmenter takes its weights from the built-in renderer.
+    """
 
     name = "gsplat"
 
@@ -45,20 +50,18 @@ class GsplatRenderer(Renderer):
             return False, "gsplat rasterizes only on CUDA GPUs and torch sees none; use --renderer torch on CPUs"
         return True, ""
 
-    def render(self, gaussians: GaussianTensors, camera: Camera, *, background: Optional[Sequence[float]] = None,
+    def render(self, params: GaussianParams, camera: Camera, *, background: Optional[Sequence[float]] = None,
                sh_degree: Optional[int] = None) -> RenderOutput:
         gsplat = _import_gsplat()
-        src_device = gaussians.means.device
+        src_device = params.device
         dev = self.device
-        g = {k: (None if v is None else v.to(dev)) for k, v in gaussians.tensors().items()}
+        g = {k: v.to(dev) for k, v in params.items()}  # .to keeps the autograd graph back to the caller's tensors
+        g.setdefault("features", None)
         dtype = g["means"].dtype
         viewmats = torch.as_tensor(camera.world_to_camera, dtype=dtype, device=dev)[None]
         Ks = torch.as_tensor(camera.K, dtype=dtype, device=dev)[None]
-        colors = g["colors"]
-        if colors.ndim == 3:
-            degree = {1: 0, 4: 1, 9: 2, 16: 3}[colors.shape[1]] if sh_degree is None else sh_degree
-        else:
-            degree = None
+        colors = torch.cat([g["sh_dc"][:, None, :], g["sh_rest"]], dim=1)  # [N, K, 3]
+        degree = params.sh_degree if sh_degree is None else sh_degree
         bg = None if background is None else torch.as_tensor(background, dtype=dtype, device=dev).reshape(1, 3)
         common = dict(means=g["means"], quats=g["quats_wxyz"], scales=torch.exp(g["log_scales"]),
                       opacities=torch.sigmoid(g["opacity_logits"]), viewmats=viewmats, Ks=Ks, width=camera.width,

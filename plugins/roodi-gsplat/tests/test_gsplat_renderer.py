@@ -11,7 +11,8 @@ import torch
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.errors import PluginError
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.render.renderer import GaussianTensors, TorchRenderer, get_renderer
+from roodi_toolkit.params import GaussianParams
+from roodi_toolkit.render.renderer import TorchRenderer, get_renderer
 
 from roodi_gsplat import GsplatRenderer
 
@@ -36,7 +37,7 @@ def test_agrees_with_torch_renderer():
                                          opacities=rng.uniform(0.05, 0.6, n), rgb=rng.uniform(0, 1, (n, 3)),
                                          quats_wxyz=rng.normal(size=(n, 4)))
     cam = Camera(look_at([0, -3, 1], [0, 0, 0]), intrinsics_from_fov(math.radians(50), 96, 80), 96, 80)
-    g = GaussianTensors.from_cloud(cloud)
+    g = GaussianParams.from_cloud(cloud)
     ref = TorchRenderer().render(g, cam, background=(0.1, 0.2, 0.3))
     out = GsplatRenderer().render(g, cam, background=(0.1, 0.2, 0.3))
     # opacities below 0.6 never reach either alpha clamp (0.99 here, 0.999 in gsplat), so the images agree

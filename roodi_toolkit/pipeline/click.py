@@ -1,0 +1,390 @@
+"""The ``click`` segmenter: one or two clicks in one view -> the clicked object's Gaussians -> masks of every view.
+
+See :class:`ClickSegmenter` for the method; the interface it implements is :mod:`roodi_toolkit.pipeline.segment`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Optional, Sequence
+
+import numpy as np
+import torch
+
+from ..cameras import Camera
+from ..errors import ConfigError
+from ..gaussians import GaussianCloud
+from ..io.datasets import Dataset
+from ..params import GaussianParams
+from ..progress import ProgressFactory, null_progress
+from ..render.renderer import Renderer, TorchRenderer, has_compositing_weights, resolve_renderer
+from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
+
+
+# ------------------------------------------------------------------------------------------------------ click
+
+
+def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int, seed: int) -> np.ndarray:
+    """Return the foreground ``[H, W]`` bool of OpenCV GrabCut started from ``init`` (cv2.GC_* labels).
+
+    Falls back to the probable/sure foreground of ``init`` when GrabCut cannot model one of the two sides (it needs
+    pixels of both).
+    """
+    import cv2
+
+    fg = (init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)
+    if fg.all() or not fg.any():
+        return fg
+    img8 = (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)[..., ::-1].copy()  # OpenCV wants BGR
+    mask = init.astype(np.uint8).copy()
+    bgd = np.zeros((1, 65), np.float64)
+    fgd = np.zeros((1, 65), np.float64)
+    cv2.setRNGSeed(seed)
+    try:
+        cv2.grabCut(img8, mask, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    except cv2.error:
+        return fg
+    return (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)
+
+
+def _depth_flood_fill(depth: np.ndarray, allowed: np.ndarray, seeds: Sequence[tuple[int, int]],
+                      tolerance: float) -> np.ndarray:
+    """Return the pixels reached from ``seeds`` (row, col) through 4-neighbours whose depths differ by less than
+    ``tolerance`` relative, within ``allowed``."""
+    import cv2
+
+    logd = np.log(np.where(allowed, np.maximum(depth, 1e-12), 1.0)).astype(np.float32)
+    H, W = depth.shape
+    region = np.zeros((H, W), bool)
+    for r, c in seeds:
+        if region[r, c] or not allowed[r, c]:
+            continue
+        block = np.ones((H + 2, W + 2), np.uint8)
+        block[1:-1, 1:-1] = ~allowed  # floodFill does not enter non-zero mask pixels
+        diff = float(np.log1p(tolerance))
+        cv2.floodFill(logd.copy(), block, (int(c), int(r)), 0.0, diff, diff,
+                      4 | cv2.FLOODFILL_MASK_ONLY | (2 << 8))
+        region |= (block[1:-1, 1:-1] == 2)
+    return region
+
+
+def _fill_holes(mask: np.ndarray) -> np.ndarray:
+    from scipy import ndimage
+
+    return ndimage.binary_fill_holes(mask)
+
+
+def _component_at(mask: np.ndarray, seeds: Sequence[tuple[int, int]]) -> np.ndarray:
+    """Return the union of the 8-connected components of ``mask`` that contain a seed ``(row, col)``."""
+    from scipy import ndimage
+
+    labels, _ = ndimage.label(mask, structure=np.ones((3, 3), bool))
+    ids = {int(labels[r, c]) for r, c in seeds if labels[r, c] > 0}
+    return np.isin(labels, list(ids)) if ids else np.zeros_like(mask)
+
+
+@dataclass(frozen=True)
+class ClickSettings:
+    """Parameters of the ``click`` segmenter (ours; chosen on the generated benchmark scenes, see RESULTS.md).
+
+    Attributes:
+        depth_tolerance_min: in the clicked view, neighbouring pixels belong to the same surface when their depths
+            (of each pixel's largest-weight Gaussian) differ by less than a tolerance, as a fraction of the depth (the
+            clicked region's flood fill); the tolerance starts at this value ...
+        depth_tolerance_max: ... and is multiplied by ``depth_tolerance_step`` up to at most this value ...
+        depth_tolerance_step: ... per step,
+        leak_ratio: stopping before the step that multiplies the region's area by more than this (a leak through a
+            contact onto the ground or a neighbouring object) ...
+        leak_min_pixels: ... once the region has at least this many pixels.
+        region_radius: the clicked region stays within this fraction of the scene box diagonal of the click's 3D
+            point (keeps the flood fill from running along the ground).
+        min_alpha: pixels with rendered alpha below this have no usable depth, and a click there is refused.
+        grabcut_iterations: GrabCut iterations on the clicked view's region.
+        grabcut_min_keep: GrabCut refines the depth fill's region; when it keeps less than this fraction of it (a
+            small, flat-coloured or reflective object whose colours it cannot tell from the background's), the depth
+            fill's region is used as it is.
+        seed_fraction: a Gaussian seeds the object (or the rest) when at least this fraction of its compositing
+            weight in the clicked view falls inside the clicked region (or inside the band around it).
+        min_weight: Gaussians whose summed compositing weight in the clicked view is below this are no seeds.
+        grow_radius: only Gaussians whose centres lie within this multiple of the clicked region's 3D radius (around
+            its centre) can join the object; those beyond are fixed to the rest (so the ground is not followed).
+        neighbours: each Gaussian is linked to this many nearest Gaussians (by centre) in the 3D growth graph.
+        colour_sigma: link strength falls as ``exp(-dist2 / (2 colour_sigma^2))`` of the two Gaussians' DC colours
+            (RGB 0..1), so growth stops at colour edges.
+        colour_weight: strength of each unseeded Gaussian's pull towards the label of the nearest seed colour,
+            relative to one link.
+        threshold: a pixel is in a view's mask when more than this fraction of its rendered alpha comes from the
+            selected Gaussians; a Gaussian is selected when its smoothed label exceeds it.
+        vote_rounds: rounds of the multi-view vote: each Gaussian is re-selected when more than ``threshold`` of its
+            compositing weight over all views falls inside the masks, and the masks are rendered again.
+    """
+
+    depth_tolerance_min: float = 0.004
+    depth_tolerance_max: float = 0.03
+    depth_tolerance_step: float = 1.25
+    leak_ratio: float = 2.0
+    leak_min_pixels: int = 20
+    region_radius: float = 0.15
+    min_alpha: float = 0.5
+    grabcut_iterations: int = 5
+    grabcut_min_keep: float = 0.5
+    seed_fraction: float = 0.5
+    min_weight: float = 1.0
+    grow_radius: float = 1.2
+    neighbours: int = 10
+    colour_sigma: float = 0.1
+    colour_weight: float = 0.1
+    threshold: float = 0.5
+    vote_rounds: int = 2
+
+
+def _view_weights(renderer: Renderer, params: GaussianParams, camera: Camera) -> Any:
+    """Return the sparse ``[H*W, N]`` scipy CSR matrix of the Gaussians' alpha-compositing weights in ``camera``
+    (rows: pixels in row-major order), from the renderer's ``compositing_weights``, in scipy's form for the column
+    slicing and sums the propagation needs."""
+    from scipy import sparse
+
+    w = renderer.compositing_weights(params, camera)
+    return sparse.csr_matrix((w.values().numpy(), w.col_indices().numpy(), w.crow_indices().numpy()), shape=w.shape)
+
+
+class ClickSegmenter(Segmenter):
+    """One or two clicks in one view, grown into a set of the scene's Gaussians and rendered into every view.
+
+    1. Clicked view: the region is a flood fill from the clicks over the depth of each pixel's largest-weight
+       Gaussian (sharp at object edges, unlike the blended expected depth), within ``region_radius`` of the click in
+       3D. Its tolerance grows from ``depth_tolerance_min`` by ``depth_tolerance_step`` and stops before the step
+       where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact); GrabCut on the image
+       then refines it.
+    2. Seeds: with the view's per-pixel compositing weights (the renderer's ``compositing_weights``), a Gaussian whose
+       weight lies mostly inside the region seeds the object; one whose weight lies mostly in the band around the
+       region seeds the rest.
+    3. 3D growth: the Gaussians within ``grow_radius`` times the region's 3D radius are linked to their
+       ``neighbours`` nearest Gaussians, links weakened across colour edges (``colour_sigma``). Each Gaussian's label
+       is the smooth solution of this graph (a sparse linear solve, as in random-walker segmentation) with the
+       seeds held at 1 and 0, the Gaussians beyond the radius at 0, and a weak pull of the others towards the label
+       of the nearest seed colour; labels above ``threshold`` form the selection. This reaches the object's hidden
+       back, which no pixel of the clicked view shows.
+    4. Masks: in every view a pixel is the object when more than ``threshold`` of its alpha comes from the selected
+       Gaussians (occlusion is the full scene's compositing). ``vote_rounds`` times, the selection is re-estimated as
+       the Gaussians whose weight over all views falls mostly inside the masks, and the masks are rendered again.
+
+    Args:
+        renderer: gives the per-pixel compositing weights every step above works on (an instance, a registered
+            name, or None for the built-in one). The method needs each pixel's weight of each Gaussian, which only
+            a renderer with the optional ``compositing_weights`` capability
+            (:class:`~roodi_toolkit.render.renderer.CompositingWeights`) lists; for a renderer without it the
+            weights come from the built-in :class:`~roodi_toolkit.render.renderer.TorchRenderer`, which draws the
+            same Gaussians (a dense rendering cannot give a pixel's largest-weight Gaussian).
+        seed: OpenCV's random seed (GrabCut's GMM initialisation).
+        **settings: fields of :class:`ClickSettings`.
+    """
+
+    name = "click"
+    needs_scene = True
+
+    def __init__(self, renderer: Renderer | str | None = None, seed: int = 0, **settings: Any) -> None:
+        self.renderer = resolve_renderer(renderer)
+        self._weights_renderer = self.renderer if has_compositing_weights(self.renderer) else TorchRenderer()
+        self.seed = seed
+        try:
+            self.settings = ClickSettings(**settings)
+        except TypeError as exc:
+            raise ConfigError(f"click segmenter: {exc}") from None
+
+    @classmethod
+    def available(cls) -> tuple[bool, str]:
+        try:
+            import cv2  # noqa: F401
+        except ImportError:
+            return False, "OpenCV is missing: pip install opencv-python-headless"
+        return True, ""
+
+    def segment(self, dataset: Dataset, prompt: SegmentPrompt, *, scene: Optional[GaussianCloud] = None,
+                progress: ProgressFactory = null_progress) -> ViewMasks:
+        """Return binary masks (1 = the clicked object) of every view.
+
+        Raises:
+            ConfigError: no scene, bad clicks, or a click on empty space (no rendered depth there).
+            SegmentationError: the click selected nothing (the clicked view's mask came out empty).
+        """
+        if scene is None:
+            raise ConfigError("the click segmenter needs the trained scene (its depth) to propagate the clicks")
+        s = self.settings
+        v0 = check_clicks(dataset, prompt.clicks)
+        H, W = dataset.height, dataset.width
+        names = dataset.names
+        params = GaussianParams.from_cloud(scene, sh_degree=0)
+        cam0 = dataset.cameras[v0]
+        w0 = _view_weights(self._weights_renderer, params, cam0)
+        seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks]
+        mask0, band0 = self._clicked_region(dataset, v0, scene, w0, seeds)
+        inside = np.asarray(w0.T @ mask0.reshape(-1).astype(np.float64)).ravel()
+        around = np.asarray(w0.T @ band0.reshape(-1).astype(np.float64)).ravel()
+        total = np.asarray(w0.sum(axis=0)).ravel()
+        seen = total >= s.min_weight
+        fg = seen & (inside >= s.seed_fraction * total)
+        bg = seen & (around >= s.seed_fraction * total)
+        depth0 = self._depth(w0, scene, cam0).reshape(H, W)
+        rc = np.argwhere(mask0 & (depth0 > 0))
+        points = cam0.backproject(rc, depth0[mask0 & (depth0 > 0)])
+        centre = points.mean(axis=0)
+        radius0 = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-6)
+        labels = self._grow(scene, fg, bg, centre, s.grow_radius * radius0)
+        selected = labels > s.threshold
+        candidates = np.linalg.norm(scene.means - centre, axis=1) <= s.grow_radius * radius0
+        info: dict[str, Any] = {"clicked_view": names[v0], "seed_gaussians": int(fg.sum()),
+                                "grown_gaussians": int(selected.sum())}
+        weights = []
+        with progress(total=len(dataset), desc="render the selection") as bar:
+            for v in range(len(dataset)):
+                w = w0 if v == v0 else _view_weights(self._weights_renderer, params, dataset.cameras[v])
+                alpha = np.asarray(w.sum(axis=1)).ravel()
+                weights.append((w[:, candidates].tocsr(), alpha))
+                bar.update(1)
+        cand_index = np.flatnonzero(candidates)
+        sel = selected[cand_index].astype(np.float64)
+        for _ in range(max(int(s.vote_rounds), 0) + 1):
+            masks = [(wc @ sel > s.threshold * np.maximum(alpha, 1e-12)) & (alpha >= 1.0 / 255.0)
+                     for wc, alpha in weights]
+            if _ == s.vote_rounds:
+                break
+            inw = np.zeros(len(cand_index))
+            tot = np.zeros(len(cand_index))
+            for (wc, _alpha), m in zip(weights, masks):
+                inw += wc.T @ m.astype(np.float64)
+                tot += np.asarray(wc.sum(axis=0)).ravel()
+            voted = tot >= s.min_weight
+            sel = np.where(voted, inw > s.threshold * tot, sel > 0).astype(np.float64)
+        info["selected_gaussians"] = int(sel.sum())
+        if not masks[v0].any():
+            raise SegmentationError(
+                f"the click in {names[v0]} selected no Gaussians of the scene model ({int(fg.sum())} seeds, "
+                f"{int(selected.sum())} after growing, none left after the multi-view vote): click nearer the middle "
+                "of the object, add a second click, or give masks with the files segmenter")
+        out = np.stack([m.reshape(H, W) for m in masks]).astype(np.int64)
+        return ViewMasks(torch.from_numpy(out), names, "binary", 2, source=f"click in {names[v0]}", info=info)
+
+    @staticmethod
+    def _depth(weights: Any, scene: GaussianCloud, camera: Camera) -> np.ndarray:
+        """Return the rendered expected depth ``[H*W]`` (0 where nothing is hit) from compositing weights."""
+        z = scene.means @ camera.world_to_camera[2, :3] + camera.world_to_camera[2, 3]
+        alpha = np.asarray(weights.sum(axis=1)).ravel()
+        return np.where(alpha > 1e-10, (weights @ z) / np.maximum(alpha, 1e-10), 0.0)
+
+    @staticmethod
+    def _surface_depth(weights: Any, scene: GaussianCloud, camera: Camera) -> np.ndarray:
+        """Return the depth ``[H*W]`` of each pixel's largest-weight Gaussian (0 where nothing is hit): unlike the
+        expected depth it does not blend across object edges, so a flood fill stops there."""
+        z = scene.means @ camera.world_to_camera[2, :3] + camera.world_to_camera[2, 3]
+        top = np.asarray(weights.argmax(axis=1)).ravel()
+        hit = np.asarray(weights.max(axis=1).todense()).ravel() > 0
+        return np.where(hit, z[top], 0.0)
+
+    def _clicked_region(self, dataset: Dataset, v0: int, scene: GaussianCloud, w0: Any,
+                        seeds: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+        """Return the clicked view's object region and the band of rest around it, both ``[H, W]`` bool."""
+        import cv2
+
+        s = self.settings
+        H, W = dataset.height, dataset.width
+        cam0 = dataset.cameras[v0]
+        alpha0 = np.asarray(w0.sum(axis=1)).ravel().reshape(H, W)
+        depth0 = self._surface_depth(w0, scene, cam0).reshape(H, W)
+        valid0 = (alpha0 >= s.min_alpha) & (depth0 > 0)
+        for r, c in seeds:
+            if not valid0[r, c]:
+                raise ConfigError(f"the click at {c},{r} in {dataset.names[v0]} hits no surface of the scene model "
+                                  f"(rendered alpha below {s.min_alpha}); click on the object")
+        diag = float(np.linalg.norm(np.asarray(dataset.bounds[1]) - np.asarray(dataset.bounds[0])))
+        pts_all = cam0.backproject(np.argwhere(valid0), depth0[valid0])
+        near_grid = np.zeros((H, W), bool)
+        for r, c in seeds:
+            p0 = cam0.backproject(np.array([[r, c]]), depth0[[r], [c]])[0]
+            near_grid[valid0] |= np.linalg.norm(pts_all - p0, axis=1) <= s.region_radius * diag
+        # the fill's tolerance grows step by step and stops before the step where the region suddenly grows
+        # several-fold: it has leaked through a contact onto the ground or a neighbour
+        tol = s.depth_tolerance_min
+        region = _depth_flood_fill(depth0, valid0 & near_grid, seeds, tol)
+        while tol * s.depth_tolerance_step <= s.depth_tolerance_max * (1 + 1e-9):
+            tol *= s.depth_tolerance_step
+            grown = _depth_flood_fill(depth0, valid0 & near_grid, seeds, tol)
+            if region.sum() >= s.leak_min_pixels and grown.sum() > s.leak_ratio * region.sum():
+                break
+            region = grown
+        for r, c in seeds:
+            region[r, c] = True
+        init = np.full((H, W), cv2.GC_BGD, np.uint8)
+        init[_dilate(region, max(2, int(0.1 * math.sqrt(region.sum()))))] = cv2.GC_PR_BGD
+        init[region] = cv2.GC_PR_FGD
+        for r, c in seeds:
+            init[max(0, r - 1):r + 2, max(0, c - 1):c + 2] = cv2.GC_FGD
+        mask0 = _grabcut(dataset.images[v0].numpy(), init, s.grabcut_iterations, self.seed)
+        mask0 = _component_at(_fill_holes(mask0), seeds) & valid0 | (init == cv2.GC_FGD)
+        if mask0.sum() < s.grabcut_min_keep * region.sum():
+            mask0 = region
+        band = _dilate(mask0, max(2, int(round(0.25 * math.sqrt(mask0.sum()))))) & ~mask0
+        return mask0, band
+
+    def _grow(self, scene: GaussianCloud, fg: np.ndarray, bg: np.ndarray, centre: np.ndarray,
+              radius: float) -> np.ndarray:
+        """Return each Gaussian's object label in 0..1 ``[N]``: the seeds grown through the 3D neighbour graph."""
+        from scipy import sparse
+        from scipy.spatial import cKDTree
+        from scipy.sparse.linalg import spsolve
+
+        s = self.settings
+        n = len(scene)
+        dist = np.linalg.norm(scene.means - centre, axis=1)
+        # the graph holds a shell beyond the radius, held at 0, so the growth feels the rest around the object
+        idx = np.flatnonzero(dist <= 1.5 * radius)
+        labels = np.zeros(n)
+        labels[fg] = 1.0
+        if len(idx) < 2:
+            return labels
+        pos = scene.means[idx]
+        rgb = np.clip(scene.rgb[idx], 0, 1)
+        k = min(s.neighbours, len(idx) - 1)
+        _, nb = cKDTree(pos).query(pos, k=k + 1)
+        i = np.repeat(np.arange(len(idx)), k)
+        j = nb[:, 1:].reshape(-1)
+        dc2 = ((rgb[i] - rgb[j]) ** 2).sum(1)
+        w = np.exp(-dc2 / (2 * s.colour_sigma ** 2))
+        A = sparse.coo_matrix((w, (i, j)), shape=(len(idx), len(idx))).tocsr()
+        A = A.maximum(A.T)
+        f, b = fg[idx], bg[idx] & ~fg[idx]
+        outside = dist[idx] > radius
+        fixed = f | b | outside
+        target = np.where(f, 1.0, 0.0)
+        prior = np.zeros(len(idx))
+        if f.any() and (b | outside).any():
+            d_fg, _ = cKDTree(rgb[f]).query(rgb)
+            d_bg, _ = cKDTree(rgb[b | outside]).query(rgb)
+            prior = d_bg / np.maximum(d_fg + d_bg, 1e-12)
+        free = ~fixed
+        if not free.any():
+            labels[idx] = target
+            return labels
+        L = sparse.diags(np.asarray(A.sum(axis=1)).ravel()) - A
+        Lff = L[free][:, free] + sparse.diags(np.full(int(free.sum()), s.colour_weight))
+        rhs = -(L[free][:, fixed] @ target[fixed]) + s.colour_weight * prior[free]
+        x = np.atleast_1d(spsolve(Lff.tocsc(), rhs))
+        out = target.copy()
+        out[free] = x
+        labels[idx] = out
+        return labels
+
+
+def _disk(radius: int) -> np.ndarray:
+    r = max(int(radius), 0)
+    y, x = np.mgrid[-r:r + 1, -r:r + 1]
+    return (x * x + y * y) <= r * r
+
+
+def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    from scipy import ndimage
+
+    return ndimage.binary_dilation(mask, structure=_disk(radius)) if radius > 0 else mask.copy()
+
+
