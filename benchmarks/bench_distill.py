@@ -36,7 +36,7 @@ def main() -> int:
 
     torch.set_num_threads(int(os.environ.get("ROODI_THREADS", "1")))  # as the CLI does; 2 threads are slower here
 
-    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.pipeline.distill import (DistillConfig, alpha_iou, load_distillation, run_distill, select_object)
     from roodi_toolkit.io.files import read_json
     from roodi_toolkit.io.ply import read_ply

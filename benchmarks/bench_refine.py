@@ -48,7 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.bench_inpaint import (finetune_overrides, object_view_truth, psnr_figures,  # noqa: E402
                                       seen_in_views)
 from roodi_toolkit.evaluate.benchmark import MACHINE_SIZE, PRESETS, extract_config  # noqa: E402
-from roodi_toolkit.io.datasets import load_dataset  # noqa: E402
+from roodi_toolkit.io.dataset import load_dataset  # noqa: E402
 from roodi_toolkit.pipeline.distill import load_distillation  # noqa: E402
 from roodi_toolkit.io.files import read_json, write_json  # noqa: E402
 from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,  # noqa: E402

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.cli.main import main
-from roodi_toolkit.io.datasets import load_dataset
+from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.errors import ConfigError, OutputError
 from roodi_toolkit.io.files import read_image, read_json
 from roodi_toolkit.synth.scenegen import (

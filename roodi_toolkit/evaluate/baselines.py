@@ -25,7 +25,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..io.datasets import Dataset
+from ..io.dataset import Dataset
 from ..pipeline.distill import ObjectClassifier, _frozen_tensors, cloud_features, render_features
 from ..errors import ConfigError, RoodiError
 from ..gaussians import GaussianCloud

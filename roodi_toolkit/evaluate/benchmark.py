@@ -156,7 +156,7 @@ def method_config(method: str, base: ExtractConfig) -> ExtractConfig:
 
 def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
     """Return the metrics of an empty extraction (a white render, no coverage)."""
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from .metrics import Evaluation, find_target, score_views
 
     folder, name = find_target(data_dir, object_id)
@@ -205,7 +205,7 @@ def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Pat
     made with the same selection rule, is reused); ``loaded`` keeps the scene's distillation, dataset and masks for
     the next target of the same scene."""
     from .baselines import feature_similarity, gaussian_grouping
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..pipeline.distill import load_distillation
     from ..io.files import read_json, write_json
     from ..io.ply import write_ply
@@ -417,7 +417,7 @@ def _scene_grid(data: Path, preset: str, methods: Sequence[str], pictures: dict[
                 out: Path) -> Path:
     """Write the scene's picture grid (paper Fig. 5): per target a training view, then the truth and every method's
     render of the first test view, full frame (floaters anywhere show) and zoomed in on the true object."""
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..io.files import new_figure, save_figure
     from .metrics import ALPHA_THRESHOLD, find_target, zoom_box
 

@@ -226,7 +226,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
     Returns:
         ``(evaluation, renders)`` with renders ``[N, H, W, 3]`` on white.
     """
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from .lpips import LPIPS, LPIPSUnavailable
     from ..render.renderer import render_cloud
 

@@ -30,7 +30,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..cameras import Camera
-from ..io.datasets import Dataset
+from ..io.dataset import Dataset
 from ..errors import ConfigError, RoodiError
 from ..gaussians import GaussianCloud
 from ..prune.outliers import PruneConfig, PruneReport
@@ -644,7 +644,7 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, *, segmenter: str =
     ``distill.png`` (per view: image, masks, rendered classes, rendered probability of the predicted class).
     """
     from ..io import files
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..io.ply import read_ply
     from .segment import SegmentPrompt, get_segmenter
     from .train import split_views
@@ -725,7 +725,7 @@ def run_select(model_dir: str | Path, object_id: int, output_ply: str | Path, *,
     data_dir = state.get("data_dir")
     mask_dir = model.root / "object_masks"
     if data_dir and Path(data_dir).exists() and mask_dir.is_dir():
-        from ..io.datasets import load_dataset
+        from ..io.dataset import load_dataset
         from .segment import FilesSegmenter, SegmentPrompt
         from .train import split_views
 

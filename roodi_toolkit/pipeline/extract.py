@@ -126,7 +126,7 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
         progress: progress factory.
     """
     from ..io import files
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from .distill import load_distillation, run_distill, select_object
     from .finetune import refine_object
     from ..io.ply import read_ply, write_ply

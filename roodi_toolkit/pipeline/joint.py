@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..io.datasets import Dataset
+from ..io.dataset import Dataset
 from .distill import DistillConfig, DistillResult, ObjectClassifier
 from ..errors import ConfigError
 from ..progress import ProgressFactory, null_progress

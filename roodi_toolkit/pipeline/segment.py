@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from ..cameras import Camera
-from ..io.datasets import Dataset
+from ..io.dataset import Dataset
 from ..errors import ConfigError, DatasetError, PluginError, RoodiError
 from ..gaussians import GaussianCloud
 from ..plugins import discover, instantiate

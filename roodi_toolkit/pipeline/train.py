@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..io.datasets import Dataset
+from ..io.dataset import Dataset
 from ..errors import ConfigError, RoodiError
 from ..gaussians import SH_C0, GaussianCloud
 from ..progress import ProgressFactory, null_progress
@@ -465,7 +465,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
             ablation passes one that also trains object features).
     """
     from ..io import files
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..io.ply import write_ply
 
     out = Path(out_dir)

@@ -263,7 +263,7 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
         OutputError: ``out_dir`` exists and is not empty without ``overwrite``.
     """
     from ..io import files
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..pipeline.extract import extract_objects
     from ..evaluate.metrics import evaluate_object, find_target
     from ..io.ply import read_ply

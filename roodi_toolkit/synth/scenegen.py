@@ -1375,7 +1375,7 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
     common = {"background": list(scene.sky[0]),
               "scene_bounds": scene_bounds, "depth_scale": DEPTH_SCALE}
     # the environment is not one colour; "background" is the horizon colour, used only if a tool needs one
-    from ..io.datasets import write_blender_transforms
+    from ..io.blender import write_blender_transforms
 
     write_blender_transforms(out / "transforms_train.json", cams, [f"train/{c.name}" for c in cams],
                              extra=common, frame_extra=frame_extra)
