@@ -32,7 +32,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object  # noqa: E402
 from roodi_toolkit.gaussians import GaussianCloud  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores  # noqa: E402
-from roodi_toolkit.synth.scenegen import build_scene, render_views, training_cameras  # noqa: E402
+from roodi_toolkit.synth.scene import build_scene, training_cameras  # noqa: E402
+from roodi_toolkit.synth.tracer import render_views  # noqa: E402
 from roodi_toolkit.pipeline.train import cloud_to_params, render_params  # noqa: E402
 from tests.mesh_gaussians import hidden_truth, mesh_cloud, nearby  # noqa: E402
 

@@ -56,7 +56,8 @@ from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetu
 from roodi_toolkit.evaluate.metrics import evaluate_object  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores, occlusion_masks, up_from_cameras  # noqa: E402
 from roodi_toolkit.io.ply import read_ply  # noqa: E402
-from roodi_toolkit.synth.scenegen import render_views, scene_from_record  # noqa: E402
+from roodi_toolkit.synth.scene import scene_from_record  # noqa: E402
+from roodi_toolkit.synth.tracer import render_views  # noqa: E402
 from roodi_toolkit.pipeline.train import cloud_to_params, render_params  # noqa: E402
 
 FIGURES = ("occluded_hidden_psnr", "object_views_psnr", "unoccluded_train_psnr", "test_psnr", "test_iou")

@@ -45,7 +45,7 @@ def nearby(scene, target, reach: float):
 
 def hidden_truth(scene, target, cameras):
     """Return ``[V, H, W]`` bool: the target is seen when rendered alone but not in the full scene (mesh ray casting)."""
-    from roodi_toolkit.synth.scenegen import render_views
+    from roodi_toolkit.synth.tracer import render_views
 
     alone = render_views(scene, cameras, object_ids=[target.id], with_ground=False, supersample=1)
     full = render_views(scene, cameras, supersample=1)

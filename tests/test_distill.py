@@ -173,7 +173,7 @@ def test_generated_scene_end_to_end(tmp_path):
     a smaller size (48x48, 600 training steps), so the thresholds here are looser than the issue's."""
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.pipeline.distill import alpha_iou, run_distill
-    from roodi_toolkit.synth.scenegen import SceneSettings, make_scene
+    from roodi_toolkit.synth.scene import SceneSettings, make_scene
     from roodi_toolkit.pipeline.strategy import MCMCStrategy
     from roodi_toolkit.pipeline.train import TrainConfig, train_scene
 

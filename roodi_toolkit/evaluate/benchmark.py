@@ -177,7 +177,7 @@ def _targets(data_dir: Path) -> list[dict[str, Any]]:
 
 
 def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: ProgressFactory) -> Path:
-    from ..synth.scenegen import SceneSettings, make_scene
+    from ..synth.scene import SceneSettings, make_scene
 
     data = root / preset
     if (data / "scene.json").is_file():
