@@ -91,7 +91,8 @@ def main() -> int:
 
 def _click_scores(ds, tid: int, scene, click_view) -> dict:
     """Return the click segmenter's mask IoU against the true masks of target ``tid`` over the views that show it."""
-    from roodi_toolkit.pipeline.segment import Click, SegmentPrompt, get_segmenter, mask_iou
+    from roodi_toolkit.imaging import mask_iou
+    from roodi_toolkit.pipeline.segment import Click, SegmentPrompt, get_segmenter
 
     areas = (ds.masks == tid).flatten(1).sum(1)
     v = int(areas.argmax()) if click_view is None else ds.names.index(click_view)

@@ -29,7 +29,7 @@ from ..io.dataset import Dataset
 from ..pipeline.distill import ObjectClassifier, _frozen_tensors, cloud_features, render_features
 from ..errors import ConfigError, RoodiError
 from ..gaussians import GaussianCloud
-from ..pipeline.segment import mask_iou
+from ..imaging import mask_iou
 
 SIMILARITY_THRESHOLDS = tuple(np.round(np.arange(0.50, 0.991, 0.02), 2))
 

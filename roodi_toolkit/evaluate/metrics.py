@@ -19,6 +19,7 @@ from torch import Tensor
 
 from ..errors import DatasetError, RoodiError
 from ..gaussians import GaussianCloud
+from ..imaging import mask_iou, psnr, ssim
 from ..progress import ProgressFactory, null_progress
 
 BOX_SCALE = 1.2
@@ -67,28 +68,9 @@ def zoom_box(mask: np.ndarray, scale: float = 3.0) -> tuple[int, int, int, int]:
     return y0, y0 + side, x0, x0 + side
 
 
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """Return the PSNR in dB of two images in [0, 1] (inf when identical)."""
-    mse = float(np.mean((np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)) ** 2))
-    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
-
-
-def ssim(a: np.ndarray, b: np.ndarray, window: int = 11) -> float:
-    """Return the mean SSIM of two ``[H, W, 3]`` images in [0, 1] (Gaussian window, shrunk for small crops)."""
-    import kornia
-
-    win = min(window, min(a.shape[:2]))
-    win = win if win % 2 == 1 else win - 1
-    x = torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32).permute(2, 0, 1)[None]
-    y = torch.as_tensor(np.ascontiguousarray(b), dtype=torch.float32).permute(2, 0, 1)[None]
-    return float(kornia.metrics.ssim(x, y, max(win, 1)).mean())
-
-
 def iou(a: np.ndarray, b: np.ndarray) -> float:
     """Return the intersection over union of two alpha maps thresholded at 0.5 (1.0 when both are empty)."""
-    ma, mb = np.asarray(a) > ALPHA_THRESHOLD, np.asarray(b) > ALPHA_THRESHOLD
-    union = np.logical_or(ma, mb).sum()
-    return 1.0 if union == 0 else float(np.logical_and(ma, mb).sum() / union)
+    return mask_iou(np.asarray(a) > ALPHA_THRESHOLD, np.asarray(b) > ALPHA_THRESHOLD)
 
 
 def lpips_crop(model: Any, a: np.ndarray, b: np.ndarray) -> float:
@@ -178,7 +160,7 @@ def score_views(renders: np.ndarray, alphas: np.ndarray, truth: np.ndarray, trut
             continue
         y0, y1, x0, x1 = box
         a, b = np.clip(renders[i, y0:y1, x0:x1], 0, 1), truth[i, y0:y1, x0:x1]
-        scores.append(ViewScores(name, psnr(a, b), ssim(a, b),
+        scores.append(ViewScores(name, psnr(a, b), float(ssim(a, b)),
                                  None if lpips_model is None else lpips_crop(lpips_model, a, b), view_iou))
     return scores
 

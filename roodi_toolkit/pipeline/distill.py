@@ -35,7 +35,8 @@ from ..errors import ConfigError, RoodiError
 from ..gaussians import GaussianCloud
 from ..prune.outliers import PruneConfig, PruneReport
 from ..progress import ProgressFactory, null_progress
-from .segment import ViewMasks, mask_iou
+from ..imaging import mask_iou
+from .segment import ViewMasks
 
 FEATURE_PREFIX = "object_feature_"
 CLASSIFIER_FILE = "object_classifier.pt"
@@ -251,10 +252,7 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     frozen = _frozen_tensors(cloud)
     n = len(cloud)
     features = torch.nn.Parameter(torch.randn(n, config.feature_dim, generator=gen) * config.feature_init_std)
-    # nn.Conv2d's default initialisation, drawn from our generator so runs repeat exactly
-    bound = 1.0 / math.sqrt(config.feature_dim)
-    weight = torch.nn.Parameter((torch.rand(C, config.feature_dim, generator=gen) * 2 - 1) * bound)
-    bias = torch.nn.Parameter((torch.rand(C, generator=gen) * 2 - 1) * bound)
+    weight, bias = (torch.nn.Parameter(t) for t in initial_classifier(C, config.feature_dim, gen))
     opt_features = torch.optim.Adam([features], lr=config.feature_lr, eps=1e-15)
     opt_classifier = torch.optim.Adam([weight, bias], lr=config.classifier_lr)
     log_c = math.log(C)
@@ -337,6 +335,17 @@ def cloud_features(cloud: GaussianCloud) -> Tensor:
     if names != feature_names(len(names)):
         raise RoodiError(f"the model's object feature columns are not numbered 0..{len(names) - 1}: {names}")
     return torch.as_tensor(np.stack([cloud.extras[k].astype(np.float32) for k in names], axis=1))
+
+
+def initial_classifier(num_classes: int, feature_dim: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+    """Return a fresh classifier's weight ``[C, F]`` and bias ``[C]``: nn.Conv2d's default initialisation.
+
+    Drawn from ``generator`` (weight first, then bias) so that runs repeat exactly.
+    """
+    bound = 1.0 / math.sqrt(feature_dim)
+    weight = (torch.rand(num_classes, feature_dim, generator=generator) * 2 - 1) * bound
+    bias = (torch.rand(num_classes, generator=generator) * 2 - 1) * bound
+    return weight, bias
 
 
 def gaussian_probabilities(cloud: GaussianCloud, classifier: ObjectClassifier) -> Tensor:

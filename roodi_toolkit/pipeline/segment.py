@@ -680,16 +680,3 @@ def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     from scipy import ndimage
 
     return ndimage.binary_dilation(mask, structure=_disk(radius)) if radius > 0 else mask.copy()
-
-
-def mask_iou(pred: np.ndarray | torch.Tensor, true: np.ndarray | torch.Tensor) -> float:
-    """Return the intersection over union of two boolean masks (1.0 when both are empty).
-
-    Example:
-        >>> mask_iou(np.array([1, 1, 0, 0], bool), np.array([1, 0, 0, 0], bool))
-        0.5
-    """
-    p = np.asarray(pred, dtype=bool)
-    t = np.asarray(true, dtype=bool)
-    union = np.logical_or(p, t).sum()
-    return 1.0 if union == 0 else float(np.logical_and(p, t).sum() / union)

@@ -26,6 +26,7 @@ from ..cameras import Camera
 from ..io.dataset import Dataset
 from ..errors import ConfigError, RoodiError
 from ..gaussians import SH_C0, GaussianCloud
+from ..imaging import psnr, ssim as ssim_value
 from ..progress import ProgressFactory, null_progress
 from ..render.rasterizer import RasterOutput, rasterize
 from .strategy import MCMCStrategy, MCMCState
@@ -152,11 +153,7 @@ def depth_points(dataset: Dataset, views: list[int], n: int, generator: torch.Ge
         pick = torch.randint(len(ys), (min(per_view, len(ys)),), generator=generator)
         ys, xs = ys[pick].numpy(), xs[pick].numpy()
         z = depth[ys, xs].numpy().astype(np.float64)
-        cam = dataset.cameras[v]
-        K = cam.K
-        x_cam = np.stack([(xs + 0.5 - K[0, 2]) / K[0, 0] * z, (ys + 0.5 - K[1, 2]) / K[1, 1] * z, z], axis=1)
-        c2w = cam.camera_to_world
-        pts.append(x_cam @ c2w[:3, :3].T + c2w[:3, 3])
+        pts.append(dataset.cameras[v].backproject(np.stack([ys, xs], axis=1), z))
         cols.append(dataset.images[v][ys, xs].numpy())
     if not pts:
         raise RoodiError("init 'depth': the depth maps are empty")
@@ -225,21 +222,6 @@ def render_params(params: dict[str, Tensor], camera: Camera, *, sh_degree: int |
                      torch.as_tensor(camera.K, dtype=torch.float32), camera.width, camera.height,
                      near=camera.near, far=camera.far, background=background, sh_degree=sh_degree,
                      features=features)
-
-
-def psnr(a: Tensor, b: Tensor) -> float:
-    """Return the PSNR in dB of two images in [0, 1]."""
-    mse = torch.mean((a.clamp(0, 1) - b) ** 2).item()
-    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
-
-
-def ssim_value(a: Tensor, b: Tensor, window: int = 11) -> Tensor:
-    """Return the mean SSIM of two ``[H, W, C]`` images (kornia, Gaussian window)."""
-    import kornia
-
-    x = a.permute(2, 0, 1)[None]
-    y = b.permute(2, 0, 1)[None]
-    return kornia.metrics.ssim(x, y, window).mean()
 
 
 class Trainer:
@@ -343,7 +325,7 @@ class Trainer:
                                          self.generator)
         self.step += 1
         return {"step": self.step, "loss": float(loss.detach()), "l1": float(l1.detach()),
-                "psnr": psnr(out.rgb.detach(), gt), "count": self.num_gaussians}
+                "psnr": psnr(out.rgb.detach().clamp(0, 1), gt), "count": self.num_gaussians}
 
     def _rendered_features(self) -> Tensor | None:
         """Return per-Gaussian features to render beside the colour (none here; see :mod:`roodi_toolkit.pipeline.joint`)."""
@@ -363,7 +345,7 @@ class Trainer:
         psnrs, ssims = [], []
         for i in indices:
             out = render_params(self.params, self.dataset.cameras[i], sh_degree=self.sh_degree, background=background)
-            psnrs.append(psnr(out.rgb, self.dataset.images[i]))
+            psnrs.append(psnr(out.rgb.clamp(0, 1), self.dataset.images[i]))
             ssims.append(float(ssim_value(out.rgb.clamp(0, 1), self.dataset.images[i])))
         return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims))}
 
