@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -164,13 +163,6 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         raise RoodiError(f"{p}: image not found") from None
     except (UnidentifiedImageError, OSError) as exc:
         raise RoodiError(f"{p}: cannot read image ({exc})") from None
-
-
-def copy_file(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
-    """Copy a file atomically."""
-    with atomic_path(dst) as tmp:
-        shutil.copyfile(src, tmp)
-    return Path(dst)
 
 
 def new_figure(*args: Any, figsize: tuple[float, float], **subplots: Any) -> tuple[Any, Any]:

@@ -358,14 +358,6 @@ def gaussian_probabilities(cloud: GaussianCloud, classifier: ObjectClassifier) -
         return classifier.probabilities(feats)
 
 
-def render_probabilities(cloud: GaussianCloud, classifier: ObjectClassifier, camera: Camera,
-                         features: Tensor | None = None) -> Tensor:
-    """Return the rendered class probabilities ``[H, W, C]`` (softmax of the classifier on the rendered features)."""
-    feats = cloud_features(cloud) if features is None else features
-    with torch.no_grad():
-        return classifier.probabilities(render_features(_frozen_tensors(cloud), feats, camera))
-
-
 # ---------------------------------------------------------------------------------------------------- selection
 
 
