@@ -27,7 +27,7 @@ import torch
 
 from ..io.dataset import Dataset
 from ..pipeline.distill import ObjectClassifier, _frozen_tensors, cloud_features, render_features
-from ..errors import ConfigError, RoodiError
+from ..errors import CloudError, ConfigError
 from ..gaussians import GaussianCloud
 from ..imaging import mask_iou
 
@@ -51,7 +51,7 @@ class BaselineSelection:
 
 def _take(cloud: GaussianCloud, keep: np.ndarray, what: str) -> GaussianCloud:
     if not keep.any():
-        raise RoodiError(f"{what} selected no Gaussian")
+        raise CloudError(f"{what} selected no Gaussian")
     out = cloud.select(np.flatnonzero(keep))
     out.extras = {k: v for k, v in out.extras.items() if not k.startswith("object_feature_")}
     return out

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..errors import DatasetError, RoodiError
+from ..errors import CloudError, DatasetError
 from ..gaussians import GaussianCloud
 from ..imaging import mask_iou, psnr, ssim
 from ..progress import ProgressFactory, null_progress
@@ -218,7 +218,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         raise DatasetError(f"{folder}: the target's views have no alpha; cannot score IoU")
     count = len(truth) if max_views is None else min(max_views, len(truth))
     if len(cloud) == 0:
-        raise RoodiError("the extracted object has no Gaussians")
+        raise CloudError("the extracted object has no Gaussians")
     lpips_model, status = None, "ok"
     try:
         lpips_model = LPIPS.from_local(lpips_weights)

@@ -31,7 +31,7 @@ from torch import Tensor
 
 from ..cameras import Camera
 from ..io.dataset import Dataset
-from ..errors import ConfigError, RoodiError
+from ..errors import CloudError, ConfigError, InputError
 from ..gaussians import GaussianCloud
 from ..prune.outliers import PruneConfig, PruneReport
 from ..progress import ProgressFactory, null_progress
@@ -127,12 +127,12 @@ class ObjectClassifier:
     @classmethod
     def from_state_dict(cls, state: Any, where: str = "classifier") -> "ObjectClassifier":
         if not isinstance(state, dict) or state.get("format") != CLASSIFIER_FORMAT:
-            raise RoodiError(f"{where}: not a roodi-toolkit object classifier (run roodi-toolkit distill first)")
+            raise InputError(f"{where}: not a roodi-toolkit object classifier (run roodi-toolkit distill first)")
         try:
             labels = {int(k): str(v) for k, v in dict(state.get("labels", {})).items()}
             return cls(state["weight"].float(), state["bias"].float(), labels)
         except (KeyError, AttributeError, ValueError) as exc:
-            raise RoodiError(f"{where}: malformed object classifier ({exc})") from None
+            raise InputError(f"{where}: malformed object classifier ({exc})") from None
 
 
 @dataclass
@@ -330,10 +330,10 @@ def cloud_features(cloud: GaussianCloud) -> Tensor:
     names = sorted((k for k in cloud.extras if re.fullmatch(rf"{FEATURE_PREFIX}\d+", k)),
                    key=lambda k: int(k[len(FEATURE_PREFIX):]))
     if not names:
-        raise RoodiError("the model has no object features (object_feature_* columns); run roodi-toolkit distill "
+        raise CloudError("the model has no object features (object_feature_* columns); run roodi-toolkit distill "
                          "first")
     if names != feature_names(len(names)):
-        raise RoodiError(f"the model's object feature columns are not numbered 0..{len(names) - 1}: {names}")
+        raise CloudError(f"the model's object feature columns are not numbered 0..{len(names) - 1}: {names}")
     return torch.as_tensor(np.stack([cloud.extras[k].astype(np.float32) for k in names], axis=1))
 
 
@@ -352,7 +352,7 @@ def gaussian_probabilities(cloud: GaussianCloud, classifier: ObjectClassifier) -
     """Return each Gaussian's class probabilities ``[N, C]``: the classifier applied to its own feature."""
     feats = cloud_features(cloud)
     if feats.shape[1] != classifier.feature_dim:
-        raise RoodiError(f"the model has {feats.shape[1]} object features but the classifier expects "
+        raise InputError(f"the model has {feats.shape[1]} object features but the classifier expects "
                          f"{classifier.feature_dim}; were they saved by different distillations?")
     with torch.no_grad():
         return classifier.probabilities(feats)
@@ -549,7 +549,7 @@ def find_model(model_dir: str | Path) -> ModelFolder:
 
     root = Path(model_dir)
     if not root.is_dir():
-        raise RoodiError(f"{root}: model folder not found (give a roodi-toolkit train output folder)")
+        raise InputError(f"{root}: model folder not found (give a roodi-toolkit train output folder)")
     found = []
     pc = root / "point_cloud"
     if pc.is_dir():
@@ -558,7 +558,7 @@ def find_model(model_dir: str | Path) -> ModelFolder:
             if m and (d / "point_cloud.ply").is_file():
                 found.append((int(m.group(1)), d / "point_cloud.ply"))
     if not found:
-        raise RoodiError(f"{root}: no point_cloud/iteration_N/point_cloud.ply; is it a roodi-toolkit train output "
+        raise InputError(f"{root}: no point_cloud/iteration_N/point_cloud.ply; is it a roodi-toolkit train output "
                          "folder?")
     iteration, ply = max(found)
     cfg_path = root / "cfg.json"
@@ -593,13 +593,13 @@ def load_distillation(model_dir: str | Path) -> tuple[ModelFolder, GaussianCloud
 
     model = find_model(model_dir)
     if not model.classifier_path.is_file():
-        raise RoodiError(f"{model.root}: no {CLASSIFIER_FILE}; run roodi-toolkit distill {model.root} DATA_DIR first")
+        raise InputError(f"{model.root}: no {CLASSIFIER_FILE}; run roodi-toolkit distill {model.root} DATA_DIR first")
     state = load_checkpoint(model.classifier_path)
     classifier = ObjectClassifier.from_state_dict(state, str(model.classifier_path))
     cloud = read_ply(model.ply_path)
     if int(state.get("num_gaussians", len(cloud))) != len(cloud) or int(state.get("iteration", model.iteration)) \
             != model.iteration:
-        raise RoodiError(f"{model.classifier_path} belongs to another model (iteration {state.get('iteration')}, "
+        raise InputError(f"{model.classifier_path} belongs to another model (iteration {state.get('iteration')}, "
                          f"{state.get('num_gaussians')} Gaussians) than {model.ply_path}; run distill again")
     return model, cloud, classifier
 

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from .distill import CLASSIFIER_FILE, FEATURE_PREFIX, DistillConfig
-from ..errors import ConfigError, RoodiError
+from ..errors import ConfigError, DatasetError
 from .finetune import FinetuneConfig
 from ..gaussians import GaussianCloud
 from .occlusion import OcclusionConfig
@@ -93,8 +93,8 @@ def _object_masks(dataset: Any, model_dir: Path, object_id: int, views: Sequence
     for v in views:
         path = folder / f"{dataset.cameras[v].name}.png"
         if not path.is_file():
-            raise RoodiError(f"{path}: no mask of view {dataset.cameras[v].name}; the dataset has no instance masks "
-                             "and the distillation's masks are missing")
+            raise DatasetError(f"{path}: no mask of view {dataset.cameras[v].name}; the dataset has no instance masks "
+                               "and the distillation's masks are missing")
         masks.append(torch.as_tensor(read_image(path).astype(np.int64)) == object_id)
     return torch.stack(masks)
 
@@ -185,8 +185,8 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
         else:
             sel = select_object(cloud, classifier, int(object_id), threshold=config.threshold, prune=False)
             if len(sel.cloud) == 0:
-                raise RoodiError(f"object {object_id}: no Gaussian has probability > {config.threshold}; check the "
-                                 "object id (an instance id of the masks) or lower the threshold")
+                raise ConfigError(f"object {object_id}: no Gaussian has probability > {config.threshold}; check the "
+                                  "object id (an instance id of the masks) or lower the threshold")
             if config.prune and int(sel.selected.sum()) > config.prune_config.k:
                 sel = select_object(cloud, classifier, int(object_id), threshold=config.threshold, prune=True,
                                     prune_config=config.prune_config, progress=progress)

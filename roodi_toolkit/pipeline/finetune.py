@@ -30,7 +30,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..errors import ConfigError, RoodiError
+from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
 from .occlusion import OcclusionConfig, OcclusionResult, object_extent, occlusion_masks, write_occlusion_images
 from ..progress import ProgressFactory, null_progress
@@ -261,7 +261,7 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
     from .train import cloud_to_params, params_to_cloud, render_params
 
     if len(originals.cameras) == 0:
-        raise RoodiError("fine-tuning needs at least one original view of the object")
+        raise DatasetError("fine-tuning needs at least one original view of the object")
     t0 = time.perf_counter()
     perceptual = perceptual_loss(config.perceptual, config.lpips_weights)
     # cloud_to_params shares memory with the cloud's arrays: copy, so that the caller's cloud is left as it was

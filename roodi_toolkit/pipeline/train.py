@@ -24,7 +24,7 @@ from torch import Tensor
 
 from ..cameras import Camera
 from ..io.dataset import Dataset
-from ..errors import ConfigError, RoodiError
+from ..errors import ConfigError, DatasetError, InputError
 from ..gaussians import SH_C0, GaussianCloud
 from ..imaging import psnr, ssim as ssim_value
 from ..progress import ProgressFactory, null_progress
@@ -142,7 +142,7 @@ def projected_colors(points: np.ndarray, dataset: Dataset, views: list[int], max
 def depth_points(dataset: Dataset, views: list[int], n: int, generator: torch.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Return ``n`` points [n, 3] and colours [n, 3] lifted from random pixels of the views' depth maps."""
     if dataset.depths is None:
-        raise RoodiError("init 'depth' needs a dataset with depth maps (e.g. one made by make-scene)")
+        raise DatasetError("init 'depth' needs a dataset with depth maps (e.g. one made by make-scene)")
     pts, cols = [], []
     per_view = max(1, -(-n // len(views)))
     for v in views:
@@ -156,7 +156,7 @@ def depth_points(dataset: Dataset, views: list[int], n: int, generator: torch.Ge
         pts.append(dataset.cameras[v].backproject(np.stack([ys, xs], axis=1), z))
         cols.append(dataset.images[v][ys, xs].numpy())
     if not pts:
-        raise RoodiError("init 'depth': the depth maps are empty")
+        raise DatasetError("init 'depth': the depth maps are empty")
     points, colors = np.concatenate(pts), np.concatenate(cols)
     keep = torch.randperm(len(points), generator=generator)[:n].numpy()
     return points[keep], colors[keep]
@@ -170,7 +170,7 @@ def init_params(points: np.ndarray, colors: np.ndarray | None, config: TrainConf
     pts = torch.as_tensor(np.asarray(points), dtype=torch.float32)
     n = len(pts)
     if n < 4:
-        raise RoodiError(f"need at least 4 initial points, got {n}")
+        raise DatasetError(f"need at least 4 initial points, got {n}")
     dist, _ = cKDTree(pts.numpy()).query(pts.numpy(), k=4)
     dist_avg = torch.as_tensor(np.sqrt((dist[:, 1:] ** 2).mean(axis=1)), dtype=torch.float32).clamp_min(1e-7)
     if colors is None:
@@ -241,7 +241,7 @@ class Trainer:
         if train_indices is not None:
             self.train_indices = list(train_indices)
         if not self.train_indices:
-            raise RoodiError("the dataset has no training views")
+            raise DatasetError("the dataset has no training views")
         self.generator = torch.Generator().manual_seed(config.seed)
         self.scale = scene_scale([dataset.cameras[i] for i in self.train_indices])
         self.strategy = config.strategy
@@ -261,7 +261,7 @@ class Trainer:
         use_points = cfg.init == "points" or (cfg.init == "auto" and ds.points is not None and len(ds.points) >= 4)
         if use_points:
             if ds.points is None or len(ds.points) < 4:
-                raise RoodiError("init 'points' needs a dataset with sparse points (COLMAP)")
+                raise DatasetError("init 'points' needs a dataset with sparse points (COLMAP)")
             return ds.points, ds.point_colors
         lo, hi = ds.bounds
         u = torch.rand(cfg.init_num_points, 3, generator=self.generator, dtype=torch.float64).numpy()
@@ -386,7 +386,7 @@ class Trainer:
             self.step = int(state["step"])
             self.history = list(state.get("history", []))
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-            raise RoodiError(f"checkpoint does not match this training run ({type(exc).__name__}: {exc})") from None
+            raise InputError(f"checkpoint does not match this training run ({type(exc).__name__}: {exc})") from None
 
 
 def split_views(dataset: Dataset, holdout_every: int = 8) -> tuple[list[int], list[int]]:
@@ -454,10 +454,10 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     if resume:
         ckpt_file = checkpoint_path(out)
         if not ckpt_file.is_file():
-            raise RoodiError(f"{out}: nothing to resume (no {ckpt_file.relative_to(out)}); run without --resume")
+            raise ConfigError(f"{out}: nothing to resume (no {ckpt_file.relative_to(out)}); run without --resume")
         state = files.load_checkpoint(ckpt_file)
         if not isinstance(state, dict) or "config" not in state:
-            raise RoodiError(f"{ckpt_file}: not a roodi-toolkit training checkpoint")
+            raise InputError(f"{ckpt_file}: not a roodi-toolkit training checkpoint")
         config = TrainConfig.from_dict(state["config"])
         if iterations_override is not None:
             config = replace(config, iterations=iterations_override)
