@@ -240,7 +240,7 @@ def _find_colmap_sparse(root: Path) -> Path | None:
 
 
 def _to_float_image(arr: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Return (rgb [H,W,3] float32, alpha [H,W] float32 or None) from a uint8/uint16 image array."""
+    """Return (rgb [H, W, 3] float32, alpha [H, W] float32 or None) from a uint8/uint16 image array."""
     if arr.dtype == np.uint16:
         scale = 65535.0
     elif arr.dtype == np.uint8:
