@@ -170,9 +170,9 @@ def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
 
 
 def _targets(data_dir: Path) -> list[dict[str, Any]]:
-    from ..io.files import read_json
+    from ..io.generated import read_scene_record
 
-    record = read_json(data_dir / "scene.json", "scene record")
+    record = read_scene_record(data_dir)
     return [{"id": int(t["id"]), "name": str(t["name"])} for t in record["targets"]]
 
 
@@ -254,6 +254,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
         progress: progress factory.
     """
     from ..io import files
+    from ..io.generated import read_scene_record
     from .metrics import evaluate_object
     from ..io.ply import read_ply
 
@@ -322,7 +323,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
             per_method[method] = {"objects": rows, "mean": _average(rows),
                                   "seconds": float(sum(r.get("seconds", 0.0) for r in rows))}
         results["scenes"][preset] = {m: per_method[m] for m in methods}
-        results.setdefault("scene_settings", {})[preset] = files.read_json(data / "scene.json", "scene record")["settings"]
+        results.setdefault("scene_settings", {})[preset] = read_scene_record(data)["settings"]
         results["scenes"][preset]["_picture"] = str(_scene_grid(data, preset, methods, pictures, out))
     results["mean"] = {m: _average([results["scenes"][p][m]["mean"] for p in presets]) for m in methods}
     results["checks"] = checks(results["mean"])

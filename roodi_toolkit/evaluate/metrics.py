@@ -177,10 +177,10 @@ def find_target(data_dir: str | Path, object_id: int) -> tuple[Path, str]:
     Raises:
         DatasetError: no scene.json, or no such target (the message lists the targets).
     """
-    from ..io.files import read_json
+    from ..io.generated import read_scene_record
 
     root = Path(data_dir)
-    record = read_json(root / "scene.json", "scene.json (made by roodi-toolkit make-scene)")
+    record = read_scene_record(root)
     targets = {int(t["id"]): t for t in record.get("targets", [])}
     if object_id not in targets:
         listed = ", ".join(f"{i} ({t['name']})" for i, t in sorted(targets.items())) or "none"

@@ -614,12 +614,11 @@ def config_dict(config: DistillConfig) -> dict[str, Any]:
 
 def scene_labels(data_dir: str | Path) -> dict[int, str]:
     """Return object names by id from a generated scene's ``scene.json`` (empty for other datasets)."""
-    from ..io.files import read_json
+    from ..io.generated import is_generated_scene, read_scene_record
 
-    p = Path(data_dir) / "scene.json"
-    if not p.is_file():
+    if not is_generated_scene(data_dir):
         return {}
-    record = read_json(p, "scene record")
+    record = read_scene_record(data_dir)
     try:
         return {0: "background", **{int(o["id"]): str(o["name"]) for o in record.get("objects", [])}}
     except (KeyError, TypeError, ValueError, AttributeError):

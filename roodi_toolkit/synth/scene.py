@@ -31,6 +31,7 @@ from .._version import __version__
 from ..cameras import Camera, intrinsics_from_fov, look_at
 from ..errors import ConfigError, DatasetError
 from ..io.files import prepare_output_dir, write_image, write_json
+from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
 from ..progress import ProgressFactory, null_progress
 from .objects import BUILDERS, MAX_OBJECTS, PRESETS, Light, Part, SceneObject, _environment, _NOT_TARGETS, _rot
 from .tracer import render_views
@@ -47,8 +48,6 @@ __all__ = [
     "scene_from_record",
 ]
 
-SCENE_FORMAT = "roodi-toolkit-scene"
-SCENE_FORMAT_VERSION = 1
 DEPTH_SCALE = 1e-4  # metres per 16-bit depth unit: 0.1 mm resolution, 6.5 m range (the ground is cut at that range)
 
 # kinds that cannot be targets: furniture and flat things that are scenery rather than objects to extract
@@ -544,7 +543,7 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
                   "depth": "train/depth (uint16 z-depth / depth_scale, 0 = nothing hit)",
                   "targets": "targets/<id>_<name>/transforms_test.json (RGBA on white)", "overview": "overview.png"},
     }
-    write_json(record, out / "scene.json")
+    write_json(record, out / SCENE_FILE)
     record["_seconds"] = time.perf_counter() - t0
     return record
 
