@@ -94,3 +94,13 @@ def test_input_errors_still_exit_1(tmp_path, run_cli):
     res = run_cli("info", bad)
     assert res.exit_code == 1 and res.stderr.startswith("error: ")
     assert "environment problem" not in res.stderr and "unexpected" not in res.stderr
+
+
+def test_an_unsupported_ply_variant_is_both_a_ply_error_and_an_unsupported_format(tmp_path):
+    from roodi_toolkit import read_ply
+
+    path = tmp_path / "odd.ply"
+    path.write_bytes(b"ply\nformat binary_middle_endian 1.0\nelement vertex 0\nproperty float x\nend_header\n")
+    with pytest.raises(UnsupportedFormatError, match="unsupported format") as info:
+        read_ply(path)
+    assert isinstance(info.value, PlyError)

@@ -22,7 +22,7 @@ from typing import Any, BinaryIO, Sequence
 import numpy as np
 
 from ..cameras import Camera, qvec_to_rotmat, rotmat_to_qvec
-from ..errors import DatasetError, RoodiError
+from ..errors import DatasetError, RoodiError, UnsupportedFormatError
 from ..progress import ProgressFactory, null_progress
 from .dataset import (LLFF_HOLD, Dataset, _check_background, _check_downscale, _composite, _downscale_dataset,
                       _find_colmap_sparse, _read_rgb, _SameSize, estimate_bounds)
@@ -43,6 +43,10 @@ __all__ = [
 ]
 
 DEFAULT_COLMAP_BACKGROUND = (0.0, 0.0, 0.0)  # 3DGS default for real captures
+
+
+class UnsupportedCameraModelError(DatasetError, UnsupportedFormatError):
+    """A COLMAP camera model other than PINHOLE and SIMPLE_PINHOLE (the images need undistorting first)."""
 
 COLMAP_CAMERA_MODELS: dict[int, tuple[str, int]] = {
     0: ("SIMPLE_PINHOLE", 3),
@@ -460,9 +464,9 @@ def _points_txt(model: ColmapModel) -> str:
 
 def _colmap_intrinsics(cam: ColmapCamera, where: str) -> np.ndarray:
     if cam.model not in SUPPORTED_COLMAP_MODELS:
-        raise DatasetError(f"{where}: camera {cam.id} uses the COLMAP camera model {cam.model}, which is not supported "
-                           f"(supported: {', '.join(SUPPORTED_COLMAP_MODELS)}); undistort the images first, e.g. "
-                           "`colmap image_undistorter`")
+        raise UnsupportedCameraModelError(f"{where}: camera {cam.id} uses the COLMAP camera model {cam.model}, which is "
+                                          f"not supported (supported: {', '.join(SUPPORTED_COLMAP_MODELS)}); undistort "
+                                          "the images first, e.g. `colmap image_undistorter`")
     if cam.model == "SIMPLE_PINHOLE":
         f, cx, cy = cam.params
         fx = fy = f
