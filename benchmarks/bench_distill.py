@@ -35,7 +35,7 @@ def main() -> int:
 
     torch.set_num_threads(int(os.environ.get("ROODI_THREADS", "1")))  # as the CLI does; 2 threads are slower here
 
-    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.io.files import read_json
     from roodi_toolkit.io.model import find_model
     from roodi_toolkit.io.ply import read_ply
@@ -88,7 +88,8 @@ def main() -> int:
 
 def _click_scores(ds, tid: int, scene, click_view) -> dict:
     """Return the click segmenter's mask IoU against the true masks of target ``tid`` over the views that show it."""
-    from roodi_toolkit.pipeline.segment import Click, SegmentPrompt, get_segmenter, mask_iou
+    from roodi_toolkit.imaging import mask_iou
+    from roodi_toolkit.pipeline.segment import Click, SegmentPrompt, get_segmenter
 
     areas = (ds.masks == tid).flatten(1).sum(1)
     v = int(areas.argmax()) if click_view is None else ds.names.index(click_view)

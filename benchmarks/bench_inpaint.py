@@ -31,8 +31,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object  # noqa: E402
 from roodi_toolkit.gaussians import GaussianCloud  # noqa: E402
+from roodi_toolkit.imaging import psnr  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores  # noqa: E402
-from roodi_toolkit.synth.scenegen import build_scene, render_views, training_cameras  # noqa: E402
+from roodi_toolkit.synth.scene import build_scene, training_cameras  # noqa: E402
+from roodi_toolkit.synth.tracer import render_views  # noqa: E402
 from roodi_toolkit.params import GaussianParams  # noqa: E402
 from roodi_toolkit.render.renderer import TorchRenderer  # noqa: E402
 from tests.mesh_gaussians import hidden_truth, mesh_cloud, nearby  # noqa: E402
@@ -41,8 +43,7 @@ from tests.mesh_gaussians import hidden_truth, mesh_cloud, nearby  # noqa: E402
 def masked_psnr(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> float:
     if not bool(mask.any()):
         return float("nan")
-    mse = float(((a.clamp(0, 1) - b) ** 2)[mask].mean())
-    return float("inf") if mse == 0 else -10 * math.log10(mse)
+    return psnr(a.clamp(0, 1)[mask], b[mask])
 
 
 def finetune_overrides(text: str) -> dict:

@@ -14,7 +14,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from roodi_toolkit.synth.scenegen import PRESETS, SceneSettings, make_scene
+from roodi_toolkit.synth.objects import PRESETS
+from roodi_toolkit.synth.scene import SceneSettings, make_scene
 
 
 def main() -> None:

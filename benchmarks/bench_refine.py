@@ -48,7 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.bench_inpaint import (finetune_overrides, object_view_truth, psnr_figures,  # noqa: E402
                                       seen_in_views)
 from roodi_toolkit.evaluate.benchmark import MACHINE_SIZE, PRESETS, extract_config  # noqa: E402
-from roodi_toolkit.io.datasets import load_dataset  # noqa: E402
+from roodi_toolkit.io.dataset import load_dataset  # noqa: E402
 from roodi_toolkit.io.model import find_model  # noqa: E402
 from roodi_toolkit.io.files import read_json, write_json  # noqa: E402
 from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,  # noqa: E402
@@ -56,7 +56,8 @@ from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetu
 from roodi_toolkit.evaluate.metrics import evaluate_object  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores, occlusion_masks, up_from_cameras  # noqa: E402
 from roodi_toolkit.io.ply import read_ply  # noqa: E402
-from roodi_toolkit.synth.scenegen import render_views, scene_from_record  # noqa: E402
+from roodi_toolkit.synth.scene import scene_from_record  # noqa: E402
+from roodi_toolkit.synth.tracer import render_views  # noqa: E402
 from roodi_toolkit.params import GaussianParams  # noqa: E402
 from roodi_toolkit.render.renderer import TorchRenderer  # noqa: E402
 

@@ -18,7 +18,7 @@ from pathlib import Path
 def step_times(scene: Path, threads: int, gaussians: int, warmup: int, rounds: int, steps: int) -> list[float]:
     import torch
 
-    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.pipeline.strategy import MCMCStrategy
     from roodi_toolkit.pipeline.train import TrainConfig, Trainer
 

@@ -35,8 +35,8 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from roodi_toolkit.io.datasets import load_dataset
-    from roodi_toolkit.synth.scenegen import SceneSettings, make_scene
+    from roodi_toolkit.io.dataset import load_dataset
+    from roodi_toolkit.synth.scene import SceneSettings, make_scene
     from roodi_toolkit.pipeline.train import TrainConfig, Trainer, config_with
 
     torch.set_num_threads(2)

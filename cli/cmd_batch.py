@@ -83,9 +83,9 @@ def _report(task: str, summary: Any, results: str) -> None:
     click.echo(f"{task}: {summary.ok} done, {summary.skipped} unchanged and skipped, {summary.failed} failed of "
                f"{summary.total} items in {summary.seconds:.1f} s; results in {results}")
     if failed:
-        from roodi_toolkit.errors import RoodiError
+        from roodi_toolkit.errors import InputError
 
-        raise RoodiError(f"{len(failed)} of {summary.total} items failed; their lines in {results} say why")
+        raise InputError(f"{len(failed)} of {summary.total} items failed; their lines in {results} say why")
 
 
 @batch.command("prune", epilog=EPILOG)

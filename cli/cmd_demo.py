@@ -84,7 +84,7 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
     from dataclasses import replace
 
     from roodi_toolkit.synth.demo import ExtractDemoConfig, run_extract_demo
-    from roodi_toolkit.synth.scenegen import SceneSettings
+    from roodi_toolkit.synth.scene import SceneSettings
     from roodi_toolkit.pipeline.train import config_with
 
     base = ExtractDemoConfig()

@@ -40,7 +40,7 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     import numpy as np
 
     from roodi_toolkit.io import files
-    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
     from roodi_toolkit.io.ply import read_ply
 

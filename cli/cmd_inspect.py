@@ -60,7 +60,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     scale for large ones. Without a display, ask for --screenshot, --html or --histogram.
     """
     from roodi_toolkit.viz import inspect as insp
-    from roodi_toolkit.errors import OutputError, RoodiError
+    from roodi_toolkit.errors import ConfigError, EnvironmentProblemError, OutputError
     from roodi_toolkit.io.files import check_output, write_image
     from roodi_toolkit.prune.outliers import remove_statistical_outliers
     from roodi_toolkit.io.ply import read_ply
@@ -76,15 +76,15 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     if window is None:
         window = has_display and not outputs
     if window and not has_display:
-        raise RoodiError("no display to open a window on (DISPLAY is not set); use --screenshot, --html or "
-                         "--histogram to write the view to files")
+        raise EnvironmentProblemError("no display to open a window on (DISPLAY is not set); use --screenshot, "
+                                      "--html or --histogram to write the view to files")
     if not window and not outputs:
-        raise RoodiError("nothing to do: no display for a window and no output; pass --screenshot, --html or "
-                         "--histogram")
+        raise ConfigError("nothing to do: no display for a window and no output; pass --screenshot, --html or "
+                          "--histogram")
     if html_path is not None:  # refuse before the pruning, not after
         ok, reason = insp.html_export_supported()
         if not ok:
-            raise RoodiError(f"{html_path}: cannot export HTML: {reason}")
+            raise EnvironmentProblemError(f"{html_path}: cannot export HTML: {reason}")
     highlight_colour = None if highlight.strip().lower() == "none" else highlight
     if highlight_colour is not None:
         import pyvista as pv

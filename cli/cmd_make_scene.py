@@ -44,7 +44,7 @@ def make_scene(out_dir: str, preset: str, seed: int, size_text: str, train_views
     Example:
       roodi-toolkit make-scene scenes/kitchen0 --preset kitchen --seed 0
     """
-    from roodi_toolkit.synth.scenegen import SceneSettings, make_scene as run
+    from roodi_toolkit.synth.scene import SceneSettings, make_scene as run
 
     width, height = parse_size(size_text)
     settings = SceneSettings(width=width, height=height, train_views=train_views, test_views=test_views,

@@ -59,7 +59,7 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
     cloud = read_ply(ply)
     cloud.require_finite(ply)
     if cameras_path:
-        from roodi_toolkit.io.datasets import load_cameras
+        from roodi_toolkit.io.dataset import load_cameras
 
         cams = load_cameras(cameras_path)
         if size is not None:

@@ -47,11 +47,11 @@ def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | No
     Writes OUT_DIR/point_cloud/iteration_N/point_cloud.ply (Inria PLY), checkpoints/latest.pt, cfg.json,
     metrics.json, training.png and renders/ (held-out views beside the ground truth).
     """
-    from roodi_toolkit.errors import RoodiError
+    from roodi_toolkit.errors import ConfigError
     from roodi_toolkit.pipeline.train import TrainConfig, config_with, train_scene
 
     if resume and overwrite:
-        raise RoodiError("--resume and --overwrite contradict each other; choose one")
+        raise ConfigError("--resume and --overwrite contradict each other; choose one")
     config = config_with(TrainConfig(), iterations=iterations, cap_max=cap_max, sh_degree=sh_degree, init=init,
                          init_num_points=init_points, random_background=random_background or None,
                          eval_every=eval_every, checkpoint_every=checkpoint_every, seed=seed)

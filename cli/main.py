@@ -1,8 +1,22 @@
 """Entry point of the ``roodi-toolkit`` command.
 
-Conventions every command follows: exit 0 on success; 1 with one line on stderr for a ``RoodiError`` (or any other
-failure); 2 for usage errors; no traceback unless ``--debug`` (accepted anywhere on the line); outputs are written
-atomically, never over an input, and over an existing file only with ``--overwrite``.
+Conventions every command follows: one line on stderr for any failure, no traceback unless ``--debug`` (accepted
+anywhere on the line); outputs are written atomically, never over an input, and over an existing file only with
+``--overwrite``. Kinds of failure (:mod:`roodi_toolkit.errors`) and exit codes:
+
+====  ==========================================================================================================
+exit  when
+====  ==========================================================================================================
+0     success (also ``--help`` and ``--version``)
+1     ``InputError`` (a file or option the user gave: ``PlyError``, ``CloudError``, ``DatasetError``,
+      ``ConfigError``, ``OutputError``, ``UnsupportedFormatError``), ``PluginError``, any other ``RoodiError``
+1     an environment problem, ``EnvironmentProblemError`` or an ``OSError`` on an output with ENOSPC / EDQUOT
+      (disk full), EROFS (read-only folder), EACCES / EPERM (not allowed), or an ``ImportError`` of a missing
+      system library (``lib*.so``) or Python package: the message names the problem and what to do
+1     out of memory, or an unexpected error (the message asks to rerun with ``--debug`` and report it)
+2     usage errors: an unknown option, a missing argument, a value click rejects
+130   interrupted (Ctrl-C)
+====  ==========================================================================================================
 
 Commands are imported only when run (or when ``--help`` lists them), so ``roodi-toolkit info`` stays fast; command
 modules import heavy libraries inside their functions.
@@ -153,9 +167,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - the last line of defence against tracebacks
         if debug:
             raise
+        problem = _environment_problem(exc)
+        if problem is not None:
+            click.echo(f"error: environment problem: {problem}", err=True)
+            return 1
         click.echo(f"error: unexpected {type(exc).__name__}: {_one_line(str(exc))} (rerun with --debug for the "
                    "traceback and please report it)", err=True)
         return 1
+
+
+def _environment_problem(exc: BaseException) -> str | None:
+    """Return what the machine lacks, and what to do, for an error that is the environment's fault; else None."""
+    from roodi_toolkit.errors import missing_library_problem, os_error_problem
+
+    if isinstance(exc, OSError):
+        problem = os_error_problem(exc)
+        if problem is not None:
+            return problem
+    if isinstance(exc, (ImportError, OSError)):
+        problem = missing_library_problem(exc)
+        if problem is not None:
+            return problem
+    if isinstance(exc, ModuleNotFoundError) and exc.name:
+        package = exc.name.split(".")[0]
+        return f"the Python package {package!r} is not installed; install it (pip install {package}) or reinstall " \
+            "roodi-toolkit with its dependencies"
+    return None
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -12,7 +12,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import ConfigError
+from .errors import ConfigError, DatasetError
+from .gaussians import quat_to_rotmat
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,37 @@ class Camera:
         K[0] *= width / self.width
         K[1] *= height / self.height
         return Camera(self.world_to_camera, K, width, height, self.near, self.far, self.name)
+
+
+def qvec_to_rotmat(qvec: np.ndarray) -> np.ndarray:
+    """Return the ``[3, 3]`` rotation of one quaternion ``[4]`` (w, x, y, z), normalised first.
+
+    Raises:
+        DatasetError: the quaternion is zero or not finite (a file's camera that has no rotation).
+    """
+    q = np.asarray(qvec, dtype=np.float64)
+    n = np.linalg.norm(q)
+    if not np.isfinite(n) or n == 0:
+        raise DatasetError(f"quaternion {q.tolist()} has zero or non-finite norm")
+    return quat_to_rotmat(q[None])[0]
+
+
+def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
+    """Return the unit quaternion (w, x, y, z), w >= 0, of a ``[3, 3]`` rotation matrix."""
+    R = np.asarray(R, dtype=np.float64)
+    # symmetric 4x4 whose top eigenvector is the quaternion (Bar-Itzhack); robust for every rotation
+    Rxx, Ryx, Rzx, Rxy, Ryy, Rzy, Rxz, Ryz, Rzz = R.flat
+    Kmat = np.array([
+        [Rxx - Ryy - Rzz, 0, 0, 0],
+        [Ryx + Rxy, Ryy - Rxx - Rzz, 0, 0],
+        [Rzx + Rxz, Rzy + Ryz, Rzz - Rxx - Ryy, 0],
+        [Ryz - Rzy, Rzx - Rxz, Rxy - Ryx, Rxx + Ryy + Rzz],
+    ]) / 3.0
+    vals, vecs = np.linalg.eigh(Kmat)
+    q = vecs[[3, 0, 1, 2], np.argmax(vals)]
+    if q[0] < 0:
+        q = -q
+    return q
 
 
 def invert_rigid(T: np.ndarray) -> np.ndarray:

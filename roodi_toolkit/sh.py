@@ -11,8 +11,7 @@ import torch
 from torch import Tensor
 
 from .errors import ConfigError
-
-SH_C0 = 0.28209479177387814
+from .gaussians import SH_C0  # defined with the cloud, whose colour needs it without importing torch
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
 SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,

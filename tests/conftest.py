@@ -60,7 +60,7 @@ def run_cli(capsys):
 @pytest.fixture(scope="session")
 def tiny_kitchen(tmp_path_factory):
     """A 32x32 generated kitchen (10 training views, 3 targets) shared by the pipeline tests."""
-    from roodi_toolkit.synth.scenegen import SceneSettings, make_scene
+    from roodi_toolkit.synth.scene import SceneSettings, make_scene
 
     root = tmp_path_factory.mktemp("scene") / "kitchen"
     make_scene(root, "kitchen", seed=3, settings=SceneSettings(width=32, height=32, train_views=10, test_views=2,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from roodi_toolkit.gaussians import GaussianCloud
+from roodi_toolkit.synth.floaters import sample_mesh_surface
 
 
 def mesh_cloud(objects, per_area: float = 60000.0, seed: int = 0, opacity: float = 0.95) -> GaussianCloud:
@@ -15,14 +16,9 @@ def mesh_cloud(objects, per_area: float = 60000.0, seed: int = 0, opacity: float
     for o in objects:
         for p in o.parts:
             v, t = p.vertices, p.triangles
-            a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-            area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-            n = max(1, int(area.sum() * per_area))
-            tri = rng.choice(len(t), n, p=area / area.sum())
-            u, w = rng.random(n), rng.random(n)
-            flip = u + w > 1
-            u[flip], w[flip] = 1 - u[flip], 1 - w[flip]
-            pts.append(a[tri] + u[:, None] * (b - a)[tri] + w[:, None] * (c - a)[tri])
+            area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum()
+            n = max(1, int(area * per_area))
+            pts.append(sample_mesh_surface(v, t, n, rng)[0])
             cols.append(np.tile(p.material.color, (n, 1)))
     points = np.concatenate(pts)
     scale = 0.6 / per_area ** 0.5
@@ -45,7 +41,7 @@ def nearby(scene, target, reach: float):
 
 def hidden_truth(scene, target, cameras):
     """Return ``[V, H, W]`` bool: the target is seen when rendered alone but not in the full scene (mesh ray casting)."""
-    from roodi_toolkit.synth.scenegen import render_views
+    from roodi_toolkit.synth.tracer import render_views
 
     alone = render_views(scene, cameras, object_ids=[target.id], with_ground=False, supersample=1)
     full = render_views(scene, cameras, supersample=1)

@@ -13,7 +13,8 @@ import numpy as np
 import torch
 
 from roodi_toolkit.cameras import orbit_cameras
-from roodi_toolkit.io.datasets import Dataset, write_blender_transforms
+from roodi_toolkit.io.blender import write_blender_transforms
+from roodi_toolkit.io.dataset import Dataset
 from roodi_toolkit.io.files import write_image, write_json
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.io.ply import write_ply

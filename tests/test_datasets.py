@@ -10,24 +10,17 @@ import numpy as np
 import pytest
 import torch
 
-from roodi_toolkit.cameras import Camera, look_at, orbit_cameras
-from roodi_toolkit.io.datasets import (
+from roodi_toolkit.cameras import Camera, look_at, orbit_cameras, qvec_to_rotmat, rotmat_to_qvec
+from roodi_toolkit.io.blender import load_blender, write_blender_transforms
+from roodi_toolkit.io.colmap import (
     ColmapCamera,
     ColmapPoints,
-    Dataset,
     colmap_model_from_cameras,
-    detect_format,
-    estimate_bounds,
-    load_blender,
-    load_cameras,
     load_colmap,
-    load_dataset,
-    qvec_to_rotmat,
     read_colmap_model,
-    rotmat_to_qvec,
-    write_blender_transforms,
     write_colmap_model,
 )
+from roodi_toolkit.io.dataset import Dataset, detect_format, estimate_bounds, load_cameras, load_dataset
 from roodi_toolkit.errors import DatasetError, RoodiError
 from roodi_toolkit.io.files import write_image
 

@@ -12,7 +12,7 @@ CONFIG = TrainConfig(iterations=30, init="depth", init_num_points=600, eval_ever
 
 
 def _trainer(tiny_kitchen):
-    from roodi_toolkit.io.datasets import load_dataset
+    from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.pipeline.joint import JointTrainer
     from roodi_toolkit.pipeline.segment import FilesSegmenter, SegmentPrompt
 

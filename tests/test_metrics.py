@@ -14,7 +14,7 @@ from .mesh_gaussians import mesh_cloud
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from roodi_toolkit.synth.scenegen import SceneSettings, make_scene
+    from roodi_toolkit.synth.scene import SceneSettings, make_scene
 
     root = tmp_path_factory.mktemp("m") / "picnic"
     make_scene(root, "picnic", seed=1, settings=SceneSettings(width=64, height=64, train_views=4, test_views=6,
@@ -49,7 +49,7 @@ def test_scores_of_identical_and_different_views():
 
 
 def test_evaluate_true_object_beats_a_wrong_one(scene_dir, monkeypatch, tmp_path):
-    from roodi_toolkit.synth.scenegen import scene_from_record
+    from roodi_toolkit.synth.scene import scene_from_record
     from roodi_toolkit.io.files import read_json
 
     monkeypatch.delenv("ROODI_LPIPS_WEIGHTS", raising=False)
@@ -71,7 +71,7 @@ def test_evaluate_true_object_beats_a_wrong_one(scene_dir, monkeypatch, tmp_path
 
 def test_evaluate_command(scene_dir, tmp_path, run_cli):
     from roodi_toolkit.io.files import read_json
-    from roodi_toolkit.synth.scenegen import scene_from_record
+    from roodi_toolkit.synth.scene import scene_from_record
 
     record = read_json(scene_dir / "scene.json")
     tid = record["targets"][1]["id"]

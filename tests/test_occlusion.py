@@ -129,7 +129,7 @@ def test_masks_are_written_as_images(tmp_path):
 
 def test_generated_scene_masks_match_the_hidden_truth():
     """picnic seed 0, basket_3: about 6% of its object-centred views are hidden by its neighbours."""
-    from roodi_toolkit.synth.scenegen import build_scene
+    from roodi_toolkit.synth.scene import build_scene
 
     scene = build_scene("picnic", 0)
     target = next(o for o in scene.targets if o.name == "basket_3")

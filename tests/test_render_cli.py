@@ -84,7 +84,7 @@ def test_cli_render_orbit_rgb_and_alpha(tmp_path, run_cli):
 
 def test_cli_render_blender_cameras(tmp_path, run_cli):
     from roodi_toolkit.cameras import orbit_cameras
-    from roodi_toolkit.io.datasets import write_blender_transforms
+    from roodi_toolkit.io.blender import write_blender_transforms
 
     cloud = ball_cloud(center=(0.0, 0.0, 0.0))
     ply = tmp_path / "ball.ply"

@@ -9,19 +9,13 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.cli.main import main
-from roodi_toolkit.io.datasets import load_dataset
+from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.errors import ConfigError, OutputError
 from roodi_toolkit.io.files import read_image, read_json
-from roodi_toolkit.synth.scenegen import (
-    PRESETS,
-    SceneSettings,
-    build_scene,
-    make_scene,
-    render_views,
-    scene_from_record,
-    target_cameras,
-    training_cameras,
-)
+from roodi_toolkit.synth.objects import PRESETS
+from roodi_toolkit.synth.scene import (SceneSettings, build_scene, make_scene, scene_from_record, target_cameras,
+                                       training_cameras)
+from roodi_toolkit.synth.tracer import render_views
 
 TINY = SceneSettings(width=48, height=40, train_views=6, test_views=3, supersample=1)
 

@@ -9,10 +9,11 @@ import torch
 from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
 from roodi_toolkit.io.files import write_image
 from roodi_toolkit.render.renderer import render_cloud
+from roodi_toolkit.imaging import mask_iou
 from roodi_toolkit.pipeline import click as click_segmenter
 from roodi_toolkit.pipeline.click import ClickSegmenter
 from roodi_toolkit.pipeline.segment import (Click, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
-                                            ViewMasks, get_segmenter, mask_iou, segmenter_names)
+                                            ViewMasks, get_segmenter, segmenter_names)
 
 from .object_scene import object_dataset
 
@@ -33,7 +34,7 @@ def test_builtins_are_registered_through_entry_points():
 
 def test_a_plugin_registered_by_environment(monkeypatch):
     monkeypatch.setenv("ROODI_PLUGINS", "segmenters:mine=roodi_toolkit.pipeline.segment:FilesSegmenter;"
-                                        "segmenters:bad=roodi_toolkit.pipeline.segment:mask_iou")
+                                        "segmenters:bad=roodi_toolkit.imaging:mask_iou")
     assert isinstance(get_segmenter("mine"), Segmenter)
     with pytest.raises(PluginError, match="not a roodi_toolkit.pipeline.segment.Segmenter"):
         get_segmenter("bad")

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from roodi_toolkit import read_ply
-from roodi_toolkit.io.datasets import load_dataset
+from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.errors import RoodiError
 from roodi_toolkit.pipeline.strategy import MCMCStrategy
 from roodi_toolkit.pipeline.train import TrainConfig, Trainer, split_views, train_scene
@@ -171,7 +171,7 @@ def test_params_from_cloud_copies():
 @pytest.mark.slow
 def test_generated_scene_trains_to_27_db_within_15_minutes(tmp_path):
     """Issue 7's check: a 128x128 generated scene reaches >= 27 dB on its held-out full-scene views in < 15 min."""
-    from roodi_toolkit.synth.scenegen import SceneSettings, make_scene
+    from roodi_toolkit.synth.scene import SceneSettings, make_scene
 
     scene = tmp_path / "bedroom"
     make_scene(scene, "bedroom", seed=0, settings=SceneSettings(width=128, height=128, test_views=1))

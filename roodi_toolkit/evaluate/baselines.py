@@ -25,12 +25,12 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..io.datasets import Dataset
+from ..errors import CloudError, ConfigError
+from ..gaussians import GaussianCloud
+from ..imaging import mask_iou
+from ..io.dataset import Dataset
 from ..params import GaussianParams
 from ..pipeline.distill import ObjectClassifier, cloud_features, render_features
-from ..errors import ConfigError, RoodiError
-from ..gaussians import GaussianCloud
-from ..pipeline.segment import mask_iou
 from ..render.renderer import Renderer, resolve_renderer
 
 SIMILARITY_THRESHOLDS = tuple(np.round(np.arange(0.50, 0.991, 0.02), 2))
@@ -53,7 +53,7 @@ class BaselineSelection:
 
 def _take(cloud: GaussianCloud, keep: np.ndarray, what: str) -> GaussianCloud:
     if not keep.any():
-        raise RoodiError(f"{what} selected no Gaussian")
+        raise CloudError(f"{what} selected no Gaussian")
     out = cloud.select(np.flatnonzero(keep))
     out.extras = {k: v for k, v in out.extras.items() if not k.startswith("object_feature_")}
     return out

@@ -157,7 +157,7 @@ def method_config(method: str, base: ExtractConfig) -> ExtractConfig:
 
 def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
     """Return the metrics of an empty extraction (a white render, no coverage)."""
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from .metrics import Evaluation, find_target, score_views
 
     folder, name = find_target(data_dir, object_id)
@@ -171,14 +171,14 @@ def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
 
 
 def _targets(data_dir: Path) -> list[dict[str, Any]]:
-    from ..io.files import read_json
+    from ..io.generated import read_scene_record
 
-    record = read_json(data_dir / "scene.json", "scene record")
+    record = read_scene_record(data_dir)
     return [{"id": int(t["id"]), "name": str(t["name"])} for t in record["targets"]]
 
 
 def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: ProgressFactory) -> Path:
-    from ..synth.scenegen import SceneSettings, make_scene
+    from ..synth.scene import SceneSettings, make_scene
 
     data = root / preset
     if (data / "scene.json").is_file():
@@ -209,7 +209,7 @@ def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Pat
     made with the same selection rule, is reused); ``loaded`` keeps the scene's distillation, dataset and masks for
     the next target of the same scene."""
     from .baselines import feature_similarity, gaussian_grouping
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..pipeline.distill import load_distillation
     from ..io.files import read_json, write_json
     from ..io.ply import write_ply
@@ -260,6 +260,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
         renderer: every rendering of every method, training included (default: the built-in CPU renderer).
     """
     from ..io import files
+    from ..io.generated import read_scene_record
     from .metrics import evaluate_object
     from ..io.ply import read_ply
 
@@ -331,7 +332,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
             per_method[method] = {"objects": rows, "mean": _average(rows),
                                   "seconds": float(sum(r.get("seconds", 0.0) for r in rows))}
         results["scenes"][preset] = {m: per_method[m] for m in methods}
-        results.setdefault("scene_settings", {})[preset] = files.read_json(data / "scene.json", "scene record")["settings"]
+        results.setdefault("scene_settings", {})[preset] = read_scene_record(data)["settings"]
         results["scenes"][preset]["_picture"] = str(_scene_grid(data, preset, methods, pictures, out))
     results["mean"] = {m: _average([results["scenes"][p][m]["mean"] for p in presets]) for m in methods}
     results["checks"] = checks(results["mean"])
@@ -426,7 +427,7 @@ def _scene_grid(data: Path, preset: str, methods: Sequence[str], pictures: dict[
                 out: Path) -> Path:
     """Write the scene's picture grid (paper Fig. 5): per target a training view, then the truth and every method's
     render of the first test view, full frame (floaters anywhere show) and zoomed in on the true object."""
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..io.files import new_figure, save_figure
     from .metrics import ALPHA_THRESHOLD, find_target, zoom_box
 

@@ -24,7 +24,7 @@ from typing import Mapping
 import torch
 from torch import Tensor, nn
 
-from ..errors import RoodiError
+from ..errors import EnvironmentProblemError, InputError
 
 ENV_WEIGHTS = "ROODI_LPIPS_WEIGHTS"
 ALEXNET_CHECKPOINT = "alexnet-owt-7be5be79.pth"
@@ -32,8 +32,12 @@ CHANNELS = (64, 192, 384, 256, 256)
 _SLICES = ((0, 2), (2, 5), (5, 8), (8, 10), (10, 12))  # AlexNet feature indices ending at relu1..relu5
 
 
-class LPIPSUnavailable(RoodiError):
+class LPIPSUnavailable(EnvironmentProblemError):
     """LPIPS weights are not available locally."""
+
+
+class LPIPSInputError(InputError, ValueError):
+    """Images LPIPS cannot compare; also a ValueError, as a torch module's bad-shape error is."""
 
 
 def _alexnet_features() -> nn.Sequential:
@@ -83,10 +87,10 @@ class LPIPS(nn.Module):
     def forward(self, x: Tensor, y: Tensor) -> Tensor:
         """Return the LPIPS distance ``[B]`` between image batches ``[B, 3, H, W]`` in [0, 1] (H, W >= 32)."""
         if x.shape != y.shape or x.ndim != 4 or x.shape[1] != 3:
-            raise ValueError(f"LPIPS needs two [B, 3, H, W] batches of one shape, got {list(x.shape)} and "
-                             f"{list(y.shape)}")
+            raise LPIPSInputError(f"LPIPS needs two [B, 3, H, W] batches of one shape, got {list(x.shape)} and "
+                                  f"{list(y.shape)}")
         if min(x.shape[-2:]) < 32:
-            raise ValueError(f"LPIPS needs images of at least 32x32 pixels, got {list(x.shape[-2:])}")
+            raise LPIPSInputError(f"LPIPS needs images of at least 32x32 pixels, got {list(x.shape[-2:])}")
         total = x.new_zeros(x.shape[0])
         for lin, fx, fy in zip(self.lins, self._stages(x), self._stages(y)):
             total = total + lin((fx - fy) ** 2).mean(dim=(1, 2, 3))

@@ -17,8 +17,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..errors import DatasetError, RoodiError
+from ..errors import CloudError, DatasetError
 from ..gaussians import GaussianCloud
+from ..imaging import mask_iou, psnr, ssim
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer
 
@@ -68,28 +69,9 @@ def zoom_box(mask: np.ndarray, scale: float = 3.0) -> tuple[int, int, int, int]:
     return y0, y0 + side, x0, x0 + side
 
 
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """Return the PSNR in dB of two images in [0, 1] (inf when identical)."""
-    mse = float(np.mean((np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)) ** 2))
-    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
-
-
-def ssim(a: np.ndarray, b: np.ndarray, window: int = 11) -> float:
-    """Return the mean SSIM of two ``[H, W, 3]`` images in [0, 1] (Gaussian window, shrunk for small crops)."""
-    import kornia
-
-    win = min(window, min(a.shape[:2]))
-    win = win if win % 2 == 1 else win - 1
-    x = torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32).permute(2, 0, 1)[None]
-    y = torch.as_tensor(np.ascontiguousarray(b), dtype=torch.float32).permute(2, 0, 1)[None]
-    return float(kornia.metrics.ssim(x, y, max(win, 1)).mean())
-
-
 def iou(a: np.ndarray, b: np.ndarray) -> float:
     """Return the intersection over union of two alpha maps thresholded at 0.5 (1.0 when both are empty)."""
-    ma, mb = np.asarray(a) > ALPHA_THRESHOLD, np.asarray(b) > ALPHA_THRESHOLD
-    union = np.logical_or(ma, mb).sum()
-    return 1.0 if union == 0 else float(np.logical_and(ma, mb).sum() / union)
+    return mask_iou(np.asarray(a) > ALPHA_THRESHOLD, np.asarray(b) > ALPHA_THRESHOLD)
 
 
 def lpips_crop(model: Any, a: np.ndarray, b: np.ndarray) -> float:
@@ -179,7 +161,7 @@ def score_views(renders: np.ndarray, alphas: np.ndarray, truth: np.ndarray, trut
             continue
         y0, y1, x0, x1 = box
         a, b = np.clip(renders[i, y0:y1, x0:x1], 0, 1), truth[i, y0:y1, x0:x1]
-        scores.append(ViewScores(name, psnr(a, b), ssim(a, b),
+        scores.append(ViewScores(name, psnr(a, b), float(ssim(a, b)),
                                  None if lpips_model is None else lpips_crop(lpips_model, a, b), view_iou))
     return scores
 
@@ -196,10 +178,10 @@ def find_target(data_dir: str | Path, object_id: int) -> tuple[Path, str]:
     Raises:
         DatasetError: no scene.json, or no such target (the message lists the targets).
     """
-    from ..io.files import read_json
+    from ..io.generated import read_scene_record
 
     root = Path(data_dir)
-    record = read_json(root / "scene.json", "scene.json (made by roodi-toolkit make-scene)")
+    record = read_scene_record(root)
     targets = {int(t["id"]): t for t in record.get("targets", [])}
     if object_id not in targets:
         listed = ", ".join(f"{i} ({t['name']})" for i, t in sorted(targets.items())) or "none"
@@ -227,7 +209,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
     Returns:
         ``(evaluation, renders)`` with renders ``[N, H, W, 3]`` on white.
     """
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from .lpips import LPIPS, LPIPSUnavailable
     from ..render.renderer import render_cloud, resolve_renderer
 
@@ -237,7 +219,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         raise DatasetError(f"{folder}: the target's views have no alpha; cannot score IoU")
     count = len(truth) if max_views is None else min(max_views, len(truth))
     if len(cloud) == 0:
-        raise RoodiError("the extracted object has no Gaussians")
+        raise CloudError("the extracted object has no Gaussians")
     lpips_model, status = None, "ok"
     try:
         lpips_model = LPIPS.from_local(lpips_weights)

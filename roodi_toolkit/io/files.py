@@ -9,14 +9,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from ..errors import OutputError
+from ..errors import EnvironmentProblemError, InputError, OutputError, os_error_problem
 
 
 @contextlib.contextmanager
@@ -32,17 +31,30 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     parent = dest.parent if str(dest.parent) else Path(".")
     if not parent.is_dir():
         raise OutputError(f"{dest}: the folder {parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix,
-                               dir=parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix,
+                                   dir=parent)
+    except OSError as exc:
+        _raise_environment_problem(exc, dest)
+        raise
     os.close(fd)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
         os.replace(tmp_path, dest)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
+        if isinstance(exc, OSError):
+            _raise_environment_problem(exc, dest)
         raise
+
+
+def _raise_environment_problem(exc: OSError, path: Path) -> None:
+    """Raise :class:`EnvironmentProblemError` if ``exc`` is a full disk, a read-only folder or a denied write."""
+    message = os_error_problem(exc, path)
+    if message is not None:
+        raise EnvironmentProblemError(message) from exc
 
 
 def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[str | os.PathLike] = ()) -> Path:
@@ -104,6 +116,7 @@ def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existi
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
+        _raise_environment_problem(exc, out)
         raise OutputError(f"{out}: cannot create folder ({exc.strerror})") from None
     return out
 
@@ -127,21 +140,19 @@ def write_json(obj: Any, path: str | os.PathLike) -> Path:
 
 def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
     """Read a JSON file, turning every failure into a one-line :class:`~roodi_toolkit.errors.RoodiError`."""
-    from ..errors import RoodiError
-
     p = Path(path)
     try:
         text = p.read_text()
     except FileNotFoundError:
-        raise RoodiError(f"{p}: {what} not found") from None
+        raise InputError(f"{p}: {what} not found") from None
     except IsADirectoryError:
-        raise RoodiError(f"{p}: is a folder, expected a {what}") from None
+        raise InputError(f"{p}: is a folder, expected a {what}") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise RoodiError(f"{p}: cannot read {what} ({exc})") from None
+        raise InputError(f"{p}: cannot read {what} ({exc})") from None
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise RoodiError(f"{p}: malformed {what}: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+        raise InputError(f"{p}: malformed {what}: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
 
 
 def write_image(image: np.ndarray, path: str | os.PathLike) -> Path:
@@ -172,8 +183,6 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image file as a numpy array (uint8 or uint16, channels last), with one-line errors."""
     from PIL import Image, UnidentifiedImageError
 
-    from ..errors import RoodiError
-
     p = Path(path)
     try:
         with Image.open(p) as img:
@@ -183,16 +192,9 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
                 img = img.convert("RGBA" if "A" in img.mode else "RGB")
             return np.asarray(img).copy()
     except FileNotFoundError:
-        raise RoodiError(f"{p}: image not found") from None
+        raise InputError(f"{p}: image not found") from None
     except (UnidentifiedImageError, OSError) as exc:
-        raise RoodiError(f"{p}: cannot read image ({exc})") from None
-
-
-def copy_file(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
-    """Copy a file atomically."""
-    with atomic_path(dst) as tmp:
-        shutil.copyfile(src, tmp)
-    return Path(dst)
+        raise InputError(f"{p}: cannot read image ({exc})") from None
 
 
 def new_figure(*args: Any, figsize: tuple[float, float], **subplots: Any) -> tuple[Any, Any]:
@@ -235,12 +237,10 @@ def load_checkpoint(path: str | os.PathLike) -> Any:
 
     import torch
 
-    from ..errors import RoodiError
-
     p = Path(path)
     if not p.is_file():
-        raise RoodiError(f"{p}: checkpoint not found")
+        raise InputError(f"{p}: checkpoint not found")
     try:
         return torch.load(p, map_location="cpu", weights_only=True)
     except (RuntimeError, pickle.UnpicklingError, EOFError, OSError, ValueError) as exc:
-        raise RoodiError(f"{p}: cannot read checkpoint ({' '.join(str(exc).split())[:200]})") from None
+        raise InputError(f"{p}: cannot read checkpoint ({' '.join(str(exc).split())[:200]})") from None

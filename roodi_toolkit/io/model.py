@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, DatasetError, RoodiError
+from ..errors import ConfigError, DatasetError, InputError
 
 MODEL_PLY = "point_cloud.ply"
 CHECKPOINT = Path("checkpoints") / "latest.pt"
@@ -38,7 +38,7 @@ MASKS_DIR = "object_masks"
 DISTILL_PICTURE = "distill.png"
 
 
-class ModelError(RoodiError):
+class ModelError(InputError):
     """A model or distillation folder is missing, malformed or does not belong to its model."""
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import PlyError
+from ..errors import PlyError, UnsupportedFormatError
 from .files import atomic_path
 from ..gaussians import GaussianCloud
 
@@ -91,8 +91,16 @@ class PlyInfo:
     file_size: int
 
 
+class UnsupportedPlyError(PlyError, UnsupportedFormatError):
+    """A PLY file of a variant this reader refuses (an unknown format or version, list properties)."""
+
+
 def _fail(path: Path | str, message: str) -> PlyError:
     return PlyError(f"{path}: {message}")
+
+
+def _unsupported(path: Path | str, message: str) -> PlyError:
+    return UnsupportedPlyError(f"{path}: {message}")
 
 
 def _open_checked(path: str | os.PathLike) -> tuple[Path, int]:
@@ -147,9 +155,9 @@ def _parse_header(p: Path, head: bytes) -> PlyHeader:
             comments.append(line.partition(" ")[2])
         elif key == "format":
             if len(words) != 3 or words[1] not in _FORMATS:
-                raise _fail(p, f"header line {lineno}: unsupported format {' '.join(words[1:])!r}")
+                raise _unsupported(p, f"header line {lineno}: unsupported format {' '.join(words[1:])!r}")
             if words[2] not in ("1.0", "1"):
-                raise _fail(p, f"header line {lineno}: unsupported PLY version {words[2]!r}")
+                raise _unsupported(p, f"header line {lineno}: unsupported PLY version {words[2]!r}")
             fmt = words[1]
         elif key == "element":
             if len(words) != 3 or not re.fullmatch(r"\d{1,15}", words[2]):
@@ -210,7 +218,7 @@ def _body_offset(p: Path, header: PlyHeader, file_size: int) -> tuple[int, PlyEl
             if vertex is None:
                 if el.name == "vertex":
                     raise _fail(p, "vertex element has list properties; a Gaussian splat PLY has scalars only")
-                raise _fail(p, f"element {el.name!r} with list properties before the vertices is not supported")
+                raise _unsupported(p, f"element {el.name!r} with list properties before the vertices is not supported")
             break  # elements after the vertices are ignored
         rec = sum(np.dtype(t).itemsize for _, t in el.properties)
         if el.name == "vertex":

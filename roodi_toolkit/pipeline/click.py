@@ -15,7 +15,7 @@ import torch
 from ..cameras import Camera
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
-from ..io.datasets import Dataset
+from ..io.dataset import Dataset
 from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, TorchRenderer, has_compositing_weights, resolve_renderer

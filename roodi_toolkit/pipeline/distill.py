@@ -27,14 +27,15 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..cameras import Camera
-from ..io.datasets import Dataset
-from ..errors import ConfigError, RoodiError
+from ..errors import CloudError, ConfigError, InputError
+from ..io.dataset import Dataset
 from ..io.model import Distillation
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer, to_csr
 from ..progress import ProgressFactory, null_progress
-from .segment import SegmentPrompt, ViewMasks, mask_iou
+from ..imaging import mask_iou
+from .segment import SegmentPrompt, ViewMasks
 
 FEATURE_PREFIX = "object_feature_"
 CLASSIFIER_FORMAT = "roodi-object-classifier"
@@ -124,12 +125,12 @@ class ObjectClassifier:
     @classmethod
     def from_state_dict(cls, state: Any, where: str = "classifier") -> "ObjectClassifier":
         if not isinstance(state, dict) or state.get("format") != CLASSIFIER_FORMAT:
-            raise RoodiError(f"{where}: not a roodi-toolkit object classifier (run roodi-toolkit distill first)")
+            raise InputError(f"{where}: not a roodi-toolkit object classifier (run roodi-toolkit distill first)")
         try:
             labels = {int(k): str(v) for k, v in dict(state.get("labels", {})).items()}
             return cls(state["weight"].float(), state["bias"].float(), labels)
         except (KeyError, AttributeError, ValueError) as exc:
-            raise RoodiError(f"{where}: malformed object classifier ({exc})") from None
+            raise InputError(f"{where}: malformed object classifier ({exc})") from None
 
 
 @dataclass
@@ -234,10 +235,7 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
     n = len(cloud)
     features = torch.nn.Parameter(torch.randn(n, config.feature_dim, generator=gen) * config.feature_init_std)
-    # nn.Conv2d's default initialisation, drawn from our generator so runs repeat exactly
-    bound = 1.0 / math.sqrt(config.feature_dim)
-    weight = torch.nn.Parameter((torch.rand(C, config.feature_dim, generator=gen) * 2 - 1) * bound)
-    bias = torch.nn.Parameter((torch.rand(C, generator=gen) * 2 - 1) * bound)
+    weight, bias = (torch.nn.Parameter(t) for t in initial_classifier(C, config.feature_dim, gen))
     opt_features = torch.optim.Adam([features], lr=config.feature_lr, eps=1e-15)
     opt_classifier = torch.optim.Adam([weight, bias], lr=config.classifier_lr)
     log_c = math.log(C)
@@ -311,16 +309,27 @@ def cloud_features(cloud: GaussianCloud) -> Tensor:
     """Return the object features ``[N, F]`` stored in a cloud's ``object_feature_*`` columns.
 
     Raises:
-        RoodiError: the cloud has none (it was not distilled).
+        InputError: the cloud has none (it was not distilled).
     """
     names = sorted((k for k in cloud.extras if re.fullmatch(rf"{FEATURE_PREFIX}\d+", k)),
                    key=lambda k: int(k[len(FEATURE_PREFIX):]))
     if not names:
-        raise RoodiError("the model has no object features (object_feature_* columns); run roodi-toolkit distill "
+        raise CloudError("the model has no object features (object_feature_* columns); run roodi-toolkit distill "
                          "first")
     if names != feature_names(len(names)):
-        raise RoodiError(f"the model's object feature columns are not numbered 0..{len(names) - 1}: {names}")
+        raise CloudError(f"the model's object feature columns are not numbered 0..{len(names) - 1}: {names}")
     return torch.as_tensor(np.stack([cloud.extras[k].astype(np.float32) for k in names], axis=1))
+
+
+def initial_classifier(num_classes: int, feature_dim: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+    """Return a fresh classifier's weight ``[C, F]`` and bias ``[C]``: nn.Conv2d's default initialisation.
+
+    Drawn from ``generator`` (weight first, then bias) so that runs repeat exactly.
+    """
+    bound = 1.0 / math.sqrt(feature_dim)
+    weight = (torch.rand(num_classes, feature_dim, generator=generator) * 2 - 1) * bound
+    bias = (torch.rand(num_classes, generator=generator) * 2 - 1) * bound
+    return weight, bias
 
 
 
@@ -386,12 +395,11 @@ def alpha_iou(cloud: GaussianCloud, cameras: Sequence[Camera], alphas: Sequence[
 
 def scene_labels(data_dir: str | Path) -> dict[int, str]:
     """Return object names by id from a generated scene's ``scene.json`` (empty for other datasets)."""
-    from ..io.files import read_json
+    from ..io.generated import is_generated_scene, read_scene_record
 
-    p = Path(data_dir) / "scene.json"
-    if not p.is_file():
+    if not is_generated_scene(data_dir):
         return {}
-    record = read_json(p, "scene record")
+    record = read_scene_record(data_dir)
     try:
         return {0: "background", **{int(o["id"]): str(o["name"]) for o in record.get("objects", [])}}
     except (KeyError, TypeError, ValueError, AttributeError):
@@ -565,7 +573,7 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
     ``distill.json``. The model folder and the data folder are inputs and are never written.
     """
     from ..io import files
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..io.model import DISTILL_RECORD, find_model
     from ..io.ply import read_ply
 

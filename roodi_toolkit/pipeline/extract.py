@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from .distill import DistillConfig
-from ..errors import ConfigError, RoodiError
+from ..errors import ConfigError
 from .finetune import FinetuneConfig
 from ..gaussians import GaussianCloud
 from .occlusion import OcclusionConfig
@@ -211,7 +211,7 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
     Arguments as :func:`extract_objects`.
     """
     from ..io import files
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..io.model import DISTILL_RECORD, checkpoint_file, find_model
     from ..io.ply import read_ply
     from ..render.renderer import resolve_renderer

@@ -30,7 +30,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..errors import ConfigError, RoodiError
+from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
@@ -262,7 +262,7 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
         renderer: draws every view (default: the built-in CPU renderer).
     """
     if len(originals.cameras) == 0:
-        raise RoodiError("fine-tuning needs at least one original view of the object")
+        raise DatasetError("fine-tuning needs at least one original view of the object")
     t0 = time.perf_counter()
     perceptual = perceptual_loss(config.perceptual, config.lpips_weights)
     renderer = resolve_renderer(renderer)

@@ -21,8 +21,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..io.datasets import Dataset
-from .distill import DistillConfig, DistilledScene, DistillResult, ObjectClassifier
+from ..io.dataset import Dataset
+from .distill import DistillConfig, DistilledScene, DistillResult, ObjectClassifier, initial_classifier
 from ..errors import ConfigError
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, RenderOutput
@@ -62,10 +62,8 @@ class JointTrainer(Trainer):
             self.params.features = torch.nn.Parameter(
                 torch.randn(n, dim, generator=self.generator) * self.distill.feature_init_std)
         if not self.classifier_params:
-            bound = 1.0 / math.sqrt(dim)  # nn.Conv2d's default initialisation, from our generator
-            self.classifier_params = {
-                "weight": torch.nn.Parameter((torch.rand(C, dim, generator=self.generator) * 2 - 1) * bound),
-                "bias": torch.nn.Parameter((torch.rand(C, generator=self.generator) * 2 - 1) * bound)}
+            weight, bias = initial_classifier(C, dim, self.generator)
+            self.classifier_params = {"weight": torch.nn.Parameter(weight), "bias": torch.nn.Parameter(bias)}
         self.optimizers["features"] = torch.optim.Adam([self.params.features], lr=self.distill.feature_lr,
                                                        eps=1e-15)
         self.optimizers["classifier"] = torch.optim.Adam(list(self.classifier_params.values()),

@@ -33,7 +33,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import torch
 
-from ..io.datasets import Dataset
+from ..io.dataset import Dataset
 from ..errors import ConfigError, DatasetError, PluginError, RoodiError
 from ..gaussians import GaussianCloud
 from ..plugins import discover, instantiate
@@ -316,14 +316,3 @@ class FilesSegmenter(Segmenter):
         return ViewMasks(torch.from_numpy(out), names, kind, int(out.max()) + 1, source=str(folder))
 
 
-def mask_iou(pred: np.ndarray | torch.Tensor, true: np.ndarray | torch.Tensor) -> float:
-    """Return the intersection over union of two boolean masks (1.0 when both are empty).
-
-    Example:
-        >>> mask_iou(np.array([1, 1, 0, 0], bool), np.array([1, 0, 0, 0], bool))
-        0.5
-    """
-    p = np.asarray(pred, dtype=bool)
-    t = np.asarray(true, dtype=bool)
-    union = np.logical_or(p, t).sum()
-    return 1.0 if union == 0 else float(np.logical_and(p, t).sum() / union)

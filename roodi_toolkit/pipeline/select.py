@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..errors import ConfigError, RoodiError
+from ..errors import ConfigError, InputError
 from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer
@@ -28,7 +28,7 @@ def gaussian_probabilities(cloud: GaussianCloud, classifier: ObjectClassifier) -
     """Return each Gaussian's class probabilities ``[N, C]``: the classifier applied to its own feature."""
     feats = cloud_features(cloud)
     if feats.shape[1] != classifier.feature_dim:
-        raise RoodiError(f"the model has {feats.shape[1]} object features but the classifier expects "
+        raise InputError(f"the model has {feats.shape[1]} object features but the classifier expects "
                          f"{classifier.feature_dim}; were they saved by different distillations?")
     with torch.no_grad():
         return classifier.probabilities(feats)
@@ -137,7 +137,7 @@ def run_select(distill_dir: str | Path, object_id: int, output_ply: str | Path, 
     record = distillation.record
     data_dir = record.get("data_dir")
     if data_dir and Path(data_dir).exists() and distillation.masks_dir.is_dir():
-        from ..io.datasets import load_dataset
+        from ..io.dataset import load_dataset
         from .segment import FilesSegmenter, SegmentPrompt
         from .train import split_views
 

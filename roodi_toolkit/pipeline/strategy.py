@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Callable, MutableMapping
 
 import torch
+from kornia.geometry.conversions import quaternion_to_rotation_matrix
 from torch import Tensor
 
 from ..errors import ConfigError
@@ -267,13 +268,7 @@ def inject_position_noise(params: Params, scale: float,
     """Add Gaussian noise to the means, shaped by each covariance and gated by opacity (3DGS-MCMC, Eq. 10)."""
     means = params["means"]
     opac = torch.sigmoid(params["opacity_logits"])
-    q = torch.nn.functional.normalize(params["quats_wxyz"], dim=-1)
-    w, x, y, z = q.unbind(-1)
-    R = torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], dim=-1).reshape(-1, 3, 3)
+    R = quaternion_to_rotation_matrix(params["quats_wxyz"])  # [N, 3, 3], w,x,y,z, normalised inside
     s2 = torch.exp(2.0 * params["log_scales"])
     covars = R @ torch.diag_embed(s2) @ R.transpose(1, 2)
     noise = torch.randn(means.shape, generator=generator, dtype=means.dtype) * noise_gate(opac)[:, None] * scale

@@ -23,9 +23,10 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..io.datasets import Dataset
-from ..errors import ConfigError, RoodiError
+from ..io.dataset import Dataset
+from ..errors import ConfigError, DatasetError, InputError
 from ..gaussians import SH_C0, GaussianCloud
+from ..imaging import psnr, ssim as ssim_value
 from ..progress import ProgressFactory, null_progress
 from ..params import PARAM_NAMES, GaussianParams
 from ..render.renderer import Renderer, RenderOutput, resolve_renderer
@@ -143,7 +144,7 @@ def projected_colors(points: np.ndarray, dataset: Dataset, views: list[int], max
 def depth_points(dataset: Dataset, views: list[int], n: int, generator: torch.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Return ``n`` points [n, 3] and colours [n, 3] lifted from random pixels of the views' depth maps."""
     if dataset.depths is None:
-        raise RoodiError("init 'depth' needs a dataset with depth maps (e.g. one made by make-scene)")
+        raise DatasetError("init 'depth' needs a dataset with depth maps (e.g. one made by make-scene)")
     pts, cols = [], []
     per_view = max(1, -(-n // len(views)))
     for v in views:
@@ -154,14 +155,10 @@ def depth_points(dataset: Dataset, views: list[int], n: int, generator: torch.Ge
         pick = torch.randint(len(ys), (min(per_view, len(ys)),), generator=generator)
         ys, xs = ys[pick].numpy(), xs[pick].numpy()
         z = depth[ys, xs].numpy().astype(np.float64)
-        cam = dataset.cameras[v]
-        K = cam.K
-        x_cam = np.stack([(xs + 0.5 - K[0, 2]) / K[0, 0] * z, (ys + 0.5 - K[1, 2]) / K[1, 1] * z, z], axis=1)
-        c2w = cam.camera_to_world
-        pts.append(x_cam @ c2w[:3, :3].T + c2w[:3, 3])
+        pts.append(dataset.cameras[v].backproject(np.stack([ys, xs], axis=1), z))
         cols.append(dataset.images[v][ys, xs].numpy())
     if not pts:
-        raise RoodiError("init 'depth': the depth maps are empty")
+        raise DatasetError("init 'depth': the depth maps are empty")
     points, colors = np.concatenate(pts), np.concatenate(cols)
     keep = torch.randperm(len(points), generator=generator)[:n].numpy()
     return points[keep], colors[keep]
@@ -175,7 +172,7 @@ def initial_params(points: np.ndarray, colors: np.ndarray | None, config: TrainC
     pts = torch.as_tensor(np.asarray(points), dtype=torch.float32)
     n = len(pts)
     if n < 4:
-        raise RoodiError(f"need at least 4 initial points, got {n}")
+        raise DatasetError(f"need at least 4 initial points, got {n}")
     dist, _ = cKDTree(pts.numpy()).query(pts.numpy(), k=4)
     dist_avg = torch.as_tensor(np.sqrt((dist[:, 1:] ** 2).mean(axis=1)), dtype=torch.float32).clamp_min(1e-7)
     if colors is None:
@@ -193,21 +190,6 @@ def initial_params(points: np.ndarray, colors: np.ndarray | None, config: TrainC
         sh_rest=torch.zeros(n, k - 1, 3),
     )
     return params.requires_grad_()
-
-
-def psnr(a: Tensor, b: Tensor) -> float:
-    """Return the PSNR in dB of two images in [0, 1]."""
-    mse = torch.mean((a.clamp(0, 1) - b) ** 2).item()
-    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
-
-
-def ssim_value(a: Tensor, b: Tensor, window: int = 11) -> Tensor:
-    """Return the mean SSIM of two ``[H, W, C]`` images (kornia, Gaussian window)."""
-    import kornia
-
-    x = a.permute(2, 0, 1)[None]
-    y = b.permute(2, 0, 1)[None]
-    return kornia.metrics.ssim(x, y, window).mean()
 
 
 class Trainer:
@@ -229,7 +211,7 @@ class Trainer:
         if train_indices is not None:
             self.train_indices = list(train_indices)
         if not self.train_indices:
-            raise RoodiError("the dataset has no training views")
+            raise DatasetError("the dataset has no training views")
         self.generator = torch.Generator().manual_seed(config.seed)
         self.scale = scene_scale([dataset.cameras[i] for i in self.train_indices])
         self.strategy = config.strategy
@@ -249,7 +231,7 @@ class Trainer:
         use_points = cfg.init == "points" or (cfg.init == "auto" and ds.points is not None and len(ds.points) >= 4)
         if use_points:
             if ds.points is None or len(ds.points) < 4:
-                raise RoodiError("init 'points' needs a dataset with sparse points (COLMAP)")
+                raise DatasetError("init 'points' needs a dataset with sparse points (COLMAP)")
             return ds.points, ds.point_colors
         lo, hi = ds.bounds
         u = torch.rand(cfg.init_num_points, 3, generator=self.generator, dtype=torch.float64).numpy()
@@ -312,7 +294,7 @@ class Trainer:
                                          self.generator)
         self.step += 1
         return {"step": self.step, "loss": float(loss.detach()), "l1": float(l1.detach()),
-                "psnr": psnr(out.rgb.detach(), gt), "count": self.num_gaussians}
+                "psnr": psnr(out.rgb.detach().clamp(0, 1), gt), "count": self.num_gaussians}
 
     def _extra_loss(self, out: RenderOutput, view: int) -> Tensor | None:
         """Return a loss term added to the photometric loss of ``view`` (none here)."""
@@ -330,7 +312,7 @@ class Trainer:
         for i in indices:
             out = self.renderer.render(colour_only, self.dataset.cameras[i], sh_degree=self.sh_degree,
                                        background=background)
-            psnrs.append(psnr(out.rgb, self.dataset.images[i]))
+            psnrs.append(psnr(out.rgb.clamp(0, 1), self.dataset.images[i]))
             ssims.append(float(ssim_value(out.rgb.clamp(0, 1), self.dataset.images[i])))
         return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims))}
 
@@ -375,7 +357,7 @@ class Trainer:
             self.step = int(state["step"])
             self.history = list(state.get("history", []))
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-            raise RoodiError(f"checkpoint does not match this training run ({type(exc).__name__}: {exc})") from None
+            raise InputError(f"checkpoint does not match this training run ({type(exc).__name__}: {exc})") from None
 
 
 def split_views(dataset: Dataset, holdout_every: int = 8) -> tuple[list[int], list[int]]:
@@ -436,7 +418,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
         renderer: draws the training views (default: the built-in CPU renderer).
     """
     from ..io import files
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..io.model import checkpoint_file, iteration_ply
     from ..io.ply import write_ply
 
@@ -444,10 +426,10 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     if resume:
         ckpt_file = checkpoint_file(out)
         if not ckpt_file.is_file():
-            raise RoodiError(f"{out}: nothing to resume (no {ckpt_file.relative_to(out)}); run without --resume")
+            raise ConfigError(f"{out}: nothing to resume (no {ckpt_file.relative_to(out)}); run without --resume")
         state = files.load_checkpoint(ckpt_file)
         if not isinstance(state, dict) or "config" not in state:
-            raise RoodiError(f"{ckpt_file}: not a roodi-toolkit training checkpoint")
+            raise InputError(f"{ckpt_file}: not a roodi-toolkit training checkpoint")
         config = TrainConfig.from_dict(state["config"])
         if iterations_override is not None:
             config = replace(config, iterations=iterations_override)

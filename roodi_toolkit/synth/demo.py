@@ -1,7 +1,7 @@
 """The README's main job on generated data: extract one object from a generated scene and score it (no GPU, no
 downloads, no input files), and the earlier planted-floater pruning demo.
 
-:func:`run_extract_demo` generates a multi-object scene (:mod:`roodi_toolkit.synth.scenegen`), trains it, distils its
+:func:`run_extract_demo` generates a multi-object scene (:mod:`roodi_toolkit.synth.scene`), trains it, distils its
 instance masks, extracts one partly hidden target with the offline defaults
 (:func:`roodi_toolkit.pipeline.extract.extract_objects`: ``files`` masks, ``opencv`` inpainter) and scores it with the paper's
 metrics against the target's object-alone views.
@@ -32,7 +32,8 @@ from ..gaussians import GaussianCloud
 from ..evaluate.metrics import Evaluation
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, resolve_renderer
-from .scenegen import PRESETS, SceneSettings
+from .objects import PRESETS
+from .scene import SceneSettings
 from ..pipeline.train import TrainConfig, config_with
 
 
@@ -195,7 +196,7 @@ class _Clock:
 
 def _alone_masks(scene: Any, cameras: list, target_ids: list[int]) -> dict[int, np.ndarray]:
     """Return per target ``[V, H, W]`` True where it covers the views' pixel centres when rendered alone."""
-    from .scenegen import render_views
+    from .tracer import render_views
 
     alone = {}
     for tid in target_ids:
@@ -266,11 +267,11 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
         OutputError: ``out_dir`` exists and is not empty without ``overwrite``.
     """
     from ..io import files
-    from ..io.datasets import load_dataset
+    from ..io.dataset import load_dataset
     from ..pipeline.extract import extract_objects
     from ..evaluate.metrics import evaluate_object, find_target
     from ..io.ply import read_ply
-    from .scenegen import build_scene, make_scene
+    from .scene import build_scene, make_scene
 
     renderer = resolve_renderer(renderer)
     load_start = os.getloadavg()[0]

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, OutputError, RoodiError
+from ..errors import ConfigError, EnvironmentProblemError, OutputError
 from ..gaussians import GaussianCloud
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -446,14 +446,14 @@ def export_html(plotter: "pv.Plotter", path: str | os.PathLike) -> None:
 
     ok, reason = html_export_supported(plotter)
     if not ok:
-        raise RoodiError(f"{path}: cannot export HTML: {reason}")
+        raise EnvironmentProblemError(f"{path}: cannot export HTML: {reason}")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # export_html is deprecated in favour of plotter.trame.export_html
         try:
             with atomic_path(path, suffix=".html") as tmp:
                 plotter.export_html(str(tmp))
         except ImportError as exc:
-            raise RoodiError(f"{path}: cannot export HTML: {' '.join(str(exc).split())}") from None
+            raise EnvironmentProblemError(f"{path}: cannot export HTML: {' '.join(str(exc).split())}") from None
 
 
 # ------------------------------------------------------------------------------------------------------ histogram

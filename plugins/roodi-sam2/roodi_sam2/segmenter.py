@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from roodi_toolkit.cameras import Camera
-from roodi_toolkit.io.datasets import Dataset
+from roodi_toolkit.io.dataset import Dataset
 from roodi_toolkit.errors import ConfigError, PluginError
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.progress import ProgressFactory, null_progress

@@ -8,7 +8,7 @@ import torch
 
 from roodi_sam2 import SAM2Segmenter, frame_order
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.io.datasets import Dataset
+from roodi_toolkit.io.dataset import Dataset
 from roodi_toolkit.errors import ConfigError, PluginError
 from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
 

@@ -1,0 +1,398 @@
+"""Posed-image datasets: the one :class:`Dataset` type every loader returns, format detection, and the image helpers.
+
+Every loader returns the same type: images as float32 tensors in [0, 1], cameras in the internal OpenCV convention
+(:class:`~roodi_toolkit.cameras.Camera`), the train/test split, scene bounds and the background colour, plus what the
+format offers besides (alpha, per-pixel instance ids, depth, sparse points).
+
+The formats live in their own modules: :mod:`roodi_toolkit.io.blender` (Blender / NeRF-synthetic
+``transforms_*.json``, also what :mod:`roodi_toolkit.synth.scene` writes) and :mod:`roodi_toolkit.io.colmap`
+(``sparse/0`` models). :func:`load_dataset` and :func:`load_cameras` detect the format and call the right one.
+
+Example:
+    >>> detect_format("no/such/folder")
+    Traceback (most recent call last):
+    ...
+    roodi_toolkit.errors.DatasetError: no/such/folder: dataset not found
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from ..cameras import Camera
+from ..errors import DatasetError, RoodiError
+from ..progress import ProgressFactory, null_progress
+from .files import read_image
+
+__all__ = [
+    "Dataset",
+    "SPLITS",
+    "detect_format",
+    "load_dataset",
+    "load_cameras",
+    "estimate_bounds",
+]
+
+SPLITS = ("train", "val", "test")
+LLFF_HOLD = 8  # 3DGS: every 8th image (index % 8 == 0 in name order) is a test view
+
+
+# ----------------------------------------------------------------------------------------------------- data type
+
+
+@dataclass
+class Dataset:
+    """A posed image set in the internal convention, whatever the format on disk.
+
+    Attributes:
+        images: ``[N, H, W, 3]`` float32 in [0, 1], composited on ``background`` where the file had alpha.
+        cameras: N cameras (OpenCV world-to-camera, intrinsics at the loaded resolution); ``camera.name`` is the
+            image's name (file stem for Blender, the COLMAP image name without extension for COLMAP).
+        splits: N strings, each ``"train"``, ``"val"`` or ``"test"``.
+        background: RGB in [0, 1] that transparent pixels were composited on.
+        bounds: ``[2, 3]`` float64 axis-aligned scene box (min row, max row).
+        alphas: ``[N, H, W]`` float32 in [0, 1] when the images had alpha, else None.
+        masks: ``[N, H, W]`` int64 instance ids (0 = background) when the dataset has masks, else None.
+        depths: ``[N, H, W]`` float32 z-depth along the optical axis (0 = no surface) when present, else None.
+        points: ``[P, 3]`` float64 sparse points for initialisation (COLMAP), else None.
+        point_colors: ``[P, 3]`` uint8 colours of ``points``, else None.
+        root: the folder the dataset was read from.
+        format: ``"blender"`` or ``"colmap"``.
+        metadata: format-specific extras (e.g. ``depth_scale``, the COLMAP camera models).
+    """
+
+    images: torch.Tensor = field(repr=False)
+    cameras: list[Camera] = field(repr=False)
+    splits: list[str]
+    background: tuple[float, float, float]
+    bounds: np.ndarray = field(repr=False)
+    alphas: torch.Tensor | None = field(default=None, repr=False)
+    masks: torch.Tensor | None = field(default=None, repr=False)
+    depths: torch.Tensor | None = field(default=None, repr=False)
+    points: np.ndarray | None = field(default=None, repr=False)
+    point_colors: np.ndarray | None = field(default=None, repr=False)
+    root: Path | None = None
+    format: str = ""
+    metadata: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        n = len(self.cameras)
+        if self.images.ndim != 4 or self.images.shape[-1] != 3 or self.images.shape[0] != n:
+            raise DatasetError(f"dataset images must be [N, H, W, 3] with N = {n} cameras, got "
+                               f"{list(self.images.shape)}")
+        if len(self.splits) != n:
+            raise DatasetError(f"dataset has {n} cameras but {len(self.splits)} split labels")
+        bad = sorted(set(self.splits) - set(SPLITS))
+        if bad:
+            raise DatasetError(f"unknown split labels {bad}; expected {list(SPLITS)}")
+        hw = tuple(self.images.shape[1:3])
+        for name, t in (("alphas", self.alphas), ("masks", self.masks), ("depths", self.depths)):
+            if t is not None and (t.ndim != 3 or t.shape[0] != n or tuple(t.shape[1:]) != hw):
+                raise DatasetError(f"dataset {name} must be [{n}, {hw[0]}, {hw[1]}], got {list(t.shape)}")
+        self.bounds = np.asarray(self.bounds, dtype=np.float64).reshape(2, 3)
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def height(self) -> int:
+        """Image height in pixels."""
+        return int(self.images.shape[1])
+
+    @property
+    def width(self) -> int:
+        """Image width in pixels."""
+        return int(self.images.shape[2])
+
+    @property
+    def names(self) -> list[str]:
+        """The views' names, in order."""
+        return [c.name for c in self.cameras]
+
+    @property
+    def train_indices(self) -> list[int]:
+        """Indices of the training views."""
+        return [i for i, s in enumerate(self.splits) if s == "train"]
+
+    @property
+    def test_indices(self) -> list[int]:
+        """Indices of the test views."""
+        return [i for i, s in enumerate(self.splits) if s == "test"]
+
+    @property
+    def val_indices(self) -> list[int]:
+        """Indices of the validation views."""
+        return [i for i, s in enumerate(self.splits) if s == "val"]
+
+    def subset(self, indices: Sequence[int]) -> "Dataset":
+        """Return the dataset restricted to ``indices`` (in the given order); points and bounds are kept."""
+        idx = [int(i) for i in indices]
+        for i in idx:
+            if not 0 <= i < len(self):
+                raise DatasetError(f"view index {i} out of range for a dataset of {len(self)} views")
+        sel = torch.as_tensor(idx, dtype=torch.long)
+
+        def take(t: torch.Tensor | None) -> torch.Tensor | None:
+            return None if t is None else t.index_select(0, sel)
+
+        return replace(self, images=take(self.images), cameras=[self.cameras[i] for i in idx],
+                       splits=[self.splits[i] for i in idx], alphas=take(self.alphas), masks=take(self.masks),
+                       depths=take(self.depths))
+
+    def split(self, name: str) -> "Dataset":
+        """Return the views of one split (``"train"``, ``"val"`` or ``"test"``)."""
+        if name not in SPLITS:
+            raise DatasetError(f"unknown split {name!r}; expected one of {list(SPLITS)}")
+        return self.subset([i for i, s in enumerate(self.splits) if s == name])
+
+
+# ----------------------------------------------------------------------------------------------------- detection
+
+
+def detect_format(path: str | os.PathLike) -> str:
+    """Return ``"blender"`` or ``"colmap"`` for a dataset folder (or a ``transforms_*.json`` file).
+
+    Raises:
+        DatasetError: the path is missing or holds neither format.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError(f"{p}: dataset not found")
+    if p.is_file():
+        if p.suffix.lower() == ".json":
+            return "blender"
+        raise DatasetError(f"{p}: not a dataset; give a folder with transforms_*.json or sparse/0, or a "
+                           "transforms_*.json file")
+    if any((p / f"transforms_{s}.json").is_file() for s in SPLITS):
+        return "blender"
+    if _find_colmap_sparse(p) is not None:
+        return "colmap"
+    raise DatasetError(f"{p}: no dataset found: expected transforms_train/val/test.json (Blender) or "
+                       "sparse/0/cameras.bin|txt (COLMAP)")
+
+
+def load_dataset(path: str | os.PathLike, downscale: float = 1, *, background: Sequence[float] | None = None,
+                 splits: Sequence[str] | None = None, test_every: int = LLFF_HOLD,
+                 progress: ProgressFactory = null_progress) -> Dataset:
+    """Return the dataset at ``path``, detecting Blender or COLMAP format.
+
+    Args:
+        path: a dataset folder or a ``transforms_*.json`` file.
+        downscale: divide the image resolution by this factor (>= 1; images area-averaged, masks nearest).
+        background: RGB in [0, 1] to composite transparent pixels on; defaults to the dataset's (``background`` key
+            of a generated scene), else white for Blender and black for COLMAP.
+        splits: Blender only: which of train/val/test to read (default all present).
+        test_every: COLMAP only: every ``test_every``-th image in name order is a test view (0: all train).
+        progress: progress factory.
+
+    Raises:
+        DatasetError: the dataset is missing, malformed or inconsistent.
+    """
+    from .blender import load_blender
+    from .colmap import load_colmap
+
+    fmt = detect_format(path)
+    if fmt == "blender":
+        return load_blender(path, downscale, background=background, splits=splits, progress=progress)
+    return load_colmap(path, downscale, background=background, test_every=test_every, progress=progress)
+
+
+def load_cameras(path: str | os.PathLike, *, splits: Sequence[str] | None = None) -> list[Camera]:
+    """Return the cameras of a dataset without reading its images (sizes come from the files' metadata).
+
+    Args:
+        path: a dataset folder, a ``transforms_*.json`` file, or a COLMAP model folder (``sparse/0``).
+        splits: Blender only: which splits to include, in this order (default train, val, test as present).
+    """
+    # the format modules build on this one, so they are imported here rather than at the top
+    from .blender import load_blender_cameras
+    from .colmap import load_colmap_cameras
+
+    p = Path(path)
+    if p.is_dir() and _is_colmap_model_dir(p):
+        return load_colmap_cameras(p)
+    fmt = detect_format(p)
+    if fmt == "blender":
+        return load_blender_cameras(p, splits)
+    return load_colmap_cameras(_find_colmap_sparse(p))
+
+
+def _is_colmap_model_dir(p: Path) -> bool:
+    return all((p / f"{n}.bin").is_file() for n in ("cameras", "images")) or \
+        all((p / f"{n}.txt").is_file() for n in ("cameras", "images"))
+
+
+def _find_colmap_sparse(root: Path) -> Path | None:
+    for cand in (root / "sparse" / "0", root / "sparse", root):
+        if cand.is_dir() and _is_colmap_model_dir(cand):
+            return cand
+    return None
+
+
+# ------------------------------------------------------------------------------------------------ image helpers
+
+
+def _to_float_image(arr: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Return (rgb [H, W, 3] float32, alpha [H, W] float32 or None) from a uint8/uint16 image array."""
+    if arr.dtype == np.uint16:
+        scale = 65535.0
+    elif arr.dtype == np.uint8:
+        scale = 255.0
+    else:
+        raise DatasetError(f"{path}: unsupported image data type {arr.dtype}")
+    img = arr.astype(np.float32) / scale
+    if img.ndim == 2:
+        return np.repeat(img[..., None], 3, axis=2), None
+    if img.shape[2] == 4:
+        return img[..., :3], img[..., 3]
+    if img.shape[2] == 3:
+        return img, None
+    raise DatasetError(f"{path}: expected a grey, RGB or RGBA image, got {img.shape[2]} channels")
+
+
+def _read_rgb(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    return _to_float_image(_read_dataset_image(path), path)
+
+
+class _SameSize:
+    """Remembers the first image's size and refuses an image of any other size."""
+
+    def __init__(self) -> None:
+        self.size: tuple[int, int] | None = None
+        self.first: Path | None = None
+
+    def __call__(self, path: Path, width: int, height: int) -> None:
+        if self.size is None:
+            self.size, self.first = (width, height), path
+        elif self.size != (width, height):
+            raise DatasetError(f"{path}: image is {width}x{height} but {self.first} is {self.size[0]}x{self.size[1]}; "
+                               "all images of a dataset must have the same size")
+
+
+def _read_dataset_image(path: Path) -> np.ndarray:
+    """Return an image file's array, its read errors as DatasetError."""
+    try:
+        return read_image(path)
+    except RoodiError as exc:
+        raise DatasetError(str(exc)) from None
+
+
+def _read_mask(path: Path) -> np.ndarray:
+    arr = _read_dataset_image(path)
+    if arr.ndim == 3:
+        # an RGB(A) mask: instance ids are stored in the first channel
+        arr = arr[..., 0]
+    return arr.astype(np.int64)
+
+
+def _read_depth(path: Path, scale: float) -> np.ndarray:
+    if path.suffix.lower() == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise DatasetError(f"{path}: cannot read depth ({exc})") from None
+        return np.asarray(arr, dtype=np.float32).reshape(arr.shape[:2])
+    arr = _read_dataset_image(path)
+    if arr.ndim == 3:
+        arr = arr[..., 0]
+    return arr.astype(np.float32) * np.float32(scale)
+
+
+def _resize_stack(images: torch.Tensor, size: tuple[int, int], mode: str) -> torch.Tensor:
+    """Resize ``[N, H, W, C]`` or ``[N, H, W]`` to ``size`` (height, width)."""
+    squeeze = images.ndim == 3
+    x = images[..., None] if squeeze else images
+    x = x.permute(0, 3, 1, 2)
+    dtype = x.dtype
+    if mode == "nearest":
+        # "nearest-exact" samples pixel centres: the one that keeps instance ids on the same pixel grid
+        out = torch.nn.functional.interpolate(x.float(), size=size, mode="nearest-exact").to(dtype)
+    else:
+        out = torch.nn.functional.interpolate(x, size=size, mode="area")
+    out = out.permute(0, 2, 3, 1)
+    return out[..., 0] if squeeze else out.contiguous()
+
+
+def _downscaled_size(width: int, height: int, downscale: float) -> tuple[int, int]:
+    return max(1, round(width / downscale)), max(1, round(height / downscale))
+
+
+def _check_downscale(downscale: float) -> float:
+    try:
+        d = float(downscale)
+    except (TypeError, ValueError):
+        raise DatasetError(f"downscale must be a number >= 1, got {downscale!r}") from None
+    if not (math.isfinite(d) and d >= 1):
+        raise DatasetError(f"downscale must be a number >= 1, got {downscale!r}")
+    return d
+
+
+def _composite(rgbs: list[np.ndarray], alphas: list[np.ndarray | None],
+               background: Sequence[float]) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Return images ``[N, H, W, 3]`` composited on ``background`` where they had alpha, and the alphas (or None)."""
+    images = np.stack(rgbs)
+    if not any(a is not None for a in alphas):
+        return torch.from_numpy(images.astype(np.float32)), None
+    alpha = np.stack([a if a is not None else np.ones(rgbs[0].shape[:2], np.float32) for a in alphas])
+    images = images * alpha[..., None] + np.asarray(background, np.float32) * (1.0 - alpha[..., None])
+    return torch.from_numpy(images.astype(np.float32)), torch.from_numpy(alpha.astype(np.float32))
+
+
+def _check_background(bg: Any, where: Path) -> tuple[float, float, float]:
+    try:
+        vals = tuple(float(v) for v in bg)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: background must be three numbers in [0, 1], got {bg!r}") from None
+    if len(vals) != 3 or not all(0.0 <= v <= 1.0 for v in vals):
+        raise DatasetError(f"{where}: background must be three numbers in [0, 1], got {bg!r}")
+    return vals  # type: ignore[return-value]
+
+
+def _downscale_dataset(ds: Dataset, downscale: float) -> Dataset:
+    if downscale == 1:
+        return ds
+    w, h = _downscaled_size(ds.width, ds.height, downscale)
+    images = _resize_stack(ds.images, (h, w), "area")
+    alphas = None if ds.alphas is None else _resize_stack(ds.alphas, (h, w), "area")
+    masks = None if ds.masks is None else _resize_stack(ds.masks, (h, w), "nearest")
+    depths = None if ds.depths is None else _resize_stack(ds.depths, (h, w), "nearest")
+    cameras = [c.with_size(w, h) for c in ds.cameras]
+    meta = dict(ds.metadata, downscale=downscale)
+    return replace(ds, images=images, alphas=alphas, masks=masks, depths=depths, cameras=cameras, metadata=meta)
+
+
+def estimate_bounds(cameras: Sequence[Camera], points: np.ndarray | None = None) -> np.ndarray:
+    """Return a ``[2, 3]`` scene box: the 1st-99th percentile box of ``points`` if given, else one from the cameras.
+
+    Without points the scene is taken to be where the cameras look: the least-squares point closest to all optical
+    axes, with a half-size of half the median camera distance to it (cameras around an object, as in Blender scenes).
+    """
+    if points is not None and len(points) >= 4:
+        pts = np.asarray(points, dtype=np.float64)
+        lo, hi = np.percentile(pts, 1, axis=0), np.percentile(pts, 99, axis=0)
+        pad = 0.05 * (hi - lo) + 1e-6
+        return np.stack([lo - pad, hi + pad])
+    if not cameras:
+        return np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    centres = np.stack([c.center for c in cameras])
+    dirs = np.stack([c.camera_to_world[:3, 2] for c in cameras])
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for o, dvec in zip(centres, dirs):
+        P = np.eye(3) - np.outer(dvec, dvec)
+        A += P
+        b += P @ o
+    if len(cameras) >= 2 and np.linalg.cond(A) < 1e8:
+        focus = np.linalg.solve(A, b)
+    else:
+        focus = centres.mean(axis=0) + dirs.mean(axis=0)
+    half = 0.5 * float(np.median(np.linalg.norm(centres - focus, axis=1)))
+    half = half if half > 0 else 1.0
+    return np.stack([focus - half, focus + half])

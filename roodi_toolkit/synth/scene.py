@@ -1,0 +1,562 @@
+"""Multi-object benchmark scenes in the Blender format: layout, cameras, and the scene folder written to disk.
+
+The paper evaluates on MultiObjectBlender: cluttered scenes of 5 to 20 ShapeNet objects, 3 to 4 of them targets, with
+each target also rendered alone so an extraction can be scored where it was hidden. Neither ShapeNet nor that dataset
+can be fetched here, so this package builds equivalent scenes from procedural meshes
+(:mod:`roodi_toolkit.synth.objects`) and renders them by ray casting (:mod:`roodi_toolkit.synth.tracer`).
+
+Layout of a generated scene (``OUT_DIR``)::
+
+    scene.json                      objects, ids, names, targets, lights, generator settings
+    transforms_train.json           the full scene, Blender format, with mask_path / depth_path per frame
+    transforms_test.json            empty frame list (some tools insist on the file); scoring uses the targets
+    train/r_000.png ...             RGB renders
+    train/masks/r_000.png ...       8-bit instance ids (0 = ground / background, objects 1..N)
+    train/depth/r_000.png ...       16-bit z-depth times ``depth_scale`` (0 = nothing hit)
+    targets/03_mug/transforms_test.json, test/r_000.png (RGBA on white), test/masks/r_000.png
+    overview.png                    a grid of training views with the targets outlined
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from .._version import __version__
+from ..cameras import Camera, intrinsics_from_fov, look_at
+from ..errors import ConfigError, DatasetError
+from ..io.files import prepare_output_dir, write_image, write_json
+from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
+from ..progress import ProgressFactory, null_progress
+from .objects import BUILDERS, MAX_OBJECTS, PRESETS, Light, Part, SceneObject, _environment, _NOT_TARGETS, _rot
+from .tracer import render_views
+
+__all__ = [
+    "Scene",
+    "SceneSettings",
+    "build_scene",
+    "training_cameras",
+    "target_cameras",
+    "TEST_FRAMINGS",
+    "make_scene",
+    "overview_image",
+    "scene_from_record",
+]
+
+DEPTH_SCALE = 1e-4  # metres per 16-bit depth unit: 0.1 mm resolution, 6.5 m range (the ground is cut at that range)
+
+# kinds that cannot be targets: furniture and flat things that are scenery rather than objects to extract
+TEST_FRAMINGS = ("scene", "object")
+
+
+@dataclass(frozen=True)
+class SceneSettings:
+    """Generator settings recorded in scene.json; with the preset and seed they reproduce a scene bit for bit.
+
+    Attributes:
+        width: image width.
+        height: image height.
+        train_views: number of full-scene training views.
+        test_views: number of views of each target alone.
+        fov_x_deg: horizontal field of view of every camera.
+        supersample: rays per pixel along each axis for colour and alpha (masks and depth use the centre ray).
+        n_targets: number of targets, or None for 3 or 4 drawn from the seed.
+        n_objects: number of objects, or None for the preset's range.
+        test_framing: how the targets' test cameras frame them: ``"scene"`` (the paper's protocol: cameras on the
+            training views' hemisphere, at their distance, aimed at the target, so the object is as large as in
+            training and anything kept elsewhere in the scene, such as floaters, shows in the view) or ``"object"``
+            (close-ups in which the target fills the frame: a stricter test of the object's detail).
+    """
+
+    width: int = 200
+    height: int = 200
+    train_views: int = 50
+    test_views: int = 50
+    fov_x_deg: float = 50.0
+    supersample: int = 2
+    n_targets: int | None = None
+    n_objects: int | None = None
+    test_framing: str = "scene"
+
+    def __post_init__(self) -> None:
+        if not (8 <= self.width <= 8192 and 8 <= self.height <= 8192):
+            raise ConfigError(f"image size must be between 8 and 8192 pixels, got {self.width}x{self.height}")
+        if self.train_views < 1 or self.test_views < 1:
+            raise ConfigError(f"need at least one training and one test view, got {self.train_views} and "
+                              f"{self.test_views}")
+        if not 10.0 <= self.fov_x_deg <= 120.0:
+            raise ConfigError(f"fov_x_deg must be in [10, 120] degrees, got {self.fov_x_deg}")
+        if not 1 <= self.supersample <= 4:
+            raise ConfigError(f"supersample must be 1 to 4, got {self.supersample}")
+        if self.n_targets is not None and not 1 <= self.n_targets <= 4:
+            raise ConfigError(f"n_targets must be 1 to 4, got {self.n_targets}")
+        if self.n_objects is not None and not 5 <= self.n_objects <= MAX_OBJECTS:
+            raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {self.n_objects}")
+        if self.test_framing not in TEST_FRAMINGS:
+            raise ConfigError(f"test_framing must be one of {', '.join(TEST_FRAMINGS)}, got {self.test_framing!r}")
+
+
+@dataclass
+class Scene:
+    """A generated scene: objects on a ground, lights and an environment.
+
+    Attributes:
+        preset: the preset's name.
+        seed: the seed it was built from.
+        objects: the objects, ids 1..N in order.
+        ground: the ground part (id 0 in masks).
+        lights: the lights.
+        ambient: linear RGB ambient light.
+        sky: (horizon, zenith) sRGB colours of the environment seen by rays that hit nothing.
+    """
+
+    preset: str
+    seed: int
+    objects: list[SceneObject]
+    ground: Part = field(repr=False)
+    lights: list[Light] = field(repr=False)
+    ambient: tuple[float, float, float]
+    sky: tuple[tuple[float, float, float], tuple[float, float, float]]
+
+    @property
+    def targets(self) -> list[SceneObject]:
+        """The target objects."""
+        return [o for o in self.objects if o.is_target]
+
+    def object(self, object_id: int) -> SceneObject:
+        """Return the object with this id."""
+        for o in self.objects:
+            if o.id == object_id:
+                return o
+        raise ConfigError(f"scene has no object with id {object_id}")
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """``[2, 3]`` box around all objects (not the ground)."""
+        b = np.stack([o.bounds for o in self.objects])
+        return np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+
+
+# ------------------------------------------------------------------------------------------------------ layout
+
+
+def _footprint(parts: list[Part]) -> tuple[float, float]:
+    """Return (radius of the xy footprint around the z axis, height)."""
+    v = np.concatenate([p.vertices for p in parts])
+    return float(np.linalg.norm(v[:, :2], axis=1).max()), float(v[:, 2].max())
+
+
+def _transform(parts: list[Part], yaw: float, at: np.ndarray) -> list[Part]:
+    R = _rot("z", yaw)
+    return [Part(p.vertices @ R.T + at, p.triangles, p.material, p.smooth) for p in parts]
+
+
+def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None = None,
+                n_targets: int | None = None) -> Scene:
+    """Return a scene of the preset, laid out from the seed (same arguments -> the same scene).
+
+    Targets are placed near the middle and each gets an occluder right beside it, so that in many views of the
+    hemisphere around the scene part of every target is hidden.
+
+    Args:
+        preset: ``bedroom``, ``kitchen``, ``livingroom`` or ``picnic``.
+        seed: random seed of the layout, shapes, colours and lights.
+        n_objects: object count (5 to 20), default drawn from the preset's range.
+        n_targets: target count (1 to 4), default 3 or 4.
+
+    Raises:
+        ConfigError: unknown preset or counts out of range.
+    """
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    P = PRESETS[preset]
+    rng = np.random.default_rng([int(seed), sorted(PRESETS).index(preset)])
+    n = int(n_objects) if n_objects is not None else int(rng.integers(P.n_objects[0], P.n_objects[1] + 1))
+    if not 5 <= n <= MAX_OBJECTS:
+        raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {n}")
+    n_t = int(n_targets) if n_targets is not None else int(rng.integers(3, 5))
+    if not 1 <= n_t <= 4:
+        raise ConfigError(f"n_targets must be 1 to 4, got {n_t}")
+
+    kinds_all = sorted(P.catalog)
+    weights = np.array([P.catalog[k] for k in kinds_all])
+    target_kinds = [k for k in kinds_all if k not in _NOT_TARGETS]
+    t_weights = np.array([P.catalog[k] for k in target_kinds])
+
+    def draw(pool: list[str], w: np.ndarray, used: list[str]) -> str:
+        ok = np.array([not (k in P.at_most_one and k in used) for k in pool], dtype=float) * w
+        return pool[int(rng.choice(len(pool), p=ok / ok.sum()))]
+
+    kinds: list[str] = []
+    for _ in range(n_t):
+        kinds.append(draw(target_kinds, t_weights, kinds))
+    for _ in range(n - n_t):
+        kinds.append(draw(kinds_all, weights, kinds))
+
+    built = []
+    for k in kinds:
+        glossy = bool(rng.uniform() < P.glossy_fraction)
+        parts = BUILDERS[k](rng, glossy)
+        lowest = min(float(p.vertices[:, 2].min()) for p in parts)
+        for p in parts:  # stand exactly on z = 0 (no part sinks into the ground or floats above it)
+            p.vertices = p.vertices - np.array([0.0, 0.0, lowest])
+        built.append(parts)
+
+    # placement: large things first keep the rejection sampling short; targets then occluders near the centre
+    placed: list[dict[str, Any]] = []  # x, y, r, h, z, table
+    order = list(range(n_t))  # targets
+    others = sorted(range(n_t, n), key=lambda i: -_footprint(built[i])[0])
+    big = [i for i in others if _footprint(built[i])[0] > 0.3]
+    small = [i for i in others if i not in big]
+    occluders = small[:n_t] if len(small) >= n_t else small
+    rest = big + [i for i in small if i not in occluders]
+    positions: dict[int, tuple[np.ndarray, float]] = {}
+    infos: dict[int, dict[str, Any]] = {}
+
+    def collides(x: float, y: float, r: float, z: float, h: float) -> bool:
+        for q in placed:
+            if q["z"] + q["h"] <= z + 1e-6 or z + h <= q["z"] + 1e-6:
+                continue  # one stands on something above / below the other
+            if math.hypot(x - q["x"], y - q["y"]) < r + q["r"] + P.gap:
+                return True
+        return False
+
+    def try_table(i: int, r: float, h: float) -> tuple[float, float, float] | None:
+        tables = [q for q in placed if q["kind"] == "table"]
+        if not tables or r > 0.14 or rng.uniform() >= P.on_table_probability:
+            return None
+        q = tables[int(rng.integers(len(tables)))]
+        for _ in range(30):
+            x = q["x"] + rng.uniform(-1, 1) * max(q["top"][0] - r, 0.0)
+            y = q["y"] + rng.uniform(-1, 1) * max(q["top"][1] - r, 0.0)
+            if not collides(x, y, r, q["h"], h):
+                return x, y, q["h"]
+        return None
+
+    def place(i: int, center: tuple[float, float], radius: float, allow_table: bool) -> None:
+        r, h = _footprint(built[i])
+        spot = try_table(i, r, h) if allow_table else None
+        if spot is None:
+            rad = radius
+            for attempt in range(400):
+                a, s = rng.uniform(0, 2 * math.pi), rad * math.sqrt(rng.uniform())
+                x, y = center[0] + s * math.cos(a), center[1] + s * math.sin(a)
+                if not collides(x, y, r, 0.0, h):
+                    spot = (x, y, 0.0)
+                    break
+                if attempt % 40 == 39:
+                    rad *= 1.15  # crowded: widen the disc
+            if spot is None:
+                raise ConfigError(f"could not place object {i} ({kinds[i]}) without collisions; use fewer objects")
+        x, y, z = spot
+        yaw = float(rng.uniform(0, 2 * math.pi))
+        info: dict[str, Any] = {"x": x, "y": y, "z": z, "r": r, "h": h, "kind": kinds[i]}
+        if kinds[i] == "table":
+            v = np.concatenate([p.vertices for p in built[i]])
+            info["top"] = (0.5 * (v[:, 0].max() - v[:, 0].min()) * 0.6, 0.5 * (v[:, 1].max() - v[:, 1].min()) * 0.6)
+            info["r"] = r
+            yaw = float(rng.choice([0.0, math.pi / 2]))  # axis-aligned so the top's free box stays simple
+            info["top"] = info["top"] if yaw == 0.0 else info["top"][::-1]
+        placed.append(info)
+        infos[i] = info
+        positions[i] = (np.array([x, y, z]), yaw)
+
+    R = P.layout_radius
+    # big furniture away from the middle so it frames rather than buries the targets
+    for i in big:
+        if kinds[i] in ("bed", "sofa", "blanket", "umbrella", "bench"):
+            place(i, (0.0, 0.0), R, False)
+    for i in big:
+        if i not in positions:
+            place(i, (0.0, 0.0), R * 0.6, False)
+    for i in order:
+        place(i, (0.0, 0.0), R * 0.45, True)
+    for j, i in enumerate(occluders):
+        tx, ty, _ = positions[order[j % n_t]][0]
+        r_t, r_o = infos[order[j % n_t]]["r"], _footprint(built[i])[0]
+        place(i, (tx, ty), r_t + r_o + 0.15, False)
+    for i in rest:
+        if i not in positions:
+            place(i, (0.0, 0.0), R, True)
+
+    objects = []
+    counters: dict[str, int] = {}
+    for i in range(n):
+        counters[kinds[i]] = counters.get(kinds[i], 0) + 1
+        at, yaw = positions[i]
+        name = f"{kinds[i].replace('pyvista_', '')}_{counters[kinds[i]]}"
+        source = f"pyvista:{kinds[i][len('pyvista_'):]}" if kinds[i].startswith("pyvista_") else "procedural"
+        objects.append(SceneObject(i + 1, name, kinds[i], _transform(built[i], yaw, at), is_target=i < n_t,
+                                   source=source))
+
+    ground, lights, ambient, sky = _environment(P, rng)
+    return Scene(preset=preset, seed=int(seed), objects=objects, ground=ground, lights=lights, ambient=ambient, sky=sky)
+
+
+# ------------------------------------------------------------------------------------------------------ cameras
+
+
+def _cap_directions(n: int, el_range: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """Return ``[n, 3]`` unit directions spread evenly (Fibonacci) over a band of elevations, randomly rotated."""
+    lo, hi = (math.sin(math.radians(e)) for e in el_range)
+    k = np.arange(n) + 0.5
+    z = lo + (hi - lo) * ((k / n + rng.uniform()) % 1.0)
+    az = rng.uniform(0, 2 * math.pi) + k * math.pi * (3.0 - math.sqrt(5.0))
+    r = np.sqrt(1 - z * z)
+    return np.stack([r * np.cos(az), r * np.sin(az), z], axis=1)
+
+
+def _scene_frame(scene: Scene, K: np.ndarray, width: int, height: int) -> tuple[np.ndarray, float, float]:
+    """Return the training cameras' look-at centre, the scene's radius around it and their distance from it."""
+    fov_min = 2 * math.atan(min(width / (2 * K[0, 0]), height / (2 * K[1, 1])))
+    b = scene.bounds
+    centre = np.array([(b[0, 0] + b[1, 0]) / 2, (b[0, 1] + b[1, 1]) / 2, 0.3 * (b[1, 2] - b[0, 2])])
+    v = np.concatenate([o.vertices for o in scene.objects])
+    radius = float(np.linalg.norm(v - centre, axis=1).max())
+    return centre, radius, radius / math.sin(fov_min / 2) * 0.92  # a little cropping keeps the objects large
+
+
+# elevation band (degrees) of the full-scene training cameras
+TRAIN_ELEVATIONS = (18.0, 65.0)
+
+
+def training_cameras(scene: Scene, n: int, width: int, height: int, *, fov_x_deg: float = 50.0,
+                     seed: int | None = None) -> list[Camera]:
+    """Return ``n`` cameras on a hemisphere around the scene, looking at its middle, framing all objects.
+
+    Args:
+        scene: the scene.
+        n: number of views.
+        width: image width.
+        height: image height.
+        fov_x_deg: horizontal field of view.
+        seed: randomness of the positions (default the scene's seed).
+    """
+    rng = np.random.default_rng([scene.seed if seed is None else int(seed), 1])
+    K = intrinsics_from_fov(math.radians(fov_x_deg), width, height)
+    centre, radius, dist = _scene_frame(scene, K, width, height)
+    dirs = _cap_directions(n, TRAIN_ELEVATIONS, rng)
+    cams = []
+    for i, d in enumerate(dirs):
+        eye = centre + d * dist * rng.uniform(0.95, 1.08)
+        aim = centre + rng.uniform(-0.05, 0.05, size=3) * radius
+        cams.append(Camera(look_at(eye, aim), K, width, height, near=0.01, far=100.0, name=f"r_{i:03d}"))
+    return cams
+
+
+def target_cameras(scene: Scene, target: SceneObject, n: int, width: int, height: int, *, fov_x_deg: float = 50.0,
+                   seed: int | None = None, framing: str = "scene") -> list[Camera]:
+    """Return ``n`` test cameras of one object, aimed at it, at positions different from the training cameras.
+
+    Args:
+        scene: the scene.
+        target: the object to look at.
+        n: number of views.
+        width: image width.
+        height: image height.
+        fov_x_deg: horizontal field of view.
+        seed: randomness of the positions (default derived from the scene's seed and the object id).
+        framing: ``"scene"``: on the training cameras' hemisphere and at their distance (the object as large as in
+            training; the paper's object-alone test renders); ``"object"``: close-ups in which the object fills the
+            frame.
+    """
+    if framing not in TEST_FRAMINGS:
+        raise ConfigError(f"framing must be one of {', '.join(TEST_FRAMINGS)}, got {framing!r}")
+    rng = np.random.default_rng([scene.seed if seed is None else int(seed), 2, target.id])
+    K = intrinsics_from_fov(math.radians(fov_x_deg), width, height)
+    v = target.vertices
+    centre = (v.min(axis=0) + v.max(axis=0)) / 2
+    cams = []
+    if framing == "object":
+        fov_min = 2 * math.atan(min(width / (2 * K[0, 0]), height / (2 * K[1, 1])))
+        radius = float(np.linalg.norm(v - centre, axis=1).max())
+        dist = radius / math.sin(fov_min / 2) * 1.1
+        for i, d in enumerate(_cap_directions(n, (8.0, 70.0), rng)):
+            eye = centre + d * dist * rng.uniform(0.97, 1.1)
+            cams.append(Camera(look_at(eye, centre), K, width, height, near=0.01, far=100.0, name=f"r_{i:03d}"))
+        return cams
+    scene_centre, _, dist = _scene_frame(scene, K, width, height)
+    for i, d in enumerate(_cap_directions(n, TRAIN_ELEVATIONS, rng)):
+        eye = scene_centre + d * dist * rng.uniform(0.95, 1.08)
+        cams.append(Camera(look_at(eye, centre), K, width, height, near=0.01, far=100.0, name=f"r_{i:03d}"))
+    return cams
+
+
+# ------------------------------------------------------------------------------------------------------ writing
+
+
+_OUTLINE_COLORS = [(1.0, 0.1, 0.1), (0.1, 0.9, 0.2), (0.15, 0.4, 1.0), (1.0, 0.85, 0.0)]
+
+
+def _outline(mask: np.ndarray) -> np.ndarray:
+    """Return the pixels of ``mask`` that touch a pixel outside it (4-neighbourhood), thickened by one pixel."""
+    m = np.pad(mask, 1)
+    inner = m[1:-1, 1:-1] & m[:-2, 1:-1] & m[2:, 1:-1] & m[1:-1, :-2] & m[1:-1, 2:]
+    edge = mask & ~inner
+    e = np.pad(edge, 1)
+    return e[1:-1, 1:-1] | e[:-2, 1:-1] | e[2:, 1:-1] | e[1:-1, :-2] | e[1:-1, 2:]
+
+
+def overview_image(images: Sequence[np.ndarray], masks: Sequence[np.ndarray], target_ids: Sequence[int], *,
+                   columns: int = 4, max_views: int = 12, target_thumbnails: Sequence[np.ndarray] = ()) -> np.ndarray:
+    """Return an ``[H', W', 3]`` float32 grid of views with each target's visible outline in its own colour.
+
+    Args:
+        images: ``[H, W, 3]`` float views.
+        masks: ``[H, W]`` instance ids of the views.
+        target_ids: ids to outline (colours: red, green, blue, yellow in this order).
+        columns: views per row.
+        max_views: views shown, evenly picked.
+        target_thumbnails: optional ``[H, W, 3]`` images of each target alone, shown in a last row framed in the
+            target's colour.
+    """
+    if not images:
+        raise ConfigError("overview needs at least one view")
+    idx = np.unique(np.linspace(0, len(images) - 1, min(max_views, len(images))).round().astype(int))
+    H, W = images[0].shape[:2]
+    tiles = []
+    for i in idx:
+        tile = np.asarray(images[i], dtype=np.float32).copy()
+        for k, tid in enumerate(target_ids):
+            tile[_outline(np.asarray(masks[i]) == tid)] = _OUTLINE_COLORS[k % len(_OUTLINE_COLORS)]
+        tiles.append(tile)
+    for k, thumb in enumerate(target_thumbnails):
+        tile = np.asarray(thumb, dtype=np.float32).copy()
+        frame = np.zeros((H, W), dtype=bool)
+        frame[:2], frame[-2:], frame[:, :2], frame[:, -2:] = True, True, True, True
+        tile[frame] = _OUTLINE_COLORS[k % len(_OUTLINE_COLORS)]
+        if k == 0:
+            while len(tiles) % columns:
+                tiles.append(np.ones((H, W, 3), np.float32))
+        tiles.append(tile)
+    while len(tiles) % columns:
+        tiles.append(np.ones((H, W, 3), np.float32))
+    gap = 2
+    rows = len(tiles) // columns
+    out = np.ones((rows * H + (rows - 1) * gap, columns * W + (columns - 1) * gap, 3), np.float32)
+    for j, tile in enumerate(tiles):
+        r, c = divmod(j, columns)
+        out[r * (H + gap):r * (H + gap) + H, c * (W + gap):c * (W + gap) + W] = tile
+    return out
+
+
+def _depth_png(depth: np.ndarray) -> np.ndarray:
+    q = np.round(depth.astype(np.float64) / DEPTH_SCALE)
+    return np.clip(q, 0, 65535).astype(np.uint16)
+
+
+def _object_record(o: SceneObject) -> dict[str, Any]:
+    b = o.bounds
+    return {"id": o.id, "name": o.name, "kind": o.kind, "source": o.source, "is_target": o.is_target,
+            "center": [round(float(x), 6) for x in o.center], "bounds": np.round(b, 6).tolist(),
+            "n_vertices": int(sum(len(p.vertices) for p in o.parts)),
+            "n_triangles": int(sum(len(p.triangles) for p in o.parts)),
+            "materials": [asdict(p.material) for p in o.parts]}
+
+
+def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 0, *,
+               settings: SceneSettings = SceneSettings(), overwrite: bool = False,
+               progress: ProgressFactory = null_progress) -> dict[str, Any]:
+    """Generate a benchmark scene in the Blender format and return its scene.json record.
+
+    Args:
+        out_dir: the output folder (created; an existing non-empty one needs ``overwrite``).
+        preset: ``bedroom``, ``kitchen``, ``livingroom`` or ``picnic``.
+        seed: random seed; the same preset, seed and settings give bit-identical files.
+        settings: image size, view counts, field of view, anti-aliasing, counts.
+        overwrite: write into an existing non-empty folder.
+        progress: progress factory (one bar per rendering pass).
+
+    Raises:
+        ConfigError: bad preset or settings.
+        OutputError: the folder exists and is not empty without ``overwrite``.
+    """
+    out = prepare_output_dir(out_dir, overwrite=overwrite)
+    t0 = time.perf_counter()
+    scene = build_scene(preset, seed, n_objects=settings.n_objects, n_targets=settings.n_targets)
+    W, H = settings.width, settings.height
+    cams = training_cameras(scene, settings.train_views, W, H, fov_x_deg=settings.fov_x_deg)
+    renders = render_views(scene, cams, supersample=settings.supersample, progress=progress)
+    for sub in ("train", "train/masks", "train/depth", "targets"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    frame_extra = []
+    for cam, r in zip(cams, renders):
+        write_image(r.rgb, out / "train" / f"{cam.name}.png")
+        write_image(r.ids, out / "train" / "masks" / f"{cam.name}.png")
+        write_image(_depth_png(r.depth), out / "train" / "depth" / f"{cam.name}.png")
+        frame_extra.append({"mask_path": f"train/masks/{cam.name}.png", "depth_path": f"train/depth/{cam.name}.png"})
+    bounds = scene.bounds
+    pad = 0.05 * (bounds[1] - bounds[0])
+    scene_bounds = np.round(np.stack([bounds[0] - pad, bounds[1] + pad]), 6).tolist()
+    common = {"background": list(scene.sky[0]),
+              "scene_bounds": scene_bounds, "depth_scale": DEPTH_SCALE}
+    # the environment is not one colour; "background" is the horizon colour, used only if a tool needs one
+    from ..io.blender import write_blender_transforms
+
+    write_blender_transforms(out / "transforms_train.json", cams, [f"train/{c.name}" for c in cams],
+                             extra=common, frame_extra=frame_extra)
+    write_json({"camera_angle_x": cams[0].fov_x, "frames": [],
+                "comment": "no full-scene test views: score extraction with targets/*/transforms_test.json"},
+               out / "transforms_test.json")
+
+    target_records = []
+    thumbs = []
+    for k, obj in enumerate(scene.targets):
+        folder = f"targets/{obj.id:02d}_{obj.name}"
+        tdir = out / folder
+        (tdir / "test" / "masks").mkdir(parents=True, exist_ok=True)
+        tcams = target_cameras(scene, obj, settings.test_views, W, H, fov_x_deg=settings.fov_x_deg,
+                               framing=settings.test_framing)
+        tr = render_views(scene, tcams, object_ids=[obj.id], with_ground=False, supersample=settings.supersample,
+                          background=(1.0, 1.0, 1.0), progress=progress)
+        extra = []
+        for cam, r in zip(tcams, tr):
+            write_image(np.concatenate([r.rgb, r.alpha[..., None]], axis=2), tdir / "test" / f"{cam.name}.png")
+            write_image(r.ids, tdir / "test" / "masks" / f"{cam.name}.png")
+            extra.append({"mask_path": f"test/masks/{cam.name}.png"})
+        write_blender_transforms(tdir / "transforms_test.json", tcams, [f"test/{c.name}" for c in tcams],
+                                 extra={"background": [1.0, 1.0, 1.0], "scene_bounds": scene_bounds,
+                                        "object_id": obj.id, "object_name": obj.name},
+                                 frame_extra=extra)
+        thumbs.append(np.where(tr[0].alpha[..., None] > 0, tr[0].rgb, 1.0))
+        target_records.append({"id": obj.id, "name": obj.name, "path": folder})
+
+    target_ids = [o.id for o in scene.targets]
+    write_image(overview_image([r.rgb for r in renders], [r.ids for r in renders], target_ids,
+                               target_thumbnails=thumbs), out / "overview.png")
+    P = PRESETS[preset]
+    record = {
+        "format": SCENE_FORMAT, "version": SCENE_FORMAT_VERSION, "generator": f"roodi-toolkit {__version__}",
+        "preset": preset, "description": P.description, "seed": int(seed),
+        "settings": asdict(settings),
+        "renderer": "open3d RaycastingScene (Embree) + Lambert/Blinn-Phong, shadow rays, one mirror bounce",
+        "objects": [_object_record(o) for o in scene.objects],
+        "targets": target_records,
+        "lights": [asdict(li) for li in scene.lights], "ambient": list(scene.ambient), "sky": [list(c) for c in scene.sky],
+        "scene_bounds": scene_bounds, "depth_scale": DEPTH_SCALE,
+        "files": {"train": "transforms_train.json", "masks": "train/masks (uint8 instance ids, 0 = ground/background)",
+                  "depth": "train/depth (uint16 z-depth / depth_scale, 0 = nothing hit)",
+                  "targets": "targets/<id>_<name>/transforms_test.json (RGBA on white)", "overview": "overview.png"},
+    }
+    write_json(record, out / SCENE_FILE)
+    record["_seconds"] = time.perf_counter() - t0
+    return record
+
+
+def scene_from_record(record: dict[str, Any]) -> Scene:
+    """Return the :class:`Scene` a scene.json record was generated from (rebuilt from preset, seed and counts)."""
+    try:
+        preset, seed, settings = record["preset"], int(record["seed"]), record.get("settings", {})
+    except (KeyError, TypeError, ValueError):
+        raise DatasetError("scene.json: missing 'preset' or 'seed'") from None
+    scene = build_scene(preset, seed, n_objects=settings.get("n_objects"), n_targets=settings.get("n_targets"))
+    names = [o["name"] for o in record.get("objects", [])]
+    if names and names != [o.name for o in scene.objects]:
+        raise DatasetError("scene.json: the objects rebuilt from its preset and seed differ from the ones it lists "
+                           "(generated by another version of the generator?)")
+    return scene
