@@ -30,3 +30,7 @@ class PluginError(RoodiError):
 
 class ConfigError(RoodiError):
     """An option or configuration value is out of range or inconsistent."""
+
+
+class FormatError(RoodiError):
+    """A splat file in another format (compressed PLY, SPZ, SOG, .splat, .ksplat) could not be read or written."""
