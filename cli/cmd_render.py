@@ -36,15 +36,18 @@ EPILOG = """Examples:
 @click.option("--background", default="0,0,0", show_default=True, help="Background colour r,g,b in [0, 1].")
 @click.option("--renderer", default="torch", show_default=True,
               help="Renderer plugin: torch (built-in, CPU) or an installed one such as gsplat (CUDA).")
+@click.option("--filter-nan", is_flag=True,
+              help="Drop Gaussians with NaN/Inf values instead of refusing the file (+-inf opacities are read as "
+                   "fully opaque / transparent and kept).")
 @overwrite_option
 @quiet_option
 def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, elevation: float,
            radius: float | None, fov: float, up: str, size_text: str | None, what: str, background: str,
-           renderer: str, overwrite: bool, quiet: bool) -> None:
+           renderer: str, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
     """Render PLY into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
     from roodi_toolkit.errors import ConfigError
     from roodi_toolkit.io.files import prepare_output_dir
-    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.io.splat import read_cloud
     from roodi_toolkit.render.views import framing_orbit, render_views
     from roodi_toolkit.render.renderer import get_renderer
 
@@ -57,7 +60,9 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         raise click.UsageError("give either --cameras or --orbit, not both")
 
     backend = get_renderer(renderer)  # fail on a missing plugin before reading anything
-    cloud = read_ply(ply)
+    cloud = read_cloud(ply)
+    if filter_nan:
+        cloud = cloud.select(~cloud.nonfinite_rows())
     cloud.require_finite(ply)
     if cameras_path:
         from roodi_toolkit.io.datasets import load_cameras

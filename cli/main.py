@@ -22,6 +22,7 @@ from roodi_toolkit._version import __version__
 # name -> "module:attribute" of a click.Command. One line per command.
 COMMANDS: dict[str, str] = {
     "benchmark": "roodi_toolkit.cli.cmd_benchmark:benchmark",
+    "convert": "roodi_toolkit.cli.cmd_convert:convert",
     "demo": "roodi_toolkit.cli.cmd_demo:demo",
     "evaluate": "roodi_toolkit.cli.cmd_evaluate:evaluate",
     "extract": "roodi_toolkit.cli.cmd_extract:extract",
