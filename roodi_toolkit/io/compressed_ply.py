@@ -84,46 +84,50 @@ def read_compressed_ply(path: str | os.PathLike, header: PlyHeader) -> GaussianC
         raise FormatError(f"{p}: file declares 0 vertices: there are no Gaussians to read")
     if len(chunk) != -(-n // CHUNK):
         raise FormatError(f"{p}: {len(chunk)} chunks cannot hold {n} Gaussians (expected {-(-n // CHUNK)}): corrupt")
-    ci = np.arange(n) // CHUNK
-    c = {name: chunk[name].astype(np.float64)[ci] for name in chunk.dtype.names}
+    # Work chunk by chunk with broadcasting ([chunks, 256] against [chunks, 1] bounds): no per-row gather of the
+    # bounds, which made this 2.8x slower than reading a plain PLY. float64 as splat-transform (JavaScript numbers).
+    n_chunks = len(chunk)
+    bound = {name: chunk[name].astype(np.float64)[:, None] for name in chunk.dtype.names}
 
-    def lerp(lo: np.ndarray, hi: np.ndarray, t: np.ndarray) -> np.ndarray:
-        return lo * (1.0 - t) + hi * t
+    def words(name: str) -> np.ndarray:
+        w = np.zeros(n_chunks * CHUNK, dtype=np.uint32)
+        w[:n] = vertex[name]
+        return w.reshape(n_chunks, CHUNK)
 
-    def unpack_111011(words: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return ((words >> 21) & 2047) / 2047.0, ((words >> 11) & 1023) / 1023.0, (words & 2047) / 2047.0
+    def lerp_into(out: np.ndarray, lo: str, hi: str, t: np.ndarray) -> None:
+        out[:] = (bound[lo] * (1.0 - t) + bound[hi] * t).reshape(-1)[:n]
 
-    pos = vertex["packed_position"].astype(np.uint32)
-    tx, ty, tz = unpack_111011(pos)
-    means = np.stack([lerp(c["min_x"], c["max_x"], tx), lerp(c["min_y"], c["max_y"], ty),
-                      lerp(c["min_z"], c["max_z"], tz)], axis=1)
-    sx, sy, sz = unpack_111011(vertex["packed_scale"].astype(np.uint32))
-    log_scales = np.stack([lerp(c["min_scale_x"], c["max_scale_x"], sx), lerp(c["min_scale_y"], c["max_scale_y"], sy),
-                           lerp(c["min_scale_z"], c["max_scale_z"], sz)], axis=1)
+    means = np.empty((n, 3), dtype=np.float32)
+    log_scales = np.empty((n, 3), dtype=np.float32)
+    for out, key, names in ((means, "packed_position", ("x", "y", "z")),
+                            (log_scales, "packed_scale", ("scale_x", "scale_y", "scale_z"))):
+        w = words(key)
+        for k, (shift, mask) in enumerate(((21, 2047), (11, 1023), (0, 2047))):
+            t = ((w >> shift) & mask) / float(mask)
+            lerp_into(out[:, k], f"min_{names[k]}", f"max_{names[k]}", t)
 
-    rot = vertex["packed_rotation"].astype(np.uint32)
+    rot = words("packed_rotation").reshape(-1)[:n]
     norm = np.sqrt(2.0)  # splat-transform: 1 / (sqrt(2) * 0.5)
-    abc = np.stack([((rot >> s) & 1023) / 1023.0 for s in (20, 10, 0)], axis=1)
-    abc = (abc - 0.5) * norm
-    m = np.sqrt(np.maximum(0.0, 1.0 - np.sum(abc * abc, axis=1)))
-    which = (rot >> 30).astype(np.int64)
-    quats = np.empty((n, 4))
-    # the three stored components fill the slots other than the largest, in order
-    slots = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])[which]
-    rows = np.arange(n)
-    quats[rows, which] = m
-    for k in range(3):
-        quats[rows, slots[:, k]] = abc[:, k]
+    abc = [(((rot >> s) & 1023) / 1023.0 - 0.5) * norm for s in (20, 10, 0)]
+    m = np.sqrt(np.maximum(0.0, 1.0 - (abc[0] * abc[0] + abc[1] * abc[1] + abc[2] * abc[2])))
+    which = rot >> 30
+    quats = np.empty((n, 4), dtype=np.float32)
+    # the three stored components fill, in order, the slots other than the largest one
+    for j in range(4):
+        below = abc[j] if j < 3 else m
+        above = abc[j - 1] if j > 0 else m
+        quats[:, j] = np.where(which == j, m, np.where(j < which, below, above))
 
-    col = vertex["packed_color"].astype(np.uint32)
-    rgba = np.stack([((col >> s) & 255) / 255.0 for s in (24, 16, 8, 0)], axis=1)
-    rgb = rgba[:, :3]
-    if "min_r" in c:
-        rgb = np.stack([lerp(c["min_r"], c["max_r"], rgb[:, 0]), lerp(c["min_g"], c["max_g"], rgb[:, 1]),
-                        lerp(c["min_b"], c["max_b"], rgb[:, 2])], axis=1)
-    sh_dc = (rgb - 0.5) / SH_C0
+    col = words("packed_color")
+    sh_dc = np.empty((n, 3), dtype=np.float32)
+    for k, (shift, name) in enumerate(((24, "r"), (16, "g"), (8, "b"))):
+        t = ((col >> shift) & 255) / 255.0
+        if f"min_{name}" in bound:
+            t = bound[f"min_{name}"] * (1.0 - t) + bound[f"max_{name}"] * t
+        sh_dc[:, k] = ((t - 0.5) / SH_C0).reshape(-1)[:n]
+    alpha = (col.reshape(-1)[:n] & 255) / 255.0
     with np.errstate(divide="ignore"):
-        opacity = -np.log(1.0 / rgba[:, 3] - 1.0)
+        opacity = -np.log(1.0 / alpha - 1.0)
 
     rest = np.zeros((n, 0, 3), dtype=np.float32)
     if "sh" in els:
@@ -135,9 +139,8 @@ def read_compressed_ply(path: str | os.PathLike, header: PlyHeader) -> GaussianC
         unit = np.where(raw == 0, 0.0, np.where(raw == 255, 1.0, (raw + 0.5) / 256.0))
         per = len(names) // 3
         rest = ((unit - 0.5) * 8.0).reshape(n, 3, per).transpose(0, 2, 1).astype(np.float32)
-    return GaussianCloud(
-        means=means.astype(np.float32), quats_wxyz=quats.astype(np.float32), log_scales=log_scales.astype(np.float32),
-        opacity_logits=opacity.astype(np.float32), sh_dc=sh_dc.astype(np.float32), sh_rest=np.ascontiguousarray(rest))
+    return GaussianCloud(means=means, quats_wxyz=quats, log_scales=log_scales, opacity_logits=opacity.astype(np.float32),
+                         sh_dc=sh_dc, sh_rest=np.ascontiguousarray(rest))
 
 
 def morton_order(means: np.ndarray) -> np.ndarray:
