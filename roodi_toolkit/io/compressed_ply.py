@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError
-from ..gaussians import SH_C0, GaussianCloud, sigmoid
+from ..gaussians import SH_C0, GaussianCloud
 from .files import atomic_path
 from .ply import PlyHeader
 
@@ -143,23 +143,44 @@ def read_compressed_ply(path: str | os.PathLike, header: PlyHeader) -> GaussianC
                          sh_dc=sh_dc, sh_rest=np.ascontiguousarray(rest))
 
 
+def _spread(v: np.ndarray) -> np.ndarray:
+    v = v & 0x3FF
+    v = (v ^ (v << 16)) & 0xFF0000FF
+    v = (v ^ (v << 8)) & 0x0300F00F
+    v = (v ^ (v << 4)) & 0x030C30C3
+    return (v ^ (v << 2)) & 0x09249249
+
+
 def morton_order(means: np.ndarray) -> np.ndarray:
-    """Return the ``[N]`` permutation that sorts centres ``[N, 3]`` along a 10-bit-per-axis Morton (Z-order) curve.
+    """Return the ``[N]`` permutation that sorts centres ``[N, 3]`` along a Morton (Z-order) curve.
 
-    Chunks of 256 consecutive Gaussians then cover small boxes, which is what keeps the 11/10/11-bit positions fine.
+    The same order as splat-transform's ``sortMortonOrder``: 10 bits per axis over the bounding box, a stable sort,
+    and every run of more than 256 equal codes sorted again over its own box. Chunks of 256 consecutive Gaussians then
+    cover small boxes, which keeps the 11/10/11-bit positions and scales fine, and files written here carry their
+    Gaussians in the order splat-transform would write them.
     """
-    lo, hi = means.min(axis=0), means.max(axis=0)
-    span = np.where(hi - lo > 0, hi - lo, 1.0)
-    q = np.clip(((means - lo) / span * 1023.0).astype(np.int64), 0, 1023)
+    pts = means.astype(np.float64)
+    order = np.arange(len(pts))
 
-    def spread(v: np.ndarray) -> np.ndarray:
-        v = (v | (v << 16)) & 0x030000FF
-        v = (v | (v << 8)) & 0x0300F00F
-        v = (v | (v << 4)) & 0x030C30C3
-        return (v | (v << 2)) & 0x09249249
+    def generate(idx: np.ndarray) -> np.ndarray:
+        p = pts[idx]
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        length = hi - lo
+        if not np.all(np.isfinite(length)) or not np.any(length):
+            return idx
+        mul = np.where(length == 0, 0.0, 1024.0 / np.where(length == 0, 1.0, length))
+        q = np.minimum(1023.0, (p - lo) * mul).astype(np.int64)
+        code = _spread(q[:, 0]) + (_spread(q[:, 1]) << 1) + (_spread(q[:, 2]) << 2)
+        perm = np.argsort(code, kind="stable")
+        idx, code = idx[perm], code[perm]
+        starts = np.flatnonzero(np.r_[True, code[1:] != code[:-1]])
+        ends = np.r_[starts[1:], len(code)]
+        for a, b in zip(starts, ends):
+            if b - a > CHUNK:
+                idx[a:b] = generate(idx[a:b])
+        return idx
 
-    code = spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2)
-    return np.argsort(code, kind="stable")
+    return generate(order) if len(pts) else order
 
 
 def _pack_unorm(v: np.ndarray, bits: int) -> np.ndarray:
@@ -187,7 +208,8 @@ def encode_compressed_ply(cloud: GaussianCloud) -> bytes:
 
     means = chunked(cloud.means)
     log_scales = chunked(cloud.log_scales)
-    rgb = chunked(cloud.sh_dc) * SH_C0 + 0.5
+    # splat-transform stores the colour in a Float32Array before taking bounds: round alike so files match its own
+    rgb = (chunked(cloud.sh_dc) * SH_C0 + 0.5).astype(np.float32).astype(np.float64)
     pmin, pmax = means.min(axis=1, keepdims=True), means.max(axis=1, keepdims=True)
     smin = np.clip(log_scales.min(axis=1, keepdims=True), -_SCALE_LIMIT, _SCALE_LIMIT)
     smax = np.clip(log_scales.max(axis=1, keepdims=True), -_SCALE_LIMIT, _SCALE_LIMIT)
@@ -199,7 +221,8 @@ def encode_compressed_ply(cloud: GaussianCloud) -> bytes:
     packed_position = pack_111011(_normalise(means, pmin, pmax))
     packed_scale = pack_111011(_normalise(log_scales, smin, smax))
     c = _normalise(rgb, cmin, cmax)
-    alpha = sigmoid(chunked(cloud.opacity_logits))
+    with np.errstate(over="ignore"):  # the plain formula, as splat-transform, so alpha bytes round alike
+        alpha = 1.0 / (1.0 + np.exp(-chunked(cloud.opacity_logits)))
     packed_color = ((_pack_unorm(c[..., 0], 8) << 24) | (_pack_unorm(c[..., 1], 8) << 16)
                     | (_pack_unorm(c[..., 2], 8) << 8) | _pack_unorm(alpha, 8))
 
