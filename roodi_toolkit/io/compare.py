@@ -15,7 +15,7 @@ def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
     same_inf = (a == b) & ~np.isfinite(a)  # +inf against +inf agrees
     if not np.all(both | same_inf):
         return float("inf")
-    return float(np.abs(a - b)[both].max()) if both.any() else 0.0
+    return float(np.abs(a[both] - b[both]).max()) if both.any() else 0.0
 
 
 def cloud_differences(a: GaussianCloud, b: GaussianCloud, *, match: bool = False) -> dict[str, float]:
