@@ -50,6 +50,10 @@ def _fail(p: Path | str, msg: str) -> FormatError:
 
 def _check_file(path: str | os.PathLike) -> Path:
     p = Path(path)
+    if p.name.lower().endswith(".ply"):  # a PLY name keeps the PLY reader's own errors (PlyError)
+        from .ply import _open_checked
+
+        return _open_checked(p)[0]
     if not p.exists():
         raise _fail(p, "no such file")
     if p.is_dir():
@@ -76,7 +80,7 @@ def detect_format(path: str | os.PathLike) -> str:
     """
     p = _check_file(path)
     size = p.stat().st_size
-    if size == 0:
+    if size == 0 and not p.name.lower().endswith(".ply"):
         raise _fail(p, "file is empty")
     with open(p, "rb") as f:
         head = f.read(4096)
@@ -106,10 +110,14 @@ def detect_format(path: str | os.PathLike) -> str:
         return "ksplat"
     if p.suffix.lower() == ".splat":
         return "splat"
-    if size % 32 == 0 and len(head) >= 32:
+    if size % 32 == 0 and len(head) >= 32 and not p.name.lower().endswith(".ply"):
         first = np.frombuffer(head[:24], "<f4")
         if np.all(np.isfinite(first)) and np.all(first[3:6] > 0):
             return "splat"
+    if p.name.lower().endswith(".ply"):  # say what is wrong as a PLY (PlyError "not a PLY file ...")
+        from .ply import read_header
+
+        read_header(p)
     raise _fail(p, "unknown splat format (readable: PLY, compressed PLY, SPZ, SOG .sog/meta.json, .splat, .ksplat)")
 
 
