@@ -431,3 +431,39 @@ def test_oracle_decodes_like_us(tmp_path: Path, kind: str) -> None:
     d = cloud_differences(read_ply(_st(tool, f, tmp_path / "st.ply")), ours)
     assert d["position_rel"] < 1e-6 and d["log_scale"] < 1e-5 and d["rotation"] < 1e-5, d
     assert d["sh_dc"] < 1e-5 and d["sh_rest"] < 1e-5 and d["opacity_logit"] < 1e-4, d
+
+
+@pytest.mark.parametrize("suffix", [".spz", ".compressed.ply", ".sog"])
+def test_oracle_files_with_sh_read_like_splat_transform(tmp_path: Path, suffix: str) -> None:
+    """splat-transform's own SPZ 4, compressed PLY and SOG (SH palette) of a degree-3 cloud: we decode them as it does."""
+    tool = _splat_transform()
+    from roodi_toolkit.io.ply import read_ply
+
+    src = write_cloud(make_cloud(800, degree=3), tmp_path / "src.ply")
+    made = tmp_path / f"st{suffix}"
+    run = subprocess.run([tool, "-q", "-w", "-g", "cpu", "-i", "1", str(src), str(made)], capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    ours, _ = read_cloud_report(made, raw=True)
+    assert ours.sh_degree == 3
+    d = cloud_differences(read_ply(_st(tool, made, tmp_path / "decoded.ply")), ours)
+    assert d["position_rel"] < 1e-6 and d["log_scale"] < 1e-5 and d["rotation"] < 1e-5, d
+    assert d["sh_dc"] < 1e-5 and d["sh_rest"] < 1e-5 and d["opacity_logit"] < 1e-4, d
+
+
+def test_info_counts_bad_values(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from roodi_toolkit.cli.main import main
+
+    c = make_cloud(200)
+    c.means[:3, 1] = np.nan
+    c.sh_dc[4, 0] = np.nan
+    c.log_scales[5] = np.inf
+    c.opacity_logits[6:9] = np.inf
+    c.opacity_logits[9] = -np.inf
+    c.log_scales[10] = np.log(100.0)  # 100 units wide in a scene of about 6
+    f = write_cloud(c, tmp_path / "bad.ply")
+    assert main(["info", str(f), "--json"]) == 0
+    bad = json.loads(capsys.readouterr().out)["bad_values"]
+    assert bad["nan"]["means"] == 3 and bad["nan"]["sh_dc"] == 1 and bad["nan_rows"] == 4
+    assert bad["inf"]["log_scales"] == 3 and (bad["opacity_pos_inf"], bad["opacity_neg_inf"]) == (3, 1)
+    assert bad["absurd_scale_rows"] == 1
