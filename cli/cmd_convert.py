@@ -20,8 +20,10 @@ EPILOG = """Examples:
 @click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False, path_type=str))
 @click.option("--filter-nan", is_flag=True, help="Drop Gaussians with NaN/Inf values (the quantised formats refuse "
                                                   "them otherwise); +-inf opacities are kept as fully opaque/transparent.")
+@click.option("--filter-absurd-scales", is_flag=True,
+              help="Drop Gaussians whose largest scale is wider than the scene's bounding box (what info counts).")
 @overwrite_option
-def convert(input_path: str, output_path: str, filter_nan: bool, overwrite: bool) -> None:
+def convert(input_path: str, output_path: str, filter_nan: bool, filter_absurd_scales: bool, overwrite: bool) -> None:
     """Convert IN (PLY, compressed PLY, SPZ, SOG .sog/meta.json, .splat, .ksplat; detected by content) to OUT.
 
     OUT's extension picks the format: .ply, .compressed.ply or .spz. OUT is written atomically, never over IN.
@@ -37,8 +39,14 @@ def convert(input_path: str, output_path: str, filter_nan: bool, overwrite: bool
         bad = cloud.nonfinite_rows()
         dropped = int(bad.sum())
         cloud = cloud.select(~bad)
-    write_cloud(cloud, output_path)
     extra = f"; dropped {dropped:,} NaN/Inf rows" if dropped else ""
+    if filter_absurd_scales:
+        from roodi_toolkit.stats import absurd_scale_rows
+
+        wide = absurd_scale_rows(cloud)
+        cloud = cloud.select(~wide)
+        extra += f"; dropped {int(wide.sum()):,} Gaussians wider than the scene" if wide.any() else ""
+    write_cloud(cloud, output_path)
     inf = report.opacity_pos_inf + report.opacity_neg_inf
     extra += f"; {inf:,} +-inf opacities read as fully opaque/transparent" if inf else ""
     click.echo(f"converted {len(cloud):,} Gaussians from {report.format} to {fmt}: wrote {output_path}{extra}")

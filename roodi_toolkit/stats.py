@@ -24,6 +24,22 @@ ABSURD_SCALE_FACTOR = 1.0
 bounding box of all finite centres: no real splat needs a Gaussian wider than the scene it belongs to."""
 
 
+def absurd_scale_rows(cloud: GaussianCloud) -> np.ndarray:
+    """``[N]`` bool, True where a Gaussian's largest scale is finite and wider than the scene (see
+    :data:`ABSURD_SCALE_FACTOR`); infinite scales are non-finite rows instead."""
+    finite = np.isfinite(cloud.means).all(axis=1)
+    out = np.zeros(len(cloud), dtype=bool)
+    if not finite.any():
+        return out
+    pts = cloud.means[finite].astype(np.float64)
+    diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    if diag <= 0:
+        return out
+    with np.errstate(over="ignore", invalid="ignore"):
+        largest = np.exp(cloud.log_scales.astype(np.float64)).max(axis=1)
+    return np.isfinite(largest) & (largest > ABSURD_SCALE_FACTOR * diag)
+
+
 def count_bad_values(cloud: GaussianCloud) -> dict[str, Any]:
     """Return how many values of each kind are non-finite or extreme, per field, and the rows they touch.
 
@@ -39,14 +55,7 @@ def count_bad_values(cloud: GaussianCloud) -> dict[str, Any]:
     nan_rows = np.zeros(n, dtype=bool)
     for v in fields.values():
         nan_rows |= np.isnan(v.reshape(n, -1)).any(axis=1)
-    finite = np.isfinite(cloud.means).all(axis=1)
-    absurd = 0
-    if finite.any():
-        diag = float(np.linalg.norm(cloud.means[finite].max(axis=0).astype(np.float64)
-                                    - cloud.means[finite].min(axis=0)))
-        with np.errstate(over="ignore", invalid="ignore"):
-            largest = np.exp(cloud.log_scales.astype(np.float64)).max(axis=1)
-        absurd = int(np.sum(np.isfinite(largest) & (largest > ABSURD_SCALE_FACTOR * diag) & (diag > 0)))
+    absurd = int(absurd_scale_rows(cloud).sum())
     return {"nan": nan, "inf": inf, "nan_rows": int(nan_rows.sum()),
             "opacity_pos_inf": int(np.isposinf(cloud.opacity_logits).sum()),
             "opacity_neg_inf": int(np.isneginf(cloud.opacity_logits).sum()), "absurd_scale_rows": absurd}

@@ -467,3 +467,7 @@ def test_info_counts_bad_values(tmp_path: Path, capsys: pytest.CaptureFixture) -
     assert bad["nan"]["means"] == 3 and bad["nan"]["sh_dc"] == 1 and bad["nan_rows"] == 4
     assert bad["inf"]["log_scales"] == 3 and (bad["opacity_pos_inf"], bad["opacity_neg_inf"]) == (3, 1)
     assert bad["absurd_scale_rows"] == 1
+    out = tmp_path / "clean.spz"
+    assert main(["convert", str(f), str(out)]) == 1  # NaN rows refused by a quantised format
+    assert main(["convert", str(f), str(out), "--filter-nan", "--filter-absurd-scales"]) == 0
+    assert len(read_cloud(out)) == 200 - 5 - 1
