@@ -471,3 +471,28 @@ def test_info_counts_bad_values(tmp_path: Path, capsys: pytest.CaptureFixture) -
     assert main(["convert", str(f), str(out)]) == 1  # NaN rows refused by a quantised format
     assert main(["convert", str(f), str(out), "--filter-nan", "--filter-absurd-scales"]) == 0
     assert len(read_cloud(out)) == 200 - 5 - 1
+
+
+def test_flipped_bytes_never_escape_as_other_errors(tmp_path: Path) -> None:
+    """Random byte corruption of each format: the file reads, or fails with one FormatError/PlyError line."""
+    c = make_cloud(300, degree=1)
+    sources = {
+        "a.compressed.ply": Path(write_cloud(c, tmp_path / "s.compressed.ply")).read_bytes(),
+        "a.spz": Path(write_cloud(c, tmp_path / "s.spz")).read_bytes(),
+        "b.spz": encode_spz_v4(c),
+        "a.splat": encode_splat(c),
+        "a.ksplat": encode_ksplat(c, 1),
+    }
+    rng = np.random.default_rng(7)
+    for name, data in sources.items():
+        for trial in range(12):
+            buf = bytearray(data)
+            # corrupt the first 4 KiB (headers, TOCs, chunk bounds) where a bad value does the most harm
+            for pos in rng.integers(0, min(len(buf), 4096), size=4):
+                buf[pos] = int(rng.integers(0, 256))
+            f = tmp_path / f"{trial}_{name}"
+            f.write_bytes(bytes(buf))
+            try:
+                read_cloud(f)
+            except (FormatError, PlyError) as exc:
+                assert "\n" not in str(exc) and str(f) in str(exc), (name, str(exc))

@@ -19,6 +19,7 @@ from __future__ import annotations
 import gzip
 import os
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,7 +96,7 @@ def detect_format(path: str | os.PathLike) -> str:
         try:
             with gzip.open(p) as g:
                 inner = g.read(4)
-        except (OSError, EOFError):
+        except (OSError, EOFError, zlib.error):
             raise _fail(p, "gzip data is corrupt or truncated (an SPZ file is gzip of an NGSP stream)") from None
         if inner == b"NGSP":
             return "spz"
@@ -143,7 +144,10 @@ def read_cloud_report(path: str | os.PathLike, *, raw: bool = False) -> tuple[Ga
     """
     p = _check_file(path)
     fmt = detect_format(p)
+    # damaged values decode to NaN/Inf, which are counted and reported later: no RuntimeWarnings on stderr meanwhile
+    errstate = np.errstate(invalid="ignore", over="ignore", divide="ignore")
     try:
+        errstate.__enter__()
         if fmt == "ply":
             from .ply import read_ply
 
@@ -177,6 +181,8 @@ def read_cloud_report(path: str | os.PathLike, *, raw: bool = False) -> tuple[Ga
         raise _fail(p, f"cannot read file ({exc.strerror or exc})") from None
     except Exception as exc:  # noqa: BLE001 - a corrupt file must give one line naming it, never a traceback
         raise _fail(p, f"corrupt {fmt} file ({type(exc).__name__}: {exc})") from None
+    finally:
+        errstate.__exit__(None, None, None)
     if raw:
         o = cloud.opacity_logits
         n_pos, n_neg = int(np.isposinf(o).sum()), int(np.isneginf(o).sum())

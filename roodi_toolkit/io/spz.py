@@ -47,7 +47,7 @@ def _decompress_gzip(p: Path, raw: bytes) -> bytes:
         raise _fail(p, f"SPZ gzip stream is corrupt or truncated ({exc})") from None
 
 
-def _streams_v4(p: Path, raw: bytes, num_streams: int, toc: int) -> list[bytes]:
+def _streams_v4(p: Path, raw: bytes, num_streams: int, toc: int, expected: list[int]) -> list[bytes]:
     try:
         import zstandard
     except ImportError:  # pragma: no cover - a dependency of the package
@@ -59,6 +59,10 @@ def _streams_v4(p: Path, raw: bytes, num_streams: int, toc: int) -> list[bytes]:
     out = []
     dctx = zstandard.ZstdDecompressor()
     for k, (csize, usize) in enumerate(entries.tolist()):
+        if k < len(expected) and usize != expected[k]:  # checked before decompressing: no allocation from a bad TOC
+            raise _fail(p, f"SPZ stream {k} declares {usize} bytes, the header's count needs {expected[k]}: corrupt")
+        if k >= len(expected) and usize > 0:
+            raise _fail(p, f"SPZ holds an unexpected stream {k}: corrupt or a newer version")
         if offset + csize > len(raw):
             raise _fail(p, f"SPZ stream {k} ends past the end of the file: truncated")
         try:
@@ -97,7 +101,12 @@ def read_spz(path: str | os.PathLike) -> GaussianCloud:
         magic, version, n, degree, frac, flags, num_streams, toc = struct.unpack_from("<IIIBBBBI", raw)
         if version != 4:
             raise _fail(p, f"SPZ version {version} with a plain header is not supported (expected 4)")
-        streams = _streams_v4(p, raw, num_streams, toc)
+        if degree <= 3 and 0 < n <= _MAX_POINTS:
+            dim4 = (degree + 1) ** 2 - 1
+            expected = [9 * n, n, 3 * n, 3 * n, 4 * n] + ([3 * dim4 * n] if dim4 else [])
+            streams = _streams_v4(p, raw, num_streams, toc, expected)
+        else:
+            streams = []
         body = b""
     else:
         raise _fail(p, "not an SPZ file (neither gzip nor NGSP magic)")
