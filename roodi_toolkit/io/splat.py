@@ -135,6 +135,48 @@ def finite_opacity(cloud: GaussianCloud) -> tuple[GaussianCloud, int, int]:
     return cloud, n_pos, n_neg
 
 
+def _read_ply(p: Path) -> GaussianCloud:
+    from .ply import read_ply
+
+    return read_ply(p)
+
+
+def _read_compressed_ply(p: Path) -> GaussianCloud:
+    from .compressed_ply import read_compressed_ply
+    from .ply import read_header
+
+    return read_compressed_ply(p, read_header(p))
+
+
+def _read_spz(p: Path) -> GaussianCloud:
+    from .spz import read_spz
+
+    return read_spz(p)
+
+
+def _read_sog(p: Path) -> GaussianCloud:
+    from .sog import read_sog
+
+    return read_sog(p)
+
+
+def _read_splat(p: Path) -> GaussianCloud:
+    from .splat_files import read_splat
+
+    return read_splat(p)
+
+
+def _read_ksplat(p: Path) -> GaussianCloud:
+    from .splat_files import read_ksplat
+
+    return read_ksplat(p)
+
+
+# format -> reader; modules are imported on use so that reading a PLY imports none of the others
+_READERS = {"ply": _read_ply, "compressed-ply": _read_compressed_ply, "spz": _read_spz, "sog": _read_sog,
+            "splat": _read_splat, "ksplat": _read_ksplat}
+
+
 def read_cloud_report(path: str | os.PathLike, *, raw: bool = False) -> tuple[GaussianCloud, ReadReport]:
     """Return the Gaussians of a splat file in any readable format, with a :class:`ReadReport`.
 
@@ -144,45 +186,16 @@ def read_cloud_report(path: str | os.PathLike, *, raw: bool = False) -> tuple[Ga
     """
     p = _check_file(path)
     fmt = detect_format(p)
-    # damaged values decode to NaN/Inf, which are counted and reported later: no RuntimeWarnings on stderr meanwhile
-    errstate = np.errstate(invalid="ignore", over="ignore", divide="ignore")
     try:
-        errstate.__enter__()
-        if fmt == "ply":
-            from .ply import read_ply
-
-            cloud = read_ply(p)
-        elif fmt == "compressed-ply":
-            from .compressed_ply import read_compressed_ply
-            from .ply import read_header
-
-            cloud = read_compressed_ply(p, read_header(p))
-        elif fmt == "spz":
-            from .spz import read_spz
-
-            cloud = read_spz(p)
-        elif fmt == "sog":
-            from .sog import read_sog
-
-            cloud = read_sog(p)
-        elif fmt == "ksplat":
-            from .splat_files import read_ksplat
-
-            cloud = read_ksplat(p)
-        else:
-            from .splat_files import read_splat
-
-            cloud = read_splat(p)
-    except (FormatError, PlyError):
-        raise
-    except MemoryError:
+        # damaged values decode to NaN/Inf, which are counted and reported later: no RuntimeWarnings meanwhile
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            cloud = _READERS[fmt](p)
+    except (FormatError, PlyError, MemoryError):
         raise
     except OSError as exc:
         raise _fail(p, f"cannot read file ({exc.strerror or exc})") from None
     except Exception as exc:  # noqa: BLE001 - a corrupt file must give one line naming it, never a traceback
         raise _fail(p, f"corrupt {fmt} file ({type(exc).__name__}: {exc})") from None
-    finally:
-        errstate.__exit__(None, None, None)
     if raw:
         o = cloud.opacity_logits
         n_pos, n_neg = int(np.isposinf(o).sum()), int(np.isneginf(o).sum())
