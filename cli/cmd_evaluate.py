@@ -42,13 +42,13 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     from roodi_toolkit.io import files
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
-    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.io.splat import read_cloud
 
     if json_path is not None:
         files.check_output(json_path, overwrite=overwrite, inputs=[object_ply])
     if renders_dir is not None:
         out_dir = files.prepare_output_dir(renders_dir, overwrite=overwrite)
-    cloud = read_ply(object_ply)
+    cloud = read_cloud(object_ply)
     ev, renders = evaluate_object(cloud, data_dir, object_id, renderer=renderer, lpips_weights=lpips_weights,
                                   max_views=max_views, progress=progress_factory(quiet))
     if json_path is not None:

@@ -63,7 +63,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     from roodi_toolkit.errors import ConfigError, EnvironmentProblemError, OutputError
     from roodi_toolkit.io.files import check_output, write_image
     from roodi_toolkit.prune.outliers import remove_statistical_outliers
-    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.io.splat import read_cloud
 
     config = prune_config_from_options(**{name: prune_kwargs[name] for name in PRUNE_OPTION_NAMES})
     size = parse_size(window_size, "--window-size")
@@ -95,7 +95,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
             raise click.BadParameter(f"not a colour: {highlight!r} (use a name such as red or #ff00ff)",
                                      param_hint="--highlight") from None
 
-    cloud = read_ply(input_ply)
+    cloud = read_cloud(input_ply)
     progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
     _, keep, report = remove_statistical_outliers(cloud, config, progress=progress)
     removed = ", ".join(f"{name} {n:,}" for name, n in report.stages if n) or "none"

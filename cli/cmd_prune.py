@@ -43,7 +43,8 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     from roodi_toolkit.errors import OutputError
     from roodi_toolkit.io.files import check_output, write_json
     from roodi_toolkit.prune.outliers import remove_statistical_outliers
-    from roodi_toolkit.io.ply import read_ply, write_ply
+    from roodi_toolkit.io.ply import write_ply
+    from roodi_toolkit.io.splat import read_cloud
 
     start = time.perf_counter()
     config = prune_config_from_options(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors,
@@ -56,7 +57,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
         raise OutputError("OUT.ply, --floaters-out and --report must be different files")
 
     t_read = time.perf_counter()
-    cloud = read_ply(input_ply)
+    cloud = read_cloud(input_ply)
     read_s = time.perf_counter() - t_read
     progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
     pruned, keep, report = remove_statistical_outliers(cloud, config, progress=progress)

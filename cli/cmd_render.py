@@ -37,15 +37,18 @@ EPILOG = """Examples:
               help="rgb: colour PNG; depth: 16-bit PNG + coloured preview (scale in render.json); alpha: 8-bit PNG.")
 @click.option("--background", default="0,0,0", show_default=True, help="Background colour r,g,b in [0, 1].")
 @renderer_option
+@click.option("--filter-nan", is_flag=True,
+              help="Drop Gaussians with NaN/Inf values instead of refusing the file (+-inf opacities are read as "
+                   "fully opaque / transparent and kept).")
 @overwrite_option
 @quiet_option
 def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, elevation: float,
            radius: float | None, fov: float, up: str, size_text: str | None, what: str, background: str,
-           renderer: Any, overwrite: bool, quiet: bool) -> None:
+           renderer: Any, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
     """Render PLY into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
     from roodi_toolkit.errors import ConfigError
     from roodi_toolkit.io.files import prepare_output_dir
-    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.io.splat import read_cloud
     from roodi_toolkit.render.views import framing_orbit, render_views
 
     bg = parse_floats(background, 3, "--background")
@@ -56,7 +59,9 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
     if cameras_path and orbit is not None:
         raise click.UsageError("give either --cameras or --orbit, not both")
 
-    cloud = read_ply(ply)
+    cloud = read_cloud(ply)
+    if filter_nan:
+        cloud = cloud.select(~cloud.nonfinite_rows())
     cloud.require_finite(ply)
     if cameras_path:
         from roodi_toolkit.io.dataset import load_cameras
@@ -70,7 +75,7 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         w, h = size or (512, 512)
         cams = framing_orbit(cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
                              fov_x_deg=fov, up=up_axis)
-    out = prepare_output_dir(out_dir, overwrite=overwrite)
+    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[ply, cameras_path])
     record = render_views(cloud, cams, out, what=what, renderer=renderer, background=bg,
                           progress=progress_factory(quiet))
     if not quiet:

@@ -37,6 +37,7 @@ from roodi_toolkit._version import __version__
 COMMANDS: dict[str, str] = {
     "batch": "roodi_toolkit.cli.cmd_batch:batch",
     "benchmark": "roodi_toolkit.cli.cmd_benchmark:benchmark",
+    "convert": "roodi_toolkit.cli.cmd_convert:convert",
     "demo": "roodi_toolkit.cli.cmd_demo:demo",
     "evaluate": "roodi_toolkit.cli.cmd_evaluate:evaluate",
     "extract": "roodi_toolkit.cli.cmd_extract:extract",

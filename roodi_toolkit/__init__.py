@@ -5,15 +5,16 @@ The names below are the public API. Modules that need PyTorch (rendering, traini
 """
 
 from ._version import __version__
-from .errors import (CloudError, ConfigError, DatasetError, EnvironmentProblemError, InputError, OutputError, PlyError,
-                     PluginError, RoodiError, UnsupportedFormatError)
+from .errors import (CloudError, ConfigError, DatasetError, EnvironmentProblemError, FormatError, InputError,
+                     OutputError, PlyError, PluginError, RoodiError, UnsupportedFormatError)
 from .gaussians import GaussianCloud
 from .io.ply import ply_info, read_ply, write_ply
+from .io.splat import detect_format, read_cloud, write_cloud
 from .stats import describe_cloud
 
 __all__ = [
     "__version__",
-    "CloudError", "ConfigError", "DatasetError", "EnvironmentProblemError", "InputError", "OutputError", "PlyError",
-    "PluginError", "RoodiError", "UnsupportedFormatError",
-    "GaussianCloud", "read_ply", "write_ply", "ply_info", "describe_cloud",
+    "CloudError", "ConfigError", "DatasetError", "EnvironmentProblemError", "FormatError", "InputError", "OutputError",
+    "PlyError", "PluginError", "RoodiError", "UnsupportedFormatError",
+    "GaussianCloud", "read_ply", "write_ply", "ply_info", "read_cloud", "write_cloud", "detect_format", "describe_cloud",
 ]

@@ -5,6 +5,7 @@ The kinds, and the classes that refine them::
     RoodiError                   base of every error a user can act on
     ├── InputError               a file or option the user gave is wrong
     │   ├── UnsupportedFormatError   a file in a format or variant the toolkit does not read
+    │   ├── FormatError              a splat file (compressed PLY, SPZ, SOG, .splat, .ksplat) that is corrupt
     │   ├── PlyError, CloudError, DatasetError, ConfigError, OutputError
     ├── PluginError              a plugin is unknown, failed to load, or broke its interface
     └── EnvironmentProblemError  the machine is at fault: a missing system library, a read-only folder, a full disk
@@ -55,6 +56,10 @@ class OutputError(InputError):
 
 class ConfigError(InputError):
     """An option or configuration value is out of range or inconsistent."""
+
+
+class FormatError(InputError):
+    """A splat file in another format (compressed PLY, SPZ, SOG, .splat, .ksplat) could not be read or written."""
 
 
 class PluginError(RoodiError):

@@ -19,6 +19,48 @@ def _summary(values: np.ndarray) -> dict[str, float]:
             "mean": float(v.mean())}
 
 
+ABSURD_SCALE_FACTOR = 1.0
+"""A Gaussian is counted as absurdly large when its largest scale (1 sigma) exceeds this times the diagonal of the
+bounding box of all finite centres: no real splat needs a Gaussian wider than the scene it belongs to."""
+
+
+def absurd_scale_rows(cloud: GaussianCloud) -> np.ndarray:
+    """``[N]`` bool, True where a Gaussian's largest scale is finite and wider than the scene (see
+    :data:`ABSURD_SCALE_FACTOR`); infinite scales are non-finite rows instead."""
+    finite = np.isfinite(cloud.means).all(axis=1)
+    out = np.zeros(len(cloud), dtype=bool)
+    if not finite.any():
+        return out
+    pts = cloud.means[finite].astype(np.float64)
+    diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    if diag <= 0:
+        return out
+    with np.errstate(over="ignore", invalid="ignore"):
+        largest = np.exp(cloud.log_scales.astype(np.float64)).max(axis=1)
+    return np.isfinite(largest) & (largest > ABSURD_SCALE_FACTOR * diag)
+
+
+def count_bad_values(cloud: GaussianCloud) -> dict[str, Any]:
+    """Return how many values of each kind are non-finite or extreme, per field, and the rows they touch.
+
+    ``opacity_pos_inf`` / ``opacity_neg_inf`` are fully opaque / transparent Gaussians as quantised formats decode
+    them (readers map them to finite logits unless asked for raw values); ``nan`` and ``inf`` count values per raw
+    field; ``absurd_scale_rows`` counts Gaussians wider than the scene (see :data:`ABSURD_SCALE_FACTOR`).
+    """
+    fields = {"means": cloud.means, "quats": cloud.quats_wxyz, "log_scales": cloud.log_scales,
+              "opacity": cloud.opacity_logits, "sh_dc": cloud.sh_dc, "sh_rest": cloud.sh_rest}
+    nan = {k: int(np.isnan(v).sum()) for k, v in fields.items()}
+    inf = {k: int(np.isinf(v).sum()) for k, v in fields.items() if k != "opacity"}
+    n = len(cloud)
+    nan_rows = np.zeros(n, dtype=bool)
+    for v in fields.values():
+        nan_rows |= np.isnan(v.reshape(n, -1)).any(axis=1)
+    absurd = int(absurd_scale_rows(cloud).sum())
+    return {"nan": nan, "inf": inf, "nan_rows": int(nan_rows.sum()),
+            "opacity_pos_inf": int(np.isposinf(cloud.opacity_logits).sum()),
+            "opacity_neg_inf": int(np.isneginf(cloud.opacity_logits).sum()), "absurd_scale_rows": absurd}
+
+
 def describe_cloud(cloud: GaussianCloud) -> dict[str, Any]:
     """Return counts and statistics of a cloud: SH degree, bounding box, opacity and scale in user units, bad rows.
 
@@ -51,6 +93,7 @@ def describe_cloud(cloud: GaussianCloud) -> dict[str, Any]:
         "scale_max_axis": _summary(scales[finite].max(axis=1) if finite.any() else np.empty(0)),
         "scale_min_axis": _summary(scales[finite].min(axis=1) if finite.any() else np.empty(0)),
         "nonfinite_rows": int(nonfinite.sum()),
+        "bad_values": count_bad_values(cloud),
         "zero_norm_quats": int(cloud.zero_quat_rows().sum()),
         "extra_columns": {name: str(col.dtype) for name, col in cloud.extras.items()},
         "has_normals": cloud.normals is not None,

@@ -160,3 +160,14 @@ def test_batch_extract_every_object_shares_the_scene(tiny_kitchen, tmp_path, run
     assert single.read_bytes() == Path(lines[0]["object_ply"]).read_bytes()
     r = run_cli("batch", "extract", tiny_kitchen, tmp_path / "o", "--object", "all", "-q", *args)
     assert f"0 done, {len(lines)} unchanged and skipped" in r.stdout
+
+
+def test_batch_convert_matches_the_convert_command(tmp_path, run_cli):
+    paths = _clouds(tmp_path / "in", 2)
+    r = run_cli("batch", "convert", tmp_path / "in", tmp_path / "out", "--to", ".spz", "-q")
+    assert r.exit_code == 0, r.stderr
+    for p in paths:
+        rel = p.relative_to(tmp_path / "in").with_suffix(".spz")
+        single = tmp_path / f"single_{p.stem}.spz"
+        assert run_cli("convert", p, single).exit_code == 0
+        assert (tmp_path / "out" / rel).read_bytes() == single.read_bytes()

@@ -23,15 +23,16 @@ TASK_SUFFIX = {"prune": ".ply", "info": ".json"}
 
 
 def _read(path: str):
-    from ..io.ply import read_ply
+    from ..io.splat import read_cloud
 
-    return read_ply(path)
+    return read_cloud(path)
 
 
 def _write(cloud, path: Path) -> None:
-    from ..io.ply import write_ply
+    """Write in the format of the path's extension (``.ply``, ``.compressed.ply``, ``.spz``)."""
+    from ..io.splat import write_cloud
 
-    write_ply(cloud, path)
+    write_cloud(cloud, path)
 
 
 def prune_config(settings: dict[str, Any], options: dict[str, Any]):
