@@ -26,8 +26,9 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import sys
-from typing import Sequence
+from typing import Any, Sequence
 
 import click
 
@@ -131,6 +132,22 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+class Terminated(BaseException):
+    """SIGTERM arrived: unwinds like Ctrl-C, so that half-written temporary outputs are removed on the way out."""
+
+
+def _on_sigterm() -> Any:
+    """Make SIGTERM raise :class:`Terminated` (in the main thread only); return the handler it replaces."""
+    import threading
+
+    def handler(signum: int, frame: Any) -> None:
+        raise Terminated()
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, handler)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI and return its exit code (also used as the console script)."""
     from roodi_toolkit.errors import RoodiError
@@ -138,6 +155,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     args = _pop_threads([a for a in args if a != "--debug"])
+    previous = _on_sigterm()
     try:
         _torch_threads(args)
         app.main(args=args, prog_name="roodi-toolkit", standalone_mode=False)
@@ -160,6 +178,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
         return 130
+    except Terminated:
+        click.echo("terminated", err=True)
+        return 143
     except MemoryError:
         if debug:
             raise
@@ -175,6 +196,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         click.echo(f"error: unexpected {type(exc).__name__}: {_one_line(str(exc))} (rerun with --debug for the "
                    "traceback and please report it)", err=True)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def _environment_problem(exc: BaseException) -> str | None:

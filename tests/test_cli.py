@@ -99,3 +99,25 @@ def test_threads_option_sets_torch_threads(run_cli, monkeypatch, tmp_path):
         assert res.exit_code == 1 and "positive integer" in res.stderr and "\n" not in res.stderr.strip()
     finally:
         torch.set_num_threads(before)
+
+
+def test_sigterm_mid_write_leaves_no_partial_file(tmp_path, run_cli, monkeypatch):
+    import os
+    import signal
+
+    from roodi_toolkit.io.files import atomic_path
+
+    src = tmp_path / "in.ply"
+    write_ply(make_cloud(200, seed=1), src)
+
+    def killed_writer(cloud, path, **kwargs):
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(b"ply\nhalf")
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr("roodi_toolkit.io.ply.write_ply", killed_writer)
+    before = signal.getsignal(signal.SIGTERM)
+    res = run_cli("prune", src, tmp_path / "out.ply", "-q")
+    assert res.exit_code == 143 and "terminated" in res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply"]  # no output, no hidden temporary file
+    assert signal.getsignal(signal.SIGTERM) is before

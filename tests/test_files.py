@@ -63,3 +63,19 @@ def test_figures_leave_the_matplotlib_backend_alone(tmp_path):
     a.plot([0, 1], [1, 0])
     path = save_figure(fig, tmp_path / "f.png")
     assert path.stat().st_size > 1000 and matplotlib.get_backend() == before
+
+
+def test_outputs_follow_the_umask_not_mkstemps_0600(tmp_path):
+    import os
+
+    from roodi_toolkit.io.files import write_json
+
+    old = os.umask(0o022)
+    try:
+        write_json({"a": 1}, tmp_path / "a.json")
+        assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o644
+        os.umask(0o077)
+        write_json({"a": 1}, tmp_path / "b.json")
+        assert (tmp_path / "b.json").stat().st_mode & 0o777 == 0o600
+    finally:
+        os.umask(old)

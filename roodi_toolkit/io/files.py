@@ -41,6 +41,9 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        # mkstemp creates the file 0600; an output is a normal file, readable as the user's umask allows
+        with contextlib.suppress(FileNotFoundError):
+            os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, dest)
     except BaseException as exc:
         with contextlib.suppress(OSError):
@@ -48,6 +51,13 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         if isinstance(exc, OSError):
             _raise_environment_problem(exc, dest)
         raise
+
+
+def _umask() -> int:
+    """Return the process's umask (reading it means setting it: set it straight back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _raise_environment_problem(exc: OSError, path: Path) -> None:
