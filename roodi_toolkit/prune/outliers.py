@@ -35,6 +35,9 @@ from .wasserstein import gaussian_shapes, w2_sq_neighbors
 DISTANCES = ("w2", "euclidean")
 NEIGHBORS = ("centre", "w2")
 RULES = ("robust", "paper", "clip")
+MODES = ("auto", "scene", "object", "statistical")
+VALUE_NAMES = ("x", "y", "z", "opacity", "scale", "min_scale")
+"""Quantities ``value_ranges`` can bound: centre coordinates, linear opacity, largest and smallest linear scale."""
 EXTRA_CANDIDATES = 8
 """Neighbours kept beyond K, so re-evaluating a Gaussian without its flagged neighbours needs no new search."""
 MAD_TO_SIGMA = 1.4826
@@ -65,6 +68,17 @@ class PruneConfig:
         box: keep only centres inside (x0, y0, z0, x1, y1, z1), before the statistics.
         sphere: keep only centres inside (x, y, z, r), before the statistics.
         compute_dtype: float type of the W2 evaluation; float32 is within 1e-6 relative (wasserstein.py) and faster.
+        mode: what :func:`roodi_toolkit.prune.scene.prune_cloud` runs: ``scene`` (local tests: detached pieces and
+            oversized blobs, safe on real scenes), ``object`` (one object: everything detached from the largest
+            piece goes, plus oversized blobs), ``statistical`` (the rule above: robust, paper or clip) or ``auto``
+            (object when the largest piece holds ``object_fraction`` of the Gaussians, scene otherwise).
+            :func:`remove_statistical_outliers` always runs the statistical rule.
+        reach: link distance of the local tests, in sums of the two Gaussians' largest scales.
+        min_cluster: scene mode removes pieces with fewer than this fraction of the Gaussians.
+        blob_score: oversized limit of the local tests (log units, see scene.py).
+        object_fraction: auto picks object mode when the largest piece holds at least this fraction.
+        value_ranges: ``((name, low, high), ...)`` keep only Gaussians whose value lies in [low, high]; names in
+            :data:`VALUE_NAMES`, before the statistics.
     """
 
     k: int = 16
@@ -78,8 +92,27 @@ class PruneConfig:
     box: tuple[float, float, float, float, float, float] | None = None
     sphere: tuple[float, float, float, float] | None = None
     compute_dtype: str = "float32"
+    mode: str = "auto"
+    reach: float = 2.0
+    min_cluster: float = 0.001
+    blob_score: float = 0.5
+    object_fraction: float = 0.98
+    value_ranges: tuple[tuple[str, float, float], ...] = ()
 
     def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        for name, value in (("reach", self.reach), ("blob_score", self.blob_score)):
+            if not np.isfinite(value) or (name == "reach" and value <= 0):
+                raise ConfigError(f"{name} must be a {'positive' if name == 'reach' else 'finite'} number, "
+                                  f"got {value}")
+        if not 0 <= self.min_cluster < 1 or not 0 < self.object_fraction <= 1:
+            raise ConfigError(f"min_cluster must be in [0, 1) and object_fraction in (0, 1], got {self.min_cluster} "
+                              f"and {self.object_fraction}")
+        for entry in self.value_ranges:
+            if len(entry) != 3 or entry[0] not in VALUE_NAMES or not float(entry[1]) <= float(entry[2]):
+                raise ConfigError(f"a value range is (name, low, high) with name in {', '.join(VALUE_NAMES)} and "
+                                  f"low <= high, got {entry}")
         if self.distance not in DISTANCES:
             raise ConfigError(f"distance must be one of {', '.join(DISTANCES)}, got {self.distance!r}")
         if self.rule not in RULES:
@@ -119,7 +152,9 @@ class PruneReport:
 
     Attributes:
         input_count: Gaussians in.
-        stages: ``[(name, removed), ...]`` in order: nonfinite, min_opacity, box, sphere, statistical.
+        stages: ``[(name, removed), ...]`` in order: nonfinite, min_opacity, box, sphere, value ranges, then
+            statistical (statistical mode) or detached and oversized (scene and object modes).
+        mode: the mode that ran (``auto`` resolved) and ``mode_reason`` why.
         kept_count: Gaussians out.
         threshold: final threshold on d_i (units of the distance: W2^2 or plain length).
         thresholds: threshold of every round of the rule (one for ``paper``).
@@ -148,11 +183,15 @@ class PruneReport:
     evaluated: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     mean_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
     first_mean_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mode: str = "statistical"
+    mode_reason: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         """Return a JSON-ready summary (counts per stage, thresholds, timings; no per-Gaussian arrays)."""
         return {
             "input_count": self.input_count,
+            "mode": self.mode,
+            "mode_reason": self.mode_reason,
             "stages": [{"stage": name, "removed": int(n)} for name, n in self.stages],
             "removed_count": self.input_count - self.kept_count,
             "kept_count": self.kept_count,
@@ -204,7 +243,23 @@ def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, 
         inside = dist2 <= r * r
         stages.append(("sphere", int((keep & ~inside).sum())))
         keep &= inside
+    for name, low, high in config.value_ranges:
+        with np.errstate(invalid="ignore"):
+            value = _named_value(cloud, name)
+            inside = (value >= low) & (value <= high)
+        stages.append((f"{name} in [{low:g}, {high:g}]", int((keep & ~inside).sum())))
+        keep &= inside
     return keep, stages
+
+
+def _named_value(cloud: GaussianCloud, name: str) -> np.ndarray:
+    """Return ``[N]`` the quantity a value range bounds (:data:`VALUE_NAMES`)."""
+    if name in ("x", "y", "z"):
+        return cloud.means[:, "xyz".index(name)].astype(np.float64)
+    if name == "opacity":
+        return cloud.opacities.astype(np.float64)
+    log_scales = cloud.log_scales.astype(np.float64)
+    return np.exp(log_scales.max(axis=1) if name == "scale" else log_scales.min(axis=1))
 
 
 # ------------------------------------------------------------------------------------------------------ distances
