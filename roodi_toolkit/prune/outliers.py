@@ -93,7 +93,7 @@ class PruneConfig:
     sphere: tuple[float, float, float, float] | None = None
     compute_dtype: str = "float32"
     mode: str = "auto"
-    reach: float = 2.0
+    reach: float = 1.5
     min_cluster: float = 0.001
     blob_score: float = 0.5
     object_fraction: float = 0.98

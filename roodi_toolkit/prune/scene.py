@@ -180,7 +180,7 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *,
     t1 = time.perf_counter()
     means = np.ascontiguousarray(sub.means, dtype=np.float32)
     neighbors, dist = neighbour_graph(means, config.k, progress)
-    report.timings["neighbours"] = time.perf_counter() - t1
+    report.timings["neighbours_and_distances"] = time.perf_counter() - t1
     t2 = time.perf_counter()
     decision = decide(sub.log_scales, neighbors, dist, config)
     report.mode, report.mode_reason = decision.mode, decision.reason
