@@ -96,19 +96,20 @@ def safety(paths: list[str], size: int, seed: int) -> list[dict]:
     return rows
 
 
-def fog(model: str, data: str, every: int) -> dict:
+def fog(model: str, data: str, every: int, downscale: float) -> dict:
     """Alpha IoU (threshold 0.5) of the unpruned and the default-pruned model against lego's masks, held-out views."""
     from roodi_toolkit.io.datasets import load_cameras
     from roodi_toolkit.io.files import read_image
     from roodi_toolkit.prune.scene import prune_cloud
 
     cloud = load_real(model)
-    cameras = load_cameras(data)
-    names = sorted(range(len(cameras)), key=lambda i: int(''.join(c for c in cameras[i].name if c.isdigit()) or 0))
-    held = [cameras[i] for i in names if int(''.join(c for c in cameras[i].name if c.isdigit()) or 0) % every == 0]
+    def number(name: str) -> int:  # r_8 -> 8
+        return int("".join(ch for ch in name if ch.isdigit()) or 0)
+
+    held = [cam.scaled(1 / downscale) for cam in load_cameras(data) if number(cam.name) % every == 0]
     pruned, keep, report = prune_cloud(cloud)
     result = {"model": model, "gaussians": len(cloud), "mode": report.mode, "removed": int((~keep).sum()),
-              "stages": report.to_dict()["stages"], "views": len(held)}
+              "stages": report.to_dict()["stages"], "views": len(held), "size": [held[0].width, held[0].height]}
     for label, c in (("unpruned", cloud), ("pruned", pruned)):
         ious = []
         for cam, (_, alpha) in zip(held, renders(c, held)):
@@ -172,6 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("model")
     f.add_argument("data")
     f.add_argument("--every", type=int, default=8)
+    f.add_argument("--downscale", type=float, default=4, help="render and compare at 1/this of the image size")
     p = sub.add_parser("speed")
     p.add_argument("files", nargs="+")
     p.add_argument("--repeats", type=int, default=3)
@@ -179,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.what == "safety":
         safety(args.files, args.size, args.seed)
     elif args.what == "fog":
-        fog(args.model, args.data, args.every)
+        fog(args.model, args.data, args.every, args.downscale)
     else:
         speed(args.files, args.repeats)
     return 0
