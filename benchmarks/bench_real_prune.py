@@ -110,6 +110,9 @@ def fog(model: str, data: str, every: int, downscale: float) -> dict:
     pruned, keep, report = prune_cloud(cloud)
     result = {"model": model, "gaussians": len(cloud), "mode": report.mode, "removed": int((~keep).sum()),
               "stages": report.to_dict()["stages"], "views": len(held), "size": [held[0].width, held[0].height]}
+    from roodi_toolkit.evaluate.metrics import psnr
+
+    truth = [_truth_on_white(read_image, data, cam) for cam in held]
     for label, c in (("unpruned", cloud), ("pruned", pruned)):
         ious = []
         for cam, (_, alpha) in zip(held, renders(c, held)):
@@ -117,6 +120,9 @@ def fog(model: str, data: str, every: int, downscale: float) -> dict:
             a, m = alpha > 0.5, mask > 0.5
             ious.append(float((a & m).sum() / max(1, (a | m).sum())))
         result[f"iou_{label}"] = round(float(np.mean(ious)), 4)
+        # render safety against the ground truth, on the white background the model was trained on
+        white = renders(c, held, background=(1.0, 1.0, 1.0))
+        result[f"psnr_white_vs_truth_{label}"] = round(float(np.mean([psnr(r[0], t) for r, t in zip(white, truth)])), 2)
     print(json.dumps(result), flush=True)
     return result
 
@@ -125,10 +131,22 @@ def _mask(read_image, data: str, cam) -> np.ndarray:
     """The dataset's alpha channel for a camera, resized to the camera's size."""
     import torch
 
-    image = read_image(Path(data) / "train" / f"{cam.name}.png")
+    image = read_image(Path(data) / "train" / f"{cam.name}.png").astype(np.float32)
+    image = image / 255.0 if image.max() > 1.5 else image  # 8-bit PNGs read as 0-255
     alpha = image[..., 3] if image.shape[-1] == 4 else np.ones(image.shape[:2])
     t = torch.from_numpy(np.ascontiguousarray(alpha, dtype=np.float32))[None, None]
     return torch.nn.functional.interpolate(t, size=(cam.height, cam.width), mode="area")[0, 0].numpy()
+
+
+def _truth_on_white(read_image, data: str, cam) -> np.ndarray:
+    """The dataset image composited on white, resized (area) to the camera's size: ``[H, W, 3]``."""
+    import torch
+
+    image = read_image(Path(data) / "train" / f"{cam.name}.png").astype(np.float32)
+    image = image / 255.0 if image.max() > 1.5 else image
+    rgb = image[..., :3] * image[..., 3:4] + (1.0 - image[..., 3:4]) if image.shape[-1] == 4 else image[..., :3]
+    t = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1)))[None]
+    return torch.nn.functional.interpolate(t, size=(cam.height, cam.width), mode="area")[0].numpy().transpose(1, 2, 0)
 
 
 def speed(paths: list[str], repeats: int) -> list[dict]:

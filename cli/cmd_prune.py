@@ -39,7 +39,7 @@ Examples:
 @quiet_option
 def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
           filter_nan: bool, min_opacity: float | None, filter_box: str | None, filter_sphere: str | None,
-          mode: str, reach: float, min_cluster: float, blob_score: float, filter_values: tuple[str, ...],
+          mode: str, reach: float, min_cluster: float, blob_score: float, background: str, filter_values: tuple[str, ...],
           dry_run: bool, floaters_out: str | None, report_path: str | None, overwrite: bool, quiet: bool) -> None:
     """Remove floaters from IN.ply and write the kept Gaussians to OUT.ply.
 
@@ -63,7 +63,8 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     config = prune_config_from_options(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors,
                                        filter_nan=filter_nan, min_opacity=min_opacity, filter_box=filter_box,
                                        filter_sphere=filter_sphere, mode=mode, reach=reach,
-                                       min_cluster=min_cluster, blob_score=blob_score, filter_values=filter_values)
+                                       min_cluster=min_cluster, blob_score=blob_score, background=background,
+                                       filter_values=filter_values)
     picture = None
     if dry_run:
         stem = Path(output_ply)

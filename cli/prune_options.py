@@ -57,12 +57,16 @@ _MODE_OPTIONS = [
     click.option("--blob-score", type=float, default=0.5, show_default=True,
                  help="scene/object: remove Gaussians whose smallest axis exceeds the local spacing and size by "
                       "more than this (log units; higher keeps more)."),
+    click.option("--background", type=click.Choice(["auto", "white", "black", "none"]), default="auto",
+                 show_default=True,
+                 help="scene/object: the solid background the scene was trained on; its colour's faint fog goes. "
+                      "auto: detected (a wide, faint cloud of exactly white or black Gaussians)."),
     click.option("--filter-value", "filter_values", metavar="NAME,MIN,MAX", multiple=True,
                  help="Keep only Gaussians with NAME in [MIN, MAX]; NAME is x, y, z, opacity (linear), scale "
                       "(largest axis) or min_scale. Repeatable."),
 ]
 
-MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "blob_score", "filter_values")
+MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "blob_score", "background", "filter_values")
 """Keyword names of the mode options (``prune`` only)."""
 
 
@@ -104,7 +108,7 @@ def prune_options(func: F) -> F:
 def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
                               filter_nan: bool, min_opacity: float | None, filter_box: str | None,
                               filter_sphere: str | None, mode: str = "auto", reach: float = 1.5,
-                              min_cluster: float = 0.001, blob_score: float = 0.5,
+                              min_cluster: float = 0.001, blob_score: float = 0.5, background: str = "auto",
                               filter_values: tuple[str, ...] = ()) -> Any:
     """Return the ``PruneConfig`` the pruning options describe.
 
@@ -118,5 +122,5 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
     sphere = parse_floats(filter_sphere, 4, "--filter-sphere") if filter_sphere is not None else None
     return PruneConfig(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors, filter_nan=filter_nan,
                        min_opacity=min_opacity, box=box, sphere=sphere, mode=mode, reach=reach,
-                       min_cluster=min_cluster, blob_score=blob_score,
+                       min_cluster=min_cluster, blob_score=blob_score, background=background,
                        value_ranges=parse_value_ranges(filter_values))

@@ -60,7 +60,8 @@ def test_default_prune_on_synthetic_mixes(surface):
     assert (~keep[labels == OBJECT]).mean() <= 0.01
     assert (~keep[labels == FAR]).mean() >= 0.9
     assert (~keep[labels == NEAR]).mean() >= 0.95
-    assert report.stages[-2][0] == "detached" and report.stages[-1][0] == "oversized"
+    assert [name for name, _ in report.stages[-3:]] == ["detached", "oversized", "fog"]
+    assert dict(report.stages)["fog"] == 0  # no white or black fog in these clouds
 
 
 def test_object_mode_drops_a_second_piece_scene_mode_keeps_it():
@@ -115,3 +116,20 @@ def test_cli_dry_run_writes_report_and_picture_only(run_cli, tmp_path):
     res = run_cli("prune", src, out, "--overwrite", "--filter-value", "scale,0,0.5", "--mode", "scene")
     assert res.exit_code == 0, res.stderr
     assert (read_ply(out).scales.max(axis=1) <= 0.5).all()
+
+
+def test_white_background_fog_is_detected_and_removed():
+    planted = planted_floater_cloud(FloaterMix("sphere", n_object=4000, far_fraction=0, near_fraction=0), 2)
+    rng = np.random.default_rng(0)
+    n = 600  # a faint white haze around the object, as training on a white background leaves
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    haze = type(planted.cloud).from_activated(direction * rng.uniform(1.4, 2.6, (n, 1)),
+                                              scales=np.full((n, 3), 0.05), opacities=rng.uniform(0.005, 0.05, n),
+                                              rgb=np.ones((n, 3)))
+    cloud = type(haze).concatenate([planted.cloud, haze])
+    _, keep, report = prune_cloud(cloud)
+    assert not keep[4000:].any() and keep[:4000].mean() > 0.99
+    assert "white-background fog" in report.mode_reason
+    _, keep, report = prune_cloud(cloud, background="none", mode="scene")
+    assert dict(report.stages)["fog"] == 0

@@ -77,6 +77,9 @@ class PruneConfig:
         min_cluster: scene mode removes pieces with fewer than this fraction of the Gaussians.
         blob_score: oversized limit of the local tests (log units, see scene.py).
         object_fraction: auto picks object mode when the largest piece holds at least this fraction.
+        background: the colour the scene was trained on, whose fog the local modes remove: ``auto`` (detected,
+            see scene.py), ``white``, ``black`` or ``none``.
+        fog_tolerance: a Gaussian is background-coloured when every channel is within this of it.
         value_ranges: ``((name, low, high), ...)`` keep only Gaussians whose value lies in [low, high]; names in
             :data:`VALUE_NAMES`, before the statistics.
     """
@@ -98,6 +101,8 @@ class PruneConfig:
     blob_score: float = 0.5
     object_fraction: float = 0.98
     value_ranges: tuple[tuple[str, float, float], ...] = ()
+    background: str = "auto"
+    fog_tolerance: float = 0.05
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -109,6 +114,9 @@ class PruneConfig:
         if not 0 <= self.min_cluster < 1 or not 0 < self.object_fraction <= 1:
             raise ConfigError(f"min_cluster must be in [0, 1) and object_fraction in (0, 1], got {self.min_cluster} "
                               f"and {self.object_fraction}")
+        if self.background not in ("auto", "white", "black", "none") or not 0 <= self.fog_tolerance < 0.5:
+            raise ConfigError(f"background must be auto, white, black or none and fog_tolerance in [0, 0.5), got "
+                              f"{self.background!r} and {self.fog_tolerance}")
         for entry in self.value_ranges:
             if len(entry) != 3 or entry[0] not in VALUE_NAMES or not float(entry[1]) <= float(entry[2]):
                 raise ConfigError(f"a value range is (name, low, high) with name in {', '.join(VALUE_NAMES)} and "
