@@ -228,6 +228,8 @@ def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, 
     Raises:
         CloudError: NaN/Inf rows without ``filter_nan``.
     """
+    from .scene import named_value
+
     n = len(cloud)
     keep = np.ones(n, dtype=bool)
     stages: list[tuple[str, int]] = []
@@ -253,21 +255,11 @@ def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, 
         keep &= inside
     for name, low, high in config.value_ranges:
         with np.errstate(invalid="ignore"):
-            value = _named_value(cloud, name)
+            value = named_value(cloud, name)
             inside = (value >= low) & (value <= high)
         stages.append((f"{name} in [{low:g}, {high:g}]", int((keep & ~inside).sum())))
         keep &= inside
     return keep, stages
-
-
-def _named_value(cloud: GaussianCloud, name: str) -> np.ndarray:
-    """Return ``[N]`` the quantity a value range bounds (:data:`VALUE_NAMES`)."""
-    if name in ("x", "y", "z"):
-        return cloud.means[:, "xyz".index(name)].astype(np.float64)
-    if name == "opacity":
-        return cloud.opacities.astype(np.float64)
-    log_scales = cloud.log_scales.astype(np.float64)
-    return np.exp(log_scales.max(axis=1) if name == "scale" else log_scales.min(axis=1))
 
 
 # ------------------------------------------------------------------------------------------------------ distances
