@@ -8,7 +8,8 @@ import click
 
 from roodi_toolkit.cli.cmd_extract import extract_config_from_options, extract_options
 from roodi_toolkit.cli.common import progress_factory, quiet_option
-from roodi_toolkit.cli.prune_options import prune_config_from_options, prune_options
+from roodi_toolkit.cli.prune_options import (effective_mode, prune_config_from_options, prune_mode_options,
+                                             prune_options)
 
 EPILOG = """\b
 SOURCE is a folder (every .ply, .compressed.ply, .spz, .splat, .ksplat, .sog and meta.json in it, recursively), a
@@ -91,12 +92,13 @@ def _report(task: str, summary: Any, results: str) -> None:
 @batch.command("prune", epilog=EPILOG)
 @_common
 @prune_options
+@prune_mode_options
 def batch_prune(source: str, out: str, jobs: int, ray_address: str | None, results: str | None, rerun: bool,
-                quiet: bool, **prune_kw: Any) -> None:
+                quiet: bool, mode: str, **prune_kw: Any) -> None:
     """Prune every splat of SOURCE into OUT (as PLY), with the prune command's options (per item from a manifest)."""
     from roodi_toolkit.batch.tasks import settings_for
 
-    config = prune_config_from_options(**prune_kw)
+    config = prune_config_from_options(mode=effective_mode(mode), **prune_kw)
     _run("prune", source, out, ".ply", settings_for("prune", prune_config=config), jobs, ray_address, results, rerun,
          quiet)
 

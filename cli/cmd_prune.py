@@ -1,11 +1,15 @@
-"""``roodi-toolkit prune``: remove floaters from a 3DGS PLY by statistical outlier removal (ROODI section 3.2)."""
+"""``roodi-toolkit prune``: remove floaters from a 3DGS PLY (local scene/object tests by default; ROODI section 3.2's
+statistical rule with ``--mode statistical``)."""
 
 from __future__ import annotations
+
+import os
 
 import click
 
 from roodi_toolkit.cli.common import overwrite_option, progress_factory, quiet_option
-from roodi_toolkit.cli.prune_options import prune_config_from_options, prune_options
+from roodi_toolkit.cli.prune_options import (effective_mode, prune_config_from_options, prune_mode_options,
+                                             prune_options)
 
 PROGRESS_MIN_GAUSSIANS = 200_000
 """Clouds at least this large get progress bars (smaller ones finish in about a second)."""
@@ -14,16 +18,22 @@ EPILOG = """\b
 Examples:
   roodi-toolkit prune scene.ply clean.ply
   roodi-toolkit prune scene.ply clean.ply --floaters-out floaters.ply --report prune.json
-  roodi-toolkit prune scene.ply clean.ply --rule paper --alpha 2 --k 16
-  roodi-toolkit prune scene.ply clean.ply --distance euclidean      # Open3D-style centre distances
+  roodi-toolkit prune scene.ply clean.ply --dry-run                  # clean.prune.json + clean.prune.png only
+  roodi-toolkit prune scene.ply clean.ply --mode object              # one object: everything detached goes
+  roodi-toolkit prune scene.ply clean.ply --mode statistical --rule paper --alpha 2 --k 16   # the paper's rule
   roodi-toolkit prune scene.ply clean.ply --filter-nan --min-opacity 0.004 --filter-sphere 0,0,0,3
+  roodi-toolkit prune scene.ply clean.ply --filter-value scale,0,0.5 --filter-value z,-1,10
 """
 
 
 @click.command(epilog=EPILOG)
-@click.argument("input_ply", metavar="IN.ply", type=click.Path(path_type=str))
-@click.argument("output_ply", metavar="OUT.ply", type=click.Path(path_type=str))
+@click.argument("input_ply", metavar="IN", type=click.Path(path_type=str))
+@click.argument("output_ply", metavar="OUT", type=click.Path(path_type=str))
 @prune_options
+@prune_mode_options
+@click.option("--dry-run", is_flag=True,
+              help="Write no cloud: only the report (--report, default OUT's name + .prune.json) and a picture of "
+                   "what would go (OUT's name + .prune.png, removed Gaussians in red).")
 @click.option("--floaters-out", type=click.Path(path_type=str), default=None,
               help="Also write the removed Gaussians to this PLY.")
 @click.option("--report", "report_path", type=click.Path(path_type=str), default=None,
@@ -32,51 +42,85 @@ Examples:
 @quiet_option
 def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
           filter_nan: bool, min_opacity: float | None, filter_box: str | None, filter_sphere: str | None,
-          floaters_out: str | None, report_path: str | None, overwrite: bool, quiet: bool) -> None:
-    """Remove floaters from IN.ply and write the kept Gaussians to OUT.ply.
+          mode: str, reach: float, min_cluster: float, blob_score: float, background: str, filter_values: tuple[str, ...],
+          dry_run: bool, floaters_out: str | None, report_path: str | None, overwrite: bool, quiet: bool) -> None:
+    """Remove floaters from IN (any readable splat format) and write the kept Gaussians to OUT (.ply,
+    .compressed.ply or .spz, from its extension).
 
     Every column of the input, extra properties included, is kept for the kept Gaussians, in input order.
-    The filters (--filter-nan, --min-opacity, --filter-box, --filter-sphere) run before the statistics.
+    The filters (--filter-nan, --min-opacity, --filter-box, --filter-sphere, --filter-value) run first.
     """
     import time
+    from pathlib import Path
 
     from roodi_toolkit.errors import OutputError
     from roodi_toolkit.io.files import check_output, write_json
-    from roodi_toolkit.prune.outliers import remove_statistical_outliers
-    from roodi_toolkit.io.ply import write_ply
-    from roodi_toolkit.io.splat import read_cloud
+    from roodi_toolkit.io.splat import read_cloud, write_cloud
+    from roodi_toolkit.prune.scene import prune_cloud
 
     start = time.perf_counter()
+    mode = effective_mode(mode)
     config = prune_config_from_options(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors,
                                        filter_nan=filter_nan, min_opacity=min_opacity, filter_box=filter_box,
-                                       filter_sphere=filter_sphere)
-    outputs = [p for p in (output_ply, floaters_out, report_path) if p is not None]
+                                       filter_sphere=filter_sphere, mode=mode, reach=reach,
+                                       min_cluster=min_cluster, blob_score=blob_score, background=background,
+                                       filter_values=filter_values)
+    picture = None
+    if dry_run:
+        stem = Path(output_ply)
+        stem = stem.with_name(stem.name[:-len(".ply")] if stem.name.endswith(".ply") else stem.name)
+        picture = f"{stem}.prune.png"
+        report_path = report_path or f"{stem}.prune.json"
+        if floaters_out is not None:
+            raise click.BadParameter("--dry-run writes no cloud; leave out --floaters-out",
+                                     param_hint="--floaters-out")
+    outputs = [p for p in ((None if dry_run else output_ply), floaters_out, report_path, picture) if p is not None]
     for path in outputs:
         check_output(path, overwrite=overwrite, inputs=[input_ply])
-    if len({str(click.format_filename(p)) for p in outputs}) != len(outputs):
-        raise OutputError("OUT.ply, --floaters-out and --report must be different files")
+    if len({os.path.realpath(p) for p in outputs}) != len(outputs):  # the same file by another spelling counts
+        raise OutputError("OUT, --floaters-out and --report must be different files")
 
     t_read = time.perf_counter()
     cloud = read_cloud(input_ply)
     read_s = time.perf_counter() - t_read
     progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
-    pruned, keep, report = remove_statistical_outliers(cloud, config, progress=progress)
+    pruned, keep, report = prune_cloud(cloud, config, progress=progress)
 
     t_write = time.perf_counter()
-    write_ply(pruned, output_ply)
+    if dry_run:
+        _write_picture(cloud, keep, picture)
+    else:
+        write_cloud(pruned, output_ply)
     floaters_written = floaters_out is not None and not keep.all()
     if floaters_written:
-        write_ply(cloud.select(~keep), floaters_out)
+        write_cloud(cloud.select(~keep), floaters_out)
     report.timings["read"] = read_s
     report.timings["write"] = time.perf_counter() - t_write
     report.timings["command_total"] = time.perf_counter() - start
     if report_path is not None:
         summary = report.to_dict()
-        summary["input"], summary["output"] = input_ply, output_ply
+        summary["input"], summary["output"] = input_ply, None if dry_run else output_ply
+        summary["dry_run"], summary["picture"] = dry_run, picture
         summary["floaters_output"] = floaters_out if floaters_written else None
         write_json(summary, report_path)
     removed = ", ".join(f"{name} {n:,}" for name, n in report.stages if n) or "none"
-    click.echo(f"kept {report.kept_count:,} of {report.input_count:,} Gaussians (removed: {removed}; "
-               f"threshold {report.threshold:.4g}); wrote {output_ply}")
+    click.echo(f"mode {report.mode}: {report.mode_reason}")
+    verb = "would keep" if dry_run else "kept"
+    wrote = ", ".join(p for p in (picture, report_path) if p) if dry_run else output_ply
+    click.echo(f"{verb} {report.kept_count:,} of {report.input_count:,} Gaussians (removed: {removed}; "
+               f"threshold {report.threshold:.4g}); wrote {wrote}")
     if floaters_out is not None and not floaters_written:
         click.echo(f"nothing was removed, so no floater PLY was written to {floaters_out}")
+
+
+def _write_picture(cloud: object, keep: object, path: str) -> None:
+    """Write the inspect picture (off screen) of the cloud with the Gaussians that would go in red."""
+    from roodi_toolkit.io.files import write_image
+    from roodi_toolkit.viz import inspect as insp
+
+    plotter = insp.plot_cloud(cloud, keep, show="both", highlight="red", glyphs="auto", off_screen=True,
+                              window_size=(1024, 768))
+    try:
+        write_image(insp.screenshot_image(plotter), path)
+    finally:
+        plotter.close()

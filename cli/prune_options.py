@@ -42,6 +42,62 @@ _OPTIONS = [
 ]
 
 
+_MODE_OPTIONS = [
+    click.option("--mode", type=click.Choice(["auto", "scene", "object", "statistical"]), default="auto",
+                 show_default=True,
+                 help="scene: remove pieces detached from the content and oversized blobs, judged locally (safe on "
+                      "real scenes); object: one object, everything detached from it goes; statistical: the "
+                      "global rule of --rule (paper: ROODI 3.2 as published); auto: object or scene, the choice is "
+                      "printed and reported. Giving --rule or --alpha alone implies statistical."),
+    click.option("--reach", type=click.FloatRange(min=0, min_open=True), default=1.5, show_default=True,
+                 help="scene/object: two Gaussians are connected when their centres are closer than this many sums "
+                      "of their largest scales."),
+    click.option("--min-cluster", type=click.FloatRange(0, 1, max_open=True), default=0.001, show_default=True,
+                 help="scene: remove connected pieces with fewer than this fraction of the Gaussians."),
+    click.option("--blob-score", type=float, default=0.5, show_default=True,
+                 help="scene/object: remove Gaussians whose smallest axis exceeds the local spacing and size by "
+                      "more than this (log units; higher keeps more)."),
+    click.option("--background", type=click.Choice(["auto", "white", "black", "none"]), default="auto",
+                 show_default=True,
+                 help="scene/object: the solid background the scene was trained on; its colour's faint fog goes. "
+                      "auto: detected (a wide, faint cloud of exactly white or black Gaussians)."),
+    click.option("--filter-value", "filter_values", metavar="NAME,MIN,MAX", multiple=True,
+                 help="Keep only Gaussians with NAME in [MIN, MAX]; NAME is x, y, z, opacity (linear), scale "
+                      "(largest axis) or min_scale. Repeatable."),
+]
+
+MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "blob_score", "background", "filter_values")
+"""Keyword names of the mode options (``prune`` only)."""
+
+
+def prune_mode_options(func: F) -> F:
+    """Return ``func`` decorated with the mode options of ``prune`` (scene/object/statistical, value filters)."""
+    for option in reversed(_MODE_OPTIONS):
+        func = option(func)
+    return func
+
+
+def parse_value_ranges(values: tuple[str, ...]) -> tuple[tuple[str, float, float], ...]:
+    """Return ``((name, low, high), ...)`` from ``--filter-value NAME,MIN,MAX`` options.
+
+    Raises:
+        click.BadParameter: a malformed entry.
+    """
+    from roodi_toolkit.prune.outliers import VALUE_NAMES
+
+    out = []
+    for text in values:
+        name, _, rest = text.partition(",")
+        if name not in VALUE_NAMES:
+            raise click.BadParameter(f"{text!r}: NAME must be one of {', '.join(VALUE_NAMES)}",
+                                     param_hint="--filter-value")
+        low, high = parse_floats(rest, 2, "--filter-value")
+        if not low <= high:
+            raise click.BadParameter(f"{text!r}: MIN must not exceed MAX", param_hint="--filter-value")
+        out.append((name, float(low), float(high)))
+    return tuple(out)
+
+
 def prune_options(func: F) -> F:
     """Return ``func`` decorated with the pruning options, in the order ``prune --help`` lists them."""
     for option in reversed(_OPTIONS):
@@ -51,7 +107,9 @@ def prune_options(func: F) -> F:
 
 def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
                               filter_nan: bool, min_opacity: float | None, filter_box: str | None,
-                              filter_sphere: str | None) -> Any:
+                              filter_sphere: str | None, mode: str = "auto", reach: float = 1.5,
+                              min_cluster: float = 0.001, blob_score: float = 0.5, background: str = "auto",
+                              filter_values: tuple[str, ...] = ()) -> Any:
     """Return the ``PruneConfig`` the pruning options describe.
 
     Raises:
@@ -63,4 +121,16 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
     box = parse_floats(filter_box, 6, "--filter-box") if filter_box is not None else None
     sphere = parse_floats(filter_sphere, 4, "--filter-sphere") if filter_sphere is not None else None
     return PruneConfig(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors, filter_nan=filter_nan,
-                       min_opacity=min_opacity, box=box, sphere=sphere)
+                       min_opacity=min_opacity, box=box, sphere=sphere, mode=mode, reach=reach,
+                       min_cluster=min_cluster, blob_score=blob_score, background=background,
+                       value_ranges=parse_value_ranges(filter_values))
+
+
+def effective_mode(mode: str) -> str:
+    """Return the pruning mode a command runs: ``auto`` becomes ``statistical`` when the user gave an option of the
+    statistical rule (--rule, --alpha, --distance, --neighbors) on the command line, since asking for them asks for
+    that rule."""
+    ctx = click.get_current_context()
+    explicit = {name for name in ("rule", "alpha", "distance", "neighbors")
+                if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
+    return "statistical" if mode == "auto" and explicit else mode

@@ -26,7 +26,7 @@ def test_prune_writes_kept_floaters_and_report(run_cli, scene, tmp_path):
     path, cloud = scene
     before = path.read_bytes()
     out, fl, rep = tmp_path / "out.ply", tmp_path / "fl.ply", tmp_path / "r.json"
-    res = run_cli("prune", path, out, "--floaters-out", fl, "--report", rep)
+    res = run_cli("prune", path, out, "--floaters-out", fl, "--report", rep, "--mode", "statistical")
     assert res.exit_code == 0, res.stderr
     assert "kept" in res.stdout
     kept, floaters = read_ply(out), read_ply(fl)

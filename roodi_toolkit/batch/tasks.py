@@ -57,14 +57,14 @@ def prune_config(settings: dict[str, Any], options: dict[str, Any]):
 
 
 def _prune(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
-    from ..prune.outliers import remove_statistical_outliers
+    from ..prune.scene import prune_cloud
 
     config = prune_config(settings.get("prune", {}), item.options)
     cloud = _read(item.input)
-    pruned, keep, report = remove_statistical_outliers(cloud, config)
+    pruned, keep, report = prune_cloud(cloud, config)  # what `roodi-toolkit prune` runs
     write_output(item.output, lambda tmp: _write(pruned, tmp))
     return {"input_count": report.input_count, "kept": report.kept_count,
-            "removed": report.input_count - report.kept_count, "threshold": report.threshold}
+            "removed": report.input_count - report.kept_count, "mode": report.mode, "threshold": report.threshold}
 
 
 def _convert(item: Item, settings: dict[str, Any]) -> dict[str, Any]:

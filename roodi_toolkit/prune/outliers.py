@@ -35,6 +35,9 @@ from .wasserstein import gaussian_shapes, w2_sq_neighbors
 DISTANCES = ("w2", "euclidean")
 NEIGHBORS = ("centre", "w2")
 RULES = ("robust", "paper", "clip")
+MODES = ("auto", "scene", "object", "statistical")
+VALUE_NAMES = ("x", "y", "z", "opacity", "scale", "min_scale")
+"""Quantities ``value_ranges`` can bound: centre coordinates, linear opacity, largest and smallest linear scale."""
 EXTRA_CANDIDATES = 8
 """Neighbours kept beyond K, so re-evaluating a Gaussian without its flagged neighbours needs no new search."""
 MAD_TO_SIGMA = 1.4826
@@ -65,6 +68,20 @@ class PruneConfig:
         box: keep only centres inside (x0, y0, z0, x1, y1, z1), before the statistics.
         sphere: keep only centres inside (x, y, z, r), before the statistics.
         compute_dtype: float type of the W2 evaluation; float32 is within 1e-6 relative (wasserstein.py) and faster.
+        mode: what :func:`roodi_toolkit.prune.scene.prune_cloud` runs: ``scene`` (local tests: detached pieces and
+            oversized blobs, safe on real scenes), ``object`` (one object: everything detached from the largest
+            piece goes, plus oversized blobs), ``statistical`` (the rule above: robust, paper or clip) or ``auto``
+            (object when the largest piece holds ``object_fraction`` of the Gaussians, scene otherwise).
+            :func:`remove_statistical_outliers` always runs the statistical rule.
+        reach: link distance of the local tests, in sums of the two Gaussians' largest scales.
+        min_cluster: scene mode removes pieces with fewer than this fraction of the Gaussians.
+        blob_score: oversized limit of the local tests (log units, see scene.py).
+        object_fraction: auto picks object mode when the largest piece holds at least this fraction.
+        background: the colour the scene was trained on, whose fog the local modes remove: ``auto`` (detected,
+            see scene.py), ``white``, ``black`` or ``none``.
+        fog_tolerance: a Gaussian is background-coloured when every channel is within this of it.
+        value_ranges: ``((name, low, high), ...)`` keep only Gaussians whose value lies in [low, high]; names in
+            :data:`VALUE_NAMES`, before the statistics.
     """
 
     k: int = 16
@@ -78,8 +95,32 @@ class PruneConfig:
     box: tuple[float, float, float, float, float, float] | None = None
     sphere: tuple[float, float, float, float] | None = None
     compute_dtype: str = "float32"
+    mode: str = "auto"
+    reach: float = 1.5
+    min_cluster: float = 0.001
+    blob_score: float = 0.5
+    object_fraction: float = 0.98
+    value_ranges: tuple[tuple[str, float, float], ...] = ()
+    background: str = "auto"
+    fog_tolerance: float = 0.05
 
     def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        for name, value in (("reach", self.reach), ("blob_score", self.blob_score)):
+            if not np.isfinite(value) or (name == "reach" and value <= 0):
+                raise ConfigError(f"{name} must be a {'positive' if name == 'reach' else 'finite'} number, "
+                                  f"got {value}")
+        if not 0 <= self.min_cluster < 1 or not 0 < self.object_fraction <= 1:
+            raise ConfigError(f"min_cluster must be in [0, 1) and object_fraction in (0, 1], got {self.min_cluster} "
+                              f"and {self.object_fraction}")
+        if self.background not in ("auto", "white", "black", "none") or not 0 <= self.fog_tolerance < 0.5:
+            raise ConfigError(f"background must be auto, white, black or none and fog_tolerance in [0, 0.5), got "
+                              f"{self.background!r} and {self.fog_tolerance}")
+        for entry in self.value_ranges:
+            if len(entry) != 3 or entry[0] not in VALUE_NAMES or not float(entry[1]) <= float(entry[2]):
+                raise ConfigError(f"a value range is (name, low, high) with name in {', '.join(VALUE_NAMES)} and "
+                                  f"low <= high, got {entry}")
         if self.distance not in DISTANCES:
             raise ConfigError(f"distance must be one of {', '.join(DISTANCES)}, got {self.distance!r}")
         if self.rule not in RULES:
@@ -119,7 +160,9 @@ class PruneReport:
 
     Attributes:
         input_count: Gaussians in.
-        stages: ``[(name, removed), ...]`` in order: nonfinite, min_opacity, box, sphere, statistical.
+        stages: ``[(name, removed), ...]`` in order: nonfinite, min_opacity, box, sphere, value ranges, then
+            statistical (statistical mode) or detached and oversized (scene and object modes).
+        mode: the mode that ran (``auto`` resolved) and ``mode_reason`` why.
         kept_count: Gaussians out.
         threshold: final threshold on d_i (units of the distance: W2^2 or plain length).
         thresholds: threshold of every round of the rule (one for ``paper``).
@@ -148,11 +191,15 @@ class PruneReport:
     evaluated: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     mean_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
     first_mean_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mode: str = "statistical"
+    mode_reason: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         """Return a JSON-ready summary (counts per stage, thresholds, timings; no per-Gaussian arrays)."""
         return {
             "input_count": self.input_count,
+            "mode": self.mode,
+            "mode_reason": self.mode_reason,
             "stages": [{"stage": name, "removed": int(n)} for name, n in self.stages],
             "removed_count": self.input_count - self.kept_count,
             "kept_count": self.kept_count,
@@ -181,6 +228,8 @@ def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, 
     Raises:
         CloudError: NaN/Inf rows without ``filter_nan``.
     """
+    from .scene import named_value
+
     n = len(cloud)
     keep = np.ones(n, dtype=bool)
     stages: list[tuple[str, int]] = []
@@ -203,6 +252,12 @@ def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, 
         dist2 = np.sum((cloud.means.astype(np.float64) - c) ** 2, axis=1)
         inside = dist2 <= r * r
         stages.append(("sphere", int((keep & ~inside).sum())))
+        keep &= inside
+    for name, low, high in config.value_ranges:
+        with np.errstate(invalid="ignore"):
+            value = named_value(cloud, name)
+            inside = (value >= low) & (value <= high)
+        stages.append((f"{name} in [{low:g}, {high:g}]", int((keep & ~inside).sum())))
         keep &= inside
     return keep, stages
 

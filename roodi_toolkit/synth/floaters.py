@@ -256,3 +256,70 @@ STANDARD_MIXES: tuple[FloaterMix, ...] = tuple(
         (20_000, 0.02, 0.0, (4.0, 12.0)),      # far floaters only
     ))
 """The mixes the floater benchmark and the target test run (several seeds each)."""
+
+
+SPECK, BLOB = 3, 4
+"""Labels of :func:`plant_floaters` (real content is :data:`OBJECT`)."""
+REAL_LABEL_NAMES = {OBJECT: "real", SPECK: "speck", BLOB: "blob"}
+
+
+def scene_extent(cloud: GaussianCloud) -> tuple[np.ndarray, float, float]:
+    """Return a real cloud's centre ``[3]`` (median of the centres), its 90% radius and its median Gaussian size.
+
+    The size of a Gaussian is the geometric mean of its three scales (the radius of the sphere of equal volume),
+    so flat and round Gaussians compare by how much space they fill.
+    """
+    means = cloud.means.astype(np.float64)
+    centre = np.median(means, axis=0)
+    r90 = float(np.quantile(np.linalg.norm(means - centre, axis=1), 0.9))
+    size = float(np.exp(np.median(cloud.log_scales.astype(np.float64).mean(axis=1))))
+    return centre, r90, size
+
+
+def plant_floaters(cloud: GaussianCloud, seed: int = 0, *, n_specks: int = 300, n_blobs: int = 300,
+                   speck_radius: tuple[float, float] = (1.4, 2.5), blob_size: tuple[float, float] = (10.0, 20.0)
+                   ) -> tuple[GaussianCloud, np.ndarray]:
+    """Return a real cloud with far specks and oversized near-surface blobs planted into it, and labels ``[N]``.
+
+    The recipe of issue 19, scaled to the scene (:func:`scene_extent`):
+
+    - specks: the log-scales of randomly drawn real Gaussians (so the size of the scene's own), centred
+      ``speck_radius`` x the 90% radius from the scene's centre in a uniformly random direction;
+    - blobs: round-ish Gaussians ``blob_size`` x the median Gaussian size (each axis jittered by exp(N(0, 0.2))),
+      centred on a randomly drawn real Gaussian (the surface), random rotation;
+    - both: random colour (SH DC, higher bands zero), opacity logit N(1, 1).
+
+    The real Gaussians keep their order and come first; labels are :data:`OBJECT`, :data:`SPECK`, :data:`BLOB`.
+
+    Example:
+        >>> base = surface_cloud("sphere", 2000, np.random.default_rng(0))[0]
+        >>> planted, labels = plant_floaters(base, seed=0, n_specks=10, n_blobs=20)
+        >>> len(planted), int((labels == SPECK).sum()), int((labels == BLOB).sum())
+        (2030, 10, 20)
+    """
+    rng = np.random.default_rng(seed)
+    n = len(cloud)
+    if n == 0:
+        raise ConfigError("plant_floaters needs a non-empty cloud")
+    finite = np.flatnonzero(~cloud.nonfinite_rows())
+    centre, r90, size = scene_extent(cloud.select(finite))
+    direction = rng.normal(size=(n_specks, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    speck_means = centre + direction * (r90 * rng.uniform(*speck_radius, (n_specks, 1)))
+    speck_scales = np.exp(cloud.log_scales[rng.choice(finite, n_specks)].astype(np.float64))
+    blob_means = cloud.means[rng.choice(finite, n_blobs)].astype(np.float64)
+    blob_scales = size * rng.uniform(*blob_size, (n_blobs, 1)) * np.exp(rng.normal(0, 0.2, (n_blobs, 3)))
+
+    def make(means: np.ndarray, scales: np.ndarray) -> GaussianCloud:
+        m = len(means)
+        part = GaussianCloud.from_activated(means, scales=scales, opacities=np.full(m, 0.5),
+                                            rgb=rng.uniform(0, 1, (m, 3)), quats_wxyz=_random_quats(m, rng),
+                                            sh_degree=cloud.sh_degree)
+        logits = rng.normal(1.0, 1.0, m).astype(np.float32)
+        extras = {name: np.zeros((m,) + v.shape[1:], dtype=v.dtype) for name, v in cloud.extras.items()}
+        normals = None if cloud.normals is None else np.zeros((m, 3), dtype=cloud.normals.dtype)
+        return part.with_fields(opacity_logits=logits, extras=extras, normals=normals)
+
+    out = GaussianCloud.concatenate([cloud, make(speck_means, speck_scales), make(blob_means, blob_scales)])
+    labels = np.concatenate([np.full(n, OBJECT), np.full(n_specks, SPECK), np.full(n_blobs, BLOB)]).astype(np.int8)
+    return out, labels

@@ -1,0 +1,209 @@
+"""The default ``prune`` on real splats: render safety, planted floaters, lego's fog, and speed against Open3D SOR.
+
+Real files come from other tools (``../shared/data``, see its README) or from ``roodi-toolkit train`` on the posed
+datasets there. Until the toolkit reads ``.compressed.ply`` / ``.spz`` itself, decode them with splat-transform
+first (``npx splat-transform biker.compressed.ply /tmp/biker.ply``); opacity logits of +-inf in such a decode are
+mapped to +-20 here (fully opaque / transparent), which is what the reader-side rule is for.
+
+    # safety (8 fixed views, same cameras for both clouds) and 300 + 300 planted floaters, per file
+    .venv/bin/python benchmarks/bench_real_prune.py safety ../shared/data/donut/point_cloud.ply /tmp/biker.ply
+    # lego trained on its white background: alpha IoU on the held-out views (r_0, r_8, ...) against the masks
+    .venv/bin/python benchmarks/bench_real_prune.py fog /work/exp/lego_model/point_cloud/iteration_2000/point_cloud.ply \\
+        ../shared/data/lego
+    # whole command (read, decide, write) against plyfile + Open3D remove_statistical_outlier(16, 2.0) + write
+    .venv/bin/python benchmarks/bench_real_prune.py speed /tmp/biker.ply --repeats 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+OPEN3D_SOR = """
+import sys
+import numpy as np
+import open3d as o3d
+from plyfile import PlyData, PlyElement
+ply = PlyData.read(sys.argv[1])
+v = ply["vertex"].data
+pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.stack([v["x"], v["y"], v["z"]], 1).astype(np.float64)))
+_, kept = pcd.remove_statistical_outlier(nb_neighbors=16, std_ratio=2.0)
+PlyData([PlyElement.describe(v[np.asarray(kept, dtype=np.int64)], "vertex")]).write(sys.argv[2])
+"""
+
+
+def load_real(path: str):
+    """Read a PLY and map +-inf opacity logits to +-20 (see the module docstring)."""
+    from roodi_toolkit.io.ply import read_ply
+
+    cloud = read_ply(path)
+    logits = np.clip(cloud.opacity_logits, -20, 20)
+    return cloud.with_fields(opacity_logits=logits.astype(np.float32))
+
+
+def renders(cloud, cameras, background=(0.0, 0.0, 0.0)) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Return ``[(rgb [H, W, 3], alpha [H, W]), ...]`` of the cloud in each camera."""
+    from roodi_toolkit.render.renderer import render_cloud
+
+    out = []
+    for cam in cameras:
+        r = render_cloud(cloud, cam, background=background)
+        out.append((np.clip(r.rgb.numpy(), 0, 1), r.alpha.numpy()[..., 0]))
+    return out
+
+
+def mean_psnr(a, b) -> float:
+    from roodi_toolkit.evaluate.metrics import psnr
+
+    return float(np.mean([psnr(x[0], y[0]) for x, y in zip(a, b)]))
+
+
+def safety(paths: list[str], size: int, seed: int) -> list[dict]:
+    """Default prune on each real file alone and with 300 specks + 300 blobs planted; renders against the unpruned."""
+    from roodi_toolkit.prune.scene import prune_cloud
+    from roodi_toolkit.render.views import framing_orbit
+    from roodi_toolkit.synth.floaters import BLOB, SPECK, plant_floaters
+
+    rows = []
+    for path in paths:
+        cloud = load_real(path)
+        cameras = framing_orbit(cloud, 8, width=size, height=size)
+        ref = renders(cloud, cameras)
+        t = time.perf_counter()
+        pruned, keep, report = prune_cloud(cloud)
+        seconds = time.perf_counter() - t
+        planted, labels = plant_floaters(cloud, seed)
+        p_pruned, p_keep, p_report = prune_cloud(planted)
+        row = {"file": path, "gaussians": len(cloud), "mode": report.mode, "removed": int((~keep).sum()),
+               "removed_pct": round(100 * float((~keep).mean()), 3), "prune_s": round(seconds, 2),
+               "psnr_pruned_vs_unpruned": round(mean_psnr(ref, renders(pruned, cameras)), 2),
+               "planted_mode": p_report.mode,
+               "specks_removed_pct": round(100 * float((~p_keep[labels == SPECK]).mean()), 1),
+               "blobs_removed_pct": round(100 * float((~p_keep[labels == BLOB]).mean()), 1),
+               "planted_real_removed_pct": round(100 * float((~p_keep[labels == 0]).mean()), 3),
+               "psnr_planted_unpruned_vs_clean": round(mean_psnr(ref, renders(planted, cameras)), 2),
+               "psnr_planted_pruned_vs_clean": round(mean_psnr(ref, renders(p_pruned, cameras)), 2)}
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+    return rows
+
+
+def fog(model: str, data: str, every: int, downscale: float) -> dict:
+    """Alpha IoU (threshold 0.5) of the unpruned and the default-pruned model against lego's masks, held-out views."""
+    from roodi_toolkit.io.datasets import load_cameras
+    from roodi_toolkit.io.files import read_image
+    from roodi_toolkit.prune.scene import prune_cloud
+
+    cloud = load_real(model)
+    def number(name: str) -> int:  # r_8 -> 8
+        return int("".join(ch for ch in name if ch.isdigit()) or 0)
+
+    held = [cam.scaled(1 / downscale) for cam in load_cameras(data) if number(cam.name) % every == 0]
+    pruned, keep, report = prune_cloud(cloud)
+    result = {"model": model, "gaussians": len(cloud), "mode": report.mode, "removed": int((~keep).sum()),
+              "stages": report.to_dict()["stages"], "views": len(held), "size": [held[0].width, held[0].height]}
+    from roodi_toolkit.evaluate.metrics import psnr
+
+    truth = [_truth_on_white(read_image, data, cam) for cam in held]
+    for label, c in (("unpruned", cloud), ("pruned", pruned)):
+        ious = []
+        for cam, (_, alpha) in zip(held, renders(c, held)):
+            mask = _mask(read_image, data, cam)
+            a, m = alpha > 0.5, mask > 0.5
+            ious.append(float((a & m).sum() / max(1, (a | m).sum())))
+        result[f"iou_{label}"] = round(float(np.mean(ious)), 4)
+        # render safety against the ground truth, on the white background the model was trained on
+        white = renders(c, held, background=(1.0, 1.0, 1.0))
+        result[f"psnr_white_vs_truth_{label}"] = round(float(np.mean([psnr(r[0], t) for r, t in zip(white, truth)])), 2)
+    print(json.dumps(result), flush=True)
+    return result
+
+
+def _mask(read_image, data: str, cam) -> np.ndarray:
+    """The dataset's alpha channel for a camera, resized to the camera's size."""
+    import torch
+
+    image = read_image(Path(data) / "train" / f"{cam.name}.png").astype(np.float32)
+    image = image / 255.0 if image.max() > 1.5 else image  # 8-bit PNGs read as 0-255
+    alpha = image[..., 3] if image.shape[-1] == 4 else np.ones(image.shape[:2])
+    t = torch.from_numpy(np.ascontiguousarray(alpha, dtype=np.float32))[None, None]
+    return torch.nn.functional.interpolate(t, size=(cam.height, cam.width), mode="area")[0, 0].numpy()
+
+
+def _truth_on_white(read_image, data: str, cam) -> np.ndarray:
+    """The dataset image composited on white, resized (area) to the camera's size: ``[H, W, 3]``."""
+    import torch
+
+    image = read_image(Path(data) / "train" / f"{cam.name}.png").astype(np.float32)
+    image = image / 255.0 if image.max() > 1.5 else image
+    rgb = image[..., :3] * image[..., 3:4] + (1.0 - image[..., 3:4]) if image.shape[-1] == 4 else image[..., :3]
+    t = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1)))[None]
+    return torch.nn.functional.interpolate(t, size=(cam.height, cam.width), mode="area")[0].numpy().transpose(1, 2, 0)
+
+
+def speed(paths: list[str], repeats: int) -> list[dict]:
+    """Median wall time of the whole default prune command and of the Open3D SOR script, alternated per file."""
+    from roodi_toolkit.io.ply import write_ply
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for path in paths:
+            src = Path(tmp) / "in.ply"
+            write_ply(load_real(path), src)  # finite opacities, so both read the same finite file
+            ours, o3d = [], []
+            for _ in range(repeats):
+                for cmd, times in (([str(Path(sys.executable).parent / "roodi-toolkit"), "prune", str(src),
+                                     str(Path(tmp) / "ours.ply"), "-q", "--overwrite"], ours),
+                                   ([sys.executable, "-c", OPEN3D_SOR, str(src), str(Path(tmp) / "o3d.ply")], o3d)):
+                    t = time.perf_counter()
+                    subprocess.run(cmd, check=True, capture_output=True)
+                    times.append(time.perf_counter() - t)
+            row = {"file": path, "gaussians": _count(src), "ours_s": round(statistics.median(ours), 2),
+                   "open3d_sor_s": round(statistics.median(o3d), 2),
+                   "ratio": round(statistics.median(ours) / statistics.median(o3d), 2)}
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    return rows
+
+
+def _count(path: Path) -> int:
+    from roodi_toolkit.io.ply import read_header
+
+    return int(read_header(path).elements[0].count)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="what", required=True)
+    s = sub.add_parser("safety")
+    s.add_argument("files", nargs="+")
+    s.add_argument("--size", type=int, default=256, help="render size in pixels")
+    s.add_argument("--seed", type=int, default=0)
+    f = sub.add_parser("fog")
+    f.add_argument("model")
+    f.add_argument("data")
+    f.add_argument("--every", type=int, default=8)
+    f.add_argument("--downscale", type=float, default=4, help="render and compare at 1/this of the image size")
+    p = sub.add_parser("speed")
+    p.add_argument("files", nargs="+")
+    p.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    if args.what == "safety":
+        safety(args.files, args.size, args.seed)
+    elif args.what == "fog":
+        fog(args.model, args.data, args.every, args.downscale)
+    else:
+        speed(args.files, args.repeats)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,135 @@
+"""The default prune (local scene/object tests): planted floaters in a real splat, synthetic mixes, modes, filters,
+and the ``prune`` command's --mode, --dry-run and --filter-value."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.io.ply import read_ply, write_ply
+from roodi_toolkit.prune.outliers import PruneConfig, remove_statistical_outliers
+from roodi_toolkit.prune.scene import prune_cloud
+from roodi_toolkit.synth.floaters import (BLOB, FAR, NEAR, OBJECT, SPECK, FloaterMix, plant_floaters,
+                                          planted_floater_cloud, scene_extent)
+
+# ../shared/data from the project root; a git worktree under /work/wt/NAME has it one level further up
+_ROOT = Path(__file__).resolve().parents[1]
+DATA = next((p for p in (_ROOT.parent / "shared" / "data", _ROOT.parent.parent / "shared" / "data") if p.exists()),
+            _ROOT.parent / "shared" / "data")
+DONUT = DATA / "donut" / "point_cloud.ply"
+
+
+@pytest.fixture(scope="module")
+def donut():
+    if not DONUT.exists():
+        pytest.skip(f"real data not found at {DONUT} (see ../shared/data/README.md)")
+    return read_ply(DONUT)
+
+
+def test_planted_floaters_in_the_real_donut_are_removed_and_its_content_kept(donut):
+    planted, labels = plant_floaters(donut, seed=0)
+    assert (labels == SPECK).sum() == 300 and (labels == BLOB).sum() == 300
+    np.testing.assert_array_equal(planted.means[:len(donut)], donut.means)
+    _, keep, report = prune_cloud(planted)
+    assert report.mode == "object" and "largest connected piece" in report.mode_reason
+    assert (~keep[labels == SPECK]).mean() >= 0.95
+    assert (~keep[labels == BLOB]).mean() >= 0.95
+    # the paper's rule removes 5.1% of this donut; the local tests well under 1% (its own detached specks)
+    assert (~keep[labels == OBJECT]).mean() < 0.005
+
+
+def test_plant_floaters_follows_the_recipe(donut):
+    centre, r90, size = scene_extent(donut)
+    planted, labels = plant_floaters(donut, seed=3, n_specks=50, n_blobs=40)
+    radius = np.linalg.norm(planted.means[labels == SPECK] - centre, axis=1) / r90
+    assert radius.min() >= 1.4 - 1e-4 and radius.max() <= 2.5 + 1e-4
+    blob_size = np.exp(planted.log_scales[labels == BLOB].astype(np.float64).mean(axis=1)) / size
+    assert 7 < np.median(blob_size) < 22
+    assert abs(float(planted.opacity_logits[labels != OBJECT].mean()) - 1.0) < 0.35
+
+
+@pytest.mark.parametrize("surface", ["sphere", "torus"])
+def test_default_prune_on_synthetic_mixes(surface):
+    planted = planted_floater_cloud(FloaterMix(surface, n_object=8000, far_fraction=0.01, near_fraction=0.01), 1)
+    _, keep, report = prune_cloud(planted.cloud)
+    labels = planted.labels
+    assert (~keep[labels == OBJECT]).mean() <= 0.01
+    assert (~keep[labels == FAR]).mean() >= 0.9
+    assert (~keep[labels == NEAR]).mean() >= 0.95
+    assert [name for name, _ in report.stages[-3:]] == ["detached", "oversized", "fog"]
+    assert dict(report.stages)["fog"] == 0  # no white or black fog in these clouds
+
+
+def test_object_mode_drops_a_second_piece_scene_mode_keeps_it():
+    a = planted_floater_cloud(FloaterMix("sphere", n_object=3000, far_fraction=0, near_fraction=0), 0).cloud
+    b = planted_floater_cloud(FloaterMix("torus", n_object=600, far_fraction=0, near_fraction=0), 1).cloud
+    both = type(a).concatenate([a, b.with_fields(means=b.means + np.float32(5.0))])  # a second, detached object
+    _, keep, report = prune_cloud(both)
+    assert report.mode == "scene" and keep.mean() > 0.99
+    _, keep, report = prune_cloud(both, mode="object")
+    assert report.mode == "object" and not keep[3000:].any() and keep[:3000].mean() > 0.99
+
+
+def test_statistical_mode_is_the_unchanged_rule():
+    planted = planted_floater_cloud(FloaterMix("torus", n_object=3000), seed=0)
+    for rule in ("paper", "robust"):
+        _, keep, report = prune_cloud(planted.cloud, mode="statistical", rule=rule)
+        _, expected, _ = remove_statistical_outliers(planted.cloud, rule=rule)
+        np.testing.assert_array_equal(keep, expected)
+        assert report.mode == "statistical"
+
+
+def test_value_ranges_filter_before_the_tests():
+    cloud = planted_floater_cloud(FloaterMix("sphere", n_object=2000, far_fraction=0, near_fraction=0), 0).cloud
+    _, keep, report = prune_cloud(cloud, value_ranges=(("z", 0.0, 10.0), ("opacity", 0.7, 1.0)))
+    z_ok = cloud.means[:, 2] >= 0
+    assert not keep[~z_ok].any() and not keep[cloud.opacities < 0.7].any()
+    stages = dict(report.stages)
+    assert stages["z in [0, 10]"] == int((~z_ok).sum())
+    with pytest.raises(ConfigError, match="value range"):
+        PruneConfig(value_ranges=(("colour", 0, 1),))
+    with pytest.raises(ConfigError, match="mode"):
+        PruneConfig(mode="fast")
+
+
+def test_cli_dry_run_writes_report_and_picture_only(run_cli, tmp_path):
+    planted = planted_floater_cloud(FloaterMix("sphere", n_object=3000), 0)
+    src = tmp_path / "in.ply"
+    write_ply(planted.cloud, src)
+    out = tmp_path / "clean.ply"
+    res = run_cli("prune", src, out, "--dry-run")
+    assert res.exit_code == 0, res.stderr
+    assert "would keep" in res.stdout and "mode object" in res.stdout
+    assert not out.exists()
+    summary = json.loads((tmp_path / "clean.prune.json").read_text())
+    assert summary["dry_run"] and summary["mode"] == "object" and summary["output"] is None
+    assert (tmp_path / "clean.prune.png").stat().st_size > 1000
+    res = run_cli("prune", src, out, "--rule", "paper", "--report", tmp_path / "r.json")
+    assert res.exit_code == 0 and "mode statistical" in res.stdout
+    assert json.loads((tmp_path / "r.json").read_text())["config"]["rule"] == "paper"
+    res = run_cli("prune", src, out, "--overwrite", "--filter-value", "size,0,1")
+    assert res.exit_code == 2 and "--filter-value" in res.stderr
+    res = run_cli("prune", src, out, "--overwrite", "--filter-value", "scale,0,0.5", "--mode", "scene")
+    assert res.exit_code == 0, res.stderr
+    assert (read_ply(out).scales.max(axis=1) <= 0.5).all()
+
+
+def test_white_background_fog_is_detected_and_removed():
+    planted = planted_floater_cloud(FloaterMix("sphere", n_object=4000, far_fraction=0, near_fraction=0), 2)
+    rng = np.random.default_rng(0)
+    n = 600  # a faint white haze around the object, as training on a white background leaves
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    haze = type(planted.cloud).from_activated(direction * rng.uniform(1.4, 2.6, (n, 1)),
+                                              scales=np.full((n, 3), 0.05), opacities=rng.uniform(0.005, 0.05, n),
+                                              rgb=np.ones((n, 3)))
+    cloud = type(haze).concatenate([planted.cloud, haze])
+    _, keep, report = prune_cloud(cloud)
+    assert not keep[4000:].any() and keep[:4000].mean() > 0.99
+    assert "white-background fog" in report.mode_reason
+    _, keep, report = prune_cloud(cloud, background="none", mode="scene")
+    assert dict(report.stages)["fog"] == 0
