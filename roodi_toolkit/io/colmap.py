@@ -24,8 +24,8 @@ import numpy as np
 from ..cameras import Camera, qvec_to_rotmat, rotmat_to_qvec
 from ..errors import DatasetError, RoodiError, UnsupportedFormatError
 from ..progress import ProgressFactory, null_progress
-from .dataset import (LLFF_HOLD, Dataset, _check_background, _check_downscale, _composite, _downscale_dataset,
-                      _find_colmap_sparse, _read_rgb, _SameSize, estimate_bounds)
+from .dataset import (LLFF_HOLD, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
+                      _find_colmap_sparse, _image_size, _plan_crop, _ViewStack, estimate_bounds)
 from .files import atomic_path
 
 __all__ = [
@@ -499,9 +499,16 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
                 progress: ProgressFactory = null_progress) -> Dataset:
     """Return a COLMAP dataset: ``sparse/0`` model (binary or text) and the images in ``images/``.
 
+    Every camera keeps its own intrinsics. Images of slightly different sizes (COLMAP's undistorter writes each at its
+    own size) are cut to the smallest width and height, centred, with each principal point shifted by its crop
+    offset, so the geometry stays exact; ``metadata["crop"]`` records the common size and every cropped image's size
+    and offset. More than 10% of an image's width or height to discard is refused. Each image is decoded and reduced
+    one at a time, so memory follows the loaded size, not the photos'.
+
     Args:
         path: the dataset folder (holding ``sparse/0`` or ``sparse``, and ``images``).
-        downscale: divide the resolution by this factor (>= 1).
+        downscale: divide the resolution by this factor (>= 1); for 2, 4 or 8 the ``images_2``/``_4``/``_8`` folder
+            is read instead when it holds every image at that reduced size (``metadata["images_dir"]`` says which).
         background: RGB in [0, 1] for transparent pixels (default black).
         test_every: every ``test_every``-th image in name order (index % test_every == 0) is a test view, as 3DGS's
             ``llffhold``; 0 makes every image a training view.
@@ -509,7 +516,8 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
         progress: progress factory.
 
     Raises:
-        DatasetError: missing model or images, malformed files, unsupported camera model, inconsistent sizes.
+        DatasetError: missing model or images, malformed files, unsupported camera model, sizes differing by more
+            than 10%.
     """
     root = Path(path)
     if not root.is_dir():
@@ -528,33 +536,70 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
     img_root = root / images_dir
     if not img_root.is_dir():
         raise DatasetError(f"{root}: images folder {images_dir!r} not found")
-    rgbs, alphas, cameras = [], [], []
-    same_size = _SameSize()
+    for cam, img in pairs:
+        if not (img_root / img.name).is_file():
+            raise DatasetError(f"{img_root / img.name}: image of COLMAP image {img.id} ({img.name!r}) not found")
+    img_root, d = _reduced_images(root, images_dir, pairs, d)
+    paths = [img_root / img.name for _, img in pairs]
+    sizes = [_image_size(path) for path in paths]
+    crop = _plan_crop(paths, sizes)
+    out_w, out_h = _downscaled_size(crop.width, crop.height, d)
+    stack = _ViewStack(crop, (out_w, out_h), bg)
+    cameras = []
     with progress(total=len(pairs), desc="load images") as bar:
-        for cam, img in pairs:
-            image_path = img_root / img.name
-            if not image_path.is_file():
-                raise DatasetError(f"{image_path}: image of COLMAP image {img.id} ({img.name!r}) not found")
-            rgb, alpha = _read_rgb(image_path)
-            h, w = rgb.shape[:2]
-            same_size(image_path, w, h)
-            if (w, h) != (cam.width, cam.height):
-                # images already resized on disk (e.g. the images_2 folders of 3DGS): scale the intrinsics
-                cam = cam.with_size(w, h)
-            rgbs.append(rgb)
-            alphas.append(alpha)
+        for i, ((cam, img), path) in enumerate(zip(pairs, paths)):
+            if sizes[i] != (cam.width, cam.height):
+                _check_reduced(path, sizes[i], cam, img.camera_id)
+                # images already reduced on disk (e.g. the images_2 folders of 3DGS): scale the intrinsics
+                cam = cam.with_size(*sizes[i])
+            cam = _crop_camera(cam, crop.offsets[i], crop.width, crop.height)
+            if (out_w, out_h) != (crop.width, crop.height):
+                cam = cam.with_size(out_w, out_h)
+            stack.add(path, i)
             cameras.append(cam)
             bar.update(1)
-    images_t, alpha_t = _composite(rgbs, alphas, bg)
+    images_t, alpha_t = stack.images()
     hold = int(test_every)
     splits = ["test" if hold > 0 and i % hold == 0 else "train" for i in range(len(cameras))]
     points = model.points.xyz if len(model.points.ids) else None
     colors = model.points.rgb if len(model.points.ids) else None
     bounds = estimate_bounds(cameras, points)
-    ds = Dataset(images=images_t, cameras=cameras, splits=splits, background=bg,
-                 bounds=bounds, alphas=alpha_t, points=points, point_colors=colors, root=root, format="colmap",
-                 metadata={"sparse": str(sparse), "camera_models": sorted({c.model for c in model.cameras.values()})})
-    return _downscale_dataset(ds, d)
+    metadata: dict[str, Any] = {"sparse": str(sparse), "images_dir": img_root.name,
+                                "camera_models": sorted({c.model for c in model.cameras.values()})}
+    if float(downscale) != 1:
+        metadata["downscale"] = float(downscale)
+    if crop.cropped:
+        metadata["crop"] = crop.record([c.name for c in cameras], sizes)
+    return Dataset(images=images_t, cameras=cameras, splits=splits, background=bg, bounds=bounds, alphas=alpha_t,
+                   points=points, point_colors=colors, root=root, format="colmap", metadata=metadata)
+
+
+def _check_reduced(path: Path, size: tuple[int, int], cam: Camera, camera_id: int) -> None:
+    """Refuse an image whose size is not its camera's nor a reduced copy of it (same aspect to within a pixel)."""
+    w, h = size
+    if w > cam.width or h > cam.height or abs(cam.height * w / cam.width - h) > 1:
+        raise DatasetError(f"{path}: image is {w}x{h} but its COLMAP camera {camera_id} is {cam.width}x{cam.height} "
+                           "(neither that size nor a reduced copy of it); the images do not belong to this model")
+
+
+def _reduced_images(root: Path, images_dir: str, pairs: list[tuple[Camera, ColmapImage]],
+                    downscale: float) -> tuple[Path, float]:
+    """Return the folder to read and the downscale left to apply: ``images_2``/``_4``/``_8`` (3DGS's pre-reduced
+    copies) when ``downscale`` is that factor, the folder holds every image, and each is the reduced size of its
+    camera to within a pixel; else ``images_dir`` and ``downscale`` unchanged."""
+    if images_dir != "images" or downscale not in (2.0, 4.0, 8.0):
+        return root / images_dir, downscale
+    reduced = root / f"images_{int(downscale)}"
+    if not reduced.is_dir():
+        return root / images_dir, downscale
+    for cam, img in pairs:
+        path = reduced / img.name
+        if not path.is_file():
+            return root / images_dir, downscale
+        w, h = _image_size(path)
+        if abs(w - cam.width / downscale) > 1 or abs(h - cam.height / downscale) > 1:
+            return root / images_dir, downscale
+    return reduced, 1.0
 
 
 def colmap_model_from_cameras(cameras: Sequence[Camera], image_names: Sequence[str],

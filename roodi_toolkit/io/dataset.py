@@ -261,19 +261,118 @@ def _read_rgb(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     return _to_float_image(_read_dataset_image(path), path)
 
 
-class _SameSize:
-    """Remembers the first image's size and refuses an image of any other size."""
+MAX_CROP_FRACTION = 0.10  # most of an image's width or height that cropping to a common size may discard
 
-    def __init__(self) -> None:
-        self.size: tuple[int, int] | None = None
-        self.first: Path | None = None
 
-    def __call__(self, path: Path, width: int, height: int) -> None:
-        if self.size is None:
-            self.size, self.first = (width, height), path
-        elif self.size != (width, height):
-            raise DatasetError(f"{path}: image is {width}x{height} but {self.first} is {self.size[0]}x{self.size[1]}; "
-                               "all images of a dataset must have the same size")
+@dataclass(frozen=True)
+class _Crop:
+    """The common image size of a dataset whose images differ slightly in size, and each image's centred crop.
+
+    COLMAP's undistorter writes every image at its own size (656 to 662 px high for one capture, say); the
+    :class:`Dataset` holds one ``[N, H, W, 3]`` tensor, so each image is cut to the smallest width and height, centred,
+    and its principal point moved by the same offset: the geometry stays exact, only border pixels are lost.
+    """
+
+    width: int
+    height: int
+    offsets: tuple[tuple[int, int], ...]  # per image (x0, y0) of the crop in its own pixels
+
+    @property
+    def cropped(self) -> bool:
+        return any(o != (0, 0) for o in self.offsets)
+
+    def record(self, names: Sequence[str], sizes: Sequence[tuple[int, int]]) -> dict[str, Any]:
+        """Return the metadata entry naming the common size and each cropped image's original size and offset."""
+        return {"size": [self.width, self.height],
+                "images": {n: {"size": list(s), "offset": list(o)}
+                           for n, s, o in zip(names, sizes, self.offsets) if o != (0, 0)}}
+
+
+def _plan_crop(paths: Sequence[Path], sizes: Sequence[tuple[int, int]],
+               max_fraction: float = MAX_CROP_FRACTION) -> _Crop:
+    """Return the centred crop of every image to the smallest width and height among ``sizes`` (width, height).
+
+    Raises:
+        DatasetError: the crop would discard more than ``max_fraction`` of some image's width or height (images of
+            really different sizes, not one capture's undistorted frames).
+    """
+    w0 = min(w for w, _ in sizes)
+    h0 = min(h for _, h in sizes)
+    for path, (w, h) in zip(paths, sizes):
+        if (w - w0) > max_fraction * w or (h - h0) > max_fraction * h:
+            raise DatasetError(f"{path}: image is {w}x{h} but the dataset's smallest images are {w0} wide and {h0} "
+                               f"high; images of one dataset may differ in size by at most {max_fraction:.0%} (they "
+                               "are cropped to the common size): resize them to one size first")
+    return _Crop(w0, h0, tuple(((w - w0) // 2, (h - h0) // 2) for w, h in sizes))
+
+
+def _crop_camera(cam: Camera, offset: tuple[int, int], width: int, height: int) -> Camera:
+    """Return ``cam`` for its image cut to ``width`` x ``height`` starting at pixel ``offset`` (x0, y0)."""
+    if offset == (0, 0) and (cam.width, cam.height) == (width, height):
+        return cam
+    K = cam.K.copy()
+    K[0, 2] -= offset[0]
+    K[1, 2] -= offset[1]
+    return Camera(cam.world_to_camera, K, width, height, cam.near, cam.far, cam.name)
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    """Return an image file's (width, height) from its header, without decoding it."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as img:
+            return int(img.size[0]), int(img.size[1])
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: image not found") from None
+    except (UnidentifiedImageError, OSError) as exc:
+        raise DatasetError(f"{path}: cannot read image ({exc})") from None
+
+
+class _ViewStack:
+    """Decodes a dataset's images one at a time straight to the training size, so memory follows that size.
+
+    Each image is composited on the background at full resolution (alpha and colour area-averaged afterwards give the
+    same result as averaging first, as compositing is linear), cut to the common size (:class:`_Crop`) and
+    area-resized to ``size``; masks and depths are resized with nearest-exact sampling. Only one full-size image is in
+    memory at a time.
+    """
+
+    def __init__(self, crop: _Crop, size: tuple[int, int], background: Sequence[float]) -> None:
+        self.crop, self.size = crop, size  # size: (width, height) after downscaling
+        self.bg = np.asarray(background, np.float32)
+        self.rgbs: list[torch.Tensor] = []
+        self.alphas: list[torch.Tensor | None] = []
+        self.masks: list[torch.Tensor | None] = []
+        self.depths: list[torch.Tensor | None] = []
+
+    def _fit(self, arr: np.ndarray, index: int, mode: str) -> torch.Tensor:
+        x0, y0 = self.crop.offsets[index]
+        arr = arr[y0:y0 + self.crop.height, x0:x0 + self.crop.width]
+        t = torch.from_numpy(np.ascontiguousarray(arr))
+        w, h = self.size
+        if (w, h) == (self.crop.width, self.crop.height):
+            return t
+        return _resize_stack(t[None], (h, w), mode)[0]
+
+    def add(self, path: Path, index: int, mask: np.ndarray | None = None, depth: np.ndarray | None = None) -> None:
+        """Decode ``path`` (view ``index``) and keep it at the reduced size, with its mask and depth if given."""
+        rgb, alpha = _read_rgb(path)
+        if alpha is not None:
+            rgb = rgb * alpha[..., None] + self.bg * (1.0 - alpha[..., None])
+        self.rgbs.append(self._fit(rgb.astype(np.float32), index, "area"))
+        self.alphas.append(None if alpha is None else self._fit(alpha.astype(np.float32), index, "area"))
+        self.masks.append(None if mask is None else self._fit(mask, index, "nearest"))
+        self.depths.append(None if depth is None else self._fit(depth, index, "nearest"))
+
+    def images(self) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Return images ``[N, h, w, 3]`` and alphas ``[N, h, w]`` (ones for views without alpha), or None."""
+        images = torch.stack(self.rgbs)
+        self.rgbs = []
+        if all(a is None for a in self.alphas):
+            return images, None
+        ones = torch.ones(self.size[1], self.size[0], dtype=torch.float32)
+        return images, torch.stack([ones if a is None else a for a in self.alphas])
 
 
 def _read_dataset_image(path: Path) -> np.ndarray:
@@ -334,17 +433,6 @@ def _check_downscale(downscale: float) -> float:
     return d
 
 
-def _composite(rgbs: list[np.ndarray], alphas: list[np.ndarray | None],
-               background: Sequence[float]) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Return images ``[N, H, W, 3]`` composited on ``background`` where they had alpha, and the alphas (or None)."""
-    images = np.stack(rgbs)
-    if not any(a is not None for a in alphas):
-        return torch.from_numpy(images.astype(np.float32)), None
-    alpha = np.stack([a if a is not None else np.ones(rgbs[0].shape[:2], np.float32) for a in alphas])
-    images = images * alpha[..., None] + np.asarray(background, np.float32) * (1.0 - alpha[..., None])
-    return torch.from_numpy(images.astype(np.float32)), torch.from_numpy(alpha.astype(np.float32))
-
-
 def _check_background(bg: Any, where: Path) -> tuple[float, float, float]:
     try:
         vals = tuple(float(v) for v in bg)
@@ -353,19 +441,6 @@ def _check_background(bg: Any, where: Path) -> tuple[float, float, float]:
     if len(vals) != 3 or not all(0.0 <= v <= 1.0 for v in vals):
         raise DatasetError(f"{where}: background must be three numbers in [0, 1], got {bg!r}")
     return vals  # type: ignore[return-value]
-
-
-def _downscale_dataset(ds: Dataset, downscale: float) -> Dataset:
-    if downscale == 1:
-        return ds
-    w, h = _downscaled_size(ds.width, ds.height, downscale)
-    images = _resize_stack(ds.images, (h, w), "area")
-    alphas = None if ds.alphas is None else _resize_stack(ds.alphas, (h, w), "area")
-    masks = None if ds.masks is None else _resize_stack(ds.masks, (h, w), "nearest")
-    depths = None if ds.depths is None else _resize_stack(ds.depths, (h, w), "nearest")
-    cameras = [c.with_size(w, h) for c in ds.cameras]
-    meta = dict(ds.metadata, downscale=downscale)
-    return replace(ds, images=images, alphas=alphas, masks=masks, depths=depths, cameras=cameras, metadata=meta)
 
 
 def estimate_bounds(cameras: Sequence[Camera], points: np.ndarray | None = None) -> np.ndarray:
