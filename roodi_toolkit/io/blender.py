@@ -131,14 +131,32 @@ def load_blender_cameras(path: Path, splits: Sequence[str] | None = None) -> lis
     cams: list[Camera] = []
     for json_path, split in _blender_json_files(path, splits):
         meta = _read_transforms(json_path)
+        size = _stated_size(json_path, meta)
         for frame_idx, frame in enumerate(meta["frames"]):
-            image_path = _frame_image_path(json_path, frame, frame_idx)
-            if "w" in meta and "h" in meta:
-                size = (int(meta["w"]), int(meta["h"]))
+            if size is not None:
+                # the file states the size (nerfstudio's and our w/h keys): the images need not exist
+                if not isinstance(frame, dict) or "file_path" not in frame:
+                    raise DatasetError(f"{json_path}: frame {frame_idx} has no 'file_path'")
+                cams.append(_blender_camera(json_path, meta, frame, frame_idx, size, Path(str(frame["file_path"])).stem))
             else:
-                size = _image_size(image_path)
-            cams.append(_blender_camera(json_path, meta, frame, frame_idx, size, image_path.stem))
+                image_path = _frame_image_path(json_path, frame, frame_idx)
+                cams.append(_blender_camera(json_path, meta, frame, frame_idx, _image_size(image_path),
+                                            image_path.stem))
     return cams
+
+
+def _stated_size(json_path: Path, meta: dict[str, Any]) -> tuple[int, int] | None:
+    """Return the (width, height) a transforms file states with its ``w`` and ``h`` keys, or None."""
+    if "w" not in meta or "h" not in meta:
+        return None
+    try:
+        w, h = int(meta["w"]), int(meta["h"])
+    except (TypeError, ValueError):
+        raise DatasetError(f"{json_path}: 'w' and 'h' must be whole numbers, got {meta['w']!r} and {meta['h']!r}") \
+            from None
+    if w <= 0 or h <= 0:
+        raise DatasetError(f"{json_path}: 'w' and 'h' must be positive, got {w} and {h}")
+    return w, h
 
 
 def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: Sequence[float] | None = None,
