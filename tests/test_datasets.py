@@ -290,3 +290,104 @@ def test_estimate_bounds_from_cameras_contains_the_focus() -> None:
     b = estimate_bounds(cams)
     assert np.all(b[0] < [0.5, 0.0, 0.2]) and np.all(b[1] > [0.5, 0.0, 0.2])
     assert np.all(b[1] - b[0] < 6)
+
+
+# ------------------------------------------------------------------------------------------- real-capture sizes
+
+
+def _sized_colmap(root: Path, heights: list[int], width: int = W) -> list[np.ndarray]:
+    """A COLMAP fixture with one PINHOLE camera per image, each image its own height (as the undistorter writes)."""
+    cams = []
+    for i, h in enumerate(heights):
+        c = _cams(len(heights), width, h)[i]
+        K = c.K.copy()
+        K[1, 2] += 0.25 * i  # distinct principal points, so each camera's own intrinsics are checked
+        cams.append(Camera(c.world_to_camera, K, width, h, name=c.name))
+    names = [f"img_{i:02d}.png" for i in range(len(heights))]
+    (root / "sparse" / "0").mkdir(parents=True)
+    write_colmap_model(colmap_model_from_cameras(cams, names), root / "sparse" / "0")
+    (root / "images").mkdir()
+    imgs = []
+    for i, (name, h) in enumerate(zip(names, heights)):
+        img = _rgba(i, width, h)[..., :3]
+        write_image(img, root / "images" / name)
+        imgs.append(img)
+    return imgs
+
+
+def test_colmap_images_of_different_sizes_are_cropped_centred(tmp_path: Path) -> None:
+    heights = [40, 44, 41]
+    imgs = _sized_colmap(tmp_path, heights, width=30)
+    model = read_colmap_model(tmp_path / "sparse" / "0")
+    ds = load_colmap(tmp_path, test_every=0)
+    assert ds.images.shape == (3, 40, 30, 3)
+    assert ds.metadata["crop"] == {"size": [30, 40], "images": {"img_01": {"size": [30, 44], "offset": [0, 2]},
+                                                                 "img_02": {"size": [30, 41], "offset": [0, 0]}}}
+    for i, (img, cam) in enumerate(zip(imgs, ds.cameras)):
+        y0 = (heights[i] - 40) // 2
+        np.testing.assert_allclose(ds.images[i].numpy(), img[y0:y0 + 40].astype(np.float32) / 255, atol=1e-6)
+        ref = model.cameras[model.images[i + 1].camera_id]
+        # the principal point moves with the crop; the focal lengths stay
+        np.testing.assert_allclose(cam.K[1, 2], ref.params[3] - y0)
+        np.testing.assert_allclose(cam.K[0, 0], ref.params[0])
+        # the geometry is exact: a 3D point lands on the same image content before and after the crop
+        uv, _ = cam.project(np.array([[0.1, -0.2, 0.3]]))
+        full = Camera(cam.world_to_camera, np.array([[ref.params[0], 0, ref.params[2]], [0, ref.params[1],
+                                                                                         ref.params[3]], [0, 0, 1]]),
+                      30, heights[i])
+        np.testing.assert_allclose(full.project(np.array([[0.1, -0.2, 0.3]]))[0] - uv, [[0, y0]], atol=1e-9)
+    # downscaled: the same crop, then the reduction, decoded one image at a time
+    half = load_colmap(tmp_path, 2, test_every=0)
+    assert half.images.shape == (3, 20, 15, 3) and half.metadata["downscale"] == 2
+    ref = torch.nn.functional.interpolate(ds.images.permute(0, 3, 1, 2), size=(20, 15), mode="area")
+    torch.testing.assert_close(half.images, ref.permute(0, 2, 3, 1))
+    np.testing.assert_allclose(half.cameras[1].K, ds.cameras[1].with_size(15, 20).K)
+
+
+def test_colmap_refuses_sizes_too_different_to_crop(tmp_path: Path) -> None:
+    _sized_colmap(tmp_path, [40, 50])
+    with pytest.raises(DatasetError, match=r"img_01.png: image is 16x50 but .* smallest images are 16 wide and 40 "
+                                           r"high.* at most 10%"):
+        load_colmap(tmp_path)
+
+
+def test_colmap_reads_images_n_folders_when_they_match(tmp_path: Path) -> None:
+    _colmap_fixture(tmp_path, n=3, binary=True)
+    full = load_colmap(tmp_path, 2, test_every=0)
+    (tmp_path / "images_2").mkdir()
+    marked = []
+    for i in range(3):
+        img = np.full((H // 2, W // 2, 3), 40 * (i + 1), np.uint8)  # unlike the reduced originals
+        write_image(img, tmp_path / "images_2" / f"img_{i:02d}.png")
+        marked.append(img)
+    ds = load_colmap(tmp_path, 2, test_every=0)
+    assert ds.metadata["images_dir"] == "images_2"
+    np.testing.assert_allclose(ds.images[1].numpy(), marked[1] / 255.0, atol=1e-6)
+    np.testing.assert_allclose(ds.cameras[1].K, full.cameras[1].K)
+    # not every image there: the originals are reduced instead
+    (tmp_path / "images_2" / "img_02.png").unlink()
+    ds = load_colmap(tmp_path, 2, test_every=0)
+    assert ds.metadata["images_dir"] == "images"
+    torch.testing.assert_close(ds.images, full.images)
+
+
+def test_blender_downscale_decodes_to_the_same_result(tmp_path: Path) -> None:
+    _blender_fixture(tmp_path, masks=True)
+    full, half = load_dataset(tmp_path), load_dataset(tmp_path, 2)
+    area = lambda t: torch.nn.functional.interpolate(t.permute(0, 3, 1, 2), size=(H // 2, W // 2), mode="area")
+    torch.testing.assert_close(half.images, area(full.images).permute(0, 2, 3, 1))
+    torch.testing.assert_close(half.alphas, area(full.alphas[..., None])[:, 0])
+    assert half.masks.shape == (5, H // 2, W // 2) and half.masks.dtype == torch.int64
+
+
+def test_blender_cameras_without_images_when_the_file_states_the_size(tmp_path: Path) -> None:
+    fx = _blender_fixture(tmp_path)
+    for p in (tmp_path / "train").iterdir():
+        p.unlink()
+    cams = load_cameras(tmp_path, splits=["train"])
+    assert [c.name for c in cams] == ["r_0", "r_1", "r_2"]
+    for c, ref in zip(cams, fx["train"][0]):
+        assert (c.width, c.height) == (W, H)
+        np.testing.assert_allclose(c.K, ref.K)
+    with pytest.raises(DatasetError, match="frame 0 image not found .*r_0.png"):
+        load_dataset(tmp_path)

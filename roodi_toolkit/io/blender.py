@@ -255,7 +255,7 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
     if d != 1:
         metadata["downscale"] = d
     if crop.cropped:
-        metadata["crop"] = crop.record([c.name for c in cameras], sizes)
+        metadata["crop"] = crop.record([c.name for c in cameras])
     return Dataset(images=images_t, cameras=cameras, splits=split_labels, background=bg, bounds=bounds, alphas=alpha_t,
                  masks=mask_t, depths=depth_t, root=p if p.is_dir() else p.parent, format="blender",
                  metadata=metadata)

@@ -569,7 +569,7 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
     if float(downscale) != 1:
         metadata["downscale"] = float(downscale)
     if crop.cropped:
-        metadata["crop"] = crop.record([c.name for c in cameras], sizes)
+        metadata["crop"] = crop.record([c.name for c in cameras])
     return Dataset(images=images_t, cameras=cameras, splits=splits, background=bg, bounds=bounds, alphas=alpha_t,
                    points=points, point_colors=colors, root=root, format="colmap", metadata=metadata)
 

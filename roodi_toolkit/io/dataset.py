@@ -276,16 +276,18 @@ class _Crop:
     width: int
     height: int
     offsets: tuple[tuple[int, int], ...]  # per image (x0, y0) of the crop in its own pixels
+    sizes: tuple[tuple[int, int], ...]  # per image its own (width, height)
 
     @property
     def cropped(self) -> bool:
-        return any(o != (0, 0) for o in self.offsets)
+        """Whether any image is cut."""
+        return any(s != (self.width, self.height) for s in self.sizes)
 
-    def record(self, names: Sequence[str], sizes: Sequence[tuple[int, int]]) -> dict[str, Any]:
-        """Return the metadata entry naming the common size and each cropped image's original size and offset."""
+    def record(self, names: Sequence[str]) -> dict[str, Any]:
+        """Return the metadata entry naming the common size and each cut image's own size and crop offset."""
         return {"size": [self.width, self.height],
-                "images": {n: {"size": list(s), "offset": list(o)}
-                           for n, s, o in zip(names, sizes, self.offsets) if o != (0, 0)}}
+                "images": {n: {"size": list(s), "offset": list(o)} for n, s, o in zip(names, self.sizes, self.offsets)
+                           if s != (self.width, self.height)}}
 
 
 def _plan_crop(paths: Sequence[Path], sizes: Sequence[tuple[int, int]],
@@ -303,7 +305,8 @@ def _plan_crop(paths: Sequence[Path], sizes: Sequence[tuple[int, int]],
             raise DatasetError(f"{path}: image is {w}x{h} but the dataset's smallest images are {w0} wide and {h0} "
                                f"high; images of one dataset may differ in size by at most {max_fraction:.0%} (they "
                                "are cropped to the common size): resize them to one size first")
-    return _Crop(w0, h0, tuple(((w - w0) // 2, (h - h0) // 2) for w, h in sizes))
+    return _Crop(w0, h0, tuple(((w - w0) // 2, (h - h0) // 2) for w, h in sizes),
+                 tuple((int(w), int(h)) for w, h in sizes))
 
 
 def _crop_camera(cam: Camera, offset: tuple[int, int], width: int, height: int) -> Camera:

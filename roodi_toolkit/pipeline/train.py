@@ -439,10 +439,12 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
         if iterations_override is not None:
             config = replace(config, iterations=iterations_override)
     else:
-        files.prepare_output_dir(out, overwrite=overwrite)
         state = None
     if dataset is None:
         dataset = load_dataset(data_dir, downscale)
+    if not resume:
+        # after the dataset is read, so that a bad dataset leaves nothing behind, not even an empty folder
+        files.prepare_output_dir(out, overwrite=overwrite)
     trainer = make_trainer(dataset, config) if make_trainer else Trainer(dataset, config, renderer=renderer)
     if state is not None:
         trainer.load_state_dict(state)
