@@ -21,7 +21,7 @@ from ..cameras import Camera, opengl_c2w_to_w2c, w2c_to_opengl_c2w
 from ..errors import DatasetError, RoodiError
 from ..progress import ProgressFactory, null_progress
 from .dataset import (SPLITS, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
-                      _image_size, _plan_crop, _read_depth, _read_mask, _ViewStack, estimate_bounds)
+                      _image_size, _plan_crop, _read_depth, _source_pixels, _read_mask, _ViewStack, estimate_bounds)
 from .files import read_json, write_json
 
 __all__ = ["DEFAULT_BLENDER_BACKGROUND", "load_blender", "load_blender_cameras", "write_blender_transforms"]
@@ -256,6 +256,7 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
         metadata["downscale"] = d
     if crop.cropped:
         metadata["crop"] = crop.record([c.name for c in cameras])
+    metadata["source_pixels"] = _source_pixels([c.name for c in cameras], sizes, sizes, crop, (out_w, out_h))
     return Dataset(images=images_t, cameras=cameras, splits=split_labels, background=bg, bounds=bounds, alphas=alpha_t,
                  masks=mask_t, depths=depth_t, root=p if p.is_dir() else p.parent, format="blender",
                  metadata=metadata)

@@ -25,7 +25,7 @@ from ..cameras import Camera, qvec_to_rotmat, rotmat_to_qvec
 from ..errors import DatasetError, RoodiError, UnsupportedFormatError
 from ..progress import ProgressFactory, null_progress
 from .dataset import (LLFF_HOLD, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
-                      _find_colmap_sparse, _image_size, _plan_crop, _ViewStack, estimate_bounds)
+                      _find_colmap_sparse, _image_size, _plan_crop, _source_pixels, _ViewStack, estimate_bounds)
 from .files import atomic_path
 
 __all__ = [
@@ -570,6 +570,8 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
         metadata["downscale"] = float(downscale)
     if crop.cropped:
         metadata["crop"] = crop.record([c.name for c in cameras])
+    metadata["source_pixels"] = _source_pixels([c.name for c in cameras], [(c.width, c.height) for c, _ in pairs],
+                                               sizes, crop, (out_w, out_h))
     return Dataset(images=images_t, cameras=cameras, splits=splits, background=bg, bounds=bounds, alphas=alpha_t,
                    points=points, point_colors=colors, root=root, format="colmap", metadata=metadata)
 

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from ..cameras import Camera
-from ..errors import DatasetError, RoodiError
+from ..errors import ConfigError, DatasetError, RoodiError
 from ..progress import ProgressFactory, null_progress
 from .files import read_image
 
@@ -38,6 +38,7 @@ __all__ = [
     "load_dataset",
     "load_cameras",
     "estimate_bounds",
+    "to_loaded_pixel",
 ]
 
 SPLITS = ("train", "val", "test")
@@ -65,7 +66,10 @@ class Dataset:
         point_colors: ``[P, 3]`` uint8 colours of ``points``, else None.
         root: the folder the dataset was read from.
         format: ``"blender"`` or ``"colmap"``.
-        metadata: format-specific extras (e.g. ``depth_scale``, the COLMAP camera models).
+        metadata: format-specific extras (e.g. ``depth_scale``, the COLMAP camera models), and from the loaders
+            ``downscale``, ``crop`` (the common size and each cut image's own size and offset, when the images differ
+            slightly in size) and ``source_pixels`` (per view name, how the photo's pixels map to the loaded ones; see
+            :func:`to_loaded_pixel`).
     """
 
     images: torch.Tensor = field(repr=False)
@@ -307,6 +311,44 @@ def _plan_crop(paths: Sequence[Path], sizes: Sequence[tuple[int, int]],
                                "are cropped to the common size): resize them to one size first")
     return _Crop(w0, h0, tuple(((w - w0) // 2, (h - h0) // 2) for w, h in sizes),
                  tuple((int(w), int(h)) for w, h in sizes))
+
+
+def _source_pixels(names: Sequence[str], photo_sizes: Sequence[tuple[int, int]], read_sizes: Sequence[tuple[int, int]],
+                   crop: _Crop, out_size: tuple[int, int]) -> dict[str, dict[str, list[float]]]:
+    """Return, per view name, how its photo's pixels map to the loaded image's: ``x_loaded = x * scale - offset``.
+
+    ``photo_sizes``: the photos' own sizes (the camera model's); ``read_sizes``: the files actually decoded (a
+    reduced ``images_4`` copy, say); then the crop and the reduction to ``out_size`` (width, height).
+    """
+    out: dict[str, dict[str, list[float]]] = {}
+    sx2, sy2 = out_size[0] / crop.width, out_size[1] / crop.height
+    for name, (pw, ph), (rw, rh), (ox, oy) in zip(names, photo_sizes, read_sizes, crop.offsets):
+        ax, ay = rw / pw * sx2, rh / ph * sy2
+        out[name] = {"size": [int(pw), int(ph)], "scale": [ax, ay], "offset": [ox * sx2, oy * sy2]}
+    return out
+
+
+def to_loaded_pixel(dataset: "Dataset", view: str, x: float, y: float) -> tuple[float, float]:
+    """Return the loaded image's pixel ``(x, y)`` of a pixel of view ``view``'s original photo.
+
+    Clicks are given in the photo's own pixels (what an image viewer shows); the dataset may be reduced
+    (``downscale``, ``images_N``) and cropped to a common size, and this undoes both.
+
+    Raises:
+        ConfigError: the pixel is outside the photo, or in a border the common-size crop cut away.
+    """
+
+    m = dataset.metadata.get("source_pixels", {}).get(view)
+    if m is None:  # a dataset built in memory: its images are the photos
+        m = {"size": [dataset.width, dataset.height], "scale": [1.0, 1.0], "offset": [0.0, 0.0]}
+    (pw, ph), (ax, ay), (bx, by) = m["size"], m["scale"], m["offset"]
+    if not (0 <= x < pw and 0 <= y < ph):
+        raise ConfigError(f"click {x:g},{y:g} is outside the {pw}x{ph} image {view}")
+    lx, ly = x * ax - bx, y * ay - by
+    if not (0 <= lx < dataset.width and 0 <= ly < dataset.height):
+        raise ConfigError(f"click {x:g},{y:g} in {view} lies in the border cut away to bring the images to one size "
+                          f"({dataset.metadata.get('crop', {}).get('size')}); click further inside")
+    return lx, ly
 
 
 def _crop_camera(cam: Camera, offset: tuple[int, int], width: int, height: int) -> Camera:
