@@ -337,7 +337,6 @@ def to_loaded_pixel(dataset: "Dataset", view: str, x: float, y: float) -> tuple[
     Raises:
         ConfigError: the pixel is outside the photo, or in a border the common-size crop cut away.
     """
-
     m = dataset.metadata.get("source_pixels", {}).get(view)
     if m is None:  # a dataset built in memory: its images are the photos
         m = {"size": [dataset.width, dataset.height], "scale": [1.0, 1.0], "offset": [0.0, 0.0]}
