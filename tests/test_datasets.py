@@ -15,6 +15,7 @@ from roodi_toolkit.io.blender import load_blender, write_blender_transforms
 from roodi_toolkit.io.colmap import (
     ColmapCamera,
     ColmapPoints,
+    UnsupportedCameraModelError,
     colmap_model_from_cameras,
     load_colmap,
     read_colmap_model,
@@ -254,10 +255,12 @@ def test_colmap_simple_pinhole_and_downscale(tmp_path: Path) -> None:
 @pytest.mark.parametrize("binary", [True, False])
 def test_colmap_refuses_other_camera_models_by_name(tmp_path: Path, binary: bool) -> None:
     _, model = _colmap_fixture(tmp_path, n=2, binary=binary)
-    model.cameras[1] = ColmapCamera(1, "OPENCV", W, H, np.array([10.0, 10.0, 8.0, 6.0, 0.1, 0.0, 0.0, 0.0]))
+    model.cameras[1] = ColmapCamera(1, "OPENCV_FISHEYE", W, H, np.array([10.0, 10.0, 8.0, 6.0, 0.1, 0.0, 0.0, 0.0]))
     write_colmap_model(model, tmp_path / "sparse" / "0", binary=binary)
-    with pytest.raises(DatasetError, match="OPENCV"):
+    with pytest.raises(UnsupportedCameraModelError, match="camera 1 uses the COLMAP camera model OPENCV_FISHEYE"):
         load_dataset(tmp_path)
+    with pytest.raises(UnsupportedCameraModelError, match="OPENCV_FISHEYE"):
+        load_cameras(tmp_path)
 
 
 def test_colmap_errors(tmp_path: Path) -> None:
@@ -391,3 +394,42 @@ def test_blender_cameras_without_images_when_the_file_states_the_size(tmp_path: 
         np.testing.assert_allclose(c.K, ref.K)
     with pytest.raises(DatasetError, match="frame 0 image not found .*r_0.png"):
         load_dataset(tmp_path)
+
+
+@pytest.mark.parametrize("model,params", [
+    ("OPENCV", [60.0, 62.0, 40.5, 29.0, -0.18, 0.03, 0.002, -0.001]),
+    ("SIMPLE_RADIAL", [60.0, 40.0, 30.0, 0.12]),
+    ("FULL_OPENCV", [60.0, 60.0, 40.0, 30.0, -0.1, 0.02, 0.0, 0.001, 0.0, 0.05, 0.0, 0.0]),
+])
+def test_colmap_distorted_cameras_are_undistorted(tmp_path: Path, model: str, params: list[float]) -> None:
+    import cv2
+
+    from roodi_toolkit.io.colmap import _distortion, _opencv_k
+
+    w, h = 80, 60
+    cam = ColmapCamera(1, model, w, h, np.array(params))
+    K, dist = _distortion(cam)
+    # a photo through the distorting lens of a smooth pattern painted on the normalised image plane
+    pattern = lambda x, y: 0.5 + 0.4 * np.sin(3 * x) * np.cos(2 * y)
+    px = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1).reshape(-1, 1, 2)
+    rays = cv2.undistortPoints(px, _opencv_k(K), dist).reshape(h, w, 2)
+    photo = np.repeat(pattern(rays[..., 0], rays[..., 1])[..., None], 3, axis=2)
+    ref_cam = _cams(1, w, h)[0]
+    (tmp_path / "sparse" / "0").mkdir(parents=True)
+    m = colmap_model_from_cameras([ref_cam], ["a.png"])
+    m.cameras[1] = cam
+    write_colmap_model(m, tmp_path / "sparse" / "0")
+    (tmp_path / "images").mkdir()
+    write_image(np.round(photo[..., 0] * 65535).astype(np.uint16), tmp_path / "images" / "a.png")  # 16-bit grey
+    ds = load_colmap(tmp_path, test_every=0)
+    loaded = ds.cameras[0]
+    assert (loaded.width, loaded.height) == (w, h) and load_cameras(tmp_path)[0].K.tolist() == loaded.K.tolist()
+    # every loaded pixel shows the pattern at its pinhole ray
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    x = (u - loaded.K[0, 2]) / loaded.K[0, 0]
+    y = (v - loaded.K[1, 2]) / loaded.K[1, 1]
+    err = np.abs(ds.images[0, ..., 0].numpy() - pattern(x, y))
+    assert err[2:-2, 2:-2].max() < 0.005, err.max()
+    # a pinhole model of the distorted photo would be off by far more
+    pinhole = np.abs(photo[..., 0] - pattern((u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]))
+    assert pinhole.max() > max(0.02, 10 * err[2:-2, 2:-2].max()), (pinhole.max(), err.max())

@@ -1,7 +1,9 @@
 """COLMAP datasets: the ``sparse/0/{cameras,images,points3D}.{bin,txt}`` reader and writer, and :func:`load_colmap`.
 
-World-to-camera, quaternions w, x, y, z, images in ``images/``; PINHOLE and SIMPLE_PINHOLE cameras (any other model is
-refused by name); test views are every 8th image in name order (3DGS ``llffhold``).
+World-to-camera, quaternions w, x, y, z, images in ``images/``; PINHOLE and SIMPLE_PINHOLE cameras as they are, the
+distorted SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV cameras undistorted on loading (OpenCV, same image size, the
+focal length chosen so that every pixel has data), the fisheye and other models refused by name; test views are every
+8th image in name order (3DGS ``llffhold``).
 
 Example:
     >>> import numpy as np
@@ -46,7 +48,7 @@ DEFAULT_COLMAP_BACKGROUND = (0.0, 0.0, 0.0)  # 3DGS default for real captures
 
 
 class UnsupportedCameraModelError(DatasetError, UnsupportedFormatError):
-    """A COLMAP camera model other than PINHOLE and SIMPLE_PINHOLE (the images need undistorting first)."""
+    """A COLMAP camera model the loader can neither use nor undistort (fisheye and the other exotic models)."""
 
 COLMAP_CAMERA_MODELS: dict[int, tuple[str, int]] = {
     0: ("SIMPLE_PINHOLE", 3),
@@ -64,6 +66,7 @@ COLMAP_CAMERA_MODELS: dict[int, tuple[str, int]] = {
 }
 _MODEL_IDS = {name: (mid, n) for mid, (name, n) in COLMAP_CAMERA_MODELS.items()}
 SUPPORTED_COLMAP_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
+UNDISTORTED_COLMAP_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")  # OpenCV's own distortion models
 
 
 @dataclass
@@ -462,17 +465,69 @@ def _points_txt(model: ColmapModel) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _distortion(cam: ColmapCamera) -> tuple[np.ndarray, np.ndarray]:
+    """Return a camera's ``[3, 3]`` intrinsics (pixel centres at +0.5) and its OpenCV distortion coefficients."""
+    p = np.asarray(cam.params, dtype=np.float64)
+    if cam.model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+        fx = fy = p[0]
+        cx, cy = p[1], p[2]
+        k = list(p[3:]) + [0.0] * (4 - len(p[3:]))  # k1 (SIMPLE_RADIAL), k1 k2 (RADIAL); no p1, p2
+        dist = [] if cam.model == "SIMPLE_PINHOLE" else k[:4]
+    else:  # PINHOLE, OPENCV, FULL_OPENCV: fx, fy, cx, cy, then k1, k2, p1, p2 (, k3, k4, k5, k6: rational model)
+        fx, fy, cx, cy = p[:4]
+        dist = list(p[4:])
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), np.asarray(dist, dtype=np.float64)
+
+
+def _opencv_k(K: np.ndarray) -> np.ndarray:
+    """Return intrinsics in OpenCV's pixel convention (pixel centres at integers) from ours (centres at +0.5)."""
+    out = K.copy()
+    out[:2, 2] -= 0.5
+    return out
+
+
 def _colmap_intrinsics(cam: ColmapCamera, where: str) -> np.ndarray:
-    if cam.model not in SUPPORTED_COLMAP_MODELS:
-        raise UnsupportedCameraModelError(f"{where}: camera {cam.id} uses the COLMAP camera model {cam.model}, which is "
-                                          f"not supported (supported: {', '.join(SUPPORTED_COLMAP_MODELS)}); undistort "
-                                          "the images first, e.g. `colmap image_undistorter`")
-    if cam.model == "SIMPLE_PINHOLE":
-        f, cx, cy = cam.params
-        fx = fy = f
-    else:
-        fx, fy, cx, cy = cam.params
-    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    """Return the pinhole intrinsics the loaded images have: the camera's own, or for a distorted camera those of its
+    undistorted images (same size; OpenCV's ``getOptimalNewCameraMatrix`` with ``alpha=0``: every pixel has data)."""
+    if cam.model in SUPPORTED_COLMAP_MODELS:
+        return _distortion(cam)[0]
+    if cam.model not in UNDISTORTED_COLMAP_MODELS:
+        raise UnsupportedCameraModelError(
+            f"{where}: camera {cam.id} uses the COLMAP camera model {cam.model}, which is not supported (pinhole: "
+            f"{', '.join(SUPPORTED_COLMAP_MODELS)}; undistorted on loading: {', '.join(UNDISTORTED_COLMAP_MODELS)}); "
+            "undistort the images first, e.g. `colmap image_undistorter`")
+    import cv2
+
+    K, dist = _distortion(cam)
+    new, _ = cv2.getOptimalNewCameraMatrix(_opencv_k(K), dist, (cam.width, cam.height), 0.0)
+    new = np.asarray(new, dtype=np.float64)
+    new[:2, 2] += 0.5
+    if not np.isfinite(new).all() or new[0, 0] <= 0 or new[1, 1] <= 0:
+        raise DatasetError(f"{where}: camera {cam.id} ({cam.model}): its distortion cannot be undone (parameters "
+                           f"{np.round(cam.params, 6).tolist()})")
+    return new
+
+
+class _Undistorter:
+    """Undistorts a distorted camera's images onto its pinhole intrinsics (:func:`_colmap_intrinsics`), at whatever
+    size they were read (a reduced ``images_N`` copy scales both intrinsics; the coefficients are in normalised
+    coordinates and stay)."""
+
+    def __init__(self, cam: ColmapCamera, new_K: np.ndarray) -> None:
+        self.K, self.dist = _distortion(cam)
+        self.new_K, self.size = new_K, (cam.width, cam.height)
+        self._maps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def __call__(self, img: np.ndarray) -> np.ndarray:
+        import cv2
+
+        h, w = img.shape[:2]
+        if (w, h) not in self._maps:
+            scale = np.diag([w / self.size[0], h / self.size[1], 1.0])
+            self._maps[(w, h)] = cv2.initUndistortRectifyMap(_opencv_k(scale @ self.K), self.dist, None,
+                                                             _opencv_k(scale @ self.new_K), (w, h), cv2.CV_32FC1)
+        m1, m2 = self._maps[(w, h)]
+        return cv2.remap(img, m1, m2, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def _colmap_cameras(model: ColmapModel, where: str = "COLMAP model") -> list[tuple[Camera, ColmapImage]]:
@@ -490,7 +545,8 @@ def _colmap_cameras(model: ColmapModel, where: str = "COLMAP model") -> list[tup
 
 
 def load_colmap_cameras(path: Path) -> list[Camera]:
-    """Return the cameras of a COLMAP model folder (``sparse/0``), sorted by image name, without reading images."""
+    """Return the cameras of a COLMAP model folder (``sparse/0``), sorted by image name, without reading images
+    (distorted cameras as the pinhole cameras of their undistorted images, as :func:`load_colmap` loads them)."""
     return [cam for cam, _ in _colmap_cameras(read_colmap_model(path))]
 
 
@@ -546,6 +602,7 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
     out_w, out_h = _downscaled_size(crop.width, crop.height, d)
     stack = _ViewStack(crop, (out_w, out_h), bg)
     cameras = []
+    undistorters: dict[int, _Undistorter] = {}
     with progress(total=len(pairs), desc="load images") as bar:
         for i, ((cam, img), path) in enumerate(zip(pairs, paths)):
             if sizes[i] != (cam.width, cam.height):
@@ -555,7 +612,12 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
             cam = _crop_camera(cam, crop.offsets[i], crop.width, crop.height)
             if (out_w, out_h) != (crop.width, crop.height):
                 cam = cam.with_size(out_w, out_h)
-            stack.add(path, i)
+            undistort = None
+            if model.cameras[img.camera_id].model in UNDISTORTED_COLMAP_MODELS:
+                if img.camera_id not in undistorters:
+                    undistorters[img.camera_id] = _Undistorter(model.cameras[img.camera_id], pairs[i][0].K)
+                undistort = undistorters[img.camera_id]
+            stack.add(path, i, undistort=undistort)
             cameras.append(cam)
             bar.update(1)
     images_t, alpha_t = stack.images()

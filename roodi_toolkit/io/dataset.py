@@ -399,9 +399,14 @@ class _ViewStack:
             return t
         return _resize_stack(t[None], (h, w), mode)[0]
 
-    def add(self, path: Path, index: int, mask: np.ndarray | None = None, depth: np.ndarray | None = None) -> None:
-        """Decode ``path`` (view ``index``) and keep it at the reduced size, with its mask and depth if given."""
+    def add(self, path: Path, index: int, mask: np.ndarray | None = None, depth: np.ndarray | None = None, *,
+            undistort: Any = None) -> None:
+        """Decode ``path`` (view ``index``) and keep it at the reduced size, with its mask and depth if given;
+        ``undistort`` maps the decoded full-size image (and its alpha) onto a pinhole camera's first."""
         rgb, alpha = _read_rgb(path)
+        if undistort is not None:
+            rgb = undistort(rgb)
+            alpha = None if alpha is None else undistort(alpha)
         if alpha is not None:
             rgb = rgb * alpha[..., None] + self.bg * (1.0 - alpha[..., None])
         self.rgbs.append(self._fit(rgb.astype(np.float32), index, "area"))
