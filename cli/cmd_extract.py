@@ -124,6 +124,9 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
         raise click.UsageError("--view says which image the --click coordinates are in; give --click X,Y too")
     parsed = tuple(Click(view or "", *parse_floats(c, 2, "--click")) for c in clicks)
     segmenter = segmenter or ("click" if clicks else "files")
+    if clicks and segmenter == "files":
+        raise click.UsageError("the files segmenter reads masks and takes no --click; leave --segmenter out (click) "
+                               "or name a click segmenter such as sam2")
     if not object_ids:
         if segmenter == "files":
             raise click.UsageError("say which object: --object ID (a dataset with instance masks) or --click X,Y "

@@ -40,7 +40,7 @@ def test_extract_by_click_on_a_downscaled_model(half_model, tmp_path, run_cli):
     view = "r_003"
     x, y = _object_pixel(data, view, 2)
     out = tmp_path / "o"
-    res = run_cli("extract", out, "--model", model, "--click", f"{x},{y}", "--view", view, "--no-inpaint",
+    res = run_cli("extract", out, "--model", model, "--click", f"{x},{y}", "--view", f"{view}.png", "--no-inpaint",
                   "--distill-iterations", "20", "-q")
     assert res.exit_code == 0, res.stderr
     report = json.loads((out / "report.json").read_text())
@@ -80,6 +80,8 @@ def test_extract_click_errors_write_nothing(half_model, tmp_path, run_cli):
     assert res.exit_code == 2 and "--click" in res.stderr
     res = run_cli("extract", out, "--click", "4,5", "-q")
     assert res.exit_code == 2 and "--model" in res.stderr
+    res = run_cli("extract", out, "--model", half_model, "--click", "4,5", "--segmenter", "files", "-q")
+    assert res.exit_code == 2 and "takes no --click" in res.stderr
     res = run_cli("extract", out, "--model", half_model, "--click", "1,1", "--view", "r_003", "-q")
     assert res.exit_code == 1 and "hits no surface" in res.stderr  # the white background
     assert not out.exists()
