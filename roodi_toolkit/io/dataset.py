@@ -379,14 +379,15 @@ class _ViewStack:
     Each image is composited on the background at full resolution (alpha and colour area-averaged afterwards give the
     same result as averaging first, as compositing is linear), cut to the common size (:class:`_Crop`) and
     area-resized to ``size``; masks and depths are resized with nearest-exact sampling. Only one full-size image is in
-    memory at a time.
+    memory at a time, and the reduced ones go straight into the ``[N, h, w, 3]`` tensor (no stacking copy).
     """
 
     def __init__(self, crop: _Crop, size: tuple[int, int], background: Sequence[float]) -> None:
         self.crop, self.size = crop, size  # size: (width, height) after downscaling
         self.bg = np.asarray(background, np.float32)
-        self.rgbs: list[torch.Tensor] = []
-        self.alphas: list[torch.Tensor | None] = []
+        n = len(crop.offsets)
+        self.rgb = torch.empty(n, size[1], size[0], 3, dtype=torch.float32)
+        self.alpha: torch.Tensor | None = None  # made at the first image with alpha: ones for views without
         self.masks: list[torch.Tensor | None] = []
         self.depths: list[torch.Tensor | None] = []
 
@@ -409,19 +410,17 @@ class _ViewStack:
             alpha = None if alpha is None else undistort(alpha)
         if alpha is not None:
             rgb = rgb * alpha[..., None] + self.bg * (1.0 - alpha[..., None])
-        self.rgbs.append(self._fit(rgb.astype(np.float32), index, "area"))
-        self.alphas.append(None if alpha is None else self._fit(alpha.astype(np.float32), index, "area"))
+        self.rgb[index] = self._fit(rgb.astype(np.float32), index, "area")
+        if alpha is not None:
+            if self.alpha is None:
+                self.alpha = torch.ones(self.rgb.shape[:3], dtype=torch.float32)
+            self.alpha[index] = self._fit(alpha.astype(np.float32), index, "area")
         self.masks.append(None if mask is None else self._fit(mask, index, "nearest"))
         self.depths.append(None if depth is None else self._fit(depth, index, "nearest"))
 
     def images(self) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Return images ``[N, h, w, 3]`` and alphas ``[N, h, w]`` (ones for views without alpha), or None."""
-        images = torch.stack(self.rgbs)
-        self.rgbs = []
-        if all(a is None for a in self.alphas):
-            return images, None
-        ones = torch.ones(self.size[1], self.size[0], dtype=torch.float32)
-        return images, torch.stack([ones if a is None else a for a in self.alphas])
+        return self.rgb, self.alpha
 
 
 def _read_dataset_image(path: Path) -> np.ndarray:
