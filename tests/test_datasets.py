@@ -433,3 +433,30 @@ def test_colmap_distorted_cameras_are_undistorted(tmp_path: Path, model: str, pa
     # a pinhole model of the distorted photo would be off by far more
     pinhole = np.abs(photo[..., 0] - pattern((u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]))
     assert pinhole.max() > max(0.02, 10 * err[2:-2, 2:-2].max()), (pinhole.max(), err.max())
+
+
+@pytest.mark.parametrize("case,needle", [
+    ("missing image", "img_01.png: image of COLMAP image 2 ('img_01.png') not found"),
+    ("unknown model", "cameras.txt: line 1: unknown COLMAP camera model 'WEIRD'"),
+    ("mismatched ids", "image 'img_00.png' refers to camera 7, which is not in the model"),
+    ("fisheye", "camera 1 uses the COLMAP camera model OPENCV_FISHEYE"),
+])
+def test_cli_train_refuses_a_bad_colmap_folder_in_one_line(tmp_path: Path, run_cli, case: str, needle: str) -> None:
+    _colmap_fixture(tmp_path / "data", n=3, binary=False)
+    sparse = tmp_path / "data" / "sparse" / "0"
+    if case == "missing image":
+        (tmp_path / "data" / "images" / "img_01.png").unlink()
+    elif case == "unknown model":
+        (sparse / "cameras.txt").write_text("1 WEIRD 4 4 1 2 3\n")
+    elif case == "mismatched ids":
+        text = (sparse / "images.txt").read_text().splitlines()
+        i = next(k for k, line in enumerate(text) if line.endswith("img_00.png"))
+        parts = text[i].split()
+        parts[8] = "7"
+        text[i] = " ".join(parts)
+        (sparse / "images.txt").write_text("\n".join(text) + "\n")
+    else:
+        (sparse / "cameras.txt").write_text(f"1 OPENCV_FISHEYE {W} {H} 10 10 8 6 0.1 0 0 0\n")
+    res = run_cli("train", tmp_path / "data", tmp_path / "out", "--iterations", "1", "-q")
+    assert res.exit_code == 1 and needle in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
