@@ -51,8 +51,8 @@ EPILOG = """Examples:
 @overwrite_option
 @quiet_option
 def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, elevation: float,
-           radius: float | None, fov: float, up: str | None, frame_like: str | None, size_text: str | None, what: str, background: str,
-           renderer: Any, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
+           radius: float | None, fov: float, up: str | None, frame_like: str | None, size_text: str | None,
+           what: str, background: str, renderer: Any, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
     """Render PLY into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
     from roodi_toolkit.io.files import prepare_output_dir
     from roodi_toolkit.io.splat import read_cloud

@@ -137,7 +137,8 @@ def load_blender_cameras(path: Path, splits: Sequence[str] | None = None) -> lis
                 # the file states the size (nerfstudio's and our w/h keys): the images need not exist
                 if not isinstance(frame, dict) or "file_path" not in frame:
                     raise DatasetError(f"{json_path}: frame {frame_idx} has no 'file_path'")
-                cams.append(_blender_camera(json_path, meta, frame, frame_idx, size, Path(str(frame["file_path"])).stem))
+                name = Path(str(frame["file_path"])).stem
+                cams.append(_blender_camera(json_path, meta, frame, frame_idx, size, name))
             else:
                 image_path = _frame_image_path(json_path, frame, frame_idx)
                 cams.append(_blender_camera(json_path, meta, frame, frame_idx, _image_size(image_path),

@@ -27,8 +27,8 @@ from ..errors import DatasetError, RoodiError, UnsupportedFormatError
 from ..progress import ProgressFactory, null_progress
 from .dataset import (LLFF_HOLD, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
                       _find_colmap_sparse, _image_size, _plan_crop, _source_pixels, _ViewStack, estimate_bounds)
-from .colmap_files import (COLMAP_CAMERA_MODELS, ColmapCamera, ColmapImage, ColmapModel, ColmapPoints, read_colmap_model,
-                           write_colmap_model)
+from .colmap_files import (COLMAP_CAMERA_MODELS, ColmapCamera, ColmapImage, ColmapModel, ColmapPoints,
+                           read_colmap_model, write_colmap_model)
 
 __all__ = [
     "COLMAP_CAMERA_MODELS",

@@ -134,7 +134,7 @@ def _train_wanted(config: ExtractConfig, data_dir: Path, downscale: float, has_a
     train = config.train
     if train.random_background is None:  # as the Trainer resolves it, so that a finished scene's record matches
         train = replace(train, random_background=has_alpha)
-    return {**_settings(train.to_dict()), "downscale": downscale, "data_dir": str(data_dir)}
+    return {**_settings(train.to_dict()), "downscale": downscale, "data_dir": str(data_dir.resolve())}
 
 
 def _loaded_prompt(prompt: SegmentPrompt, dataset: Any) -> tuple[SegmentPrompt, SegmentPrompt]:

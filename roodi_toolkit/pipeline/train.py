@@ -449,7 +449,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     if state is not None:
         trainer.load_state_dict(state)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
-    files.write_json({"data_dir": str(data_dir), "downscale": downscale, "scene_scale": trainer.scale,
+    files.write_json({"data_dir": str(Path(data_dir).resolve()), "downscale": downscale, "scene_scale": trainer.scale,
                       "train_views": len(trainer.train_indices), "eval_views": len(trainer.eval_indices),
                       "dataset_has_alpha": dataset.alphas is not None, **trainer.config.to_dict()}, out / "cfg.json")
     start_step = trainer.step
