@@ -430,6 +430,14 @@ def test_colmap_distorted_cameras_are_undistorted(tmp_path: Path, model: str, pa
     y = (v - loaded.K[1, 2]) / loaded.K[1, 1]
     err = np.abs(ds.images[0, ..., 0].numpy() - pattern(x, y))
     assert err[2:-2, 2:-2].max() < 0.005, err.max()
+    # a click in the distorted photo lands where the same ray is in the loaded image
+    from roodi_toolkit.io.dataset import to_loaded_pixel
+
+    for qx, qy in ((10.5, 7.5), (70.5, 50.5), (40.5, 30.5)):
+        lx, ly = to_loaded_pixel(ds, "a", qx, qy)
+        ray = rays[int(qy), int(qx)]
+        np.testing.assert_allclose([(lx - loaded.K[0, 2]) / loaded.K[0, 0], (ly - loaded.K[1, 2]) / loaded.K[1, 1]],
+                                   ray, atol=1e-6)
     # a pinhole model of the distorted photo would be off by far more
     pinhole = np.abs(photo[..., 0] - pattern((u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]))
     assert pinhole.max() > max(0.02, 10 * err[2:-2, 2:-2].max()), (pinhole.max(), err.max())

@@ -225,6 +225,11 @@ def load_colmap(path: str | os.PathLike, downscale: float = 1, *, background: Se
         metadata["crop"] = crop.record([c.name for c in cameras])
     metadata["source_pixels"] = _source_pixels([c.name for c in cameras], [(c.width, c.height) for c, _ in pairs],
                                                sizes, crop, (out_w, out_h))
+    for (cam, img), loaded in zip(pairs, cameras):
+        if img.camera_id in undistorters:  # a photo's pixel moves by the lens distortion before it is scaled
+            u = undistorters[img.camera_id]
+            metadata["source_pixels"][loaded.name]["undistort"] = {"K": u.K.tolist(), "dist": u.dist.tolist(),
+                                                                   "new_K": u.new_K.tolist()}
     return Dataset(images=images_t, cameras=cameras, splits=splits, background=bg, bounds=bounds, alphas=alpha_t,
                    points=points, point_colors=colors, root=root, format="colmap", metadata=metadata)
 

@@ -343,7 +343,17 @@ def to_loaded_pixel(dataset: "Dataset", view: str, x: float, y: float) -> tuple[
     (pw, ph), (ax, ay), (bx, by) = m["size"], m["scale"], m["offset"]
     if not (0 <= x < pw and 0 <= y < ph):
         raise ConfigError(f"click {x:g},{y:g} is outside the {pw}x{ph} image {view}")
-    lx, ly = x * ax - bx, y * ay - by
+    ux, uy = x, y
+    if "undistort" in m:  # a distorted photo (COLMAP OPENCV ...): where its pixel lies in the undistorted image
+        import cv2
+
+        u = m["undistort"]
+        shift = np.diag([1.0, 1.0, 1.0])
+        shift[:2, 2] = -0.5  # OpenCV puts pixel centres at integers, we at +0.5
+        pt = cv2.undistortPoints(np.array([[[x - 0.5, y - 0.5]]]), shift @ np.asarray(u["K"]),
+                                 np.asarray(u["dist"]), P=shift @ np.asarray(u["new_K"]))
+        ux, uy = float(pt[0, 0, 0]) + 0.5, float(pt[0, 0, 1]) + 0.5
+    lx, ly = ux * ax - bx, uy * ay - by
     if not (0 <= lx < dataset.width and 0 <= ly < dataset.height):
         raise ConfigError(f"click {x:g},{y:g} in {view} lies in the border cut away to bring the images to one size "
                           f"({dataset.metadata.get('crop', {}).get('size')}); click further inside")
