@@ -33,9 +33,9 @@ EPILOG = """Examples:
 @click.option("--fov", type=click.FloatRange(1, 179), default=50.0, show_default=True,
               help="Orbit horizontal field of view in degrees.")
 @click.option("--up", default=None,
-              help="Orbit up axis: X,Y,Z; a dataset or camera file (its cameras' mean up); or 'auto' (the model's "
-              "training cameras, else a guess from the cloud: least spread, floor side down). Default: the mean up "
-              "of the training cameras when PLY is a trained model's scene with its dataset in place, else 0,0,1.")
+              help="Orbit up axis: X,Y,Z; a dataset or camera file (its cameras' mean up); or 'auto' (the mean up "
+              "of the training cameras of the model PLY belongs to; refused for a bare cloud, whose up cannot be told "
+              "reliably). Default: those cameras' up when there are, else 0,0,1.")
 @click.option("--frame-like", "frame_like", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="Frame the orbit on this other cloud (centre, radius, up) so that several clouds, e.g. before "
               "and after pruning, are rendered from the same views.")
@@ -84,7 +84,7 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         if frame_like:
             frame_cloud = read_cloud(frame_like)
             frame_cloud = frame_cloud.select(~frame_cloud.nonfinite_rows())
-        up_axis, up_from = resolve_up(up, frame_cloud, frame_path)
+        up_axis, up_from = resolve_up(up, frame_path)
         w, h = size or (512, 512)
         cams = framing_orbit(frame_cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
                              fov_x_deg=fov, up=up_axis)

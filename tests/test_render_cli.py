@@ -121,18 +121,6 @@ def test_cameras_up_is_the_capture_up(up):
     np.testing.assert_allclose(cameras_up(_up_cameras(up)), up, atol=1e-9)
 
 
-def test_estimate_up_points_away_from_the_floor():
-    from roodi_toolkit.render.views import estimate_up
-
-    rng = np.random.default_rng(0)
-    # a wide floor (y = +1: the file is y down) with a small object standing on it
-    floor = np.c_[rng.uniform(-3, 3, 3000), np.full(3000, 1.0), rng.uniform(-3, 3, 3000)]
-    obj = np.c_[rng.uniform(-0.3, 0.3, 500), rng.uniform(-0.5, 1.0, 500), rng.uniform(-0.3, 0.3, 500)]
-    cloud = GaussianCloud.from_activated(np.r_[floor, obj], scales=np.full((3500, 3), 0.02),
-                                         opacities=np.full(3500, 0.9), rgb=np.full((3500, 3), 0.5))
-    np.testing.assert_allclose(estimate_up(cloud), [0, -1, 0], atol=0.05)
-
-
 def test_cli_render_up_from_cameras_and_frame_like(tmp_path, run_cli):
     from roodi_toolkit.io.blender import write_blender_transforms
 
@@ -164,6 +152,27 @@ def test_cli_render_up_from_cameras_and_frame_like(tmp_path, run_cli):
     assert res.exit_code == 1 and "--up" in res.stderr and not (tmp_path / "e").exists()
     res = run_cli("render", ply, tmp_path / "f", "--cameras", data, "--frame-like", other, "-q")
     assert res.exit_code == 2
+    res = run_cli("render", ply, tmp_path / "g", "--orbit", "2", "--up", "auto", "-q")
+    assert res.exit_code == 1 and "no cameras tell its up" in res.stderr and not (tmp_path / "g").exists()
+
+
+def test_render_up_defaults_to_the_models_training_cameras(tmp_path, run_cli):
+    from roodi_toolkit.io.blender import write_blender_transforms
+    from roodi_toolkit.io.files import write_json
+
+    data, model = tmp_path / "data", tmp_path / "model"
+    data.mkdir()
+    write_blender_transforms(data / "transforms_train.json", _up_cameras((0.0, -1.0, 0.0)), ["a"] * 6)
+    ply = model / "point_cloud" / "iteration_5" / "point_cloud.ply"
+    ply.parent.mkdir(parents=True)
+    write_ply(ball_cloud(), ply)
+    write_json({"data_dir": str(data), "iterations": 5}, model / "cfg.json")
+    for args in ((), ("--up", "auto")):
+        out = tmp_path / f"r{len(args)}"
+        assert run_cli("render", ply, out, "--orbit", "2", "--size", "16x16", *args, "-q").exit_code == 0
+        rec = json.loads((out / "render.json").read_text())["orbit"]
+        np.testing.assert_allclose(rec["up"], [0, -1, 0], atol=1e-9)
+        assert rec["up_from"] == "the mean up of the model's training cameras"
 
 
 def test_cli_render_errors(tmp_path, run_cli):

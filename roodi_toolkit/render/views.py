@@ -71,26 +71,6 @@ def cameras_up(cameras: Sequence[Camera]) -> np.ndarray:
     return mean / norm
 
 
-def estimate_up(cloud: GaussianCloud) -> np.ndarray:
-    """Return a guess at a bare cloud's up direction ``[3]``, for when no cameras are known.
-
-    A guess, and often wrong for tall objects: the direction in which the Gaussian means spread least (scenes are
-    mostly wider than tall), pointing away from the side where the means crowd, since floors and tables lie at the
-    bottom. Check the first rendered view and give the axis explicitly when it is wrong.
-    """
-    finite = np.isfinite(cloud.means).all(axis=1)
-    means = cloud.means[finite].astype(np.float64)
-    if len(means) < 4:
-        raise CloudError("too few finite Gaussians to estimate an up direction; give --up X,Y,Z")
-    centred = means - np.median(means, axis=0)
-    _, vecs = np.linalg.eigh(np.cov(centred.T))
-    up = vecs[:, 0]
-    h = centred @ up
-    lo, hi = np.percentile(h, [1, 99])
-    # the median sits nearer the crowded side: make that side the bottom
-    return up if abs(float(np.median(h)) - lo) <= abs(hi - float(np.median(h))) else -up
-
-
 def model_cameras(ply: str | os.PathLike) -> list[Camera] | None:
     """Return the training cameras of the model a PLY belongs to, or None.
 
@@ -113,12 +93,19 @@ def model_cameras(ply: str | os.PathLike) -> list[Camera] | None:
         return None
 
 
-def resolve_up(spec: str | None, cloud: GaussianCloud, ply: str | os.PathLike) -> tuple[np.ndarray, str]:
+def resolve_up(spec: str | None, ply: str | os.PathLike) -> tuple[np.ndarray, str]:
     """Return the orbit's up direction ``[3]`` and where it came from.
 
-    ``spec``: ``"X,Y,Z"``; ``"auto"`` (the cameras of the model ``ply`` belongs to, else :func:`estimate_up`'s
-    guess); a dataset or camera file (its cameras' mean up, :func:`cameras_up`); or None: the model's cameras when
-    ``ply`` is a trained model's scene whose dataset is still there, else z up.
+    ``spec``: ``"X,Y,Z"``; a dataset or camera file (its cameras' mean up, :func:`cameras_up`); ``"auto"``: the
+    training cameras of the model ``ply`` belongs to, refused when there are none; or None: those cameras when there
+    are, else z up.
+
+    ``auto`` makes no guess from the cloud alone: the guesses tried (the direction of least spread of the means,
+    pointed away from the denser side) were wrong on both real clouds at hand, the PlayCanvas biker (y down; guessed
+    -x) and the 3DGS donut (z up; guessed -z).
+
+    Raises:
+        ConfigError: a malformed ``spec``, or ``auto`` without cameras.
     """
     if spec is not None and spec.strip().lower() not in ("", "auto") and not Path(spec).exists():
         try:
@@ -136,7 +123,8 @@ def resolve_up(spec: str | None, cloud: GaussianCloud, ply: str | os.PathLike) -
     if cams:
         return cameras_up(cams), "the mean up of the model's training cameras"
     if spec is not None:  # auto
-        return estimate_up(cloud), "estimated from the cloud (least spread, floor side down): a guess"
+        raise ConfigError(f"--up auto: {ply} is not the scene of a trained model whose dataset is still in place, so "
+                          "no cameras tell its up; give --up X,Y,Z or --up DATASET")
     return np.array([0.0, 0.0, 1.0]), "z up (default)"
 
 
