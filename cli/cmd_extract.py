@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option, renderer_option
+from .common import overwrite_option, parse_floats, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Example:
 
@@ -16,6 +16,9 @@ EXAMPLE = """Example:
   roodi-toolkit extract scenes/bedroom out/ --object all                       # every object of the scene
   roodi-toolkit extract scenes/bedroom out_noinpaint/ --object 2 --model out/scene --distill out/distill \\
       --no-inpaint                                                     # ablation, reusing the first run's stages
+  roodi-toolkit train captures/statue models/statue --downscale 4
+  roodi-toolkit extract statue_out/ --model models/statue --click 520,300 --view DSC_5283
+      # data folder and resolution from the model's cfg.json; the click in the photo's own pixels
 """
 
 
@@ -73,26 +76,65 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
 
 
 @click.command(epilog=EXAMPLE)
-@click.argument("data_dir", type=click.Path(path_type=str))
-@click.argument("out_dir", type=click.Path(path_type=str))
-@click.option("--object", "object_ids", multiple=True, required=True, metavar="ID|all",
+@click.argument("paths", nargs=-1, required=True, metavar="[DATA_DIR] OUT_DIR", type=click.Path(path_type=str))
+@click.option("--object", "object_ids", multiple=True, metavar="ID|all",
               help="Instance id of an object to extract (repeat for several; they share one scene and distillation), "
-                   "or 'all' for every object of the distillation.")
+                   "or 'all' for every object of the distillation; for datasets with instance masks "
+                   "[with --click: 1, the clicked object].")
+@click.option("--click", "clicks", multiple=True, metavar="X,Y",
+              help="A click on the object in --view, in the original photo's pixels (x right, y down, whatever "
+                   "--downscale); once or twice. The click segmenter grows it through the scene's Gaussians into "
+                   "every training view.")
+@click.option("--view", default=None, metavar="IMAGE_NAME",
+              help="The image the clicks are in (file name without extension) [the first training image].")
+@click.option("--segmenter", default=None,
+              help="Segmenter plugin whose masks are distilled: files (the dataset's instance masks, or --masks), "
+                   "click, sam2, ... [click with --click, else files].")
+@click.option("--masks", "mask_dir", type=click.Path(file_okay=False, path_type=str), default=None,
+              help="files segmenter: a folder of mask PNGs named like the views [the dataset's own masks].")
 @extract_options
 @overwrite_option
 @renderer_option
 @quiet_option
-def extract(data_dir: str, out_dir: str, object_ids: tuple[str, ...], model_dir: str | None,
-            distill_dir: str | None, overwrite: bool, renderer: Any, quiet: bool, **stage_options: Any) -> None:
+def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[str, ...], view: str | None,
+            segmenter: str | None, mask_dir: str | None, model_dir: str | None, distill_dir: str | None,
+            overwrite: bool, renderer: Any, quiet: bool, **stage_options: Any) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
+
+    The object is chosen by instance id (--object, datasets with masks), by clicks (--click X,Y --view IMAGE_NAME)
+    or by a segmenter plugin's masks (--segmenter). With --model, DATA_DIR and --downscale default to the ones its
+    cfg.json records.
 
     Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object) that were made
     with the same settings, and says which it reused and which it made again; --overwrite makes every stage again.
     DATA_DIR, --model and --distill are only read.
     """
-    from roodi_toolkit.pipeline.extract import extract_objects
+    from dataclasses import replace
+    from pathlib import Path
 
+    from roodi_toolkit.pipeline.extract import extract_objects
+    from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
+
+    if len(paths) > 2:
+        raise click.UsageError(f"expected [DATA_DIR] OUT_DIR, got {len(paths)} paths")
+    if len(paths) == 1 and model_dir is None:
+        raise click.UsageError("give DATA_DIR OUT_DIR, or OUT_DIR with --model (whose cfg.json names the data)")
+    data_dir, out_dir = (None, paths[0]) if len(paths) == 1 else paths
+    if view is not None and not clicks:
+        raise click.UsageError("--view says which image the --click coordinates are in; give --click X,Y too")
+    parsed = tuple(Click(view or "", *parse_floats(c, 2, "--click")) for c in clicks)
+    segmenter = segmenter or ("click" if clicks else "files")
+    if clicks and segmenter == "files":
+        raise click.UsageError("the files segmenter reads masks and takes no --click; leave --segmenter out (click) "
+                               "or name a click segmenter such as sam2")
+    if not object_ids:
+        if segmenter == "files":
+            raise click.UsageError("say which object: --object ID (a dataset with instance masks) or --click X,Y "
+                                   "[--view IMAGE_NAME] (any dataset)")
+        object_ids = ("1",)  # a click or prompt segmenter's binary masks: 1 is the target
     config = extract_config_from_options(**stage_options)
+    config = replace(config, segmenter=segmenter,
+                     prompt=SegmentPrompt(clicks=parsed, mask_dir=Path(mask_dir) if mask_dir else None))
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
                              config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
     if report["reused"]:

@@ -15,6 +15,8 @@ EPILOG = """Examples:
   roodi-toolkit render scene.ply depth/ --orbit 4 --what depth --size 640x480
   roodi-toolkit render scene.ply views/ --cameras dataset/transforms_test.json
   roodi-toolkit render scene.ply views/ --cameras colmap_scene/ --renderer gsplat
+  roodi-toolkit render before.ply b/ --up colmap_scene/            # orbit upright: the capture's camera up
+  roodi-toolkit render after.ply a/ --frame-like before.ply        # the very same views as before.ply's
 """
 
 
@@ -30,7 +32,13 @@ EPILOG = """Examples:
               help="Orbit radius in scene units (default: frame the central 95% of the cloud).")
 @click.option("--fov", type=click.FloatRange(1, 179), default=50.0, show_default=True,
               help="Orbit horizontal field of view in degrees.")
-@click.option("--up", default="0,0,1", show_default=True, help="Orbit up axis as x,y,z.")
+@click.option("--up", default=None,
+              help="Orbit up axis: X,Y,Z; a dataset or camera file (its cameras' mean up); or 'auto' (the mean up "
+              "of the training cameras of the model PLY belongs to; refused for a bare cloud, whose up cannot be told "
+              "reliably). Default: those cameras' up when there are, else 0,0,1.")
+@click.option("--frame-like", "frame_like", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Frame the orbit on this other cloud (centre, radius, up) so that several clouds, e.g. before "
+              "and after pruning, are rendered from the same views.")
 @click.option("--size", "size_text", default=None,
               help="Image size WxH (orbit default 512x512; dataset cameras are rescaled to it).")
 @click.option("--what", type=click.Choice(["rgb", "depth", "alpha"]), default="rgb", show_default=True,
@@ -43,26 +51,27 @@ EPILOG = """Examples:
 @overwrite_option
 @quiet_option
 def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, elevation: float,
-           radius: float | None, fov: float, up: str, size_text: str | None, what: str, background: str,
-           renderer: Any, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
+           radius: float | None, fov: float, up: str | None, frame_like: str | None, size_text: str | None,
+           what: str, background: str, renderer: Any, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
     """Render PLY into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
-    from roodi_toolkit.errors import ConfigError
     from roodi_toolkit.io.files import prepare_output_dir
     from roodi_toolkit.io.splat import read_cloud
-    from roodi_toolkit.render.views import framing_orbit, render_views
+    from roodi_toolkit.render.views import framing_orbit, render_views, resolve_up
 
     bg = parse_floats(background, 3, "--background")
     if not all(0.0 <= v <= 1.0 for v in bg):
         raise click.BadParameter(f"colour components must be in [0, 1], got {background!r}", param_hint="--background")
-    up_axis = parse_floats(up, 3, "--up")
     size = parse_size(size_text) if size_text else None
     if cameras_path and orbit is not None:
         raise click.UsageError("give either --cameras or --orbit, not both")
+    if cameras_path and (frame_like or up):
+        raise click.UsageError("--frame-like and --up frame an orbit; --cameras renders the dataset's own views")
 
     cloud = read_cloud(ply)
     if filter_nan:
         cloud = cloud.select(~cloud.nonfinite_rows())
     cloud.require_finite(ply)
+    extra = {}
     if cameras_path:
         from roodi_toolkit.io.dataset import load_cameras
 
@@ -70,13 +79,20 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         if size is not None:
             cams = [c.with_size(*size) for c in cams]
     else:
-        if up_axis == (0.0, 0.0, 0.0):
-            raise ConfigError("--up must not be the zero vector")
+        frame_path = frame_like or ply
+        frame_cloud = cloud
+        if frame_like:
+            frame_cloud = read_cloud(frame_like)
+            frame_cloud = frame_cloud.select(~frame_cloud.nonfinite_rows())
+        up_axis, up_from = resolve_up(up, frame_path)
         w, h = size or (512, 512)
-        cams = framing_orbit(cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
+        cams = framing_orbit(frame_cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
                              fov_x_deg=fov, up=up_axis)
-    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[ply, cameras_path])
+        extra = {"orbit": {"framed_on": str(frame_path), "up": up_axis.tolist(), "up_from": up_from}}
+        if not quiet:
+            click.echo(f"orbit up {', '.join(f'{v:.3f}' for v in up_axis)}: {up_from}", err=True)
+    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[ply, cameras_path, frame_like])
     record = render_views(cloud, cams, out, what=what, renderer=renderer, background=bg,
-                          progress=progress_factory(quiet))
+                          progress=progress_factory(quiet), extra=extra)
     if not quiet:
         click.echo(f"wrote {len(record['views'])} {what} view(s) to {out}", err=True)

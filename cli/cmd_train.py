@@ -29,7 +29,9 @@ EXAMPLE = """Example:
               help="Initial Gaussians: sparse points (COLMAP), random in the scene box, or lifted from the views' "
               "depth maps (datasets with depth, e.g. make-scene) [auto: points if any, else random].")
 @click.option("--init-points", type=click.IntRange(4), default=None, help="Random initialisation size [20000].")
-@click.option("--random-background", is_flag=True, help="Random background each step (images with alpha).")
+@click.option("--random-background/--fixed-background", default=None,
+              help="Composite images with alpha on a random colour each step, or on the dataset's background "
+              "[default: random when the images have alpha, as 3DGS trainers do; cfg.json records the choice].")
 @click.option("--eval-every", type=click.IntRange(0), default=None, help="Evaluate on held-out views this often.")
 @click.option("--checkpoint-every", type=click.IntRange(1), default=None, help="Checkpoint this often [250].")
 @click.option("--seed", type=int, default=None, help="Random seed [0].")
@@ -39,7 +41,7 @@ EXAMPLE = """Example:
 @renderer_option
 @quiet_option
 def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | None, sh_degree: int | None,
-          downscale: float, init: str | None, init_points: int | None, random_background: bool,
+          downscale: float, init: str | None, init_points: int | None, random_background: bool | None,
           eval_every: int | None, checkpoint_every: int | None, seed: int | None, resume: bool, overwrite: bool,
           renderer: Any, quiet: bool) -> None:
     """Train a 3DGS scene from posed images (Blender or COLMAP) into OUT_DIR.
@@ -53,7 +55,7 @@ def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | No
     if resume and overwrite:
         raise ConfigError("--resume and --overwrite contradict each other; choose one")
     config = config_with(TrainConfig(), iterations=iterations, cap_max=cap_max, sh_degree=sh_degree, init=init,
-                         init_num_points=init_points, random_background=random_background or None,
+                         init_num_points=init_points, random_background=random_background,
                          eval_every=eval_every, checkpoint_every=checkpoint_every, seed=seed)
     result = train_scene(data_dir, out_dir, config, downscale=downscale, resume=resume, overwrite=overwrite,
                          progress=progress_factory(quiet), iterations_override=iterations if resume else None,

@@ -15,6 +15,7 @@ from roodi_toolkit.io.blender import load_blender, write_blender_transforms
 from roodi_toolkit.io.colmap import (
     ColmapCamera,
     ColmapPoints,
+    UnsupportedCameraModelError,
     colmap_model_from_cameras,
     load_colmap,
     read_colmap_model,
@@ -124,7 +125,7 @@ def test_blender_original_nerf_synthetic_keys_only(tmp_path: Path) -> None:
     ("no_frames", "frames"),
     ("no_angle", "camera_angle_x"),
     ("missing_image", "not found"),
-    ("sizes", "same size"),
+    ("sizes", "at most 10%"),
     ("bad_matrix", "transform_matrix"),
 ])
 def test_blender_errors_name_file_and_problem(tmp_path: Path, case: str, needle: str) -> None:
@@ -254,10 +255,12 @@ def test_colmap_simple_pinhole_and_downscale(tmp_path: Path) -> None:
 @pytest.mark.parametrize("binary", [True, False])
 def test_colmap_refuses_other_camera_models_by_name(tmp_path: Path, binary: bool) -> None:
     _, model = _colmap_fixture(tmp_path, n=2, binary=binary)
-    model.cameras[1] = ColmapCamera(1, "OPENCV", W, H, np.array([10.0, 10.0, 8.0, 6.0, 0.1, 0.0, 0.0, 0.0]))
+    model.cameras[1] = ColmapCamera(1, "OPENCV_FISHEYE", W, H, np.array([10.0, 10.0, 8.0, 6.0, 0.1, 0.0, 0.0, 0.0]))
     write_colmap_model(model, tmp_path / "sparse" / "0", binary=binary)
-    with pytest.raises(DatasetError, match="OPENCV"):
+    with pytest.raises(UnsupportedCameraModelError, match="camera 1 uses the COLMAP camera model OPENCV_FISHEYE"):
         load_dataset(tmp_path)
+    with pytest.raises(UnsupportedCameraModelError, match="OPENCV_FISHEYE"):
+        load_cameras(tmp_path)
 
 
 def test_colmap_errors(tmp_path: Path) -> None:
@@ -276,7 +279,7 @@ def test_colmap_errors(tmp_path: Path) -> None:
         load_dataset(tmp_path / "model")
     _colmap_fixture(tmp_path / "sizes", n=2, binary=True)
     write_image(np.zeros((H, W + 1, 3), np.uint8), tmp_path / "sizes" / "images" / "img_01.png")
-    with pytest.raises(DatasetError, match="same size"):
+    with pytest.raises(DatasetError, match=r"img_01.png: image is 17x12 but its COLMAP camera \d+ is 16x12"):
         load_dataset(tmp_path / "sizes")
 
 
@@ -290,3 +293,178 @@ def test_estimate_bounds_from_cameras_contains_the_focus() -> None:
     b = estimate_bounds(cams)
     assert np.all(b[0] < [0.5, 0.0, 0.2]) and np.all(b[1] > [0.5, 0.0, 0.2])
     assert np.all(b[1] - b[0] < 6)
+
+
+# ------------------------------------------------------------------------------------------- real-capture sizes
+
+
+def _sized_colmap(root: Path, heights: list[int], width: int = W) -> list[np.ndarray]:
+    """A COLMAP fixture with one PINHOLE camera per image, each image its own height (as the undistorter writes)."""
+    cams = []
+    for i, h in enumerate(heights):
+        c = _cams(len(heights), width, h)[i]
+        K = c.K.copy()
+        K[1, 2] += 0.25 * i  # distinct principal points, so each camera's own intrinsics are checked
+        cams.append(Camera(c.world_to_camera, K, width, h, name=c.name))
+    names = [f"img_{i:02d}.png" for i in range(len(heights))]
+    (root / "sparse" / "0").mkdir(parents=True)
+    write_colmap_model(colmap_model_from_cameras(cams, names), root / "sparse" / "0")
+    (root / "images").mkdir()
+    imgs = []
+    for i, (name, h) in enumerate(zip(names, heights)):
+        img = _rgba(i, width, h)[..., :3]
+        write_image(img, root / "images" / name)
+        imgs.append(img)
+    return imgs
+
+
+def test_colmap_images_of_different_sizes_are_cropped_centred(tmp_path: Path) -> None:
+    heights = [40, 44, 41]
+    imgs = _sized_colmap(tmp_path, heights, width=30)
+    model = read_colmap_model(tmp_path / "sparse" / "0")
+    ds = load_colmap(tmp_path, test_every=0)
+    assert ds.images.shape == (3, 40, 30, 3)
+    assert ds.metadata["crop"] == {"size": [30, 40], "images": {"img_01": {"size": [30, 44], "offset": [0, 2]},
+                                                                 "img_02": {"size": [30, 41], "offset": [0, 0]}}}
+    for i, (img, cam) in enumerate(zip(imgs, ds.cameras)):
+        y0 = (heights[i] - 40) // 2
+        np.testing.assert_allclose(ds.images[i].numpy(), img[y0:y0 + 40].astype(np.float32) / 255, atol=1e-6)
+        ref = model.cameras[model.images[i + 1].camera_id]
+        # the principal point moves with the crop; the focal lengths stay
+        np.testing.assert_allclose(cam.K[1, 2], ref.params[3] - y0)
+        np.testing.assert_allclose(cam.K[0, 0], ref.params[0])
+        # the geometry is exact: a 3D point lands on the same image content before and after the crop
+        uv, _ = cam.project(np.array([[0.1, -0.2, 0.3]]))
+        full = Camera(cam.world_to_camera, np.array([[ref.params[0], 0, ref.params[2]], [0, ref.params[1],
+                                                                                         ref.params[3]], [0, 0, 1]]),
+                      30, heights[i])
+        np.testing.assert_allclose(full.project(np.array([[0.1, -0.2, 0.3]]))[0] - uv, [[0, y0]], atol=1e-9)
+    # downscaled: the same crop, then the reduction, decoded one image at a time
+    half = load_colmap(tmp_path, 2, test_every=0)
+    assert half.images.shape == (3, 20, 15, 3) and half.metadata["downscale"] == 2
+    ref = torch.nn.functional.interpolate(ds.images.permute(0, 3, 1, 2), size=(20, 15), mode="area")
+    torch.testing.assert_close(half.images, ref.permute(0, 2, 3, 1))
+    np.testing.assert_allclose(half.cameras[1].K, ds.cameras[1].with_size(15, 20).K)
+
+
+def test_colmap_refuses_sizes_too_different_to_crop(tmp_path: Path) -> None:
+    _sized_colmap(tmp_path, [40, 50])
+    with pytest.raises(DatasetError, match=r"img_01.png: image is 16x50 but .* smallest images are 16 wide and 40 "
+                                           r"high.* at most 10%"):
+        load_colmap(tmp_path)
+
+
+def test_colmap_reads_images_n_folders_when_they_match(tmp_path: Path) -> None:
+    _colmap_fixture(tmp_path, n=3, binary=True)
+    full = load_colmap(tmp_path, 2, test_every=0)
+    (tmp_path / "images_2").mkdir()
+    marked = []
+    for i in range(3):
+        img = np.full((H // 2, W // 2, 3), 40 * (i + 1), np.uint8)  # unlike the reduced originals
+        write_image(img, tmp_path / "images_2" / f"img_{i:02d}.png")
+        marked.append(img)
+    ds = load_colmap(tmp_path, 2, test_every=0)
+    assert ds.metadata["images_dir"] == "images_2"
+    np.testing.assert_allclose(ds.images[1].numpy(), marked[1] / 255.0, atol=1e-6)
+    np.testing.assert_allclose(ds.cameras[1].K, full.cameras[1].K)
+    # not every image there: the originals are reduced instead
+    (tmp_path / "images_2" / "img_02.png").unlink()
+    ds = load_colmap(tmp_path, 2, test_every=0)
+    assert ds.metadata["images_dir"] == "images"
+    torch.testing.assert_close(ds.images, full.images)
+
+
+def test_blender_downscale_decodes_to_the_same_result(tmp_path: Path) -> None:
+    _blender_fixture(tmp_path, masks=True)
+    full, half = load_dataset(tmp_path), load_dataset(tmp_path, 2)
+    area = lambda t: torch.nn.functional.interpolate(t.permute(0, 3, 1, 2), size=(H // 2, W // 2), mode="area")
+    torch.testing.assert_close(half.images, area(full.images).permute(0, 2, 3, 1))
+    torch.testing.assert_close(half.alphas, area(full.alphas[..., None])[:, 0])
+    assert half.masks.shape == (5, H // 2, W // 2) and half.masks.dtype == torch.int64
+
+
+def test_blender_cameras_without_images_when_the_file_states_the_size(tmp_path: Path) -> None:
+    fx = _blender_fixture(tmp_path)
+    for p in (tmp_path / "train").iterdir():
+        p.unlink()
+    cams = load_cameras(tmp_path, splits=["train"])
+    assert [c.name for c in cams] == ["r_0", "r_1", "r_2"]
+    for c, ref in zip(cams, fx["train"][0]):
+        assert (c.width, c.height) == (W, H)
+        np.testing.assert_allclose(c.K, ref.K)
+    with pytest.raises(DatasetError, match="frame 0 image not found .*r_0.png"):
+        load_dataset(tmp_path)
+
+
+@pytest.mark.parametrize("model,params", [
+    ("OPENCV", [60.0, 62.0, 40.5, 29.0, -0.18, 0.03, 0.002, -0.001]),
+    ("SIMPLE_RADIAL", [60.0, 40.0, 30.0, 0.12]),
+    ("FULL_OPENCV", [60.0, 60.0, 40.0, 30.0, -0.1, 0.02, 0.0, 0.001, 0.0, 0.05, 0.0, 0.0]),
+])
+def test_colmap_distorted_cameras_are_undistorted(tmp_path: Path, model: str, params: list[float]) -> None:
+    import cv2
+
+    from roodi_toolkit.io.colmap import _distortion, _opencv_k
+
+    w, h = 80, 60
+    cam = ColmapCamera(1, model, w, h, np.array(params))
+    K, dist = _distortion(cam)
+    # a photo through the distorting lens of a smooth pattern painted on the normalised image plane
+    pattern = lambda x, y: 0.5 + 0.4 * np.sin(3 * x) * np.cos(2 * y)
+    px = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1).reshape(-1, 1, 2)
+    rays = cv2.undistortPoints(px, _opencv_k(K), dist).reshape(h, w, 2)
+    photo = np.repeat(pattern(rays[..., 0], rays[..., 1])[..., None], 3, axis=2)
+    ref_cam = _cams(1, w, h)[0]
+    (tmp_path / "sparse" / "0").mkdir(parents=True)
+    m = colmap_model_from_cameras([ref_cam], ["a.png"])
+    m.cameras[1] = cam
+    write_colmap_model(m, tmp_path / "sparse" / "0")
+    (tmp_path / "images").mkdir()
+    write_image(np.round(photo[..., 0] * 65535).astype(np.uint16), tmp_path / "images" / "a.png")  # 16-bit grey
+    ds = load_colmap(tmp_path, test_every=0)
+    loaded = ds.cameras[0]
+    assert (loaded.width, loaded.height) == (w, h) and load_cameras(tmp_path)[0].K.tolist() == loaded.K.tolist()
+    # every loaded pixel shows the pattern at its pinhole ray
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    x = (u - loaded.K[0, 2]) / loaded.K[0, 0]
+    y = (v - loaded.K[1, 2]) / loaded.K[1, 1]
+    err = np.abs(ds.images[0, ..., 0].numpy() - pattern(x, y))
+    assert err[2:-2, 2:-2].max() < 0.005, err.max()
+    # a click in the distorted photo lands where the same ray is in the loaded image
+    from roodi_toolkit.io.dataset import to_loaded_pixel
+
+    for qx, qy in ((10.5, 7.5), (70.5, 50.5), (40.5, 30.5)):
+        lx, ly = to_loaded_pixel(ds, "a", qx, qy)
+        ray = rays[int(qy), int(qx)]
+        np.testing.assert_allclose([(lx - loaded.K[0, 2]) / loaded.K[0, 0], (ly - loaded.K[1, 2]) / loaded.K[1, 1]],
+                                   ray, atol=1e-6)
+    # a pinhole model of the distorted photo would be off by far more
+    pinhole = np.abs(photo[..., 0] - pattern((u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]))
+    assert pinhole.max() > max(0.02, 10 * err[2:-2, 2:-2].max()), (pinhole.max(), err.max())
+
+
+@pytest.mark.parametrize("case,needle", [
+    ("missing image", "img_01.png: image of COLMAP image 2 ('img_01.png') not found"),
+    ("unknown model", "cameras.txt: line 1: unknown COLMAP camera model 'WEIRD'"),
+    ("mismatched ids", "image 'img_00.png' refers to camera 7, which is not in the model"),
+    ("fisheye", "camera 1 uses the COLMAP camera model OPENCV_FISHEYE"),
+])
+def test_cli_train_refuses_a_bad_colmap_folder_in_one_line(tmp_path: Path, run_cli, case: str, needle: str) -> None:
+    _colmap_fixture(tmp_path / "data", n=3, binary=False)
+    sparse = tmp_path / "data" / "sparse" / "0"
+    if case == "missing image":
+        (tmp_path / "data" / "images" / "img_01.png").unlink()
+    elif case == "unknown model":
+        (sparse / "cameras.txt").write_text("1 WEIRD 4 4 1 2 3\n")
+    elif case == "mismatched ids":
+        text = (sparse / "images.txt").read_text().splitlines()
+        i = next(k for k, line in enumerate(text) if line.endswith("img_00.png"))
+        parts = text[i].split()
+        parts[8] = "7"
+        text[i] = " ".join(parts)
+        (sparse / "images.txt").write_text("\n".join(text) + "\n")
+    else:
+        (sparse / "cameras.txt").write_text(f"1 OPENCV_FISHEYE {W} {H} 10 10 8 6 0.1 0 0 0\n")
+    res = run_cli("train", tmp_path / "data", tmp_path / "out", "--iterations", "1", "-q")
+    assert res.exit_code == 1 and needle in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()

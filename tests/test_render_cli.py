@@ -90,17 +90,89 @@ def test_cli_render_blender_cameras(tmp_path, run_cli):
     ply = tmp_path / "ball.ply"
     write_ply(cloud, ply)
     cams = orbit_cameras([0, 0, 0], 3.0, 2, width=24, height=20)
-    from roodi_toolkit.io.files import write_image
-
-    (tmp_path / "test").mkdir()
-    for name in ("r_0", "r_1"):  # load_cameras checks that the frames' images exist
-        write_image(np.zeros((20, 24, 3)), tmp_path / "test" / f"{name}.png")
+    # the file states w/h: its images need not exist to render its cameras
     transforms = write_blender_transforms(tmp_path / "transforms_test.json", cams, ["./test/r_0", "./test/r_1"])
+    assert not (tmp_path / "test").exists()
     out = tmp_path / "views"
     res = run_cli("render", ply, out, "--cameras", transforms, "--size", "48x40", "--what", "depth", "-q")
     assert res.exit_code == 0, res.stderr
     assert sorted(p.name for p in out.glob("*_depth.png")) == ["r_0_depth.png", "r_1_depth.png"]
     assert read_image(out / "r_0_depth.png").shape == (40, 48)
+    res = run_cli("render", ply, tmp_path / "v2", "--cameras", transforms, "-q")
+    assert res.exit_code == 0 and read_image(tmp_path / "v2" / "r_1.png").shape == (20, 24, 3)
+    # without w/h the image sizes are needed, and a missing image is named
+    meta = json.loads(transforms.read_text())
+    del meta["w"], meta["h"], meta["fl_x"], meta["fl_y"], meta["cx"], meta["cy"]
+    transforms.write_text(json.dumps(meta))
+    res = run_cli("render", ply, tmp_path / "v3", "--cameras", transforms, "-q")
+    assert res.exit_code == 1 and "frame 0 image not found" in res.stderr and not (tmp_path / "v3").exists()
+
+
+def _up_cameras(up, n=6):
+    from roodi_toolkit.cameras import orbit_cameras
+
+    return orbit_cameras([0, 0, 0], 3.0, n, elevation_deg=15.0, width=24, height=20, up=up)
+
+
+@pytest.mark.parametrize("up", [(0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (0.6, 0.0, 0.8)])
+def test_cameras_up_is_the_capture_up(up):
+    from roodi_toolkit.render.views import cameras_up
+
+    np.testing.assert_allclose(cameras_up(_up_cameras(up)), up, atol=1e-9)
+
+
+def test_cli_render_up_from_cameras_and_frame_like(tmp_path, run_cli):
+    from roodi_toolkit.io.blender import write_blender_transforms
+
+    ply, other = tmp_path / "ball.ply", tmp_path / "small.ply"
+    write_ply(ball_cloud(), ply)
+    write_ply(ball_cloud(n=50, seed=3, center=(3.0, 0.0, 0.0)), other)
+    data = tmp_path / "data"
+    data.mkdir()
+    write_blender_transforms(data / "transforms_train.json", _up_cameras((0.0, -1.0, 0.0)), ["a"] * 6)
+
+    res = run_cli("render", ply, tmp_path / "a", "--orbit", "2", "--size", "16x16", "--up", data)
+    assert res.exit_code == 0, res.stderr
+    rec = json.loads((tmp_path / "a" / "render.json").read_text())
+    np.testing.assert_allclose(rec["orbit"]["up"], [0, -1, 0], atol=1e-9)
+    assert "mean up of the cameras" in rec["orbit"]["up_from"]
+    # the default stays z up for a bare cloud
+    assert run_cli("render", ply, tmp_path / "b", "--orbit", "2", "--size", "16x16", "-q").exit_code == 0
+    np.testing.assert_allclose(json.loads((tmp_path / "b" / "render.json").read_text())["orbit"]["up"], [0, 0, 1])
+    # --frame-like: the very views another cloud's own render has
+    assert run_cli("render", other, tmp_path / "c", "--orbit", "3", "--size", "16x16", "-q").exit_code == 0
+    res = run_cli("render", ply, tmp_path / "d", "--orbit", "3", "--size", "16x16", "--frame-like", other, "-q")
+    assert res.exit_code == 0, res.stderr
+    own = json.loads((tmp_path / "c" / "render.json").read_text())["views"]
+    like = json.loads((tmp_path / "d" / "render.json").read_text())["views"]
+    for a, b in zip(own, like):
+        np.testing.assert_allclose(a["world_to_camera"], b["world_to_camera"])
+        np.testing.assert_allclose(a["K"], b["K"])
+    res = run_cli("render", ply, tmp_path / "e", "--orbit", "2", "--up", "0,0,0", "-q")
+    assert res.exit_code == 1 and "--up" in res.stderr and not (tmp_path / "e").exists()
+    res = run_cli("render", ply, tmp_path / "f", "--cameras", data, "--frame-like", other, "-q")
+    assert res.exit_code == 2
+    res = run_cli("render", ply, tmp_path / "g", "--orbit", "2", "--up", "auto", "-q")
+    assert res.exit_code == 1 and "no cameras tell its up" in res.stderr and not (tmp_path / "g").exists()
+
+
+def test_render_up_defaults_to_the_models_training_cameras(tmp_path, run_cli):
+    from roodi_toolkit.io.blender import write_blender_transforms
+    from roodi_toolkit.io.files import write_json
+
+    data, model = tmp_path / "data", tmp_path / "model"
+    data.mkdir()
+    write_blender_transforms(data / "transforms_train.json", _up_cameras((0.0, -1.0, 0.0)), ["a"] * 6)
+    ply = model / "point_cloud" / "iteration_5" / "point_cloud.ply"
+    ply.parent.mkdir(parents=True)
+    write_ply(ball_cloud(), ply)
+    write_json({"data_dir": str(data), "iterations": 5}, model / "cfg.json")
+    for args in ((), ("--up", "auto")):
+        out = tmp_path / f"r{len(args)}"
+        assert run_cli("render", ply, out, "--orbit", "2", "--size", "16x16", *args, "-q").exit_code == 0
+        rec = json.loads((out / "render.json").read_text())["orbit"]
+        np.testing.assert_allclose(rec["up"], [0, -1, 0], atol=1e-9)
+        assert rec["up_from"] == "the mean up of the model's training cameras"
 
 
 def test_cli_render_errors(tmp_path, run_cli):

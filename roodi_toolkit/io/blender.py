@@ -20,8 +20,8 @@ import torch
 from ..cameras import Camera, opengl_c2w_to_w2c, w2c_to_opengl_c2w
 from ..errors import DatasetError, RoodiError
 from ..progress import ProgressFactory, null_progress
-from .dataset import (SPLITS, Dataset, _check_background, _check_downscale, _composite, _downscale_dataset, _read_depth,
-                      _read_mask, _read_rgb, _SameSize, estimate_bounds)
+from .dataset import (SPLITS, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
+                      _image_size, _plan_crop, _read_depth, _source_pixels, _read_mask, _ViewStack, estimate_bounds)
 from .files import read_json, write_json
 
 __all__ = ["DEFAULT_BLENDER_BACKGROUND", "load_blender", "load_blender_cameras", "write_blender_transforms"]
@@ -89,18 +89,6 @@ def _resolve_file(json_path: Path, rel: str, what: str) -> Path:
     raise DatasetError(f"{json_path}: {what} not found (tried {tried})")
 
 
-def _image_size(path: Path) -> tuple[int, int]:
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as img:
-            return int(img.size[0]), int(img.size[1])
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: image not found") from None
-    except (UnidentifiedImageError, OSError) as exc:
-        raise DatasetError(f"{path}: cannot read image ({exc})") from None
-
-
 def _blender_camera(json_path: Path, meta: dict[str, Any], frame: dict[str, Any], frame_idx: int,
                     size: tuple[int, int], name: str) -> Camera:
     width, height = size
@@ -143,14 +131,33 @@ def load_blender_cameras(path: Path, splits: Sequence[str] | None = None) -> lis
     cams: list[Camera] = []
     for json_path, split in _blender_json_files(path, splits):
         meta = _read_transforms(json_path)
+        size = _stated_size(json_path, meta)
         for frame_idx, frame in enumerate(meta["frames"]):
-            image_path = _frame_image_path(json_path, frame, frame_idx)
-            if "w" in meta and "h" in meta:
-                size = (int(meta["w"]), int(meta["h"]))
+            if size is not None:
+                # the file states the size (nerfstudio's and our w/h keys): the images need not exist
+                if not isinstance(frame, dict) or "file_path" not in frame:
+                    raise DatasetError(f"{json_path}: frame {frame_idx} has no 'file_path'")
+                name = Path(str(frame["file_path"])).stem
+                cams.append(_blender_camera(json_path, meta, frame, frame_idx, size, name))
             else:
-                size = _image_size(image_path)
-            cams.append(_blender_camera(json_path, meta, frame, frame_idx, size, image_path.stem))
+                image_path = _frame_image_path(json_path, frame, frame_idx)
+                cams.append(_blender_camera(json_path, meta, frame, frame_idx, _image_size(image_path),
+                                            image_path.stem))
     return cams
+
+
+def _stated_size(json_path: Path, meta: dict[str, Any]) -> tuple[int, int] | None:
+    """Return the (width, height) a transforms file states with its ``w`` and ``h`` keys, or None."""
+    if "w" not in meta or "h" not in meta:
+        return None
+    try:
+        w, h = int(meta["w"]), int(meta["h"])
+    except (TypeError, ValueError):
+        raise DatasetError(f"{json_path}: 'w' and 'h' must be whole numbers, got {meta['w']!r} and {meta['h']!r}") \
+            from None
+    if w <= 0 or h <= 0:
+        raise DatasetError(f"{json_path}: 'w' and 'h' must be positive, got {w} and {h}")
+    return w, h
 
 
 def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: Sequence[float] | None = None,
@@ -165,7 +172,8 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
         progress: progress factory.
 
     Raises:
-        DatasetError: malformed JSON, a missing image, images of different sizes, a bad camera.
+        DatasetError: malformed JSON, a missing image, image sizes differing by more than 10% (smaller differences
+            are cropped away, centred, as :func:`~roodi_toolkit.io.colmap.load_colmap` does), a bad camera.
     """
     p = Path(path)
     if not p.exists():
@@ -181,59 +189,58 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
     bg = _check_background(background if bg_given else
                            next((m["background"] for _, _, m in metas if "background" in m), DEFAULT_BLENDER_BACKGROUND),
                            p)
-    rgbs: list[np.ndarray] = []
-    alphas: list[np.ndarray | None] = []
-    masks: list[np.ndarray | None] = []
-    depths: list[np.ndarray | None] = []
+    frames = [(json_path, split, meta, frame_idx, frame, _frame_image_path(json_path, frame, frame_idx))
+              for json_path, split, meta in metas for frame_idx, frame in enumerate(meta["frames"])]
+    # sizes from the file headers first, so each image can be decoded straight to its final (cropped, reduced) size
+    sizes = [_image_size(f[5]) for f in frames]
+    crop = _plan_crop([f[5] for f in frames], sizes)
+    out_w, out_h = _downscaled_size(crop.width, crop.height, d)
+    stack = _ViewStack(crop, (out_w, out_h), bg)
     cameras: list[Camera] = []
     split_labels: list[str] = []
-    same_size = _SameSize()
     depth_scale: float | None = None
     with progress(total=total, desc="load images") as bar:
-        for json_path, split, meta in metas:
-            for frame_idx, frame in enumerate(meta["frames"]):
-                image_path = _frame_image_path(json_path, frame, frame_idx)
-                rgb, alpha = _read_rgb(image_path)
-                h, w = rgb.shape[:2]
-                same_size(image_path, w, h)
-                cam = _blender_camera(json_path, meta, frame, frame_idx, (w, h), image_path.stem)
-                mask = None
-                if "mask_path" in frame:
-                    mask_path = _resolve_file(json_path, str(frame["mask_path"]), f"frame {frame_idx} mask")
-                    mask = _read_mask(mask_path)
-                    if mask.shape != (h, w):
-                        raise DatasetError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]} but its image "
-                                           f"{image_path.name} is {w}x{h}")
-                depth = None
-                if "depth_path" in frame:
-                    depth_path = _resolve_file(json_path, str(frame["depth_path"]), f"frame {frame_idx} depth")
-                    scale = float(frame.get("depth_scale", meta.get("depth_scale", 1.0)))
-                    depth_scale = scale if depth_scale is None else depth_scale
-                    depth = _read_depth(depth_path, scale)
-                    if depth.shape != (h, w):
-                        raise DatasetError(f"{depth_path}: depth is {depth.shape[1]}x{depth.shape[0]} but its image "
-                                           f"{image_path.name} is {w}x{h}")
-                rgbs.append(rgb)
-                alphas.append(alpha)
-                masks.append(mask)
-                depths.append(depth)
-                cameras.append(cam)
-                split_labels.append(split)
-                bar.update(1)
+        for i, (json_path, split, meta, frame_idx, frame, image_path) in enumerate(frames):
+            w, h = sizes[i]
+            cam = _blender_camera(json_path, meta, frame, frame_idx, (w, h), image_path.stem)
+            cam = _crop_camera(cam, crop.offsets[i], crop.width, crop.height)
+            if (out_w, out_h) != (crop.width, crop.height):
+                cam = cam.with_size(out_w, out_h)
+            mask = None
+            if "mask_path" in frame:
+                mask_path = _resolve_file(json_path, str(frame["mask_path"]), f"frame {frame_idx} mask")
+                mask = _read_mask(mask_path)
+                if mask.shape != (h, w):
+                    raise DatasetError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]} but its image "
+                                       f"{image_path.name} is {w}x{h}")
+            depth = None
+            if "depth_path" in frame:
+                depth_path = _resolve_file(json_path, str(frame["depth_path"]), f"frame {frame_idx} depth")
+                scale = float(frame.get("depth_scale", meta.get("depth_scale", 1.0)))
+                depth_scale = scale if depth_scale is None else depth_scale
+                depth = _read_depth(depth_path, scale)
+                if depth.shape != (h, w):
+                    raise DatasetError(f"{depth_path}: depth is {depth.shape[1]}x{depth.shape[0]} but its image "
+                                       f"{image_path.name} is {w}x{h}")
+            stack.add(image_path, i, mask, depth)
+            cameras.append(cam)
+            split_labels.append(split)
+            bar.update(1)
 
-    images_t, alpha_t = _composite(rgbs, alphas, bg)
+    images_t, alpha_t = stack.images()
+    masks, depths = stack.masks, stack.depths
     mask_t = None
     if any(m is not None for m in masks):
         if any(m is None for m in masks):
             missing = next(c.name for c, m in zip(cameras, masks) if m is None)
             raise DatasetError(f"{p}: some frames have a mask_path and others (e.g. {missing}) do not")
-        mask_t = torch.from_numpy(np.stack(masks))
+        mask_t = torch.stack(masks)
     depth_t = None
     if any(x is not None for x in depths):
         if any(x is None for x in depths):
             missing = next(c.name for c, x in zip(cameras, depths) if x is None)
             raise DatasetError(f"{p}: some frames have a depth_path and others (e.g. {missing}) do not")
-        depth_t = torch.from_numpy(np.stack(depths))
+        depth_t = torch.stack(depths)
 
     bounds_meta = next((m["scene_bounds"] for _, _, m in metas if "scene_bounds" in m), None)
     if bounds_meta is not None:
@@ -246,10 +253,14 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
     metadata: dict[str, Any] = {"transforms": [str(jp) for jp, _, _ in metas]}
     if depth_scale is not None:
         metadata["depth_scale"] = depth_scale
-    ds = Dataset(images=images_t, cameras=cameras, splits=split_labels, background=bg, bounds=bounds, alphas=alpha_t,
+    if d != 1:
+        metadata["downscale"] = d
+    if crop.cropped:
+        metadata["crop"] = crop.record([c.name for c in cameras])
+    metadata["source_pixels"] = _source_pixels([c.name for c in cameras], sizes, sizes, crop, (out_w, out_h))
+    return Dataset(images=images_t, cameras=cameras, splits=split_labels, background=bg, bounds=bounds, alphas=alpha_t,
                  masks=mask_t, depths=depth_t, root=p if p.is_dir() else p.parent, format="blender",
                  metadata=metadata)
-    return _downscale_dataset(ds, d)
 
 
 def write_blender_transforms(path: str | os.PathLike, cameras: Sequence[Camera], file_paths: Sequence[str], *,

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from ..cameras import Camera
-from ..errors import DatasetError, RoodiError
+from ..errors import ConfigError, DatasetError, RoodiError
 from ..progress import ProgressFactory, null_progress
 from .files import read_image
 
@@ -38,6 +38,7 @@ __all__ = [
     "load_dataset",
     "load_cameras",
     "estimate_bounds",
+    "to_loaded_pixel",
 ]
 
 SPLITS = ("train", "val", "test")
@@ -65,7 +66,10 @@ class Dataset:
         point_colors: ``[P, 3]`` uint8 colours of ``points``, else None.
         root: the folder the dataset was read from.
         format: ``"blender"`` or ``"colmap"``.
-        metadata: format-specific extras (e.g. ``depth_scale``, the COLMAP camera models).
+        metadata: format-specific extras (e.g. ``depth_scale``, the COLMAP camera models), and from the loaders
+            ``downscale``, ``crop`` (the common size and each cut image's own size and offset, when the images differ
+            slightly in size) and ``source_pixels`` (per view name, how the photo's pixels map to the loaded ones; see
+            :func:`to_loaded_pixel`).
     """
 
     images: torch.Tensor = field(repr=False)
@@ -261,19 +265,172 @@ def _read_rgb(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     return _to_float_image(_read_dataset_image(path), path)
 
 
-class _SameSize:
-    """Remembers the first image's size and refuses an image of any other size."""
+MAX_CROP_FRACTION = 0.10  # most of an image's width or height that cropping to a common size may discard
 
-    def __init__(self) -> None:
-        self.size: tuple[int, int] | None = None
-        self.first: Path | None = None
 
-    def __call__(self, path: Path, width: int, height: int) -> None:
-        if self.size is None:
-            self.size, self.first = (width, height), path
-        elif self.size != (width, height):
-            raise DatasetError(f"{path}: image is {width}x{height} but {self.first} is {self.size[0]}x{self.size[1]}; "
-                               "all images of a dataset must have the same size")
+@dataclass(frozen=True)
+class _Crop:
+    """The common image size of a dataset whose images differ slightly in size, and each image's centred crop.
+
+    COLMAP's undistorter writes every image at its own size (656 to 662 px high for one capture, say); the
+    :class:`Dataset` holds one ``[N, H, W, 3]`` tensor, so each image is cut to the smallest width and height, centred,
+    and its principal point moved by the same offset: the geometry stays exact, only border pixels are lost.
+    """
+
+    width: int
+    height: int
+    offsets: tuple[tuple[int, int], ...]  # per image (x0, y0) of the crop in its own pixels
+    sizes: tuple[tuple[int, int], ...]  # per image its own (width, height)
+
+    @property
+    def cropped(self) -> bool:
+        """Whether any image is cut."""
+        return any(s != (self.width, self.height) for s in self.sizes)
+
+    def record(self, names: Sequence[str]) -> dict[str, Any]:
+        """Return the metadata entry naming the common size and each cut image's own size and crop offset."""
+        return {"size": [self.width, self.height],
+                "images": {n: {"size": list(s), "offset": list(o)} for n, s, o in zip(names, self.sizes, self.offsets)
+                           if s != (self.width, self.height)}}
+
+
+def _plan_crop(paths: Sequence[Path], sizes: Sequence[tuple[int, int]],
+               max_fraction: float = MAX_CROP_FRACTION) -> _Crop:
+    """Return the centred crop of every image to the smallest width and height among ``sizes`` (width, height).
+
+    Raises:
+        DatasetError: the crop would discard more than ``max_fraction`` of some image's width or height (images of
+            really different sizes, not one capture's undistorted frames).
+    """
+    w0 = min(w for w, _ in sizes)
+    h0 = min(h for _, h in sizes)
+    for path, (w, h) in zip(paths, sizes):
+        if (w - w0) > max_fraction * w or (h - h0) > max_fraction * h:
+            raise DatasetError(f"{path}: image is {w}x{h} but the dataset's smallest images are {w0} wide and {h0} "
+                               f"high; images of one dataset may differ in size by at most {max_fraction:.0%} (they "
+                               "are cropped to the common size): resize them to one size first")
+    return _Crop(w0, h0, tuple(((w - w0) // 2, (h - h0) // 2) for w, h in sizes),
+                 tuple((int(w), int(h)) for w, h in sizes))
+
+
+def _source_pixels(names: Sequence[str], photo_sizes: Sequence[tuple[int, int]], read_sizes: Sequence[tuple[int, int]],
+                   crop: _Crop, out_size: tuple[int, int]) -> dict[str, dict[str, list[float]]]:
+    """Return, per view name, how its photo's pixels map to the loaded image's: ``x_loaded = x * scale - offset``.
+
+    ``photo_sizes``: the photos' own sizes (the camera model's); ``read_sizes``: the files actually decoded (a
+    reduced ``images_4`` copy, say); then the crop and the reduction to ``out_size`` (width, height).
+    """
+    out: dict[str, dict[str, list[float]]] = {}
+    sx2, sy2 = out_size[0] / crop.width, out_size[1] / crop.height
+    for name, (pw, ph), (rw, rh), (ox, oy) in zip(names, photo_sizes, read_sizes, crop.offsets):
+        ax, ay = rw / pw * sx2, rh / ph * sy2
+        out[name] = {"size": [int(pw), int(ph)], "scale": [ax, ay], "offset": [ox * sx2, oy * sy2]}
+    return out
+
+
+def to_loaded_pixel(dataset: "Dataset", view: str, x: float, y: float) -> tuple[float, float]:
+    """Return the loaded image's pixel ``(x, y)`` of a pixel of view ``view``'s original photo.
+
+    Clicks are given in the photo's own pixels (what an image viewer shows); the dataset may be reduced
+    (``downscale``, ``images_N``) and cropped to a common size, and this undoes both.
+
+    Raises:
+        ConfigError: the pixel is outside the photo, or in a border the common-size crop cut away.
+    """
+    m = dataset.metadata.get("source_pixels", {}).get(view)
+    if m is None:  # a dataset built in memory: its images are the photos
+        m = {"size": [dataset.width, dataset.height], "scale": [1.0, 1.0], "offset": [0.0, 0.0]}
+    (pw, ph), (ax, ay), (bx, by) = m["size"], m["scale"], m["offset"]
+    if not (0 <= x < pw and 0 <= y < ph):
+        raise ConfigError(f"click {x:g},{y:g} is outside the {pw}x{ph} image {view}")
+    ux, uy = x, y
+    if "undistort" in m:  # a distorted photo (COLMAP OPENCV ...): where its pixel lies in the undistorted image
+        import cv2
+
+        u = m["undistort"]
+        shift = np.diag([1.0, 1.0, 1.0])
+        shift[:2, 2] = -0.5  # OpenCV puts pixel centres at integers, we at +0.5
+        pt = cv2.undistortPoints(np.array([[[x - 0.5, y - 0.5]]]), shift @ np.asarray(u["K"]),
+                                 np.asarray(u["dist"]), P=shift @ np.asarray(u["new_K"]))
+        ux, uy = float(pt[0, 0, 0]) + 0.5, float(pt[0, 0, 1]) + 0.5
+    lx, ly = ux * ax - bx, uy * ay - by
+    if not (0 <= lx < dataset.width and 0 <= ly < dataset.height):
+        raise ConfigError(f"click {x:g},{y:g} in {view} lies in the border cut away to bring the images to one size "
+                          f"({dataset.metadata.get('crop', {}).get('size')}); click further inside")
+    return lx, ly
+
+
+def _crop_camera(cam: Camera, offset: tuple[int, int], width: int, height: int) -> Camera:
+    """Return ``cam`` for its image cut to ``width`` x ``height`` starting at pixel ``offset`` (x0, y0)."""
+    if offset == (0, 0) and (cam.width, cam.height) == (width, height):
+        return cam
+    K = cam.K.copy()
+    K[0, 2] -= offset[0]
+    K[1, 2] -= offset[1]
+    return Camera(cam.world_to_camera, K, width, height, cam.near, cam.far, cam.name)
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    """Return an image file's (width, height) from its header, without decoding it."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as img:
+            return int(img.size[0]), int(img.size[1])
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: image not found") from None
+    except (UnidentifiedImageError, OSError) as exc:
+        raise DatasetError(f"{path}: cannot read image ({exc})") from None
+
+
+class _ViewStack:
+    """Decodes a dataset's images one at a time straight to the training size, so memory follows that size.
+
+    Each image is composited on the background at full resolution (alpha and colour area-averaged afterwards give the
+    same result as averaging first, as compositing is linear), cut to the common size (:class:`_Crop`) and
+    area-resized to ``size``; masks and depths are resized with nearest-exact sampling. Only one full-size image is in
+    memory at a time, and the reduced ones go straight into the ``[N, h, w, 3]`` tensor (no stacking copy).
+    """
+
+    def __init__(self, crop: _Crop, size: tuple[int, int], background: Sequence[float]) -> None:
+        self.crop, self.size = crop, size  # size: (width, height) after downscaling
+        self.bg = np.asarray(background, np.float32)
+        n = len(crop.offsets)
+        self.rgb = torch.empty(n, size[1], size[0], 3, dtype=torch.float32)
+        self.alpha: torch.Tensor | None = None  # made at the first image with alpha: ones for views without
+        self.masks: list[torch.Tensor | None] = []
+        self.depths: list[torch.Tensor | None] = []
+
+    def _fit(self, arr: np.ndarray, index: int, mode: str) -> torch.Tensor:
+        x0, y0 = self.crop.offsets[index]
+        arr = arr[y0:y0 + self.crop.height, x0:x0 + self.crop.width]
+        t = torch.from_numpy(np.ascontiguousarray(arr))
+        w, h = self.size
+        if (w, h) == (self.crop.width, self.crop.height):
+            return t
+        return _resize_stack(t[None], (h, w), mode)[0]
+
+    def add(self, path: Path, index: int, mask: np.ndarray | None = None, depth: np.ndarray | None = None, *,
+            undistort: Any = None) -> None:
+        """Decode ``path`` (view ``index``) and keep it at the reduced size, with its mask and depth if given;
+        ``undistort`` maps the decoded full-size image (and its alpha) onto a pinhole camera's first."""
+        rgb, alpha = _read_rgb(path)
+        if undistort is not None:
+            rgb = undistort(rgb)
+            alpha = None if alpha is None else undistort(alpha)
+        if alpha is not None:
+            rgb = rgb * alpha[..., None] + self.bg * (1.0 - alpha[..., None])
+        self.rgb[index] = self._fit(rgb.astype(np.float32), index, "area")
+        if alpha is not None:
+            if self.alpha is None:
+                self.alpha = torch.ones(self.rgb.shape[:3], dtype=torch.float32)
+            self.alpha[index] = self._fit(alpha.astype(np.float32), index, "area")
+        self.masks.append(None if mask is None else self._fit(mask, index, "nearest"))
+        self.depths.append(None if depth is None else self._fit(depth, index, "nearest"))
+
+    def images(self) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Return images ``[N, h, w, 3]`` and alphas ``[N, h, w]`` (ones for views without alpha), or None."""
+        return self.rgb, self.alpha
 
 
 def _read_dataset_image(path: Path) -> np.ndarray:
@@ -334,17 +491,6 @@ def _check_downscale(downscale: float) -> float:
     return d
 
 
-def _composite(rgbs: list[np.ndarray], alphas: list[np.ndarray | None],
-               background: Sequence[float]) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Return images ``[N, H, W, 3]`` composited on ``background`` where they had alpha, and the alphas (or None)."""
-    images = np.stack(rgbs)
-    if not any(a is not None for a in alphas):
-        return torch.from_numpy(images.astype(np.float32)), None
-    alpha = np.stack([a if a is not None else np.ones(rgbs[0].shape[:2], np.float32) for a in alphas])
-    images = images * alpha[..., None] + np.asarray(background, np.float32) * (1.0 - alpha[..., None])
-    return torch.from_numpy(images.astype(np.float32)), torch.from_numpy(alpha.astype(np.float32))
-
-
 def _check_background(bg: Any, where: Path) -> tuple[float, float, float]:
     try:
         vals = tuple(float(v) for v in bg)
@@ -353,19 +499,6 @@ def _check_background(bg: Any, where: Path) -> tuple[float, float, float]:
     if len(vals) != 3 or not all(0.0 <= v <= 1.0 for v in vals):
         raise DatasetError(f"{where}: background must be three numbers in [0, 1], got {bg!r}")
     return vals  # type: ignore[return-value]
-
-
-def _downscale_dataset(ds: Dataset, downscale: float) -> Dataset:
-    if downscale == 1:
-        return ds
-    w, h = _downscaled_size(ds.width, ds.height, downscale)
-    images = _resize_stack(ds.images, (h, w), "area")
-    alphas = None if ds.alphas is None else _resize_stack(ds.alphas, (h, w), "area")
-    masks = None if ds.masks is None else _resize_stack(ds.masks, (h, w), "nearest")
-    depths = None if ds.depths is None else _resize_stack(ds.depths, (h, w), "nearest")
-    cameras = [c.with_size(w, h) for c in ds.cameras]
-    meta = dict(ds.metadata, downscale=downscale)
-    return replace(ds, images=images, alphas=alphas, masks=masks, depths=depths, cameras=cameras, metadata=meta)
 
 
 def estimate_bounds(cameras: Sequence[Camera], points: np.ndarray | None = None) -> np.ndarray:

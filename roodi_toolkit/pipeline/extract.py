@@ -22,7 +22,7 @@ Layout of ``OUT_DIR``::
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
@@ -34,6 +34,7 @@ from ..errors import ConfigError
 from .finetune import FinetuneConfig
 from ..gaussians import GaussianCloud
 from .occlusion import OcclusionConfig
+from .segment import SegmentPrompt
 from ..prune.outliers import PruneConfig
 from ..progress import ProgressFactory, null_progress
 from .train import TrainConfig
@@ -57,6 +58,11 @@ class ExtractConfig:
         finetune: fine-tuning settings.
         single_stage: train the object features together with the scene instead of distilling them into the trained
             scene (the paper's "w/o two-stage" ablation, :mod:`roodi_toolkit.pipeline.joint`); needs the dataset's masks.
+        segmenter: the segmenter plugin whose masks are distilled (``files``: the dataset's instance masks;
+            ``click``: the clicked object, propagated to every view through the scene's Gaussians; or a plugin).
+        prompt: the segmenter's clicks or mask folder. Clicks are in the original photo's pixels (what an image
+            viewer shows), whatever ``downscale``; a click whose view is ``""`` is in the first training view.
+        segmenter_options: keyword options of the segmenter.
     """
 
     train: TrainConfig = field(default_factory=lambda: TrainConfig(init="auto"))
@@ -70,6 +76,9 @@ class ExtractConfig:
     occlusion: OcclusionConfig = OcclusionConfig()
     finetune: FinetuneConfig = FinetuneConfig()
     single_stage: bool = False
+    segmenter: str = "files"
+    prompt: SegmentPrompt = SegmentPrompt()
+    segmenter_options: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not 0 < self.threshold < 1:
@@ -121,8 +130,34 @@ def _train_record(model_root: Path) -> dict[str, Any] | None:
     return record
 
 
-def _train_wanted(config: ExtractConfig, data_dir: Path, downscale: float) -> dict[str, Any]:
-    return {**_settings(config.train.to_dict()), "downscale": downscale, "data_dir": str(data_dir)}
+def _train_wanted(config: ExtractConfig, data_dir: Path, downscale: float, has_alpha: bool) -> dict[str, Any]:
+    train = config.train
+    if train.random_background is None:  # as the Trainer resolves it, so that a finished scene's record matches
+        train = replace(train, random_background=has_alpha)
+    return {**_settings(train.to_dict()), "downscale": downscale, "data_dir": str(data_dir.resolve())}
+
+
+def _loaded_prompt(prompt: SegmentPrompt, dataset: Any) -> tuple[SegmentPrompt, SegmentPrompt]:
+    """Return ``prompt`` with each click's view resolved (``""``: the first training view; a name may carry its file
+    extension), and the same with the clicks moved from the photos' pixels to the loaded images'.
+
+    Raises:
+        ConfigError: an unknown view, or a click outside its photo.
+    """
+    from ..io.dataset import to_loaded_pixel
+    from .segment import Click, view_index
+
+    if not prompt.clicks:
+        return prompt, prompt
+    given, clicks = [], []
+    for c in prompt.clicks:
+        name = c.view or dataset.names[(dataset.train_indices or [0])[0]]
+        if name not in dataset.names and Path(name).stem in dataset.names:  # given with its file extension
+            name = Path(name).stem
+        name = dataset.names[view_index(dataset, name)]
+        given.append(Click(name, c.x, c.y))
+        clicks.append(Click(name, *to_loaded_pixel(dataset, name, c.x, c.y)))
+    return replace(prompt, clicks=tuple(given)), replace(prompt, clicks=tuple(clicks))
 
 
 def _object_masks(masks: torch.Tensor, object_id: int, views: Sequence[int]) -> torch.Tensor:
@@ -201,7 +236,7 @@ class PreparedScene:
         return ids
 
 
-def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str | Path | None = None,
+def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir: str | Path | None = None,
                   distill_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
                   overwrite: bool = False, progress: ProgressFactory = null_progress,
                   renderer: Any = None) -> PreparedScene:
@@ -224,6 +259,14 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
                           "--model or --distill")
     if distill_dir is not None and model_dir is None:
         raise ConfigError("--distill needs the --model it was distilled from")
+    model = find_model(model_dir) if model_dir is not None else None
+    if data_dir is None:
+        recorded = model.config.get("data_dir") if model is not None else None
+        if not recorded:
+            raise ConfigError("give the data folder: no --model, or its cfg.json names no data_dir")
+        data_dir = recorded
+        if not Path(data_dir).exists():
+            raise ConfigError(f"{data_dir}: the data folder named in {model.root / 'cfg.json'} is gone; give DATA_DIR")
     data_dir = Path(data_dir)
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
                                    inputs=[data_dir, model_dir, distill_dir])
@@ -231,15 +274,17 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
     report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}}
     stages = _Stages(report)
     timings = report["stages"]
-    model = find_model(model_dir) if model_dir is not None else None
     downscale = config.downscale
     if downscale is None:
         downscale = float(model.config.get("downscale", 1) or 1) if model is not None else 1.0
     report["downscale"] = downscale
     dataset = load_dataset(data_dir, downscale, progress=progress)  # decoded once; every stage reads it from memory
+    given, prompt = _loaded_prompt(config.prompt, dataset)  # checked now, before any training
     distill_out = out / "distill"
-    distill_wanted = {"config": _settings(config.distill), "segmenter": "files", "downscale": downscale,
-                      "data_dir": str(data_dir.resolve()), "single_stage": config.single_stage}
+    distill_wanted = {"config": _settings(config.distill), "segmenter": config.segmenter,
+                      "prompt": _settings(given), "segmenter_options": _settings(config.segmenter_options),
+                      "downscale": downscale, "data_dir": str(data_dir.resolve()),
+                      "single_stage": config.single_stage}
     distill_old = files.read_json(distill_out / DISTILL_RECORD, "distillation record") \
         if (distill_out / DISTILL_RECORD).is_file() else None
 
@@ -248,7 +293,7 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
     distilled = None
     if model is None:
         model_root = out / "scene"
-        train_wanted = _train_wanted(config, data_dir, downscale)
+        train_wanted = _train_wanted(config, data_dir, downscale, dataset.alphas is not None)
         old = _train_record(model_root)
         if config.single_stage and old is not None and not _Stages({}).fresh("", distill_old, distill_wanted, False):
             old = None  # the features are learned with the scene: a changed distillation means training again
@@ -291,11 +336,13 @@ def prepare_scene(data_dir: str | Path, out_dir: str | Path, *, model_dir: str |
             _, cloud, classifier = load_distillation(distill_out)
         else:
             if distilled is None:
-                distilled = distill_scene(scene, dataset, config=config.distill,
+                distilled = distill_scene(scene, dataset, segmenter=config.segmenter, prompt=prompt,
+                                          segmenter_options=config.segmenter_options, config=config.distill,
                                           holdout_every=int(model.config.get("holdout_every", 8)),
                                           labels=scene_labels(data_dir), progress=progress, renderer=renderer)
             save_distilled(distill_out, distilled, model.ply_path,
-                           {"downscale": downscale, "data_dir": wanted["data_dir"],
+                           {"downscale": downscale, "data_dir": wanted["data_dir"], "prompt": wanted["prompt"],
+                            "segmenter_options": wanted["segmenter_options"],
                             "single_stage": config.single_stage, "model_dir": str(model.root.resolve())})
             report["distill"] = {k: v for k, v in distilled.summary.items() if k != "history"}
             cloud, classifier = distilled.cloud, distilled.classifier
@@ -329,7 +376,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
               "inpainter": config.inpainter, "occlusion": _settings(config.occlusion),
               "finetune": _settings(config.finetune), "downscale": prepared.downscale,
               "features_of": record.get("model_ply_sha256"),
-              "distillation": {k: record.get(k) for k in ("config", "segmenter", "data_dir")}}
+              "distillation": {k: record.get(k) for k in ("config", "segmenter", "prompt", "data_dir")}}
     stage_file = odir / "stage.json"
     old = files.read_json(stage_file, "object record") if stage_file.is_file() else None
     if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite):
@@ -370,18 +417,19 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
     return entry
 
 
-def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Sequence[int | str], *,
+def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids: Sequence[int | str], *,
                     model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
                     config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
                     progress: ProgressFactory = null_progress, renderer: Any = None) -> dict[str, Any]:
     """Return a report of every stage after writing each object's clean model into ``out_dir``.
 
     Args:
-        data_dir: the posed images (Blender or COLMAP; masks from the dataset's instance maps).
+        data_dir: the posed images (Blender or COLMAP; masks from the dataset's instance maps, or the segmenter's);
+            None: the ``data_dir`` that ``model_dir``'s ``cfg.json`` names.
         out_dir: the output folder; finished stages in it are reused when made with the same settings
             (``overwrite`` makes every stage again).
         object_ids: the instance ids of the objects to extract, or ``"all"`` (they share the scene and the
-            distillation).
+            distillation); 1 for the object a click segmenter's binary masks hold.
         model_dir: a trained scene (``roodi-toolkit train`` output) to use instead of training one; only read.
         distill_dir: a distillation of that scene (``roodi-toolkit distill`` output) to use instead of distilling;
             only read.
@@ -395,8 +443,18 @@ def extract_objects(data_dir: str | Path, out_dir: str | Path, object_ids: Seque
 
     if not object_ids:
         raise ConfigError("give at least one object id to extract (or --object all)")
-    prepared = prepare_scene(data_dir, out_dir, model_dir=model_dir, distill_dir=distill_dir, config=config,
-                             overwrite=overwrite, progress=progress, renderer=renderer)
+    out = Path(out_dir)
+    created = not out.exists()
+    try:
+        prepared = prepare_scene(data_dir, out_dir, model_dir=model_dir, distill_dir=distill_dir, config=config,
+                                 overwrite=overwrite, progress=progress, renderer=renderer)
+    except BaseException:
+        # a refused input (a bad click, say) leaves nothing behind; a partly trained scene stays, to resume from
+        if created and out.is_dir() and not any(p.is_file() for p in out.rglob("*")):
+            import shutil
+
+            shutil.rmtree(out)
+        raise
     report = prepared.report
     for object_id in prepared.object_ids(object_ids):
         report["objects"][str(object_id)] = extract_object(prepared, object_id, config=config, overwrite=overwrite,

@@ -53,7 +53,10 @@ class TrainConfig:
         init_num_points: random initialisation size (ours: sized for the CPU; gsplat uses 100,000).
         init_opacity: initial opacity (3DGS-MCMC: 0.5).
         init_scale: initial scale as a fraction of the mean distance to the 3 nearest points (3DGS-MCMC: 0.1).
-        random_background: composite images with alpha on a random colour each step (3DGS option).
+        random_background: composite images with alpha on a random colour each step, so that transparent pixels
+            teach transparency rather than one colour (a fixed colour grows floaters of that colour, visible on any
+            other background); None (the default): on exactly when the dataset's images have alpha. The
+            :class:`Trainer` resolves None to the value used, which ``cfg.json`` and checkpoints record.
         holdout_every: when the dataset has no test split, hold out every n-th training view for evaluation.
         seed: seeds every random choice.
         eval_every: evaluate on the held-out views this often (0: only at the end).
@@ -77,7 +80,7 @@ class TrainConfig:
     init_num_points: int = 20_000
     init_opacity: float = 0.5
     init_scale: float = 0.1
-    random_background: bool = False
+    random_background: bool | None = None
     holdout_every: int = 8
     seed: int = 0
     eval_every: int = 500
@@ -206,6 +209,8 @@ class Trainer:
                  train_indices: list[int] | None = None, *, renderer: Renderer | None = None) -> None:
         self.dataset = dataset
         self.renderer = resolve_renderer(renderer)
+        if config.random_background is None:
+            config = replace(config, random_background=dataset.alphas is not None)
         self.config = config
         self.train_indices, self.eval_indices = split_views(dataset, config.holdout_every)
         if train_indices is not None:
@@ -434,17 +439,19 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
         if iterations_override is not None:
             config = replace(config, iterations=iterations_override)
     else:
-        files.prepare_output_dir(out, overwrite=overwrite)
         state = None
     if dataset is None:
         dataset = load_dataset(data_dir, downscale)
+    if not resume:
+        # after the dataset is read, so that a bad dataset leaves nothing behind, not even an empty folder
+        files.prepare_output_dir(out, overwrite=overwrite)
     trainer = make_trainer(dataset, config) if make_trainer else Trainer(dataset, config, renderer=renderer)
     if state is not None:
         trainer.load_state_dict(state)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
-    files.write_json({"data_dir": str(data_dir), "downscale": downscale, "scene_scale": trainer.scale,
+    files.write_json({"data_dir": str(Path(data_dir).resolve()), "downscale": downscale, "scene_scale": trainer.scale,
                       "train_views": len(trainer.train_indices), "eval_views": len(trainer.eval_indices),
-                      **config.to_dict()}, out / "cfg.json")
+                      "dataset_has_alpha": dataset.alphas is not None, **trainer.config.to_dict()}, out / "cfg.json")
     start_step = trainer.step
     t0 = time.perf_counter()
     with progress(total=config.iterations, desc="train", initial=start_step) as bar:

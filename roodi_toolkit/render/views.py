@@ -53,6 +53,81 @@ def framing_orbit(cloud: GaussianCloud, n: int, *, elevation_deg: float = 20.0, 
                          fov_x_deg=fov_x_deg, up=up, near=near)
 
 
+def cameras_up(cameras: Sequence[Camera]) -> np.ndarray:
+    """Return the unit mean up direction ``[3]`` of cameras: the mean of minus each camera's image y axis.
+
+    Photographers hold cameras upright, so this is the scene's up whatever the file's convention (z up, y down ...).
+
+    Raises:
+        ConfigError: no cameras, or their up directions cancel out.
+    """
+    if not cameras:
+        raise ConfigError("no cameras to take the up direction from")
+    # row 1 of the world-to-camera rotation is the camera's y axis (image down, OpenCV) in world coordinates
+    mean = -np.mean([c.world_to_camera[1, :3] for c in cameras], axis=0)
+    norm = float(np.linalg.norm(mean))
+    if norm < 1e-3:
+        raise ConfigError("the cameras' up directions cancel out (no common up); give --up X,Y,Z")
+    return mean / norm
+
+
+def model_cameras(ply: str | os.PathLike) -> list[Camera] | None:
+    """Return the training cameras of the model a PLY belongs to, or None.
+
+    A ``roodi-toolkit train`` output keeps its scene at ``MODEL/point_cloud/iteration_N/point_cloud.ply`` beside
+    ``MODEL/cfg.json``, whose ``data_dir`` names the dataset; None when there is no such record or the dataset is gone.
+    """
+    from ..errors import RoodiError
+    from ..io.dataset import load_cameras
+    from ..io.files import read_json
+
+    root = Path(ply).resolve().parent.parent.parent
+    record = root / "cfg.json"
+    if Path(ply).resolve().parent.parent.name != "point_cloud" or not record.is_file():
+        return None
+    try:
+        cfg = read_json(record, "training record")
+        data = Path(str(cfg["data_dir"])) if isinstance(cfg, dict) and "data_dir" in cfg else None
+        return load_cameras(data) if data is not None and data.exists() else None
+    except (RoodiError, OSError):
+        return None
+
+
+def resolve_up(spec: str | None, ply: str | os.PathLike) -> tuple[np.ndarray, str]:
+    """Return the orbit's up direction ``[3]`` and where it came from.
+
+    ``spec``: ``"X,Y,Z"``; a dataset or camera file (its cameras' mean up, :func:`cameras_up`); ``"auto"``: the
+    training cameras of the model ``ply`` belongs to, refused when there are none; or None: those cameras when there
+    are, else z up.
+
+    ``auto`` makes no guess from the cloud alone: the guesses tried (the direction of least spread of the means,
+    pointed away from the denser side) were wrong on both real clouds at hand, the PlayCanvas biker (y down; guessed
+    -x) and the 3DGS donut (z up; guessed -z).
+
+    Raises:
+        ConfigError: a malformed ``spec``, or ``auto`` without cameras.
+    """
+    if spec is not None and spec.strip().lower() not in ("", "auto") and not Path(spec).exists():
+        try:
+            vec = np.array([float(v) for v in spec.replace(" ", "").split(",") if v])
+        except ValueError:
+            raise ConfigError(f"--up must be X,Y,Z, auto, or a dataset or camera file; got {spec!r}") from None
+        if vec.shape != (3,) or not np.isfinite(vec).all() or np.linalg.norm(vec) == 0:
+            raise ConfigError(f"--up must be three finite numbers, not all zero; got {spec!r}")
+        return vec / np.linalg.norm(vec), "given"
+    if spec is not None and Path(spec).exists():
+        from ..io.dataset import load_cameras
+
+        return cameras_up(load_cameras(spec)), f"the mean up of the cameras in {spec}"
+    cams = model_cameras(ply)
+    if cams:
+        return cameras_up(cams), "the mean up of the model's training cameras"
+    if spec is not None:  # auto
+        raise ConfigError(f"--up auto: {ply} is not the scene of a trained model whose dataset is still in place, so "
+                          "no cameras tell its up; give --up X,Y,Z or --up DATASET")
+    return np.array([0.0, 0.0, 1.0]), "z up (default)"
+
+
 @dataclass(frozen=True)
 class DepthEncoding:
     """How depth maps are stored: ``depth = png_value * scale``; ``png_value == 0`` means no surface."""
@@ -99,12 +174,14 @@ def colorize_depth(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 def render_views(cloud: GaussianCloud, cameras: Sequence[Camera], out_dir: str | os.PathLike, *, what: str = "rgb",
                  renderer: Renderer | str | None = None, background: Sequence[float] = (0.0, 0.0, 0.0),
-                 min_alpha: float = 0.5, progress: ProgressFactory = null_progress) -> dict:
+                 min_alpha: float = 0.5, progress: ProgressFactory = null_progress,
+                 extra: dict | None = None) -> dict:
     """Render every camera and write the images into an existing folder; return the ``render.json`` record.
 
     Files per view (named after ``camera.name``, else ``view_###``): ``rgb``: ``NAME.png``; ``alpha``:
     ``NAME_alpha.png`` (8-bit); ``depth``: ``NAME_depth.png`` (16-bit, see :class:`DepthEncoding`) and
     ``NAME_depth_preview.png``. ``renderer``: an instance, a registered name, or None for the built-in one.
+    ``extra``: more entries for ``render.json`` (e.g. how the views were framed).
     """
     if what not in WHATS:
         raise ConfigError(f"unknown render output {what!r}; choose one of {', '.join(WHATS)}")
@@ -116,7 +193,7 @@ def render_views(cloud: GaussianCloud, cameras: Sequence[Camera], out_dir: str |
     names = _view_names(cameras)
     encoding = depth_encoding_for(cloud, cameras, min_alpha) if what == "depth" else None
     record: dict = {"what": what, "renderer": type(renderer).__name__, "background": list(background),
-                    "gaussians": len(cloud), "views": []}
+                    "gaussians": len(cloud), **(extra or {}), "views": []}
     if encoding is not None:
         record["depth"] = {"scale": encoding.scale, "units": "scene units per PNG step (depth = value * scale)",
                            "invalid_value": 0, "min_alpha": encoding.min_alpha,
