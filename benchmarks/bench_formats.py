@@ -140,8 +140,9 @@ def main() -> int:
     sp.add_argument("--count", type=int, default=1_000_000)
     sp.add_argument("--repeats", type=int, default=3)
     op = sub.add_parser("oracle")
+    oracle_bin = Path(__file__).resolve().parents[1] / ".oracle" / "node_modules" / ".bin" / "splat-transform"
     op.add_argument("--splat-transform", default=os.environ.get("ROODI_SPLAT_TRANSFORM")
-                    or shutil.which("splat-transform") or "/work/oracle/node_modules/.bin/splat-transform")
+                    or shutil.which("splat-transform") or str(oracle_bin))
     args = ap.parse_args()
     if args.what == "speed":
         speed(args.count, args.repeats)

@@ -381,12 +381,13 @@ def test_real_donut_reads_and_converts(tmp_path: Path) -> None:
 
 # ----------------------------------------------------------------------------------------------- splat-transform oracle
 def _splat_transform() -> str:
-    for cand in (os.environ.get("ROODI_SPLAT_TRANSFORM"), "/work/oracle/node_modules/.bin/splat-transform",
+    repo = Path(__file__).resolve().parents[1]
+    for cand in (os.environ.get("ROODI_SPLAT_TRANSFORM"), repo / ".oracle" / "node_modules" / ".bin" / "splat-transform",
                  shutil.which("splat-transform")):
         if cand and Path(cand).exists():
-            return cand
+            return str(cand)
     pytest.skip("splat-transform not found (set ROODI_SPLAT_TRANSFORM, or npm install "
-                "@playcanvas/splat-transform@2.7.1 in /work/oracle)")
+                "@playcanvas/splat-transform@2.7.1 --prefix .oracle, as scripts/test.sh does)")
 
 
 def _st(tool: str, src: Path, dst: Path) -> Path:
