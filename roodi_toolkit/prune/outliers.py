@@ -540,6 +540,17 @@ def outlier_mask(dist: NeighborDistances, config: PruneConfig, report: PruneRepo
 
 
 # ------------------------------------------------------------------------------------------------------ API
+def filtered_report(cloud: GaussianCloud, config: PruneConfig) -> tuple[PruneReport, np.ndarray, np.ndarray]:
+    """Return a new report holding the filters' stages and time, the keep mask after the filters ``[N]`` and the
+    indices of the Gaussians left to evaluate (the common start of every pruning mode)."""
+    t0 = time.perf_counter()
+    report = PruneReport(input_count=len(cloud))
+    report.config = {**asdict(config), "alpha": config.effective_alpha}
+    keep, report.stages = filter_mask(cloud, config)
+    report.timings["filters"] = time.perf_counter() - t0
+    return report, keep, np.flatnonzero(keep)
+
+
 def remove_statistical_outliers(cloud: GaussianCloud, config: PruneConfig | None = None, *,
                                 progress: ProgressFactory = null_progress, **options: Any) -> PruneResult:
     """Return the cloud without statistical outliers (after the filters), the keep mask and a report.
@@ -570,12 +581,7 @@ def remove_statistical_outliers(cloud: GaussianCloud, config: PruneConfig | None
         config = replace(config, **options)
     t0 = time.perf_counter()
     n = len(cloud)
-    report = PruneReport(input_count=n)
-    report.config = {**asdict(config), "alpha": config.effective_alpha}
-    keep, stages = filter_mask(cloud, config)
-    report.stages = stages
-    report.timings["filters"] = time.perf_counter() - t0
-    evaluated = np.flatnonzero(keep)
+    report, keep, evaluated = filtered_report(cloud, config)
     if evaluated.size == 0:
         raise CloudError("no Gaussians left after the filters; loosen --min-opacity, --filter-box or "
                          "--filter-sphere")

@@ -24,7 +24,7 @@ search, as Euclidean statistical outlier removal) and work in any units:
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -218,7 +218,7 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *,
         >>> report.mode, bool(keep[planted.labels == 0].all()), bool(keep[planted.labels == 2].mean() < 0.05)
         ('object', True, True)
     """
-    from .outliers import PruneConfig, PruneReport, PruneResult, filter_mask, remove_statistical_outliers
+    from .outliers import PruneConfig, PruneResult, filtered_report, remove_statistical_outliers
 
     config = config or PruneConfig()
     if options:
@@ -229,12 +229,7 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *,
         return result
     t0 = time.perf_counter()
     n = len(cloud)
-    report = PruneReport(input_count=n)
-    report.config = {**asdict(config), "alpha": config.effective_alpha}
-    keep, stages = filter_mask(cloud, config)
-    report.stages = stages
-    report.timings["filters"] = time.perf_counter() - t0
-    evaluated = np.flatnonzero(keep)
+    report, keep, evaluated = filtered_report(cloud, config)
     if evaluated.size <= config.k:
         raise CloudError(f"only {evaluated.size} Gaussians left after the filters, the local tests need more than "
                          f"--k {config.k}; loosen the filters")
