@@ -44,10 +44,12 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
     from roodi_toolkit.io.splat import read_cloud
 
-    if json_path is not None:
-        files.check_output(json_path, overwrite=overwrite, inputs=[object_ply])
+    inputs = [object_ply, data_dir, lpips_weights]  # --json over scene.json or --renders into DATA_DIR is refused
+    files.check_outputs([("--json", json_path)], overwrite=overwrite, inputs=inputs)
     if renders_dir is not None:
-        out_dir = files.prepare_output_dir(renders_dir, overwrite=overwrite)
+        if json_path is not None and files.same_file(json_path, renders_dir):
+            raise click.BadParameter(f"{renders_dir} is also the --json file", param_hint="--renders")
+        out_dir = files.prepare_output_dir(renders_dir, overwrite=overwrite, inputs=inputs)
     cloud = read_cloud(object_ply)
     ev, renders = evaluate_object(cloud, data_dir, object_id, renderer=renderer, lpips_weights=lpips_weights,
                                   max_views=max_views, progress=progress_factory(quiet))

@@ -75,7 +75,11 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         w, h = size or (512, 512)
         cams = framing_orbit(cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
                              fov_x_deg=fov, up=up_axis)
-    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[ply, cameras_path])
+    # a transforms_*.json stands for its whole dataset folder: rendering into its images/ would overwrite them
+    from pathlib import Path
+
+    camera_folder = str(Path(cameras_path).parent) if cameras_path and Path(cameras_path).is_file() else None
+    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[ply, cameras_path, camera_folder])
     record = render_views(cloud, cams, out, what=what, renderer=renderer, background=bg,
                           progress=progress_factory(quiet))
     if not quiet:

@@ -92,15 +92,21 @@ def test_cli_render_blender_cameras(tmp_path, run_cli):
     cams = orbit_cameras([0, 0, 0], 3.0, 2, width=24, height=20)
     from roodi_toolkit.io.files import write_image
 
-    (tmp_path / "test").mkdir()
+    data = tmp_path / "data"  # the dataset folder is an input: outputs go beside it, never inside
+    (data / "test").mkdir(parents=True)
     for name in ("r_0", "r_1"):  # load_cameras checks that the frames' images exist
-        write_image(np.zeros((20, 24, 3)), tmp_path / "test" / f"{name}.png")
-    transforms = write_blender_transforms(tmp_path / "transforms_test.json", cams, ["./test/r_0", "./test/r_1"])
+        write_image(np.zeros((20, 24, 3)), data / "test" / f"{name}.png")
+    transforms = write_blender_transforms(data / "transforms_test.json", cams, ["./test/r_0", "./test/r_1"])
     out = tmp_path / "views"
     res = run_cli("render", ply, out, "--cameras", transforms, "--size", "48x40", "--what", "depth", "-q")
     assert res.exit_code == 0, res.stderr
     assert sorted(p.name for p in out.glob("*_depth.png")) == ["r_0_depth.png", "r_1_depth.png"]
     assert read_image(out / "r_0_depth.png").shape == (40, 48)
+    # rendering into the dataset the cameras come from (over its images) is refused, and nothing there changes
+    before = sorted((p.name, p.read_bytes()) for p in (data / "test").iterdir())
+    res = run_cli("render", ply, data / "test", "--cameras", transforms, "--overwrite", "-q")
+    assert res.exit_code == 1 and "inside the input folder" in res.stderr
+    assert sorted((p.name, p.read_bytes()) for p in (data / "test").iterdir()) == before
 
 
 def test_cli_render_errors(tmp_path, run_cli):

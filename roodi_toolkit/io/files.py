@@ -75,11 +75,8 @@ def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[s
     """
     dest = Path(path)
     for src in inputs:
-        src_path = Path(src)
-        if src_path.exists() and dest.exists() and os.path.samefile(src_path, dest):
-            raise OutputError(f"{dest}: output is the same file as the input; choose another output path")
-        if not dest.exists() and dest.resolve() == src_path.resolve():
-            raise OutputError(f"{dest}: output is the same file as the input; choose another output path")
+        if same_file(src, dest):
+            raise OutputError(f"{dest}: output is the same file as the input {src}; choose another output path")
     refuse_inside_inputs(dest, inputs)
     if dest.is_dir():
         raise OutputError(f"{dest}: is a folder; give a file path for this output")
@@ -89,6 +86,33 @@ def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[s
     if not parent.is_dir():
         raise OutputError(f"{dest}: the folder {parent} does not exist; create it first")
     return dest
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Return True if ``a`` and ``b`` name the same file, however spelled: ``./o.ply`` and ``o.ply``, a symbolic
+    link and its target, two hard links (``os.path.samefile`` when both exist, else the resolved paths)."""
+    pa, pb = Path(a), Path(b)
+    if pa.exists() and pb.exists():
+        return os.path.samefile(pa, pb)
+    return os.path.realpath(pa) == os.path.realpath(pb)
+
+
+def check_outputs(named: Sequence[tuple[str, str | os.PathLike | None]], *, overwrite: bool,
+                  inputs: Sequence[str | os.PathLike | None] = ()) -> None:
+    """Check several outputs of one command with :func:`check_output`, and that no two of them are the same file.
+
+    Args:
+        named: ``(option, path)`` pairs (``path`` None when the output is not asked for); the option names the
+            output in the error.
+        inputs: the command's input files and folders.
+    """
+    given = [(name, p) for name, p in named if p is not None]
+    for _, p in given:
+        check_output(p, overwrite=overwrite, inputs=[i for i in inputs if i is not None])
+    for i, (name_a, a) in enumerate(given):
+        for name_b, b in given[i + 1:]:
+            if same_file(a, b):
+                raise OutputError(f"{b}: {name_b} is the same file as {name_a} ({a}); give each output its own path")
 
 
 def refuse_inside_inputs(dest: str | os.PathLike, inputs: Sequence[str | os.PathLike | None]) -> None:
