@@ -93,6 +93,10 @@ def extract(data_dir: str, out_dir: str, object_ids: tuple[str, ...], model_dir:
     from roodi_toolkit.pipeline.extract import extract_objects
 
     config = extract_config_from_options(**stage_options)
+    if config.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
+        from roodi_toolkit.plugins import load_plugin
+
+        load_plugin("inpainters", config.inpainter)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
                              config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
     if report["reused"]:

@@ -23,7 +23,7 @@ EPILOG = """Examples:
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=str))
 @click.option("--cameras", "cameras_path", type=click.Path(path_type=str),
               help="Render a dataset's cameras: a Blender transforms_*.json, a Blender folder or a COLMAP folder.")
-@click.option("--orbit", type=click.IntRange(min=1), default=None,
+@click.option("--orbit", type=click.IntRange(1, 3600), default=None,  # one view per 0.1 degree at most
               help="Render N views on a circle around the cloud (default 8 when --cameras is not given).")
 @click.option("--elevation", type=float, default=20.0, show_default=True, help="Orbit elevation in degrees.")
 @click.option("--radius", type=click.FloatRange(min=0, min_open=True), default=None,

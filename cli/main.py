@@ -97,11 +97,19 @@ class FiniteFloat(click.ParamType):
         return repr(self.inner)
 
 
+SEED_RANGE = click.IntRange(0, 2 ** 32 - 1)
+"""Every ``--seed``: NumPy's generators refuse negative seeds (``--seed -1`` was an unexpected ValueError) and
+NumPy's legacy and PyTorch's seeding stop at 32 and 64 bits."""
+
+
 def _finite_floats(command: click.Command) -> click.Command:
-    """Make every float option and argument of ``command`` refuse non-finite values (once per command object)."""
+    """Make every float option and argument of ``command`` refuse non-finite values, and every ``--seed`` a value
+    outside :data:`SEED_RANGE` (once per command object)."""
     for param in command.params:
         if isinstance(param.type, click.types.FloatParamType):
             param.type = FiniteFloat(param.type)
+        elif param.name == "seed" and type(param.type) is click.types.IntParamType:
+            param.type = SEED_RANGE
     return command
 
 
