@@ -67,7 +67,8 @@ def _raise_environment_problem(exc: OSError, path: Path) -> None:
         raise EnvironmentProblemError(message) from exc
 
 
-def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[str | os.PathLike] = ()) -> Path:
+def check_output(path: str | os.PathLike, *, overwrite: bool,
+                 inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Return ``path`` as a Path after checking it may be written.
 
     Raises:
@@ -75,7 +76,7 @@ def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[s
     """
     dest = Path(path)
     for src in inputs:
-        if same_file(src, dest):
+        if src is not None and same_file(src, dest):
             raise OutputError(f"{dest}: output is the same file as the input {src}; choose another output path")
     refuse_inside_inputs(dest, inputs)
     if dest.is_dir():
