@@ -67,6 +67,8 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         from roodi_toolkit.io.dataset import load_cameras
 
         cams = load_cameras(cameras_path)
+        if not cams:
+            raise ConfigError(f"{cameras_path}: holds no cameras (no frames); give a dataset with views")
         if size is not None:
             cams = [c.with_size(*size) for c in cams]
     else:

@@ -246,7 +246,11 @@ def encode_spz(cloud: GaussianCloud) -> bytes:
 
 def write_spz(cloud: GaussianCloud, path: str | os.PathLike) -> Path:
     """Write ``cloud`` as SPZ version 3, atomically; return the path."""
-    data = encode_spz(cloud)
+    try:
+        data = encode_spz(cloud)
+    except FormatError as exc:  # what cannot be encoded, said of the file being written
+        message = str(exc)
+        raise FormatError(message if message.startswith(str(path)) else f"{path}: {message}") from None
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
