@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import gzip
 import io
-import os
 import zipfile
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
 import pytest
 
 from .conftest import expect_failure
@@ -23,6 +23,11 @@ def _ply_header(n: int, props: str = "x y z", fmt: str = "binary_little_endian")
 GS_PROPS = "x y z f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3"
 
 
+def _noise(n: int) -> bytes:
+    """``n`` reproducible noise bytes (a case must not pass or fail by chance)."""
+    return np.random.default_rng(n).bytes(n)
+
+
 def _zip(files: dict[str, bytes]) -> bytes:
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w") as z:
@@ -34,7 +39,7 @@ def _zip(files: dict[str, bytes]) -> bytes:
 # name -> (file name, bytes); every one must be refused by every reader with one line naming it
 BAD_FILES: dict[str, tuple[str, Callable[[Path], bytes]]] = {
     "empty": ("empty.ply", lambda w: b""),
-    "random bytes": ("noise.ply", lambda w: os.urandom(997)),
+    "random bytes": ("noise.ply", lambda w: _noise(997)),
     "text": ("notes.ply", lambda w: b"hello, I am not a splat\n" * 20),
     "header only": ("header.ply", lambda w: _ply_header(10, GS_PROPS)),
     "no end_header": ("open.ply", lambda w: _ply_header(10, GS_PROPS).replace(b"end_header\n", b"")),
@@ -46,18 +51,19 @@ BAD_FILES: dict[str, tuple[str, Callable[[Path], bytes]]] = {
     "unknown encoding": ("enc.ply", lambda w: _ply_header(2, GS_PROPS, "binary_middle_endian") + b"\x00" * 112),
     "truncated PLY": ("trunc.ply", lambda w: w.ply.read_bytes()[: w.ply.stat().st_size * 2 // 3]),
     "truncated SPZ": ("trunc.spz", lambda w: w.spz.read_bytes()[: w.spz.stat().st_size // 2]),
-    "gzip of garbage": ("garbage.spz", lambda w: gzip.compress(os.urandom(300))),
-    "corrupt gzip": ("broken.spz", lambda w: b"\x1f\x8b" + os.urandom(200)),
+    "gzip of garbage": ("garbage.spz", lambda w: gzip.compress(_noise(300))),
+    "corrupt gzip": ("broken.spz", lambda w: b"\x1f\x8b" + _noise(200)),
     "truncated compressed PLY": ("trunc.compressed.ply",
                                  lambda w: w.cply.read_bytes()[: w.cply.stat().st_size * 3 // 4]),
-    ".splat of wrong length": ("odd.splat", lambda w: os.urandom(32 * 5 + 7)),
+    ".splat of wrong length": ("odd.splat", lambda w: _noise(32 * 5 + 7)),
     "empty .splat": ("nothing.splat", lambda w: b""),
-    ".ksplat garbage": ("junk.ksplat", lambda w: os.urandom(4096)),
+    # a ksplat with every header field 0xff (random bytes may be a headerless .splat: 32 bytes a Gaussian)
+    ".ksplat garbage": ("junk.ksplat", lambda w: b"\xff" * 4096),
     "zip without meta.json": ("nometa.sog", lambda w: _zip({"a.txt": b"x"})),
     "SOG meta not JSON": ("badmeta.sog", lambda w: _zip({"meta.json": b"{not json"})),
     "SOG without textures": ("notex.sog", lambda w: _zip({"meta.json": b'{"version": 2, "count": 5, "means": '
                                                           b'{"mins": [0,0,0], "maxs": [1,1,1], "files": ["m.webp"]}}'})),
-    "corrupt zip": ("corrupt.sog", lambda w: b"PK\x03\x04" + os.urandom(300)),
+    "corrupt zip": ("corrupt.sog", lambda w: b"PK\x03\x04" + _noise(300)),
     "unknown extension": ("cloud.xyz", lambda w: w.ply.read_bytes()[:100]),
 }
 
