@@ -110,6 +110,9 @@ def _finite_floats(command: click.Command) -> click.Command:
             param.type = FiniteFloat(param.type)
         elif param.name == "seed" and type(param.type) is click.types.IntParamType:
             param.type = SEED_RANGE
+    if isinstance(command, click.Group):  # batch's sub-commands
+        for sub in command.commands.values():
+            _finite_floats(sub)
     return command
 
 
@@ -216,7 +219,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         # one line, like every other failure: the message names the option; --help shows the usage
         ctx = getattr(exc, "ctx", None)
-        where = f"roodi-toolkit {ctx.info_name}" if ctx is not None and ctx.parent is not None else "roodi-toolkit"
+        where = ctx.command_path if ctx is not None else "roodi-toolkit"
         click.echo(f"error: {_one_line(exc.format_message())} (see {where} --help)", err=True)
         return int(exc.exit_code) if exc.exit_code else 2
     except RoodiError as exc:

@@ -101,3 +101,47 @@ def test_output_inside_an_input_folder(name: str, args: str, needle: str, world,
     line = expect_failure(res, 1, needle)
     assert "input" in line
     assert world.unchanged()
+
+
+BATCH_MANIFESTS = {
+    "own input": ("src/a.ply,src/a.ply\n", "src/a.ply"),
+    "own input by another spelling": ("src/a.ply,./src/../src/a.ply\n", "a.ply"),
+    "own input through a link": ("src/a.ply,alink.ply\n", "alink.ply"),
+    "another item's input": ("src/a.ply,src/b.ply\nsrc/b.ply,o.ply\n", "src/b.ply"),
+    "two items, one file": ("src/a.ply,o.ply\nsrc/b.ply,./o.ply\n", "o.ply"),
+}
+
+
+@pytest.mark.parametrize("kind", list(BATCH_MANIFESTS))
+def test_batch_manifest_outputs_over_inputs(kind: str, world, run_cli, tmp_path: Path, monkeypatch) -> None:
+    rows, needle = BATCH_MANIFESTS[kind]
+    (tmp_path / "src").mkdir()
+    shutil.copyfile(world.ply, tmp_path / "src" / "a.ply")
+    shutil.copyfile(world.spz, tmp_path / "src" / "b.ply")
+    (tmp_path / "alink.ply").symlink_to(tmp_path / "src" / "a.ply")
+    (tmp_path / "m.csv").write_text("input,output\n" + rows)
+    monkeypatch.chdir(tmp_path)
+    before = {p.name: p.read_bytes() for p in (tmp_path / "src").iterdir()}
+    res = run_cli("batch", "prune", "m.csv", "out", "--alpha", "0.1", "-q")
+    expect_failure(res, 1, needle)
+    assert {p.name: p.read_bytes() for p in (tmp_path / "src").iterdir()} == before
+    assert not (tmp_path / "o.ply").exists()
+
+
+@pytest.mark.parametrize("out", ["src", "src/out", "./src/../src/x"])
+def test_batch_output_folder_inside_the_source(out: str, world, run_cli, tmp_path: Path, monkeypatch) -> None:
+    (tmp_path / "src").mkdir()
+    shutil.copyfile(world.ply, tmp_path / "src" / "a.ply")
+    monkeypatch.chdir(tmp_path)
+    res = run_cli("batch", "prune", "src", out, "-q")
+    expect_failure(res, 1, "inside the input folder")
+    assert sorted(p.name for p in (tmp_path / "src").iterdir()) == ["a.ply"]
+
+
+@pytest.mark.parametrize("args,needle", [(["prune", "--alpha", "nan"], "--alpha"), (["prune", "--k", "0"], "--k"),
+                                         (["prune", "--jobs", "100000"], "--jobs"),
+                                         (["convert", "--to", ".xyz"], "--to")])
+def test_batch_bad_options(args, needle: str, world, run_cli, tmp_path: Path) -> None:
+    res = run_cli("batch", args[0], world.ply.parent, tmp_path / "o", *args[1:])
+    expect_failure(res, 2, needle)
+    assert not (tmp_path / "o").exists()
