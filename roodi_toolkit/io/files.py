@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import signal
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -31,26 +32,50 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     parent = dest.parent if str(dest.parent) else Path(".")
     if not parent.is_dir():
         raise OutputError(f"{dest}: the folder {parent} does not exist")
+    # SIGTERM / Ctrl-C between creating the temporary file and entering the ``try`` below would leave it behind:
+    # hold them until it is known (a held signal is delivered on unblocking, inside the ``try``)
+    held = _hold_signals()
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix,
                                    dir=parent)
     except OSError as exc:
+        _release_signals(held)
         _raise_environment_problem(exc, dest)
         raise
-    os.close(fd)
+    except BaseException:
+        _release_signals(held)
+        raise
     tmp_path = Path(tmp)
     try:
+        os.close(fd)
+        _release_signals(held)
         yield tmp_path
         # mkstemp creates the file 0600; an output is a normal file, readable as the user's umask allows
         with contextlib.suppress(FileNotFoundError):
             os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, dest)
     except BaseException as exc:
+        _release_signals(held)  # (again, if os.close failed before the release)
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         if isinstance(exc, OSError):
             _raise_environment_problem(exc, dest)
         raise
+
+
+_HELD = (signal.SIGTERM, signal.SIGINT)
+
+
+def _hold_signals() -> Any:
+    """Block SIGTERM and SIGINT in this thread; return the previous mask (None where the platform cannot)."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+
+
+def _release_signals(previous: Any) -> None:
+    if previous is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _umask() -> int:

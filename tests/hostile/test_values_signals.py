@@ -220,7 +220,5 @@ def test_a_real_process_killed_while_converting(sig: int, code: int, tmp_path: P
     _, err = proc.communicate(timeout=60)
     assert proc.returncode in (0, code), err
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
-    if proc.returncode == code:
-        assert not out.exists()
-    else:
+    if proc.returncode == 0 or out.exists():  # finished, or signalled just after the rename: the whole output
         assert len(read_cloud(out)) == 400_000
