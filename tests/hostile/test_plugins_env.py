@@ -112,3 +112,23 @@ def test_bad_roodi_threads_is_named(value: str, run_cli, monkeypatch, world, tmp
 def test_threads_is_ignored_by_commands_without_torch(run_cli, monkeypatch, world) -> None:
     monkeypatch.setenv("ROODI_THREADS", "100000")
     assert run_cli("info", world.ply).exit_code == 0
+
+
+@pytest.mark.parametrize("how", ["env", "option"])
+@pytest.mark.parametrize("kind", ["garbage file", "missing file", "folder", "empty file"])
+def test_lpips_weights_named_by_the_user_must_load(kind: str, how: str, run_cli, monkeypatch, world,
+                                                   tmp_path: Path) -> None:
+    weights = tmp_path / "w.pth"
+    if kind == "garbage file":
+        weights.write_bytes(b"not a checkpoint" * 10)
+    elif kind == "folder":
+        weights.mkdir()
+    elif kind == "empty file":
+        weights.write_bytes(b"")
+    monkeypatch.delenv("ROODI_LPIPS_WEIGHTS", raising=False)
+    extra = ["--lpips-weights", weights] if how == "option" else []
+    if how == "env":
+        monkeypatch.setenv("ROODI_LPIPS_WEIGHTS", str(weights))
+    res = run_cli("evaluate", world.ply, world.gen, "--object", "1", "--json", tmp_path / "s.json", "-q", *extra)
+    expect_failure(res, 1, "w.pth")  # not scored silently without LPIPS
+    assert not (tmp_path / "s.json").exists()
