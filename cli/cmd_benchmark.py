@@ -62,4 +62,7 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
     for c in results["checks"]:
         click.echo(f"{'info' if c['met'] is None else 'met' if c['met'] else 'NOT met'}: {c['check']} "
                    f"({c['value']:+.3f})")
+    if results.get("recomputed"):
+        click.echo(f"rescored {len(results['recomputed'])} object(s) whose extraction or scene changed since the "
+                   f"last run: {', '.join(sorted(results['recomputed']))}")
     click.echo(f"tables: {out_dir}/results.md, {out_dir}/results.json; pictures: {out_dir}/<preset>.png")

@@ -69,6 +69,9 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
             parsed.append(Click.parse(c))
         except ConfigError as exc:
             raise click.BadParameter(str(exc), param_hint="--click") from None
+    from roodi_toolkit.plugins import load_plugin
+
+    load_plugin("segmenters", segmenter)  # an unknown or broken --segmenter fails before the images are read
     changes = {k: v for k, v in (("feature_lr", feature_lr), ("classifier_lr", classifier_lr)) if v is not None}
     config = DistillConfig(iterations=iterations, seed=seed, **changes)
     summary = run_distill(model_dir, data_dir, out_dir, segmenter=segmenter, clicks=parsed, mask_dir=mask_dir,

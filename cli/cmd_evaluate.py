@@ -44,10 +44,18 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
     from roodi_toolkit.io.splat import read_cloud
 
-    if json_path is not None:
-        files.check_output(json_path, overwrite=overwrite, inputs=[object_ply])
+    inputs = [object_ply, data_dir, lpips_weights]  # --json over scene.json or --renders into DATA_DIR is refused
+    files.check_outputs([("--json", json_path)], overwrite=overwrite, inputs=inputs)
     if renders_dir is not None:
-        out_dir = files.prepare_output_dir(renders_dir, overwrite=overwrite)
+        if json_path is not None and files.same_file(json_path, renders_dir):
+            raise click.BadParameter(f"{renders_dir} is also the --json file", param_hint="--renders")
+        out_dir = files.prepare_output_dir(renders_dir, overwrite=overwrite, inputs=inputs)
+    import os
+
+    from roodi_toolkit.evaluate.lpips import ENV_WEIGHTS, LPIPS
+
+    if lpips_weights or os.environ.get(ENV_WEIGHTS):  # weights named by the user must load: fail now, naming them
+        LPIPS.from_local(lpips_weights)
     cloud = read_cloud(object_ply)
     ev, renders = evaluate_object(cloud, data_dir, object_id, renderer=renderer, lpips_weights=lpips_weights,
                                   max_views=max_views, progress=progress_factory(quiet))
@@ -58,6 +66,6 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
         for i, view in enumerate(ev.views):
             files.write_image(np.concatenate([renders[i], truth.images[i].numpy()], axis=1),
                               out_dir / f"{view.name}_render_vs_truth.png")
-    lp = f"{ev.lpips:.4f}" if ev.lpips is not None else "unavailable (no local weights)"
+    lp = f"{ev.lpips:.4f}" if ev.lpips is not None else f"unavailable ({ev.lpips_status.removeprefix('unavailable: ')})"
     click.echo(f"{ev.object_name} (id {ev.object_id}), {len(ev.views)} views: PSNR {ev.psnr:.2f} dB, "
                f"SSIM {ev.ssim:.4f}, LPIPS {lp}, IoU {ev.iou:.4f}")

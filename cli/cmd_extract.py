@@ -135,6 +135,10 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     config = extract_config_from_options(**stage_options)
     config = replace(config, segmenter=segmenter,
                      prompt=SegmentPrompt(clicks=parsed, mask_dir=Path(mask_dir) if mask_dir else None))
+    if config.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
+        from roodi_toolkit.plugins import load_plugin
+
+        load_plugin("inpainters", config.inpainter)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
                              config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
     if report["reused"]:

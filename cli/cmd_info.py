@@ -64,7 +64,7 @@ def info(ply: str, as_json: bool) -> None:
         + (", ".join(f"{k} {v:,}" for k, v in bad["inf"].items() if v) or "none") + ")",
         f"opacity +-inf   {bad['opacity_pos_inf']:,} / {bad['opacity_neg_inf']:,}  (fully opaque / transparent; "
         f"read as logit +-{OPACITY_LOGIT_LIMIT:.4g})",
-        f"absurd scales   {bad['absurd_scale_rows']:,}  (largest scale wider than the scene's bounding box)",
+        f"absurd scales   {bad['absurd_scale_rows']:,}  (largest scale wider than the scene's bounding box, or infinite)",
         f"zero quats      {stats['zero_norm_quats']:,}",
         f"normals         {'yes' if stats['has_normals'] else 'no'}",
         "extra columns   " + (", ".join(f"{k} ({v})" for k, v in stats["extra_columns"].items()) or "none"),

@@ -19,6 +19,9 @@ Examples:
   roodi-toolkit inspect scene.ply --html view.html                  # needs trame-pyvista
 """
 
+MAX_WINDOW = 4096
+"""Largest --window-size side (a 4K screenshot fits; larger ones exceed common off-screen framebuffer limits)."""
+
 CAMERA_HELP = ("View direction: iso, xy (from +z), xz (from -y), yz (from +x), or the side the camera sits on: "
                "+x, -x, +y, -y, +z, -z. The camera frames the kept Gaussians.")
 
@@ -60,18 +63,19 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     scale for large ones. Without a display, ask for --screenshot, --html or --histogram.
     """
     from roodi_toolkit.viz import inspect as insp
-    from roodi_toolkit.errors import ConfigError, EnvironmentProblemError, OutputError
-    from roodi_toolkit.io.files import check_output, write_image
+    from roodi_toolkit.errors import ConfigError, EnvironmentProblemError
+    from roodi_toolkit.io.files import check_outputs, write_image
     from roodi_toolkit.prune.outliers import remove_statistical_outliers
     from roodi_toolkit.io.splat import read_cloud
 
     config = prune_config_from_options(**{name: prune_kwargs[name] for name in PRUNE_OPTION_NAMES})
     size = parse_size(window_size, "--window-size")
+    if max(size) > MAX_WINDOW:  # VTK allocates the whole window off screen: 16384x16384 is 1 GiB per buffer
+        raise click.BadParameter(f"at most {MAX_WINDOW}x{MAX_WINDOW} pixels, got {window_size!r}",
+                                 param_hint="--window-size")
     outputs = [p for p in (screenshot, html_path, histogram) if p is not None]
-    for path in outputs:
-        check_output(path, overwrite=overwrite, inputs=[input_ply])
-    if len({str(click.format_filename(p)) for p in outputs}) != len(outputs):
-        raise OutputError("--screenshot, --html and --histogram must be different files")
+    check_outputs([("--screenshot", screenshot), ("--html", html_path), ("--histogram", histogram)],
+                  overwrite=overwrite, inputs=[input_ply])
     has_display = insp.display_available()
     if window is None:
         window = has_display and not outputs

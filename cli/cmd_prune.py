@@ -3,8 +3,6 @@ statistical rule with ``--mode statistical``)."""
 
 from __future__ import annotations
 
-import os
-
 import click
 
 from roodi_toolkit.cli.common import overwrite_option, progress_factory, quiet_option
@@ -53,8 +51,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     import time
     from pathlib import Path
 
-    from roodi_toolkit.errors import OutputError
-    from roodi_toolkit.io.files import check_output, write_json
+    from roodi_toolkit.io.files import check_outputs, write_json
     from roodi_toolkit.io.splat import read_cloud, write_cloud
     from roodi_toolkit.prune.scene import prune_cloud
 
@@ -74,11 +71,9 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
         if floaters_out is not None:
             raise click.BadParameter("--dry-run writes no cloud; leave out --floaters-out",
                                      param_hint="--floaters-out")
-    outputs = [p for p in ((None if dry_run else output_ply), floaters_out, report_path, picture) if p is not None]
-    for path in outputs:
-        check_output(path, overwrite=overwrite, inputs=[input_ply])
-    if len({os.path.realpath(p) for p in outputs}) != len(outputs):  # the same file by another spelling counts
-        raise OutputError("OUT, --floaters-out and --report must be different files")
+    check_outputs([("OUT", None if dry_run else output_ply), ("--floaters-out", floaters_out),
+                   ("--report", report_path), ("the dry run's picture", picture)], overwrite=overwrite,
+                  inputs=[input_ply])
 
     t_read = time.perf_counter()
     cloud = read_cloud(input_ply)

@@ -25,7 +25,7 @@ EPILOG = """Examples:
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=str))
 @click.option("--cameras", "cameras_path", type=click.Path(path_type=str),
               help="Render a dataset's cameras: a Blender transforms_*.json, a Blender folder or a COLMAP folder.")
-@click.option("--orbit", type=click.IntRange(min=1), default=None,
+@click.option("--orbit", type=click.IntRange(1, 3600), default=None,  # one view per 0.1 degree at most
               help="Render N views on a circle around the cloud (default 8 when --cameras is not given).")
 @click.option("--elevation", type=float, default=20.0, show_default=True, help="Orbit elevation in degrees.")
 @click.option("--radius", type=click.FloatRange(min=0, min_open=True), default=None,
@@ -73,9 +73,12 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
     cloud.require_finite(ply)
     extra = {}
     if cameras_path:
+        from roodi_toolkit.errors import ConfigError
         from roodi_toolkit.io.dataset import load_cameras
 
         cams = load_cameras(cameras_path)
+        if not cams:
+            raise ConfigError(f"{cameras_path}: holds no cameras (no frames); give a dataset with views")
         if size is not None:
             cams = [c.with_size(*size) for c in cams]
     else:
@@ -91,7 +94,11 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         extra = {"orbit": {"framed_on": str(frame_path), "up": up_axis.tolist(), "up_from": up_from}}
         if not quiet:
             click.echo(f"orbit up {', '.join(f'{v:.3f}' for v in up_axis)}: {up_from}", err=True)
-    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[ply, cameras_path, frame_like])
+    # a transforms_*.json stands for its whole dataset folder: rendering into its images/ would overwrite them
+    from pathlib import Path
+
+    camera_folder = str(Path(cameras_path).parent) if cameras_path and Path(cameras_path).is_file() else None
+    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[ply, cameras_path, camera_folder, frame_like])
     record = render_views(cloud, cams, out, what=what, renderer=renderer, background=bg,
                           progress=progress_factory(quiet), extra=extra)
     if not quiet:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 import sys
 from typing import Any, Callable
 
@@ -34,6 +35,8 @@ def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:
         raise click.BadParameter(f"expected {n} comma-separated numbers, got {text!r}", param_hint=name) from None
     if len(values) != n:
         raise click.BadParameter(f"expected {n} comma-separated numbers, got {len(values)}", param_hint=name)
+    if not all(math.isfinite(v) for v in values):
+        raise click.BadParameter(f"expected finite numbers, got {text!r}", param_hint=name)
     return values
 
 

@@ -68,7 +68,52 @@ class LazyGroup(click.Group):
         if target is None:
             return None
         module_name, attr = target.split(":")
-        return getattr(importlib.import_module(module_name), attr)
+        return _finite_floats(getattr(importlib.import_module(module_name), attr))
+
+
+class FiniteFloat(click.ParamType):
+    """Wraps a command's float type (``float`` or a ``FloatRange``): also refuses NaN and +-inf. Click's ranges let
+    NaN through (every comparison with it is false): ``--classifier-lr nan`` reached the optimiser."""
+
+    def __init__(self, inner: click.ParamType) -> None:
+        self.inner = inner
+        self.name = inner.name
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        import math
+
+        out = self.inner.convert(value, param, ctx)
+        if isinstance(out, float) and not math.isfinite(out):
+            self.fail(f"must be a finite number, got {value!r}", param, ctx)
+        return out
+
+    def get_metavar(self, param: click.Parameter, *args: Any, **kwargs: Any) -> str | None:
+        return self.inner.get_metavar(param, *args, **kwargs)
+
+    def to_info_dict(self) -> dict[str, Any]:
+        return self.inner.to_info_dict()
+
+    def __repr__(self) -> str:
+        return repr(self.inner)
+
+
+SEED_RANGE = click.IntRange(0, 2 ** 32 - 1)
+"""Every ``--seed``: NumPy's generators refuse negative seeds (``--seed -1`` was an unexpected ValueError) and
+NumPy's legacy and PyTorch's seeding stop at 32 and 64 bits."""
+
+
+def _finite_floats(command: click.Command) -> click.Command:
+    """Make every float option and argument of ``command`` refuse non-finite values, and every ``--seed`` a value
+    outside :data:`SEED_RANGE` (once per command object)."""
+    for param in command.params:
+        if isinstance(param.type, click.types.FloatParamType):
+            param.type = FiniteFloat(param.type)
+        elif param.name == "seed" and type(param.type) is click.types.IntParamType:
+            param.type = SEED_RANGE
+    if isinstance(command, click.Group):  # batch's sub-commands
+        for sub in command.commands.values():
+            _finite_floats(sub)
+    return command
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 110},
@@ -105,8 +150,12 @@ def _torch_threads(args: Sequence[str]) -> None:
         n = int(value)
     except ValueError:
         raise ConfigError(f"ROODI_THREADS / --threads must be a positive integer, got {value!r}") from None
-    if n < 1:
-        raise ConfigError(f"ROODI_THREADS / --threads must be a positive integer, got {value!r}")
+    # more threads than cores only makes OpenMP spin, and a huge count makes PyTorch allocate per-thread state until
+    # it crashes (--threads 100000 segfaulted): the machine's core count is the bound
+    cores = os.cpu_count() or 1
+    if not 1 <= n <= cores:
+        raise ConfigError(f"ROODI_THREADS / --threads must be an integer from 1 to {cores} (this machine's cores), "
+                          f"got {value!r}")
     import torch
 
     torch.set_num_threads(n)
@@ -168,7 +217,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except click.ClickException as exc:  # usage errors: bad option, missing argument, bad value
         if debug:
             raise
-        exc.show()
+        # one line, like every other failure: the message names the option; --help shows the usage
+        ctx = getattr(exc, "ctx", None)
+        where = ctx.command_path if ctx is not None else "roodi-toolkit"
+        click.echo(f"error: {_one_line(exc.format_message())} (see {where} --help)", err=True)
         return int(exc.exit_code) if exc.exit_code else 2
     except RoodiError as exc:
         if debug:

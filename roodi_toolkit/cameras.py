@@ -16,6 +16,10 @@ from .errors import ConfigError, DatasetError
 from .gaussians import quat_to_rotmat
 
 
+ROTATION_TOLERANCE = 1e-3
+"""Largest deviation of a pose's rotation from orthonormal accepted (float32 files round to about 1e-7)."""
+
+
 @dataclass(frozen=True)
 class Camera:
     """A posed pinhole camera.
@@ -47,6 +51,15 @@ class Camera:
             raise ConfigError(f"camera {self.name!r}: K must be [3, 3], got {list(K.shape)}")
         if not (np.isfinite(w2c).all() and np.isfinite(K).all()):
             raise ConfigError(f"camera {self.name!r}: pose or intrinsics contain NaN/Inf")
+        fx, fy = K[0, 0], K[1, 1]
+        if not (fx > 0 and fy > 0):  # a zero focal length projects every point to infinity
+            raise ConfigError(f"camera {self.name!r}: focal lengths must be positive, got fx={fx:g} fy={fy:g}")
+        rot = w2c[:3, :3]
+        # a pose must be a rotation and a translation; a scaled, sheared or mirrored matrix is a broken file
+        if (np.abs(rot.T @ rot - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(rot) <= 0
+                or np.abs(w2c[3] - (0.0, 0.0, 0.0, 1.0)).max() > ROTATION_TOLERANCE):
+            raise ConfigError(f"camera {self.name!r}: the pose is not a rotation and translation (its rotation is not "
+                              "orthonormal with determinant +1); check the camera file")
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise ConfigError(f"camera {self.name!r}: size must be positive, got {self.width}x{self.height}")
         if not 0 < self.near < self.far:

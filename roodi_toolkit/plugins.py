@@ -15,7 +15,9 @@ To register a plugin during development without installing it, set ``ROODI_PLUGI
 from __future__ import annotations
 
 import importlib
+import math
 import os
+import threading
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any
@@ -24,6 +26,7 @@ from .errors import PluginError
 
 GROUPS = ("roodi_toolkit.renderers", "roodi_toolkit.inpainters", "roodi_toolkit.segmenters")
 ENV_VAR = "ROODI_PLUGINS"
+TIMEOUT_VAR = "ROODI_PLUGIN_TIMEOUT"
 
 
 @dataclass(frozen=True)
@@ -43,16 +46,65 @@ class PluginSpec:
     origin: str
 
     def load(self) -> Any:
-        """Import and return the plugin object, or raise PluginError naming the plugin and its error."""
-        module_name, _, attr = self.target.partition(":")
+        """Import and return the plugin object, or raise PluginError naming the plugin and its error.
+
+        The import runs in a worker thread under a time limit (``$ROODI_PLUGIN_TIMEOUT`` seconds, default 300) with
+        ``os._exit`` turned into an exception, so a plugin that blocks, exits (``sys.exit``, ``os._exit``) or raises
+        ``KeyboardInterrupt`` while importing is reported by name and cannot take the command down with it.
+        """
+        outcome: dict[str, Any] = {}
+
+        def run() -> None:
+            try:
+                outcome["obj"] = self._import()
+            except BaseException as exc:  # noqa: BLE001 - SystemExit, KeyboardInterrupt: the plugin's, reported
+                outcome["exc"] = exc
+
+        limit = plugin_timeout()
+        real_exit = os._exit
+        os._exit = _refuse_exit  # a plugin that hard-exits at import must not end the process
         try:
-            obj: Any = importlib.import_module(module_name)
-            for part in filter(None, attr.split(".")):
-                obj = getattr(obj, part)
-        except Exception as exc:  # noqa: BLE001 - any import failure is the plugin's, reported by name
+            worker = threading.Thread(target=run, name=f"load plugin {self.name}", daemon=True)
+            worker.start()
+            worker.join(limit)
+        finally:
+            os._exit = real_exit
+        if worker.is_alive():
+            raise PluginError(f"plugin {self.name!r} ({short_group(self.group)}, from {self.origin}) did not finish "
+                              f"importing within {limit:g} s (it blocks at import); fix or uninstall it, or raise "
+                              f"${TIMEOUT_VAR}")
+        if "exc" in outcome:
+            exc = outcome["exc"]
             raise PluginError(f"plugin {self.name!r} ({short_group(self.group)}, from {self.origin}) failed to "
                               f"load: {type(exc).__name__}: {exc}") from exc
+        return outcome["obj"]
+
+    def _import(self) -> Any:
+        module_name, _, attr = self.target.partition(":")
+        obj: Any = importlib.import_module(module_name)
+        for part in filter(None, attr.split(".")):
+            obj = getattr(obj, part)
         return obj
+
+
+class PluginExit(BaseException):
+    """A plugin called ``os._exit`` while being imported (it is turned into this exception, then reported)."""
+
+
+def _refuse_exit(code: int = 0) -> None:
+    raise PluginExit(f"os._exit({code}) called at import")
+
+
+def plugin_timeout() -> float:
+    """Seconds a plugin may take to import: ``$ROODI_PLUGIN_TIMEOUT`` (default 300; a CUDA plugin may compile)."""
+    raw = os.environ.get(TIMEOUT_VAR, "300")
+    try:
+        value = float(raw)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise PluginError(f"${TIMEOUT_VAR} must be a positive number of seconds, got {raw!r}")
+    return value
 
 
 @dataclass(frozen=True)
@@ -76,20 +128,36 @@ def short_group(group: str) -> str:
     return group.removeprefix("roodi_toolkit.")
 
 
-def _env_specs(group: str) -> list[PluginSpec]:
+def _env_entries() -> tuple[list[PluginSpec], list[str]]:
+    """Return the well-formed ``$ROODI_PLUGINS`` entries as specs and a one-line problem for each malformed one."""
     raw = os.environ.get(ENV_VAR, "").strip()
-    specs = []
+    specs, problems = [], []
     for item in filter(None, (s.strip() for s in raw.split(";"))):
         try:
             grp, rest = item.split(":", 1)
             name, target = rest.split("=", 1)
-            if ":" not in target:
+            module, _, _ = target.partition(":")
+            if ":" not in target or not name.strip() or not module.strip():
                 raise ValueError
         except ValueError:
-            raise PluginError(f"${ENV_VAR}: cannot parse {item!r}; expected group:name=module:attr") from None
-        if full_group(grp.strip()) == group:
-            specs.append(PluginSpec(group, name.strip(), target.strip(), f"${ENV_VAR}"))
-    return specs
+            problems.append(f"${ENV_VAR}: cannot parse {item!r}; expected group:name=module:attr")
+            continue
+        try:
+            group = full_group(grp.strip())
+        except PluginError as exc:
+            problems.append(f"${ENV_VAR}: {item!r}: {exc}")
+            continue
+        specs.append(PluginSpec(group, name.strip(), target.strip(), f"${ENV_VAR}"))
+    return specs, problems
+
+
+def env_problems() -> list[str]:
+    """Return one line per malformed ``$ROODI_PLUGINS`` entry (such entries are skipped, never fatal on their own)."""
+    return _env_entries()[1]
+
+
+def _env_specs(group: str) -> list[PluginSpec]:
+    return [s for s in _env_entries()[0] if s.group == group]
 
 
 def discover(group: str) -> list[PluginSpec]:
@@ -117,13 +185,20 @@ def load_plugin(group: str, name: str) -> Any:
     specs = {s.name: s for s in discover(group)}
     if name not in specs:
         available = ", ".join(sorted(specs)) or "none"
-        raise PluginError(f"no {short_group(full_group(group))[:-1]} plugin named {name!r}; available: {available}")
+        problems = env_problems()  # a malformed entry matters only when the plugin it may have meant is missing
+        hint = f" ({problems[0]})" if problems else ""
+        raise PluginError(f"no {short_group(full_group(group))[:-1]} plugin named {name!r}; available: "
+                          f"{available}{hint}")
     return specs[name].load()
 
 
 def check_all(groups: tuple[str, ...] = GROUPS) -> list[PluginStatus]:
-    """Try to load every plugin of ``groups``; return one status per plugin (failures included, never raised)."""
-    statuses = []
+    """Try to load every plugin of ``groups``; return one status per plugin (failures included, never raised).
+
+    A malformed ``$ROODI_PLUGINS`` entry is listed as a failed plugin named ``?`` in the group ``ROODI_PLUGINS``.
+    """
+    statuses = [PluginStatus(PluginSpec(ENV_VAR, "?", "", f"${ENV_VAR}"), False, problem)
+                for problem in env_problems()]
     for group in groups:
         for spec in discover(group):
             try:

@@ -25,19 +25,21 @@ bounding box of all finite centres: no real splat needs a Gaussian wider than th
 
 
 def absurd_scale_rows(cloud: GaussianCloud) -> np.ndarray:
-    """``[N]`` bool, True where a Gaussian's largest scale is finite and wider than the scene (see
-    :data:`ABSURD_SCALE_FACTOR`); infinite scales are non-finite rows instead."""
+    """``[N]`` bool, True where a Gaussian's largest scale is wider than the scene (see :data:`ABSURD_SCALE_FACTOR`)
+    or so large that it overflows (a finite log-scale such as 1e30 whose scale is infinite); infinite or NaN
+    log-scales are non-finite rows instead."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        largest = np.exp(cloud.log_scales.astype(np.float64)).max(axis=1)
+    raw_finite = np.isfinite(cloud.log_scales).all(axis=1)
+    out = raw_finite & ~np.isfinite(largest)
     finite = np.isfinite(cloud.means).all(axis=1)
-    out = np.zeros(len(cloud), dtype=bool)
     if not finite.any():
         return out
     pts = cloud.means[finite].astype(np.float64)
     diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
     if diag <= 0:
         return out
-    with np.errstate(over="ignore", invalid="ignore"):
-        largest = np.exp(cloud.log_scales.astype(np.float64)).max(axis=1)
-    return np.isfinite(largest) & (largest > ABSURD_SCALE_FACTOR * diag)
+    return out | (np.isfinite(largest) & (largest > ABSURD_SCALE_FACTOR * diag))
 
 
 def count_bad_values(cloud: GaussianCloud) -> dict[str, Any]:

@@ -118,6 +118,13 @@ def test_benchmark_runs_every_method_and_writes_the_tables(tiny_kitchen, tmp_pat
     assert json.loads(record.read_text())["rule"] == "threshold_hull"
     assert json.loads((kitchen / "scores.json").read_text())[key]["psnr"] != -1.0
     assert third["mean"] == results["mean"]
+    assert not again["recomputed"]
+    # an object that changed since it was scored (an extraction redone with other settings) is scored again, and said
+    full_ply = kitchen / "full" / first / "object.ply"
+    full_ply.write_bytes((kitchen / "gaussian_grouping_argmax" / first / "object.ply").read_bytes())
+    fourth = run_benchmark(root, tmp_path / "bench", presets=["kitchen"], size=MACHINE_SIZE, config=TINY,
+                           methods=["full"])
+    assert f"kitchen/full/{targets[0]['id']}" in fourth["recomputed"]
 
 
 def test_benchmark_command_errors(tmp_path, run_cli):

@@ -66,9 +66,12 @@ def test_env_var_registers_and_overrides(monkeypatch, fake_modules):
     monkeypatch.setenv(reg.ENV_VAR, "inpainters:blur=fake_good_plugin:Blur; segmenters:x=nowhere_mod:X")
     assert reg.load_plugin("roodi_toolkit.inpainters", "blur") is fake_modules.Blur
     assert reg.discover("segmenters")[0].origin == "$ROODI_PLUGINS"
-    monkeypatch.setenv(reg.ENV_VAR, "garbage")
+    monkeypatch.setenv(reg.ENV_VAR, "garbage;inpainters:blur=fake_good_plugin:Blur")
+    # a malformed entry is skipped (it must not break commands that use other plugins) and named where it matters
+    assert [s.name for s in reg.discover("inpainters")] == ["blur"]
     with pytest.raises(PluginError, match="cannot parse 'garbage'"):
-        reg.discover("inpainters")
+        reg.load_plugin("inpainters", "missing")
+    assert any(not s.ok and "cannot parse 'garbage'" in s.error for s in reg.check_all())
 
 
 def test_unknown_group():

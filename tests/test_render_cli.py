@@ -90,9 +90,11 @@ def test_cli_render_blender_cameras(tmp_path, run_cli):
     ply = tmp_path / "ball.ply"
     write_ply(cloud, ply)
     cams = orbit_cameras([0, 0, 0], 3.0, 2, width=24, height=20)
+    data = tmp_path / "data"  # the dataset folder is an input: outputs go beside it, never inside
+    data.mkdir()
     # the file states w/h: its images need not exist to render its cameras
-    transforms = write_blender_transforms(tmp_path / "transforms_test.json", cams, ["./test/r_0", "./test/r_1"])
-    assert not (tmp_path / "test").exists()
+    transforms = write_blender_transforms(data / "transforms_test.json", cams, ["./test/r_0", "./test/r_1"])
+    assert not (data / "test").exists()
     out = tmp_path / "views"
     res = run_cli("render", ply, out, "--cameras", transforms, "--size", "48x40", "--what", "depth", "-q")
     assert res.exit_code == 0, res.stderr

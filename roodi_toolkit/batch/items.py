@@ -150,14 +150,34 @@ def _scalar(text: str) -> Any:
     return text
 
 
+def _file_key(path: str) -> tuple[int, int] | str:
+    """The identity of a local file: (device, inode) when it exists (hard and symbolic links agree), else its
+    resolved path (``./o.ply`` and ``o.ply`` agree)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return os.path.realpath(path)
+    return (st.st_dev, st.st_ino)
+
+
 def _unique(items: Sequence[Item]) -> list[Item]:
-    seen: dict[str, str] = {}
+    """Refuse two items that write one file, or an item that writes over an item's input (a manifest's ``output``
+    column may name any file): compared as files, not spellings."""
+    from ..errors import OutputError
+
+    inputs = {_file_key(item.input): item.name for item in items}
+    seen: dict[Any, str] = {}
     for item in items:
-        if item.output is not None:
-            if item.output in seen:
-                raise ConfigError(f"items {seen[item.output]} and {item.name} would both write {item.output}; give "
-                                  "their outputs in a manifest")
-            seen[item.output] = item.name
+        if item.output is None:
+            continue
+        key = item.output if "://" in item.output else _file_key(item.output)
+        if key in inputs:
+            raise OutputError(f"{item.output}: the output of item {item.name} is the input of item {inputs[key]}; "
+                              "inputs are never written, give another output")
+        if key in seen:
+            raise ConfigError(f"items {seen[key]} and {item.name} would both write {item.output}; give "
+                              "their outputs in a manifest")
+        seen[key] = item.name
     names = [i.name for i in items]
     if len(set(names)) != len(names):
         raise ConfigError("two items have the same name; give distinct inputs")

@@ -181,7 +181,7 @@ def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: Pr
     from ..synth.scene import SceneSettings, make_scene
 
     data = root / preset
-    if (data / "scene.json").is_file():
+    if (data / "scene.json").is_file():  # reused as it is; its own settings are reported in results["scene_settings"]
         return data
     if data.exists() and any(data.iterdir()):
         raise ConfigError(f"{data} exists but holds no scene.json; remove it or choose another ROOT (the benchmark "
@@ -239,6 +239,20 @@ def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Pat
     return path, True
 
 
+def _fingerprint(ply: Path, data: Path, renderer: Renderer) -> str:
+    """Return what a score depends on, as a digest: the object PLY's bytes, the scene record and the renderer; a
+    cached score is reused only for an equal one."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for part in (ply, data / "scene.json"):
+        with open(part, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+    digest.update(type(renderer).__qualname__.encode())
+    return digest.hexdigest()[:32]
+
+
 def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[str] = PRESETS, seed: int = 0,
                   size: BenchmarkSize = MACHINE_SIZE, methods: Sequence[str] = tuple(METHODS),
                   config: ExtractConfig | None = None, overwrite: bool = False,
@@ -285,6 +299,8 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     renderer = resolve_renderer(renderer)
     results: dict[str, Any] = {"root": str(root), "seed": seed, "size": asdict(size), "methods": methods,
                                "iterations": config.train.iterations, "labels": {m: METHODS[m] for m in methods}, "scenes": {}}
+    recomputed: dict[str, str] = {}
+    results["recomputed"] = recomputed
     t_all = time.perf_counter()
     for preset in presets:
         data = _scene(root, preset, seed, size, progress)
@@ -313,6 +329,11 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                     else:
                         path = _extract_one(method, data, mout, target["id"], config, model, progress, renderer)
                     cloud = read_ply(path)
+                    scored = _fingerprint(path, data, renderer)
+                    if key in cache and cache[key].get("scored") != scored:
+                        # the object or the scene changed since (other settings): the old score is not this one's
+                        recomputed[key] = "the object or scene differs from the one scored before"
+                        cache.pop(key)
                     if key in cache:  # scored by an earlier run: render the picture's view only
                         row, renders = cache[key], evaluate_object(cloud, data, target["id"], max_views=1,
                                                                    renderer=renderer)[1]
@@ -320,7 +341,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                         ev, renders = evaluate_object(cloud, data, target["id"], progress=progress,
                                                       renderer=renderer)
                         row = {**ev.to_dict(per_view=False), "gaussians": len(cloud), "ply": str(path),
-                               "seconds": time.perf_counter() - t}
+                               "seconds": time.perf_counter() - t, "scored": scored}
                     pictures[method][target["id"]] = renders[0]
                 except RoodiError as exc:
                     row = cache.get(key) or {**_empty_scores(data, target["id"]), "failed": str(exc), "gaussians": 0,

@@ -115,11 +115,14 @@ def _blender_camera(json_path: Path, meta: dict[str, Any], frame: dict[str, Any]
             fx = 0.5 * width / math.tan(0.5 * float(meta["camera_angle_x"]))
             fy = fx
             cx, cy = width / 2.0, height / 2.0
-    except (TypeError, ValueError):
-        raise DatasetError(f"{json_path}: intrinsics (fl_x, fl_y, cx, cy, w, h) must be numbers") from None
+        near = float(meta.get("near", 0.01))
+        far = float(meta.get("far", 1e10))
+    except KeyError:
+        raise DatasetError(f"{json_path}: no intrinsics: give camera_angle_x or fl_x") from None
+    except (TypeError, ValueError, ZeroDivisionError, OverflowError):  # None, "x", w = 0, w = inf
+        raise DatasetError(f"{json_path}: intrinsics (camera_angle_x, fl_x, fl_y, cx, cy, w, h, near, far) must be "
+                           "finite numbers, w and h positive") from None
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    near = float(meta.get("near", 0.01))
-    far = float(meta.get("far", 1e10))
     try:
         return Camera(opengl_c2w_to_w2c(c2w), K, width, height, near=near, far=far, name=name)
     except RoodiError as exc:
@@ -152,7 +155,7 @@ def _stated_size(json_path: Path, meta: dict[str, Any]) -> tuple[int, int] | Non
         return None
     try:
         w, h = int(meta["w"]), int(meta["h"])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise DatasetError(f"{json_path}: 'w' and 'h' must be whole numbers, got {meta['w']!r} and {meta['h']!r}") \
             from None
     if w <= 0 or h <= 0:

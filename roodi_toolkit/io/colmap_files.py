@@ -144,6 +144,15 @@ class _Reader:
         self.pos += size
         return out
 
+    def count(self, min_item_bytes: int) -> int:
+        """Read a uint64 record count, refused if the rest of the file cannot hold that many records (a corrupt
+        count must not size an array of 2^64 entries)."""
+        (n,) = self.read("Q")
+        if n * min_item_bytes > len(self.data) - self.pos:
+            raise DatasetError(f"{self.path}: claims {n} records but holds {len(self.data) - self.pos} bytes "
+                               "(truncated or not a COLMAP binary)")
+        return n
+
     def array(self, dtype: str, count: int) -> np.ndarray:
         dt = np.dtype(dtype).newbyteorder("<")
         size = dt.itemsize * count
@@ -276,14 +285,14 @@ def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
 
 def _read_points_bin(path: Path) -> ColmapPoints:
     r = _Reader(_read_bytes(path), path)
-    (n,) = r.read("Q")
+    n = r.count(struct.calcsize("<qdddBBBdQ"))
     ids = np.zeros(n, np.int64)
     xyz = np.zeros((n, 3))
     rgb = np.zeros((n, 3), np.uint8)
     err = np.zeros(n)
     tracks = []
     for k in range(n):
-        pid, x, y, z, cr, cg, cb, e, tl = r.read("QdddBBBdQ")
+        pid, x, y, z, cr, cg, cb, e, tl = r.read("qdddBBBdQ")  # signed: ids fit int64, a corrupt one stays so
         ids[k], xyz[k], rgb[k], err[k] = pid, (x, y, z), (cr, cg, cb), e
         tracks.append(r.array("i4", 2 * tl).reshape(-1, 2).astype(np.int64))
     return ColmapPoints(ids, xyz, rgb, err, tracks)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import signal
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -31,26 +32,50 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     parent = dest.parent if str(dest.parent) else Path(".")
     if not parent.is_dir():
         raise OutputError(f"{dest}: the folder {parent} does not exist")
+    # SIGTERM / Ctrl-C between creating the temporary file and entering the ``try`` below would leave it behind:
+    # hold them until it is known (a held signal is delivered on unblocking, inside the ``try``)
+    held = _hold_signals()
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix,
                                    dir=parent)
     except OSError as exc:
+        _release_signals(held)
         _raise_environment_problem(exc, dest)
         raise
-    os.close(fd)
+    except BaseException:
+        _release_signals(held)
+        raise
     tmp_path = Path(tmp)
     try:
+        os.close(fd)
+        _release_signals(held)
         yield tmp_path
         # mkstemp creates the file 0600; an output is a normal file, readable as the user's umask allows
         with contextlib.suppress(FileNotFoundError):
             os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, dest)
     except BaseException as exc:
+        _release_signals(held)  # (again, if os.close failed before the release)
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         if isinstance(exc, OSError):
             _raise_environment_problem(exc, dest)
         raise
+
+
+_HELD = (signal.SIGTERM, signal.SIGINT)
+
+
+def _hold_signals() -> Any:
+    """Block SIGTERM and SIGINT in this thread; return the previous mask (None where the platform cannot)."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+
+
+def _release_signals(previous: Any) -> None:
+    if previous is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _umask() -> int:
@@ -67,7 +92,8 @@ def _raise_environment_problem(exc: OSError, path: Path) -> None:
         raise EnvironmentProblemError(message) from exc
 
 
-def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[str | os.PathLike] = ()) -> Path:
+def check_output(path: str | os.PathLike, *, overwrite: bool,
+                 inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Return ``path`` as a Path after checking it may be written.
 
     Raises:
@@ -75,11 +101,8 @@ def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[s
     """
     dest = Path(path)
     for src in inputs:
-        src_path = Path(src)
-        if src_path.exists() and dest.exists() and os.path.samefile(src_path, dest):
-            raise OutputError(f"{dest}: output is the same file as the input; choose another output path")
-        if not dest.exists() and dest.resolve() == src_path.resolve():
-            raise OutputError(f"{dest}: output is the same file as the input; choose another output path")
+        if src is not None and same_file(src, dest):
+            raise OutputError(f"{dest}: output is the same file as the input {src}; choose another output path")
     refuse_inside_inputs(dest, inputs)
     if dest.is_dir():
         raise OutputError(f"{dest}: is a folder; give a file path for this output")
@@ -89,6 +112,33 @@ def check_output(path: str | os.PathLike, *, overwrite: bool, inputs: Sequence[s
     if not parent.is_dir():
         raise OutputError(f"{dest}: the folder {parent} does not exist; create it first")
     return dest
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Return True if ``a`` and ``b`` name the same file, however spelled: ``./o.ply`` and ``o.ply``, a symbolic
+    link and its target, two hard links (``os.path.samefile`` when both exist, else the resolved paths)."""
+    pa, pb = Path(a), Path(b)
+    if pa.exists() and pb.exists():
+        return os.path.samefile(pa, pb)
+    return os.path.realpath(pa) == os.path.realpath(pb)
+
+
+def check_outputs(named: Sequence[tuple[str, str | os.PathLike | None]], *, overwrite: bool,
+                  inputs: Sequence[str | os.PathLike | None] = ()) -> None:
+    """Check several outputs of one command with :func:`check_output`, and that no two of them are the same file.
+
+    Args:
+        named: ``(option, path)`` pairs (``path`` None when the output is not asked for); the option names the
+            output in the error.
+        inputs: the command's input files and folders.
+    """
+    given = [(name, p) for name, p in named if p is not None]
+    for _, p in given:
+        check_output(p, overwrite=overwrite, inputs=[i for i in inputs if i is not None])
+    for i, (name_a, a) in enumerate(given):
+        for name_b, b in given[i + 1:]:
+            if same_file(a, b):
+                raise OutputError(f"{b}: {name_b} is the same file as {name_a} ({a}); give each output its own path")
 
 
 def refuse_inside_inputs(dest: str | os.PathLike, inputs: Sequence[str | os.PathLike | None]) -> None:

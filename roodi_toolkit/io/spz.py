@@ -65,8 +65,14 @@ def _streams_v4(p: Path, raw: bytes, num_streams: int, toc: int, expected: list[
             raise _fail(p, f"SPZ holds an unexpected stream {k}: corrupt or a newer version")
         if offset + csize > len(raw):
             raise _fail(p, f"SPZ stream {k} ends past the end of the file: truncated")
+        chunk = raw[offset:offset + csize]
         try:
-            data = dctx.decompress(raw[offset:offset + csize], max_output_size=usize)
+            # a frame that declares its size is decompressed into that much memory, whatever max_output_size says:
+            # a corrupt size (2^60) must be refused before zstd allocates it
+            declared = zstandard.frame_content_size(chunk)
+            if declared not in (-1, usize):
+                raise _fail(p, f"SPZ stream {k} declares {declared} bytes, its TOC says {usize}: corrupt")
+            data = dctx.decompress(chunk, max_output_size=usize)
         except zstandard.ZstdError as exc:
             raise _fail(p, f"SPZ stream {k} is corrupt ({exc})") from None
         if len(data) != usize:
@@ -240,7 +246,11 @@ def encode_spz(cloud: GaussianCloud) -> bytes:
 
 def write_spz(cloud: GaussianCloud, path: str | os.PathLike) -> Path:
     """Write ``cloud`` as SPZ version 3, atomically; return the path."""
-    data = encode_spz(cloud)
+    try:
+        data = encode_spz(cloud)
+    except FormatError as exc:  # what cannot be encoded, said of the file being written
+        message = str(exc)
+        raise FormatError(message if message.startswith(str(path)) else f"{path}: {message}") from None
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)

@@ -93,6 +93,10 @@ class SegmentPrompt:
     mask_dir: Optional[Path] = None
 
 
+MAX_MASK_ID = 1023
+"""Largest object id a mask may hold (the distilled classifier has one class per id, 0 to the largest)."""
+
+
 @dataclass
 class ViewMasks:
     """Per-view masks, one for every view of the dataset, in dataset order.
@@ -122,6 +126,9 @@ class ViewMasks:
         if len(self.masks) and int(self.masks.min()) < 0:
             raise PluginError("mask ids must be non-negative")
         top = int(self.masks.max()) if self.masks.numel() else 0
+        if top > MAX_MASK_ID:  # the classifier has one class per id up to the largest: id 65535 made 65,536 classes
+            raise DatasetError(f"{self.source or 'masks'}: mask id {top} is above the largest supported id "
+                               f"{MAX_MASK_ID}; number the objects 1, 2, 3, ... (0 is the background)")
         if self.kind == "binary" and top > 1:
             raise PluginError(f"binary masks must hold 0 and 1 only, found id {top}")
         self.num_classes = max(int(self.num_classes), top + 1, 2)

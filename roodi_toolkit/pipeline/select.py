@@ -121,10 +121,12 @@ def run_select(distill_dir: str | Path, object_id: int, output_ply: str | Path, 
     from .distill import _picture_views, load_distillation, render_features
 
     distillation, cloud, classifier = load_distillation(distill_dir)
-    inputs = [distillation.root, distillation.model_ply.parent]
-    out = files.check_output(output_ply, overwrite=overwrite, inputs=inputs)
+    # the distillation, the whole model folder (not only the PLY's iteration folder) and the dataset are inputs
+    record = distillation.record
+    inputs = [distillation.root, distillation.model_ply.parent, record.get("model_dir"), record.get("data_dir")]
+    out = Path(output_ply)
     pic = Path(picture) if picture is not None else out.with_suffix(".png")
-    files.check_output(pic, overwrite=overwrite, inputs=inputs)
+    files.check_outputs([("OUT.ply", out), ("--picture", pic)], overwrite=overwrite, inputs=inputs)
     sel = select_object(cloud, classifier, object_id, threshold=threshold, prune=prune, prune_config=prune_config,
                         progress=progress)
     write_ply(sel.cloud, out)

@@ -394,6 +394,26 @@ class TrainResult:
     cloud: GaussianCloud | None = None
 
 
+def _check_resume_matches(out: Path, data_dir: str | Path, downscale: float) -> None:
+    """Refuse to resume a run on another dataset or downscale than the one its checkpoint was trained on (its
+    ``cfg.json`` records them): the views would silently change mid-training."""
+    from ..io import files
+
+    cfg_file = out / "cfg.json"
+    if not cfg_file.is_file():
+        return
+    cfg = files.read_json(cfg_file, "training settings")
+    if not isinstance(cfg, dict):
+        raise InputError(f"{cfg_file}: not a roodi-toolkit training settings file")
+    was_dir, was_down = cfg.get("data_dir"), cfg.get("downscale")
+    if was_dir is not None and Path(was_dir).exists() and not files.same_file(was_dir, data_dir):
+        raise ConfigError(f"{out}: the checkpoint was trained on {was_dir}, not {data_dir}; resume with that "
+                          "DATA_DIR or start afresh with --overwrite")
+    if isinstance(was_down, (int, float)) and float(was_down) != float(downscale):
+        raise ConfigError(f"{out}: the checkpoint was trained at --downscale {was_down:g}, not {downscale:g}; resume "
+                          "with that --downscale or start afresh with --overwrite")
+
+
 def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(), *,
                 downscale: float = 1, resume: bool = False, overwrite: bool = False,
                 progress: ProgressFactory = null_progress, iterations_override: int | None = None,
@@ -438,13 +458,16 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
         config = TrainConfig.from_dict(state["config"])
         if iterations_override is not None:
             config = replace(config, iterations=iterations_override)
+        files.refuse_inside_inputs(out, [data_dir])
+        _check_resume_matches(out, data_dir, downscale)
     else:
+        files.refuse_inside_inputs(out, [data_dir])
         state = None
     if dataset is None:
         dataset = load_dataset(data_dir, downscale)
     if not resume:
         # after the dataset is read, so that a bad dataset leaves nothing behind, not even an empty folder
-        files.prepare_output_dir(out, overwrite=overwrite)
+        files.prepare_output_dir(out, overwrite=overwrite, inputs=[data_dir])
     trainer = make_trainer(dataset, config) if make_trainer else Trainer(dataset, config, renderer=renderer)
     if state is not None:
         trainer.load_state_dict(state)

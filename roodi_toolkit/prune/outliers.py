@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import CloudError, ConfigError
 from ..gaussians import GaussianCloud
+from .filters import filter_mask, filtered_report
 from .knn import CentreIndex, _drop_self, check_k, knn_w2
 from ..progress import ProgressFactory, null_progress
 from .wasserstein import gaussian_shapes, w2_sq_neighbors
@@ -219,47 +220,6 @@ class PruneResult(NamedTuple):
     cloud: GaussianCloud
     keep_mask: np.ndarray
     report: PruneReport
-
-
-# ------------------------------------------------------------------------------------------------------ filters
-def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, list[tuple[str, int]]]:
-    """Return the keep mask ``[N]`` of the pre-statistics filters and the removed count of each filter, in order.
-
-    Raises:
-        CloudError: NaN/Inf rows without ``filter_nan``.
-    """
-    from .scene import named_value
-
-    n = len(cloud)
-    keep = np.ones(n, dtype=bool)
-    stages: list[tuple[str, int]] = []
-    bad = cloud.nonfinite_rows()
-    if bad.any() and not config.filter_nan:
-        cloud.require_finite("input")
-    stages.append(("nonfinite", int(bad.sum())))
-    keep &= ~bad
-    if config.min_opacity is not None:
-        low = keep & (cloud.opacities < config.min_opacity)
-        stages.append(("min_opacity", int(low.sum())))
-        keep &= ~low
-    if config.box is not None:
-        lo, hi = np.asarray(config.box[:3]), np.asarray(config.box[3:])
-        inside = np.all((cloud.means >= lo) & (cloud.means <= hi), axis=1)
-        stages.append(("box", int((keep & ~inside).sum())))
-        keep &= inside
-    if config.sphere is not None:
-        c, r = np.asarray(config.sphere[:3], dtype=np.float64), float(config.sphere[3])
-        dist2 = np.sum((cloud.means.astype(np.float64) - c) ** 2, axis=1)
-        inside = dist2 <= r * r
-        stages.append(("sphere", int((keep & ~inside).sum())))
-        keep &= inside
-    for name, low, high in config.value_ranges:
-        with np.errstate(invalid="ignore"):
-            value = named_value(cloud, name)
-            inside = (value >= low) & (value <= high)
-        stages.append((f"{name} in [{low:g}, {high:g}]", int((keep & ~inside).sum())))
-        keep &= inside
-    return keep, stages
 
 
 # ------------------------------------------------------------------------------------------------------ distances
@@ -540,17 +500,6 @@ def outlier_mask(dist: NeighborDistances, config: PruneConfig, report: PruneRepo
 
 
 # ------------------------------------------------------------------------------------------------------ API
-def filtered_report(cloud: GaussianCloud, config: PruneConfig) -> tuple[PruneReport, np.ndarray, np.ndarray]:
-    """Return a new report holding the filters' stages and time, the keep mask after the filters ``[N]`` and the
-    indices of the Gaussians left to evaluate (the common start of every pruning mode)."""
-    t0 = time.perf_counter()
-    report = PruneReport(input_count=len(cloud))
-    report.config = {**asdict(config), "alpha": config.effective_alpha}
-    keep, report.stages = filter_mask(cloud, config)
-    report.timings["filters"] = time.perf_counter() - t0
-    return report, keep, np.flatnonzero(keep)
-
-
 def remove_statistical_outliers(cloud: GaussianCloud, config: PruneConfig | None = None, *,
                                 progress: ProgressFactory = null_progress, **options: Any) -> PruneResult:
     """Return the cloud without statistical outliers (after the filters), the keep mask and a report.

@@ -178,16 +178,6 @@ def decide(log_scales: np.ndarray, neighbors: np.ndarray, dist: np.ndarray, conf
     return LocalDecision(detached, oversized, label, sizes, scores, largest_fraction, mode, reason)
 
 
-def named_value(cloud: GaussianCloud, name: str) -> np.ndarray:
-    """Return ``[N]`` the quantity a value range bounds (:data:`VALUE_NAMES`)."""
-    if name in ("x", "y", "z"):
-        return cloud.means[:, "xyz".index(name)].astype(np.float64)
-    if name == "opacity":
-        return cloud.opacities.astype(np.float64)
-    log_scales = cloud.log_scales.astype(np.float64)
-    return np.exp(log_scales.max(axis=1) if name == "scale" else log_scales.min(axis=1))
-
-
 def choose_mode(config: "PruneConfig", largest_fraction: float) -> tuple[str, str]:
     """Return the mode to run and why: ``auto`` becomes object when one piece holds ``object_fraction``."""
     if config.mode != "auto":
@@ -218,7 +208,8 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *,
         >>> report.mode, bool(keep[planted.labels == 0].all()), bool(keep[planted.labels == 2].mean() < 0.05)
         ('object', True, True)
     """
-    from .outliers import PruneConfig, PruneResult, filtered_report, remove_statistical_outliers
+    from .filters import filtered_report
+    from .outliers import PruneConfig, PruneResult, remove_statistical_outliers
 
     config = config or PruneConfig()
     if options:
