@@ -180,3 +180,17 @@ def test_generated_scene_trains_to_27_db_within_15_minutes(tmp_path):
     minutes = (time.perf_counter() - start) / 60
     assert result.metrics["psnr"] >= 27.0, result.metrics
     assert minutes < 15.0
+
+
+def test_a_checkpoint_of_another_version_is_refused_in_one_line(tiny_scene, tmp_path, run_cli):
+    import torch
+
+    out = tmp_path / "old"
+    res = run_cli("train", tiny_scene, out, "--iterations", "10", "-q")
+    assert res.exit_code == 0, res.stderr
+    ckpt = out / "checkpoints" / "latest.pt"
+    state = torch.load(ckpt, weights_only=True)
+    state["version"] = 1
+    torch.save(state, ckpt)
+    res = run_cli("train", tiny_scene, out, "--resume", "-q")
+    assert res.exit_code == 1 and "checkpoint version 1" in res.stderr and "unexpected" not in res.stderr

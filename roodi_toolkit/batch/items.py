@@ -14,7 +14,7 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Sequence
 
 from ..errors import ConfigError, InputError
 
@@ -182,8 +182,3 @@ def _unique(items: Sequence[Item]) -> list[Item]:
     if len(set(names)) != len(names):
         raise ConfigError("two items have the same name; give distinct inputs")
     return list(items)
-
-
-def items_from(paths: Iterable[str]) -> list[Item]:
-    """Return items without outputs for a list of input paths (tests and library callers)."""
-    return _unique([Item(Path(p).name, str(p), None) for p in paths])

@@ -9,7 +9,6 @@ uploaded whole: a reader never sees half an output, and a killed batch leaves no
 from __future__ import annotations
 
 import contextlib
-import os
 import tempfile
 from pathlib import Path
 from typing import Callable
@@ -71,14 +70,3 @@ def write_output(dest: str, write: Callable[[Path], None]) -> str:
         except OSError as exc:
             raise OutputError(f"{dest}: upload failed ({exc})") from None
     return dest
-
-
-def remove_output(dest: str) -> None:
-    """Remove ``dest`` if it exists (a path or URL)."""
-    if is_url(dest):
-        fs, path = _filesystem(dest)
-        with contextlib.suppress(FileNotFoundError):
-            fs.rm_file(path)
-    else:
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(dest)

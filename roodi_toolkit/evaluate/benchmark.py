@@ -42,7 +42,6 @@ import numpy as np
 
 from ..errors import ConfigError, RoodiError
 from ..pipeline.extract import ExtractConfig
-from ..prune.outliers import PruneConfig
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, resolve_renderer
 from ..pipeline.strategy import MCMCStrategy

@@ -15,7 +15,6 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 import torch
-from torch import Tensor
 
 from ..errors import CloudError, DatasetError
 from ..gaussians import GaussianCloud

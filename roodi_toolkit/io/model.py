@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, DatasetError, InputError
+from ..errors import ConfigError, InputError
 
 MODEL_PLY = "point_cloud.ply"
 CHECKPOINT = Path("checkpoints") / "latest.pt"
@@ -218,17 +218,3 @@ def _load_npy(path: Path) -> np.ndarray:
                          "again") from None
     except (OSError, ValueError) as exc:
         raise ModelError(f"{path}: not a feature array ({exc})") from None
-
-
-def data_dir_of(record: dict[str, Any], where: Path) -> Path:
-    """Return the data folder a model or distillation record names.
-
-    Raises:
-        DatasetError: the record names none, or it is gone.
-    """
-    data = record.get("data_dir")
-    if not data:
-        raise DatasetError(f"{where}: the record names no data folder; give DATA_DIR")
-    if not Path(data).exists():
-        raise DatasetError(f"{where}: its data folder {data} is gone; give DATA_DIR")
-    return Path(data)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FormatError, PlyError, RoodiError
+from ..errors import FormatError, RoodiError
 from ..gaussians import GaussianCloud
 
 OPACITY_LOGIT_LIMIT = float(np.log((1 - 1e-6) / 1e-6))

@@ -345,7 +345,7 @@ class Trainer:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore a state from :meth:`state_dict` (the dataset and config must be the run's own)."""
         if state.get("version") != CHECKPOINT_VERSION:
-            raise RoodiError(f"checkpoint version {state.get('version')} is not {CHECKPOINT_VERSION} (written by an "
+            raise InputError(f"checkpoint version {state.get('version')} is not {CHECKPOINT_VERSION} (written by an "
                              "older roodi-toolkit, before the parameters were renamed); train afresh with --overwrite")
         try:
             self.params = GaussianParams(**{k: torch.nn.Parameter(state["params"][k].clone())

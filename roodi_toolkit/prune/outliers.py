@@ -21,14 +21,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from ..errors import CloudError, ConfigError
 from ..gaussians import GaussianCloud
-from .filters import filter_mask, filtered_report
+from .filters import filtered_report
 from .knn import CentreIndex, _drop_self, check_k, knn_w2
 from ..progress import ProgressFactory, null_progress
 from .wasserstein import gaussian_shapes, w2_sq_neighbors

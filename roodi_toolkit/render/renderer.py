@@ -26,7 +26,6 @@ import warnings
 from abc import ABC, abstractmethod
 from typing import Any, Optional, Protocol, Sequence, runtime_checkable
 
-import numpy as np
 import torch
 from torch import Tensor
 
