@@ -540,8 +540,11 @@ def save_distilled(out_dir: str | Path, distilled: DistilledScene, model_ply: st
         picture=distilled.picture)
 
 
-def load_distillation(distill_dir: str | Path) -> tuple[Distillation, GaussianCloud, ObjectClassifier]:
+def load_distillation(distill_dir: str | Path, scene: GaussianCloud | None = None,
+                      ) -> tuple[Distillation, GaussianCloud, ObjectClassifier]:
     """Return a distillation folder, its scene with the object features as columns, and its classifier.
+
+    ``scene``: the model file's cloud when the caller has read it already (the file is still checked by its digest).
 
     Raises:
         ModelError: not a distillation folder, or its model file changed or is gone.
@@ -550,7 +553,7 @@ def load_distillation(distill_dir: str | Path) -> tuple[Distillation, GaussianCl
     from ..io.ply import read_ply
 
     distillation = read_distillation(distill_dir)
-    cloud = read_ply(distillation.model_ply)
+    cloud = read_ply(distillation.model_ply) if scene is None else scene
     if len(cloud) != len(distillation.features):
         raise ConfigError(f"{distillation.root}: {len(distillation.features)} features for the "
                           f"{len(cloud)} Gaussians of {distillation.model_ply}; run roodi-toolkit distill again")

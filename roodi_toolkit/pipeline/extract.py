@@ -333,7 +333,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     else:
         wanted = {**distill_wanted, "model_ply": str(model.ply_path.resolve())}
         if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite):
-            _, cloud, classifier = load_distillation(distill_out)
+            _, cloud, classifier = load_distillation(distill_out, scene)
         else:
             if distilled is None:
                 distilled = distill_scene(scene, dataset, segmenter=config.segmenter, prompt=prompt,
