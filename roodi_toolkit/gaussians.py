@@ -70,6 +70,19 @@ def quat_to_rotmat(quats_wxyz: np.ndarray) -> np.ndarray:
     return R
 
 
+def check_field_shapes(obj: object, owner: str, expected: Mapping[str, tuple[int, ...]], n: int, *,
+                       rest_label: str) -> None:
+    """Raise CloudError naming the first field of ``obj`` whose shape is not ``expected``, and check ``sh_rest``
+    ``[n, K-1, 3]`` with K a square SH count (shared by :class:`GaussianCloud` and ``GaussianParams``)."""
+    for name, shape in expected.items():
+        if tuple(getattr(obj, name).shape) != shape:
+            raise CloudError(f"{owner}.{name} must have shape {list(shape)}, got {list(getattr(obj, name).shape)}")
+    rest = getattr(obj, "sh_rest")
+    if rest.ndim != 3 or rest.shape[0] != n or rest.shape[2] != 3:
+        raise CloudError(f"{owner}.sh_rest must have shape [{rest_label}, K-1, 3], got {list(rest.shape)}")
+    sh_degree_from_coeffs(rest.shape[1] + 1)
+
+
 @dataclass
 class GaussianCloud:
     """N Gaussians with their raw on-disk parameters and any extra per-Gaussian columns.
@@ -139,14 +152,7 @@ class GaussianCloud:
         n = self.means.shape[0] if self.means.ndim == 2 else -1
         expected = {"means": (n, 3), "quats_wxyz": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,),
                     "sh_dc": (n, 3)}
-        for name, shape in expected.items():
-            if getattr(self, name).shape != shape:
-                raise CloudError(f"GaussianCloud.{name} must have shape {list(shape)}, got "
-                                 f"{list(getattr(self, name).shape)}")
-        rest = self.sh_rest
-        if rest.ndim != 3 or rest.shape[0] != n or rest.shape[2] != 3:
-            raise CloudError(f"GaussianCloud.sh_rest must have shape [N, K-1, 3], got {list(rest.shape)}")
-        sh_degree_from_coeffs(rest.shape[1] + 1)
+        check_field_shapes(self, "GaussianCloud", expected, n, rest_label="N")
         if self.normals is not None:
             self.normals = np.asarray(self.normals)
             if self.normals.shape != (n, 3):

@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from .errors import CloudError
-from .gaussians import GaussianCloud, sh_degree_from_coeffs
+from .gaussians import GaussianCloud, check_field_shapes, sh_degree_from_coeffs
 
 PARAM_NAMES = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 """The fields every :class:`GaussianParams` has; ``features`` is optional."""
@@ -68,14 +68,7 @@ class GaussianParams:
             raise CloudError(f"GaussianParams.means must have shape [N, 3], got {list(self.means.shape)}")
         n = self.means.shape[0]
         expected = {"quats_wxyz": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,), "sh_dc": (n, 3)}
-        for name, shape in expected.items():
-            if tuple(getattr(self, name).shape) != shape:
-                raise CloudError(f"GaussianParams.{name} must have shape {list(shape)}, got "
-                                 f"{list(getattr(self, name).shape)}")
-        rest = self.sh_rest
-        if rest.ndim != 3 or rest.shape[0] != n or rest.shape[2] != 3:
-            raise CloudError(f"GaussianParams.sh_rest must have shape [{n}, K-1, 3], got {list(rest.shape)}")
-        sh_degree_from_coeffs(rest.shape[1] + 1)
+        check_field_shapes(self, "GaussianParams", expected, n, rest_label=str(n))
         if self.features is not None and (self.features.ndim != 2 or self.features.shape[0] != n):
             raise CloudError(f"GaussianParams.features must have shape [{n}, F], got {list(self.features.shape)}")
 

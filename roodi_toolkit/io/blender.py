@@ -163,6 +163,17 @@ def _stated_size(json_path: Path, meta: dict[str, Any]) -> tuple[int, int] | Non
     return w, h
 
 
+def _stack_all_or_none(values: list, cameras: Sequence[Camera], where: Path, key: str) -> "torch.Tensor | None":
+    """Return the per-frame maps stacked ``[N, H, W]``, None when no frame has them; refuse a dataset where only
+    some frames name ``key``."""
+    if all(v is None for v in values):
+        return None
+    if any(v is None for v in values):
+        missing = next(c.name for c, v in zip(cameras, values) if v is None)
+        raise DatasetError(f"{where}: some frames have a {key} and others (e.g. {missing}) do not")
+    return torch.stack(values)
+
+
 def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: Sequence[float] | None = None,
                  splits: Sequence[str] | None = None, progress: ProgressFactory = null_progress) -> Dataset:
     """Return a Blender / NeRF-synthetic dataset (``transforms_{train,val,test}.json``).
@@ -232,18 +243,8 @@ def load_blender(path: str | os.PathLike, downscale: float = 1, *, background: S
 
     images_t, alpha_t = stack.images()
     masks, depths = stack.masks, stack.depths
-    mask_t = None
-    if any(m is not None for m in masks):
-        if any(m is None for m in masks):
-            missing = next(c.name for c, m in zip(cameras, masks) if m is None)
-            raise DatasetError(f"{p}: some frames have a mask_path and others (e.g. {missing}) do not")
-        mask_t = torch.stack(masks)
-    depth_t = None
-    if any(x is not None for x in depths):
-        if any(x is None for x in depths):
-            missing = next(c.name for c, x in zip(cameras, depths) if x is None)
-            raise DatasetError(f"{p}: some frames have a depth_path and others (e.g. {missing}) do not")
-        depth_t = torch.stack(depths)
+    mask_t = _stack_all_or_none(masks, cameras, p, "mask_path")
+    depth_t = _stack_all_or_none(depths, cameras, p, "depth_path")
 
     bounds_meta = next((m["scene_bounds"] for _, _, m in metas if "scene_bounds" in m), None)
     if bounds_meta is not None:
