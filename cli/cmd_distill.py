@@ -27,7 +27,10 @@ EXAMPLE = """Examples:
 @click.option("--segmenter", default="files", show_default=True,
               help="Segmenter plugin: files (mask PNGs or the dataset's masks), click, sam2, ...")
 @click.option("--click", "clicks", multiple=True, metavar="VIEW:X,Y",
-              help="A click on the target in one view (pixels, x right, y down); once or twice.")
+              help="A click on the target in one view, in the original photo's pixels (x right, y down, whatever "
+                   "--downscale); repeatable.")
+@click.option("--negative-click", "negative_clicks", multiple=True, metavar="VIEW:X,Y",
+              help="A click on something that is not the target, in the same view (repeatable).")
 @click.option("--masks", "mask_dir", type=click.Path(path_type=str), default=None,
               help="files segmenter: folder of mask PNGs named like the views (default: the dataset's masks).")
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE",
@@ -43,7 +46,8 @@ EXAMPLE = """Examples:
 @overwrite_option
 @renderer_option
 @quiet_option
-def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks: tuple[str, ...], mask_dir: str | None,
+def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks: tuple[str, ...],
+            negative_clicks: tuple[str, ...], mask_dir: str | None,
             options: tuple[str, ...], iterations: int, feature_lr: float | None, classifier_lr: float | None,
             downscale: float | None, seed: int, overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Distil object masks of DATA_DIR's views into per-Gaussian features of the scene model in MODEL_DIR (a
@@ -64,11 +68,12 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
             raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--option")
         opts[key.strip()] = value
     parsed = []
-    for c in clicks:
-        try:
-            parsed.append(Click.parse(c))
-        except ConfigError as exc:
-            raise click.BadParameter(str(exc), param_hint="--click") from None
+    for texts, positive, hint in ((clicks, True, "--click"), (negative_clicks, False, "--negative-click")):
+        for c in texts:
+            try:
+                parsed.append(Click.parse(c, positive))
+            except ConfigError as exc:
+                raise click.BadParameter(str(exc), param_hint=hint) from None
     from roodi_toolkit.plugins import load_plugin
 
     load_plugin("segmenters", segmenter)  # an unknown or broken --segmenter fails before the images are read

@@ -83,8 +83,11 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
                    "[with --click: 1, the clicked object].")
 @click.option("--click", "clicks", multiple=True, metavar="X,Y",
               help="A click on the object in --view, in the original photo's pixels (x right, y down, whatever "
-                   "--downscale); once or twice. The click segmenter grows it through the scene's Gaussians into "
+                   "--downscale); repeatable. The click segmenter grows it through the scene's Gaussians into "
                    "every training view.")
+@click.option("--negative-click", "negative_clicks", multiple=True, metavar="X,Y",
+              help="A click in --view on something that is not the object (the table it stands on, a neighbour); "
+                   "repeatable.")
 @click.option("--view", default=None, metavar="IMAGE_NAME",
               help="The image the clicks are in (file name without extension) [the first training image].")
 @click.option("--segmenter", default=None,
@@ -96,7 +99,8 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
 @overwrite_option
 @renderer_option
 @quiet_option
-def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[str, ...], view: str | None,
+def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[str, ...],
+            negative_clicks: tuple[str, ...], view: str | None,
             segmenter: str | None, mask_dir: str | None, model_dir: str | None, distill_dir: str | None,
             overwrite: bool, renderer: Any, quiet: bool, **stage_options: Any) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
@@ -120,9 +124,10 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     if len(paths) == 1 and model_dir is None:
         raise click.UsageError("give DATA_DIR OUT_DIR, or OUT_DIR with --model (whose cfg.json names the data)")
     data_dir, out_dir = (None, paths[0]) if len(paths) == 1 else paths
-    if view is not None and not clicks:
-        raise click.UsageError("--view says which image the --click coordinates are in; give --click X,Y too")
-    parsed = tuple(Click(view or "", *parse_floats(c, 2, "--click")) for c in clicks)
+    if (view is not None or negative_clicks) and not clicks:
+        raise click.UsageError("--view and --negative-click go with a click on the object; give --click X,Y too")
+    parsed = tuple(Click(view or "", *parse_floats(c, 2, "--click")) for c in clicks) + tuple(
+        Click(view or "", *parse_floats(c, 2, "--negative-click"), positive=False) for c in negative_clicks)
     segmenter = segmenter or ("click" if clicks else "files")
     if clicks and segmenter == "files":
         raise click.UsageError("the files segmenter reads masks and takes no --click; leave --segmenter out (click) "

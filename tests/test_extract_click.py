@@ -48,7 +48,8 @@ def test_extract_by_click_on_a_downscaled_model(half_model, tmp_path, run_cli):
     assert len(read_ply(out / "object_1" / "object.ply")) > 0
     distill = json.loads((out / "distill" / "distill.json").read_text())
     assert distill["segmenter"] == "click"
-    assert distill["prompt"]["clicks"] == [{"view": view, "x": x, "y": y}]  # recorded as given, in photo pixels
+    # recorded as given, in photo pixels
+    assert distill["prompt"]["clicks"] == [{"view": view, "x": x, "y": y, "positive": True}]
     # the distilled masks are at the training size and hold the clicked object in the clicked view
     from roodi_toolkit.io.files import read_image
 
@@ -85,3 +86,41 @@ def test_extract_click_errors_write_nothing(half_model, tmp_path, run_cli):
     res = run_cli("extract", out, "--model", half_model, "--click", "1,1", "--view", "r_003", "-q")
     assert res.exit_code == 1 and "hits no surface" in res.stderr  # the white background
     assert not out.exists()
+
+
+def test_distill_takes_clicks_in_photo_pixels_too(half_model, tmp_path, run_cli):
+    """distill, like extract, reads --click in the photo's own pixels whatever the model's downscale."""
+    from roodi_toolkit.io.files import read_image
+
+    data, model = half_model
+    view = "r_003"
+    x, y = _object_pixel(data, view, 2)
+    out = tmp_path / "d"
+    res = run_cli("distill", model, data, out, "--segmenter", "click", "--click", f"{view}:{x},{y}",
+                  "--iterations", "5", "-q")
+    assert res.exit_code == 0, res.stderr
+    mask = read_image(out / "object_masks" / f"{view}.png")
+    assert mask.shape == (32, 32) and mask[y // 2, x // 2] == 1
+    res = run_cli("distill", model, data, tmp_path / "e", "--segmenter", "click", "--click", f"{view}:70,5", "-q")
+    assert res.exit_code == 1 and "click 70,5 is outside the 64x64 image r_003" in res.stderr
+    assert not (tmp_path / "e").exists()
+
+
+def test_extract_negative_click(half_model, tmp_path, run_cli):
+    data, model = half_model
+    view = "r_003"
+    x, y = _object_pixel(data, view, 2)
+    nx, ny = _object_pixel(data, view, 1)
+    out = tmp_path / "o"
+    res = run_cli("extract", out, "--model", model, "--click", f"{x},{y}", "--negative-click", f"{nx},{ny}",
+                  "--view", view, "--no-inpaint", "--distill-iterations", "5", "-q")
+    assert res.exit_code == 0, res.stderr
+    from roodi_toolkit.io.files import read_image
+
+    distill = json.loads((out / "distill" / "distill.json").read_text())
+    assert distill["prompt"]["clicks"] == [{"view": view, "x": x, "y": y, "positive": True},
+                                           {"view": view, "x": nx, "y": ny, "positive": False}]
+    mask = read_image(out / "distill" / "object_masks" / f"{view}.png")
+    assert mask[y // 2, x // 2] == 1 and mask[ny // 2, nx // 2] == 0
+    res = run_cli("extract", tmp_path / "n", "--model", model, "--negative-click", f"{nx},{ny}", "-q")
+    assert res.exit_code == 2 and "--click" in res.stderr and not (tmp_path / "n").exists()

@@ -42,6 +42,7 @@ def test_a_plugin_registered_by_environment(monkeypatch):
 
 def test_click_parsing():
     assert Click.parse("r_003:41,57.5") == Click("r_003", 41.0, 57.5)
+    assert Click.parse("r_003:1,2", positive=False) == Click("r_003", 1.0, 2.0, False)
     assert Click.parse(" 3 : 1e1 , 2 ") == Click("3", 10.0, 2.0)
     for bad in ("r_003", "r_003:41", "r_003:a,b", ":1,2", "v:nan,1"):
         with pytest.raises(ConfigError):
@@ -120,8 +121,35 @@ def test_click_checks(scene):
         seg.segment(ds, SegmentPrompt((Click("nope", 5, 5),)), scene=cloud)
     with pytest.raises(ConfigError, match="trained scene"):
         seg.segment(ds, SegmentPrompt((Click("r_000", 5, 5),)))
-    with pytest.raises(ConfigError, match="at most 2"):
-        seg.segment(ds, SegmentPrompt((Click("r_000", 5, 5),) * 3), scene=cloud)
+    with pytest.raises(ConfigError, match="at most 8"):
+        seg.segment(ds, SegmentPrompt((Click("r_000", 5, 5),) * 9), scene=cloud)
+    with pytest.raises(ConfigError, match="needs a click on the target.*negative clicks alone"):
+        seg.segment(ds, SegmentPrompt((Click("r_000", 5, 5, positive=False),)), scene=cloud)
+
+
+def test_negative_click_keeps_the_rest_out(scene):
+    """With a fill that always leaks (no leak check), a click on the object spills over the ground; a negative
+    click on the ground claims it first, and the masks of every view follow the object better."""
+    ds, cloud, _ = scene
+    v = 3
+    m = ds.masks[v].numpy()
+    ys, xs = np.nonzero(m == 1)
+    k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
+    pos = Click(ds.names[v], xs[k] + 0.5, ys[k] + 0.5)
+    neg = Click(ds.names[v], 26.5, 15.5, positive=False)
+    assert m[15, 26] == 0
+    leaky = ClickSegmenter(leak_ratio=1e9, depth_tolerance_max=0.5, region_radius=10.0)
+
+    def mean_iou(prompt):
+        masks = leaky.segment(ds, prompt, scene=cloud)
+        return np.mean([mask_iou(masks.masks[i] == 1, ds.masks[i] == 1) for i in range(len(ds))]), masks
+
+    alone, _ = mean_iou(SegmentPrompt((pos,)))
+    both, masks = mean_iou(SegmentPrompt((pos, neg)))
+    assert both > alone + 0.05, (alone, both)
+    assert masks.masks[v, 15, 26] == 0
+    with pytest.raises(ConfigError, match="negative click at 0,0 .* hits no surface"):
+        leaky.segment(ds, SegmentPrompt((pos, Click(ds.names[v], 0.5, 0.5, positive=False))), scene=cloud)
 
 
 @pytest.mark.parametrize("obj", [1, 2])

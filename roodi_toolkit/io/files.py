@@ -159,6 +159,19 @@ def refuse_inside_inputs(dest: str | os.PathLike, inputs: Sequence[str | os.Path
             probe = probe.parent
 
 
+def check_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existing: bool = False,
+                     inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
+    """Raise what :func:`prepare_output_dir` would refuse, creating nothing (for commands that check their other
+    inputs before they make the folder)."""
+    out = Path(path)
+    refuse_inside_inputs(out, inputs)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (overwrite or allow_existing):
+        raise OutputError(f"{out}: folder exists and is not empty; pass --overwrite to write into it")
+    return out
+
+
 def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existing: bool = False,
                        inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Create an output folder and return it.
@@ -167,12 +180,7 @@ def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existi
     ``allow_existing`` (a stage-reusing command such as ``extract`` or ``train --resume``); so is a folder that is,
     or lies inside, one of the ``inputs`` folders.
     """
-    out = Path(path)
-    refuse_inside_inputs(out, inputs)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (overwrite or allow_existing):
-        raise OutputError(f"{out}: folder exists and is not empty; pass --overwrite to write into it")
+    out = check_output_dir(path, overwrite=overwrite, allow_existing=allow_existing, inputs=inputs)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

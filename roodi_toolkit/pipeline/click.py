@@ -1,4 +1,4 @@
-"""The ``click`` segmenter: one or two clicks in one view -> the clicked object's Gaussians -> masks of every view.
+"""The ``click`` segmenter: clicks in one view -> the clicked object's Gaussians -> masks of every view.
 
 See :class:`ClickSegmenter` for the method; the interface it implements is :mod:`roodi_toolkit.pipeline.segment`.
 """
@@ -150,13 +150,14 @@ def _view_weights(renderer: Renderer, params: GaussianParams, camera: Camera) ->
 
 
 class ClickSegmenter(Segmenter):
-    """One or two clicks in one view, grown into a set of the scene's Gaussians and rendered into every view.
+    """Clicks in one view, grown into a set of the scene's Gaussians and rendered into every view.
 
     1. Clicked view: the region is a flood fill from the clicks over the depth of each pixel's largest-weight
        Gaussian (sharp at object edges, unlike the blended expected depth), within ``region_radius`` of the click in
        3D. Its tolerance grows from ``depth_tolerance_min`` by ``depth_tolerance_step`` and stops before the step
        where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact); GrabCut on the image
-       then refines it.
+       then refines it. A negative click's surface (its own fill at the smallest tolerance) is closed to the fill,
+       is sure background for GrabCut and joins the band of rest below.
     2. Seeds: with the view's per-pixel compositing weights (the renderer's ``compositing_weights``), a Gaussian whose
        weight lies mostly inside the region seeds the object; one whose weight lies mostly in the band around the
        region seeds the rest.
@@ -218,8 +219,9 @@ class ClickSegmenter(Segmenter):
         params = GaussianParams.from_cloud(scene, sh_degree=0)
         cam0 = dataset.cameras[v0]
         w0 = _view_weights(self._weights_renderer, params, cam0)
-        seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks]
-        mask0, band0 = self._clicked_region(dataset, v0, scene, w0, seeds)
+        seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if c.positive]
+        not_seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if not c.positive]
+        mask0, band0 = self._clicked_region(dataset, v0, scene, w0, seeds, not_seeds)
         inside = np.asarray(w0.T @ mask0.reshape(-1).astype(np.float64)).ravel()
         around = np.asarray(w0.T @ band0.reshape(-1).astype(np.float64)).ravel()
         total = np.asarray(w0.sum(axis=0)).ravel()
@@ -283,8 +285,10 @@ class ClickSegmenter(Segmenter):
         return np.where(hit, z[top], 0.0)
 
     def _clicked_region(self, dataset: Dataset, v0: int, scene: GaussianCloud, w0: Any,
-                        seeds: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
-        """Return the clicked view's object region and the band of rest around it, both ``[H, W]`` bool."""
+                        seeds: Sequence[tuple[int, int]],
+                        not_seeds: Sequence[tuple[int, int]] = ()) -> tuple[np.ndarray, np.ndarray]:
+        """Return the clicked view's object region and the rest around it (a band, and the surfaces of the negative
+        clicks ``not_seeds``), both ``[H, W]`` bool."""
         import cv2
 
         s = self.settings
@@ -293,10 +297,11 @@ class ClickSegmenter(Segmenter):
         alpha0 = np.asarray(w0.sum(axis=1)).ravel().reshape(H, W)
         depth0 = self._surface_depth(w0, scene, cam0).reshape(H, W)
         valid0 = (alpha0 >= s.min_alpha) & (depth0 > 0)
-        for r, c in seeds:
+        for (r, c), what in [(rc, "click") for rc in seeds] + [(rc, "negative click") for rc in not_seeds]:
             if not valid0[r, c]:
-                raise ConfigError(f"the click at {c},{r} in {dataset.names[v0]} hits no surface of the scene model "
-                                  f"(rendered alpha below {s.min_alpha}); click on the object")
+                raise ConfigError(f"the {what} at {c},{r} in {dataset.names[v0]} hits no surface of the scene model "
+                                  f"(rendered alpha below {s.min_alpha}); click on "
+                                  + ("the object" if what == "click" else "a surface"))
         diag = float(np.linalg.norm(np.asarray(dataset.bounds[1]) - np.asarray(dataset.bounds[0])))
         pts_all = cam0.backproject(np.argwhere(valid0), depth0[valid0])
         near_grid = np.zeros((H, W), bool)
@@ -305,27 +310,55 @@ class ClickSegmenter(Segmenter):
             near_grid[valid0] |= np.linalg.norm(pts_all - p0, axis=1) <= s.region_radius * diag
         # the fill's tolerance grows step by step and stops before the step where the region suddenly grows
         # several-fold: it has leaked through a contact onto the ground or a neighbour
-        tol = s.depth_tolerance_min
-        region = _depth_flood_fill(depth0, valid0 & near_grid, seeds, tol)
-        while tol * s.depth_tolerance_step <= s.depth_tolerance_max * (1 + 1e-9):
-            tol *= s.depth_tolerance_step
-            grown = _depth_flood_fill(depth0, valid0 & near_grid, seeds, tol)
-            if region.sum() >= s.leak_min_pixels and grown.sum() > s.leak_ratio * region.sum():
-                break
-            region = grown
+        region, not_region = self._competing_fill(depth0, valid0 & near_grid, valid0, seeds, not_seeds)
         for r, c in seeds:
             region[r, c] = True
         init = np.full((H, W), cv2.GC_BGD, np.uint8)
         init[_dilate(region, max(2, int(0.1 * math.sqrt(region.sum()))))] = cv2.GC_PR_BGD
         init[region] = cv2.GC_PR_FGD
+        init[not_region] = cv2.GC_BGD
         for r, c in seeds:
             init[max(0, r - 1):r + 2, max(0, c - 1):c + 2] = cv2.GC_FGD
         mask0 = _grabcut(dataset.images[v0].numpy(), init, s.grabcut_iterations, self.seed)
-        mask0 = _component_at(_fill_holes(mask0), seeds) & valid0 | (init == cv2.GC_FGD)
+        mask0 = _component_at(_fill_holes(mask0) & ~not_region, seeds) & valid0 | (init == cv2.GC_FGD)
         if mask0.sum() < s.grabcut_min_keep * region.sum():
             mask0 = region
-        band = _dilate(mask0, max(2, int(round(0.25 * math.sqrt(mask0.sum()))))) & ~mask0
+        band = _dilate(mask0, max(2, int(round(0.25 * math.sqrt(mask0.sum()))))) & ~mask0 | not_region
         return mask0, band
+
+    def _competing_fill(self, depth: np.ndarray, allowed: np.ndarray, not_allowed: np.ndarray,
+                        seeds: Sequence[tuple[int, int]],
+                        not_seeds: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+        """Return the clicked surface ``[H, W]`` and the negative clicks' surface ``[H, W]`` (empty without them).
+
+        Both are flood fills over ``depth`` whose tolerance grows from ``depth_tolerance_min`` step by step; the
+        object's fill stops before the step where its area jumps by more than ``leak_ratio`` (it has leaked through
+        a contact). With negative clicks the two fills compete, as seeded region growing does: neither may enter
+        what the other holds, and pixels both reach at the same step go to neither, so the rest (the table under
+        the object) is claimed at a small tolerance before the object's fill would leak into it.
+        """
+        s = self.settings
+        tol = s.depth_tolerance_min
+        none = np.zeros(depth.shape, bool)
+        region = _depth_flood_fill(depth, allowed, seeds, tol)
+        not_region = _depth_flood_fill(depth, not_allowed & ~region, not_seeds, tol) if not_seeds else none
+        leaked = False
+        while tol * s.depth_tolerance_step <= s.depth_tolerance_max * (1 + 1e-9):
+            tol *= s.depth_tolerance_step
+            if not leaked:
+                grown = _depth_flood_fill(depth, allowed & ~not_region, seeds, tol)
+                leaked = region.sum() >= s.leak_min_pixels and grown.sum() > s.leak_ratio * region.sum()
+            elif not not_seeds:
+                break
+            not_grown = _depth_flood_fill(depth, not_allowed & ~region, not_seeds, tol) if not_seeds else none
+            if not leaked:
+                both = grown & not_grown
+                region = grown & ~both
+                not_grown = not_grown & ~both
+            not_region = not_grown & ~region
+        for r, c in not_seeds:
+            not_region[r, c] = True
+        return region, not_region
 
     def _grow(self, scene: GaussianCloud, fg: np.ndarray, bg: np.ndarray, centre: np.ndarray,
               radius: float) -> np.ndarray:

@@ -35,7 +35,7 @@ from ..params import GaussianParams
 from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer, to_csr
 from ..progress import ProgressFactory, null_progress
 from ..imaging import mask_iou
-from .segment import SegmentPrompt, ViewMasks
+from .segment import SegmentPrompt, ViewMasks, resolve_prompt
 
 FEATURE_PREFIX = "object_feature_"
 CLASSIFIER_FORMAT = "roodi-object-classifier"
@@ -581,11 +581,13 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
     from ..io.ply import read_ply
 
     model = find_model(model_dir)
-    out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=[model.root, data_dir])
+    files.check_output_dir(out_dir, overwrite=overwrite, inputs=[model.root, data_dir])
     ds_scale = float(downscale if downscale is not None else model.config.get("downscale", 1) or 1)
     dataset = load_dataset(data_dir, ds_scale, progress=progress)
-    distilled = distill_scene(read_ply(model.ply_path), dataset, segmenter=segmenter,
-                              prompt=SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)),
+    # clicks come in the photos' own pixels, whatever the downscale (as extract takes them)
+    _, prompt = resolve_prompt(SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)), dataset)
+    out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=[model.root, data_dir])
+    distilled = distill_scene(read_ply(model.ply_path), dataset, segmenter=segmenter, prompt=prompt,
                               segmenter_options=segmenter_options, config=config,
                               holdout_every=int(model.config.get("holdout_every", 8)), labels=scene_labels(data_dir),
                               progress=progress, renderer=renderer)

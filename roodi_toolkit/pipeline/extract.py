@@ -34,7 +34,7 @@ from ..errors import ConfigError
 from .finetune import FinetuneConfig
 from ..gaussians import GaussianCloud
 from .occlusion import OcclusionConfig
-from .segment import SegmentPrompt
+from .segment import SegmentPrompt, resolve_prompt
 from ..prune.outliers import PruneConfig
 from ..progress import ProgressFactory, null_progress
 from .train import TrainConfig
@@ -135,29 +135,6 @@ def _train_wanted(config: ExtractConfig, data_dir: Path, downscale: float, has_a
     if train.random_background is None:  # as the Trainer resolves it, so that a finished scene's record matches
         train = replace(train, random_background=has_alpha)
     return {**_settings(train.to_dict()), "downscale": downscale, "data_dir": str(data_dir.resolve())}
-
-
-def _loaded_prompt(prompt: SegmentPrompt, dataset: Any) -> tuple[SegmentPrompt, SegmentPrompt]:
-    """Return ``prompt`` with each click's view resolved (``""``: the first training view; a name may carry its file
-    extension), and the same with the clicks moved from the photos' pixels to the loaded images'.
-
-    Raises:
-        ConfigError: an unknown view, or a click outside its photo.
-    """
-    from ..io.dataset import to_loaded_pixel
-    from .segment import Click, view_index
-
-    if not prompt.clicks:
-        return prompt, prompt
-    given, clicks = [], []
-    for c in prompt.clicks:
-        name = c.view or dataset.names[(dataset.train_indices or [0])[0]]
-        if name not in dataset.names and Path(name).stem in dataset.names:  # given with its file extension
-            name = Path(name).stem
-        name = dataset.names[view_index(dataset, name)]
-        given.append(Click(name, c.x, c.y))
-        clicks.append(Click(name, *to_loaded_pixel(dataset, name, c.x, c.y)))
-    return replace(prompt, clicks=tuple(given)), replace(prompt, clicks=tuple(clicks))
 
 
 def _object_masks(masks: torch.Tensor, object_id: int, views: Sequence[int]) -> torch.Tensor:
@@ -279,7 +256,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
         downscale = float(model.config.get("downscale", 1) or 1) if model is not None else 1.0
     report["downscale"] = downscale
     dataset = load_dataset(data_dir, downscale, progress=progress)  # decoded once; every stage reads it from memory
-    given, prompt = _loaded_prompt(config.prompt, dataset)  # checked now, before any training
+    given, prompt = resolve_prompt(config.prompt, dataset)  # checked now, before any training
     distill_out = out / "distill"
     distill_wanted = {"config": _settings(config.distill), "segmenter": config.segmenter,
                       "prompt": _settings(given), "segmenter_options": _settings(config.segmenter_options),

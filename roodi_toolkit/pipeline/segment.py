@@ -16,7 +16,7 @@ Built-ins:
 
 - ``files`` (default): masks or instance-id maps from a folder of PNGs matched to the views by name, or the
   dataset's own masks (Blender frames with ``mask_path``, as the generated benchmark scenes have).
-- ``click``: one or two clicks in one view; the clicked surface's Gaussians (by their compositing weights there) are
+- ``click``: clicks in one view, positive on the target and optionally negative on what is not; the clicked surface's Gaussians (by their compositing weights there) are
   grown through a 3D neighbour graph of the trained scene's Gaussians, and every view's mask is where the selected
   Gaussians give most of the rendered alpha (see :class:`roodi_toolkit.pipeline.click.ClickSegmenter`).
 """
@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import re
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
@@ -51,7 +51,8 @@ class SegmentationError(RoodiError):
 
 @dataclass(frozen=True)
 class Click:
-    """A positive click on the target: pixel ``(x, y)`` (x right, y down; pixel centres at +0.5) in view ``view``.
+    """A click on view ``view`` at pixel ``(x, y)`` (x right, y down; pixel centres at +0.5): on the target
+    (``positive``, the default) or on something that is not the target (a negative click, as SAM's point labels).
 
     ``view`` is a view name (the image's file stem, e.g. ``r_003``) or a view index as text.
     """
@@ -59,14 +60,15 @@ class Click:
     view: str
     x: float
     y: float
+    positive: bool = True
 
     @classmethod
-    def parse(cls, text: str) -> "Click":
+    def parse(cls, text: str, positive: bool = True) -> "Click":
         """Return the click written as ``VIEW:x,y`` (e.g. ``r_003:41,57``).
 
         Example:
             >>> Click.parse("r_003:41,57.5")
-            Click(view='r_003', x=41.0, y=57.5)
+            Click(view='r_003', x=41.0, y=57.5, positive=True)
         """
         m = re.fullmatch(r"\s*(.+?)\s*:\s*([-+0-9.eE]+)\s*,\s*([-+0-9.eE]+)\s*", str(text))
         if not m:
@@ -77,7 +79,7 @@ class Click:
             raise ConfigError(f"cannot read click {text!r}; x and y must be numbers") from None
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ConfigError(f"click {text!r}: x and y must be finite")
-        return cls(m.group(1), x, y)
+        return cls(m.group(1), x, y, positive)
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,8 @@ class SegmentPrompt:
     """What the user gives a segmenter.
 
     Attributes:
-        clicks: positive clicks on the target, all in one view (``click``, ``sam2``).
+        clicks: clicks in one view (``click``, ``sam2``): at least one positive (on the target), and negative ones
+            (``positive=False``) on what must not be selected.
         mask_dir: a folder of mask PNGs named like the views (``files``); None: the dataset's own masks.
     """
 
@@ -203,16 +206,22 @@ def view_index(dataset: Dataset, view: str) -> int:
     raise ConfigError(f"no view named {view!r}; the dataset's views are {shown} (or give an index 0..{len(names) - 1})")
 
 
-def check_clicks(dataset: Dataset, clicks: Sequence[Click], max_clicks: int = 2) -> int:
-    """Return the index of the view the clicks are in, after checking they are 1..max_clicks, in one view, on screen.
+MAX_CLICKS = 8
+"""Most clicks, positive and negative together, a prompt may hold."""
+
+
+def check_clicks(dataset: Dataset, clicks: Sequence[Click], max_clicks: int = MAX_CLICKS) -> int:
+    """Return the index of the view the clicks are in, after checking there is a positive one, at most
+    ``max_clicks`` in all, all in one view and on screen.
 
     Raises:
-        ConfigError: no click, too many, in several views, or outside the image.
+        ConfigError: no positive click, too many, in several views, or outside the image.
     """
-    if not clicks:
-        raise ConfigError("this segmenter needs a click on the target: --click VIEW:x,y (e.g. r_000:48,40)")
+    if not any(c.positive for c in clicks):
+        raise ConfigError("this segmenter needs a click on the target: --click VIEW:x,y (e.g. r_000:48,40)"
+                          + ("; negative clicks alone say only what the target is not" if clicks else ""))
     if len(clicks) > max_clicks:
-        raise ConfigError(f"give at most {max_clicks} clicks, got {len(clicks)}")
+        raise ConfigError(f"give at most {max_clicks} clicks (positive and negative), got {len(clicks)}")
     views = {view_index(dataset, c.view) for c in clicks}
     if len(views) != 1:
         raise ConfigError("all clicks must be in the same view")
@@ -220,6 +229,29 @@ def check_clicks(dataset: Dataset, clicks: Sequence[Click], max_clicks: int = 2)
         if not (0 <= c.x < dataset.width and 0 <= c.y < dataset.height):
             raise ConfigError(f"click {c.view}:{c.x:g},{c.y:g} is outside the {dataset.width}x{dataset.height} image")
     return views.pop()
+
+
+def resolve_prompt(prompt: SegmentPrompt, dataset: Dataset) -> tuple[SegmentPrompt, SegmentPrompt]:
+    """Return ``prompt`` with each click's view resolved (``""``: the first training view; a name may carry its file
+    extension), and the same with the clicks moved from the photos' own pixels (what an image viewer shows) to the
+    loaded images' (downscaled, ``images_N``, cropped to a common size).
+
+    Raises:
+        ConfigError: an unknown view, or a click outside its photo.
+    """
+    from ..io.dataset import to_loaded_pixel
+
+    if not prompt.clicks:
+        return prompt, prompt
+    given, clicks = [], []
+    for c in prompt.clicks:
+        name = c.view or dataset.names[(dataset.train_indices or [0])[0]]
+        if name not in dataset.names and Path(name).stem in dataset.names:  # given with its file extension
+            name = Path(name).stem
+        name = dataset.names[view_index(dataset, name)]
+        given.append(Click(name, c.x, c.y, c.positive))
+        clicks.append(Click(name, *to_loaded_pixel(dataset, name, c.x, c.y), c.positive))
+    return replace(prompt, clicks=tuple(given)), replace(prompt, clicks=tuple(clicks))
 
 
 # ------------------------------------------------------------------------------------------------------ files

@@ -1,4 +1,5 @@
-"""SAM2 video propagation of one or two clicks over the views of a posed dataset (the paper's segmentation).
+"""SAM2 video propagation of clicks (positive, and negative ones on what is not the target) over the views of a
+posed dataset (the paper's segmentation).
 
 The views are not a video, so they are ordered into one: starting at the clicked view, each next frame is the
 nearest remaining camera (a greedy chain over camera centres), which keeps consecutive frames close as SAM2's memory
@@ -115,7 +116,7 @@ class SAM2Segmenter(Segmenter):
         out = np.zeros((len(dataset), H, W), dtype=np.int64)
         seen = set()
         points = np.array([[c.x, c.y] for c in prompt.clicks], dtype=np.float32)
-        labels = np.ones(len(points), dtype=np.int32)
+        labels = np.array([1 if c.positive else 0 for c in prompt.clicks], dtype=np.int32)  # SAM: 0 = negative
         with tempfile.TemporaryDirectory(prefix="roodi-sam2-") as tmp:
             for k, v in enumerate(order):
                 write_image(dataset.images[v].numpy(), Path(tmp) / f"{k:05d}.jpg")

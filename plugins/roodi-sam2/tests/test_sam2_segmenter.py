@@ -70,7 +70,7 @@ def test_plumbing_with_a_fake_predictor(tmp_path):
         return fake
 
     seg = SAM2Segmenter(checkpoint=str(ckpt), predictor_factory=factory)
-    masks = seg.segment(ds, SegmentPrompt((Click("r_002", 3.5, 7.0), Click("r_002", 5.0, 6.0))))
+    masks = seg.segment(ds, SegmentPrompt((Click("r_002", 3.5, 7.0), Click("r_002", 5.0, 6.0, positive=False))))
     assert built == [("configs/sam2.1/sam2.1_hiera_t.yaml", str(ckpt), "cpu")]
     assert fake.calls[0] == ("init_state", [f"{k:05d}.jpg" for k in range(5)])
     # frame 0 is the clicked view's image (JPEG, so close but not exact)
@@ -78,7 +78,7 @@ def test_plumbing_with_a_fake_predictor(tmp_path):
     for k, v in enumerate(order):
         assert np.abs(fake.frames[k] / 255.0 - ds.images[v].numpy()).max() < 0.02
     _, frame, obj, points, labels, pdt, ldt = fake.calls[1]
-    assert (frame, obj, points, labels) == (0, 1, [[3.5, 7.0], [5.0, 6.0]], [1, 1])
+    assert (frame, obj, points, labels) == (0, 1, [[3.5, 7.0], [5.0, 6.0]], [1, 0])  # SAM: 0 = a negative click
     assert pdt == np.float32 and ldt == np.int32
     assert masks.kind == "binary" and masks.num_classes == 2 and masks.names == ds.names
     for k, v in enumerate(order):
