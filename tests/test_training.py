@@ -194,3 +194,28 @@ def test_a_checkpoint_of_another_version_is_refused_in_one_line(tiny_scene, tmp_
     torch.save(state, ckpt)
     res = run_cli("train", tiny_scene, out, "--resume", "-q")
     assert res.exit_code == 1 and "checkpoint version 1" in res.stderr and "unexpected" not in res.stderr
+
+
+def test_sparse_sfm_points_are_topped_up_on_their_surfaces():
+    """A capture's few SfM points are topped up to init_num_points: the originals first, each added point a copy of
+    one of them (its colour) moved by about its own neighbourhood's spread."""
+    from roodi_toolkit.pipeline.train import densified_points
+
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(-1, 1, (50, 2)), np.zeros(50)]  # a flat patch: z = 0
+    cols = rng.integers(0, 256, (50, 3)).astype(np.uint8)
+    g = torch.Generator().manual_seed(0)
+    out, out_cols = densified_points(pts, cols, 400, g)
+    assert out.shape == (400, 3) and out_cols.shape == (400, 3)
+    assert np.array_equal(out[:50], pts) and np.array_equal(out_cols[:50], cols)
+    # every added point carries the colour of an SfM point near it and stays near the patch's plane
+    from scipy.spatial import cKDTree
+
+    d, nearest = cKDTree(pts).query(out[50:])
+    spread = np.median(cKDTree(pts).query(pts, k=4)[0][:, 1:])
+    assert np.median(d) < 2 * spread and np.abs(out[50:, 2]).max() < 6 * spread
+    assert np.mean((out_cols[50:][:, None] == cols[None]).all(-1).any(-1)) == 1.0
+    # enough points already, or too few to measure a spread: unchanged
+    same, same_cols = densified_points(pts, cols, 50, g)
+    assert same is pts and same_cols is cols
+    assert len(densified_points(pts[:3], None, 100, g)[0]) == 3
