@@ -219,3 +219,34 @@ def test_sparse_sfm_points_are_topped_up_on_their_surfaces():
     same, same_cols = densified_points(pts, cols, 50, g)
     assert same is pts and same_cols is cols
     assert len(densified_points(pts[:3], None, 100, g)[0]) == 3
+
+
+def test_sparse_sfm_points_also_get_points_on_the_views_rays():
+    """Half of the top-up lies on training views' rays, between 0.8x and 4x the SfM depths there, coloured by the
+    pixel: a background SfM missed (the statue's) gets Gaussians to grow from."""
+    from roodi_toolkit.pipeline.train import RAY_DEPTH_RANGE, sfm_initial_points
+
+    from .object_scene import object_dataset
+
+    ds, cloud, _ = object_dataset()
+    ds.points = cloud.means[::10].astype(np.float64)
+    ds.point_colors = np.full((len(ds.points), 3), 200, np.uint8)
+    views = [0, 1, 2]
+    pts, cols = sfm_initial_points(ds, views, 3 * len(ds.points), torch.Generator().manual_seed(0))
+    P = len(ds.points)
+    assert pts.shape == (3 * P, 3) and cols.shape == (3 * P, 3) and cols.max() <= 1.0
+    assert np.allclose(cols[:P], 200 / 255)
+    rays, ray_cols = pts[2 * P:], cols[2 * P:]
+    on_a_ray = 0
+    for v in views:
+        cam = ds.cameras[v]
+        (uv, z) = cam.project(rays)
+        z_sfm = (ds.points @ cam.world_to_camera[:3, :3].T + cam.world_to_camera[:3, 3])[:, 2]
+        lo, hi = np.percentile(z_sfm, [1, 99]) * np.array(RAY_DEPTH_RANGE)
+        img = ds.images[v].numpy()
+        for (x, y), d, c in zip(uv, z, ray_cols):
+            r, q = int(y), int(x)
+            if lo * 0.999 <= d <= hi * 1.001 and 0 <= r < ds.height and 0 <= q < ds.width and \
+                    abs(y - r - 0.5) < 1e-4 and abs(x - q - 0.5) < 1e-4 and np.allclose(img[r, q], c):
+                on_a_ray += 1
+    assert on_a_ray == len(rays)  # each is a pixel centre of one of the views at an allowed depth, in its colour

@@ -51,7 +51,7 @@ class TrainConfig:
             the scene box, coloured by projection into the views), or ``"depth"`` (pixels of the training views' depth
             maps lifted to 3D, as from an RGB-D capture; needs a dataset with depth).
         init_num_points: random initialisation size (ours: sized for the CPU; gsplat uses 100,000); sparse SfM
-            points fewer than this are topped up to it (:func:`densified_points`).
+            points fewer than this are topped up to it (:func:`sfm_initial_points`).
         init_opacity: initial opacity (3DGS-MCMC: 0.5).
         init_scale: initial scale as a fraction of the mean distance to the 3 nearest points (3DGS-MCMC: 0.1).
         random_background: composite images with alpha on a random colour each step, so that transparent pixels
@@ -172,11 +172,9 @@ def densified_points(points: np.ndarray, colors: np.ndarray | None, n: int,
                      generator: torch.Generator) -> tuple[np.ndarray, np.ndarray | None]:
     """Return sparse SfM points ``[P, 3]`` (and colours ``[P, 3]``) topped up to ``n`` points when ``P < n``.
 
-    A real capture's COLMAP model may hold only a few thousand points (the statue: 1,443), and MCMC's growth of 5%
-    per refinement step from there cannot reach a useful size within a CPU training run (about 2,100 Gaussians after
-    1,400 steps). The added points are copies of randomly drawn SfM points, each moved by a normal offset with the
-    spread of its own neighbourhood (the RMS distance to its 3 nearest SfM points) and given its colour: the cloud
-    stays on the reconstructed surfaces and densest where SfM found structure, as the points themselves are.
+    The added points are copies of randomly drawn SfM points, each moved by a normal offset with the spread of its
+    own neighbourhood (the RMS distance to its 3 nearest SfM points) and given its colour: the cloud stays on the
+    reconstructed surfaces and densest where SfM found structure, as the points themselves are.
     """
     from scipy.spatial import cKDTree
 
@@ -190,6 +188,58 @@ def densified_points(points: np.ndarray, colors: np.ndarray | None, n: int,
     extra = pts[pick] + noise * spread[pick, None]
     out_colors = None if colors is None else np.concatenate([np.asarray(colors), np.asarray(colors)[pick]])
     return np.concatenate([pts, extra]), out_colors
+
+
+RAY_DEPTH_RANGE = (0.8, 4.0)
+"""Ray-sampled initial points lie between these multiples of the 1st and 99th percentile depths of the SfM points
+in their view (a capture's background is usually within a few times the distance of what SfM reconstructed)."""
+
+
+def ray_points(dataset: Dataset, views: list[int], points: np.ndarray, n: int,
+               generator: torch.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``n`` points ``[n, 3]`` on random pixels' rays of the training views, coloured by their pixels.
+
+    SfM reconstructs the textured object a capture is about and little of what lies behind it (the statue's 1,443
+    points are all on the statue); MCMC grows new Gaussians only as copies of existing ones, so a background with no
+    initial Gaussians stays a blur in every held-out view. Each point is a random pixel of a random training view at
+    a depth drawn uniformly in inverse depth over :data:`RAY_DEPTH_RANGE` times the SfM points' depths in that view;
+    the ones at a wrong depth are transparent after a few hundred steps, and MCMC relocates them onto the live ones.
+    """
+    g = generator
+    pick = torch.randint(len(views), (n,), generator=g).numpy()
+    out = np.zeros((n, 3))
+    rgb = np.zeros((n, 3))
+    H, W = dataset.height, dataset.width
+    pts = np.asarray(points, dtype=np.float64)
+    for k, v in enumerate(views):
+        rows = np.flatnonzero(pick == k)
+        if not len(rows):
+            continue
+        cam = dataset.cameras[v]
+        z = (pts @ cam.world_to_camera[:3, :3].T + cam.world_to_camera[:3, 3])[:, 2]
+        z = z[z > 0]
+        lo, hi = (np.percentile(z, [1, 99]) if len(z) else (cam.near, 10 * cam.near)) * np.array(RAY_DEPTH_RANGE)
+        u = torch.rand(len(rows), 3, generator=g, dtype=torch.float64).numpy()
+        rc = np.minimum((u[:, :2] * [H, W]).astype(np.int64), [H - 1, W - 1])
+        depth = 1.0 / (1.0 / lo + u[:, 2] * (1.0 / hi - 1.0 / lo))
+        out[rows] = cam.backproject(rc, depth)
+        rgb[rows] = dataset.images[v].numpy()[rc[:, 0], rc[:, 1]]
+    return out, rgb
+
+
+def sfm_initial_points(dataset: Dataset, views: list[int], n: int,
+                       generator: torch.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Return a capture's SfM points ``[P, 3]`` and colours, topped up to ``n`` when fewer: half of the added
+    points on the SfM surfaces (:func:`densified_points`), half on the views' rays (:func:`ray_points`)."""
+    pts = np.asarray(dataset.points, dtype=np.float64)
+    cols = np.asarray(dataset.point_colors if dataset.point_colors is not None else np.full((len(pts), 3), 128))
+    cols = cols / 255.0 if cols.max() > 1.0 else cols
+    if len(pts) >= n:
+        return pts, cols
+    on_surfaces = len(pts) + (n - len(pts)) // 2
+    pts2, cols2 = densified_points(pts, cols, on_surfaces, generator)
+    rays, ray_cols = ray_points(dataset, views, pts, n - len(pts2), generator)
+    return np.concatenate([pts2, rays]), np.concatenate([cols2, ray_cols])
 
 
 def initial_params(points: np.ndarray, colors: np.ndarray | None, config: TrainConfig,
@@ -262,7 +312,7 @@ class Trainer:
         if use_points:
             if ds.points is None or len(ds.points) < 4:
                 raise DatasetError("init 'points' needs a dataset with sparse points (COLMAP)")
-            return densified_points(ds.points, ds.point_colors, cfg.init_num_points, self.generator)
+            return sfm_initial_points(ds, self.train_indices, cfg.init_num_points, self.generator)
         lo, hi = ds.bounds
         u = torch.rand(cfg.init_num_points, 3, generator=self.generator, dtype=torch.float64).numpy()
         points = lo + u * (hi - lo)
