@@ -34,7 +34,8 @@ from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
-from .occlusion import OcclusionConfig, OcclusionResult, object_extent, occlusion_masks, write_occlusion_images
+from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, object_extent, occlusion_masks,
+                        write_occlusion_images)
 from ..progress import ProgressFactory, null_progress
 
 
@@ -63,6 +64,9 @@ class FinetuneConfig:
         seed_opacity: opacity of the seeded Gaussians.
         seed_min_difference: a pixel counts as filled when the inpainted colour differs from the background by more
             than this (max over channels).
+        adopt_proposed: add the Gaussians a 3D-aware inpainter proposes (e.g. ``symmetry``'s mirrored copies that
+            land where the object has none; :class:`~roodi_toolkit.pipeline.inpaint.FillContext`) before fine-tuning.
+            2D inpainters propose none, so this changes nothing for them.
     """
 
     iterations: int = 100
@@ -83,6 +87,7 @@ class FinetuneConfig:
     seed_stride: int = 2
     seed_opacity: float = 0.5
     seed_min_difference: float = 0.1
+    adopt_proposed: bool = True
 
     def __post_init__(self) -> None:
         if self.iterations < 0 or self.inpaint_every < 1:
@@ -387,6 +392,8 @@ class RefineResult:
         finetune: the fine-tuning run.
         inpainter: the inpainter's name.
         debug_dir: where the debug images are (None if not written).
+        filled: the masked pixels the inpainter changed (what the fill added). [V, H, W] bool
+        proposed: Gaussians a 3D-aware inpainter proposed and the refinement added before fine-tuning.
     """
 
     cloud: GaussianCloud
@@ -395,6 +402,8 @@ class RefineResult:
     finetune: FinetuneResult
     inpainter: str
     debug_dir: Optional[Path]
+    filled: Optional[Tensor] = None
+    proposed: int = 0
 
 
 def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, images: Tensor, cameras: Sequence[Camera],
@@ -422,7 +431,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         renderer: draws every view of occlusion reasoning and fine-tuning (default: the built-in CPU renderer).
     """
     from ..io.files import write_image, write_json
-    from .inpaint import Inpainter, get_inpainter, inpaint_views
+    from .inpaint import FillContext, Inpainter, get_inpainter, inpaint_views
     from .occlusion import up_from_cameras
 
     if occlusion.num_views != 4:
@@ -436,7 +445,13 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     bg = finetune.background
     renderer = resolve_renderer(renderer)
     occ = occlusion_masks(object_cloud, scene_cloud, None, occlusion, up=up, background=bg, renderer=renderer)
-    inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt)
+    context = FillContext(object_cloud, occ.cameras, renderer, bg, occ, up=tuple(float(u) for u in up))
+    inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt, context=context)
+    filled = occ.mask & ((inpainted - occ.object_rgb).abs().amax(dim=-1) > FILL_CHANGE)
+    proposed = 0
+    if finetune.adopt_proposed and context.proposed is not None and len(context.proposed):
+        proposed = len(context.proposed)
+        object_cloud = GaussianCloud.concatenate([object_cloud, _same_columns(context.proposed, object_cloud)])
     seeded = 0
     if finetune.seed_holes:
         seeds = seed_hole_gaussians(object_cloud, occ, inpainted, stride=finetune.seed_stride,
@@ -471,15 +486,46 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                         out_dir / f"view_{k}_object_before_after.png")
         write_image(torch.cat([to_row(occ.object_rgb), to_row(after)], dim=0).numpy(),
                     out_dir / "object_before_after.png")
+        write_image(fill_picture(occ.object_rgb, inpainted, filled, occ.occluded), out_dir / "fill_views.png")
+        write_image(fill_picture(occ.object_rgb, after, filled, occ.occluded), out_dir / "fill_before_after.png")
         write_json({"inpainter": getattr(inpainter, "name", "") or type(inpainter).__name__,
                     "perceptual_loss": result.perceptual, "occlusion": asdict(occlusion),
                     "finetune": asdict(finetune), "object_centre": occ.centre.tolist(), "object_radius": occ.radius,
-                    "seeded_gaussians": seeded,
+                    "seeded_gaussians": seeded, "proposed_gaussians": proposed,
+                    "filled_fraction": [float(m.float().mean()) for m in filled],
+                    "mirror": _mirror_record(inpainter),
                     "occluded_fraction": [float(m.float().mean()) for m in occ.occluded],
                     "mask_fraction": [float(m.float().mean()) for m in occ.mask],
                     "seconds_finetune": result.seconds, "history": result.history}, out_dir / "refine.json")
     return RefineResult(result.cloud, occ, inpainted, result,
-                        getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir)
+                        getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir, filled, proposed)
+
+
+#: a masked pixel counts as filled when the inpainter changed it by more than this (max over channels)
+FILL_CHANGE = 0.02
+
+
+def _same_columns(cloud: GaussianCloud, like: GaussianCloud) -> GaussianCloud:
+    """Return ``cloud`` with ``like``'s SH degree, extras (zeros where missing) and normals, ready to concatenate."""
+    k = like.sh_rest.shape[1]
+    rest = np.zeros((len(cloud), k, 3), np.float32)
+    n = min(k, cloud.sh_rest.shape[1])
+    rest[:, :n] = cloud.sh_rest[:, :n]
+    extras = {name: (cloud.extras[name] if name in cloud.extras else np.zeros(len(cloud), col.dtype))
+              for name, col in like.extras.items()}
+    normals = None
+    if like.normals is not None:
+        normals = cloud.normals if cloud.normals is not None else np.zeros((len(cloud), 3), like.normals.dtype)
+    out = cloud.copy()
+    out.sh_rest, out.extras, out.normals = rest, extras, normals
+    return out
+
+
+def _mirror_record(inpainter: Any) -> Optional[dict]:
+    mirror = getattr(inpainter, "last_mirror", None)
+    if mirror is None:
+        return None
+    return {"normal": [float(x) for x in mirror.normal], "offset": mirror.offset, "agreement": mirror.agreement}
 
 
 def to_row(views: Tensor) -> Tensor:

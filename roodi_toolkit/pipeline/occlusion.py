@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 import torch
@@ -294,3 +294,69 @@ def write_occlusion_images(result: OcclusionResult, folder: str | Path) -> list[
         for name, img in items.items():
             paths.append(write_image(img, out / f"view_{k}_{name}.png"))
     return paths
+
+
+def outline(mask: np.ndarray | Tensor, width: int = 1) -> np.ndarray:
+    """Return the pixels ``[H, W]`` (bool) on the inside edge of ``mask``, ``width`` pixels thick.
+
+    Example:
+        >>> m = np.zeros((5, 5), bool)
+        >>> m[1:4, 1:4] = True
+        >>> outline(m).astype(int).sum()  # the 3x3 square's 8 border pixels
+        8
+    """
+    from scipy.ndimage import binary_erosion
+
+    m = np.asarray(mask, dtype=bool)
+    return m & ~binary_erosion(m, iterations=max(1, width), border_value=0)
+
+
+def outlined(image: np.ndarray | Tensor, regions: Sequence[tuple[np.ndarray | Tensor, Sequence[float]]], *,
+             width: int = 1, tint: float = 0.25) -> np.ndarray:
+    """Return ``image`` ``[H, W, 3]`` with each ``(mask [H, W], RGB)`` region tinted by ``tint`` and outlined.
+
+    Example:
+        >>> img = np.ones((6, 6, 3), np.float32)
+        >>> m = np.zeros((6, 6), bool)
+        >>> m[2:5, 2:5] = True
+        >>> out = outlined(img, [(m, (1.0, 0.0, 0.0))])
+        >>> out[2, 2].tolist(), out[0, 0].tolist()
+        ([1.0, 0.0, 0.0], [1.0, 1.0, 1.0])
+    """
+    out = np.array(image, dtype=np.float32, copy=True)
+    for mask, colour in regions:
+        m = np.asarray(mask, dtype=bool)
+        c = np.asarray(colour, dtype=np.float32)
+        out[m] = (1 - tint) * out[m] + tint * c
+        out[outline(m, width)] = c
+    return out
+
+
+#: outline colours of the fill pictures: what the fill changed (red) and what the scene hides (yellow)
+FILLED_COLOUR = (1.0, 0.1, 0.1)
+OCCLUDED_COLOUR = (1.0, 0.85, 0.0)
+
+
+def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Optional[Tensor] = None, *,
+                 gap: int = 2) -> np.ndarray:
+    """Return a picture of views before (top row) and after (bottom row) the fill with the filled region outlined.
+
+    Args:
+        before: the object's renders before the fill. [V, H, W, 3]
+        after: the same views after it (the inpainted views or the refined object's renders). [V, H, W, 3]
+        filled: the region the fill added, outlined in red in both rows. [V, H, W] bool
+        occluded: the region the scene hides, outlined in yellow (optional). [V, H, W] bool
+        gap: white pixels between tiles.
+    """
+    from ..render.pictures import probability_grid
+
+    rows = []
+    for views in (before, after):
+        row = []
+        for k in range(len(views)):
+            regions = [(filled[k], FILLED_COLOUR)]
+            if occluded is not None:
+                regions.append((occluded[k], OCCLUDED_COLOUR))
+            row.append(outlined(np.asarray(views[k]), regions, width=max(1, views.shape[1] // 128)))
+        rows.append(row)
+    return probability_grid(rows, gap=gap)
