@@ -34,7 +34,7 @@ from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
-from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, object_extent, occlusion_masks,
+from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, object_extent, occlusion_masks, seen_empty,
                         write_occlusion_images)
 from ..progress import ProgressFactory, null_progress
 
@@ -445,7 +445,18 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     bg = finetune.background
     renderer = resolve_renderer(renderer)
     occ = occlusion_masks(object_cloud, scene_cloud, None, occlusion, up=up, background=bg, renderer=renderer)
-    context = FillContext(object_cloud, occ.cameras, renderer, bg, occ, up=tuple(float(u) for u in up))
+    # scene depth in the training views tells where something may hide the object, and where a view looks through
+    # empty space (what a 3D completion must not fill)
+    scene_params = GaussianParams.from_cloud(scene_cloud)
+    with torch.no_grad():
+        depths = torch.stack([renderer.render(scene_params, c).depth[..., 0] for c in cameras])
+    masks_np, depths_np = torch.as_tensor(object_masks).bool().numpy(), depths.numpy()
+
+    def empty(points: np.ndarray) -> np.ndarray:
+        return seen_empty(points, cameras, masks_np, depths_np, occlusion.depth_tolerance * occ.radius)
+
+    context = FillContext(object_cloud, occ.cameras, renderer, bg, occ, up=tuple(float(u) for u in up),
+                          seen_empty=empty)
     inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt, context=context)
     filled = occ.mask & ((inpainted - occ.object_rgb).abs().amax(dim=-1) > FILL_CHANGE)
     proposed = 0
@@ -461,10 +472,6 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         seeded = len(seeds)
         if seeded:
             object_cloud = GaussianCloud.concatenate([object_cloud, seeds])
-    # scene depth in the training views tells where something may hide the object
-    scene_params = GaussianParams.from_cloud(scene_cloud)
-    with torch.no_grad():
-        depths = torch.stack([renderer.render(scene_params, c).depth[..., 0] for c in cameras])
     originals = object_view_targets(images, cameras, object_masks, depths=depths, centre=occ.centre,
                                     radius=occ.radius, background=bg)
     inpainted_targets = ViewTargets(occ.cameras, inpainted, torch.ones(inpainted.shape[:3]))

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
@@ -54,6 +54,9 @@ class FillContext:
         background: RGB behind the renders.
         occlusion: the occlusion reasoning of the views (renders, occluded and inpainting masks), if any.
         up: the scene's up axis, if known. [3]
+        seen_empty: a function of world points ``[N, 3]`` returning which of them (bool ``[N]``) a training view sees
+            as empty space, if known (:func:`roodi_toolkit.pipeline.occlusion.seen_empty`); a 3D completion drops
+            what it would put there.
         rows: grid rows the views are tiled in.
         cols: grid columns.
         proposed: set by the inpainter: Gaussians it proposes to add to the object (same columns), or None.
@@ -65,6 +68,7 @@ class FillContext:
     background: Sequence[float] = (1.0, 1.0, 1.0)
     occlusion: "Optional[OcclusionResult]" = field(default=None, repr=False)
     up: Optional[Sequence[float]] = None
+    seen_empty: Optional[Callable[[np.ndarray], np.ndarray]] = field(default=None, repr=False)
     rows: int = 2
     cols: int = 2
     proposed: "Optional[GaussianCloud]" = field(default=None, repr=False)

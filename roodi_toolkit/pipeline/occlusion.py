@@ -302,7 +302,7 @@ def outline(mask: np.ndarray | Tensor, width: int = 1) -> np.ndarray:
     Example:
         >>> m = np.zeros((5, 5), bool)
         >>> m[1:4, 1:4] = True
-        >>> outline(m).astype(int).sum()  # the 3x3 square's 8 border pixels
+        >>> int(outline(m).sum())  # the 3x3 square's 8 border pixels
         8
     """
     from scipy.ndimage import binary_erosion
@@ -360,3 +360,45 @@ def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Option
             row.append(outlined(np.asarray(views[k]), regions, width=max(1, views.shape[1] // 128)))
         rows.append(row)
     return probability_grid(rows, gap=gap)
+
+
+def seen_empty(points: np.ndarray, cameras: Sequence[Camera], object_masks: Tensor | np.ndarray,
+               depths: Tensor | np.ndarray, tolerance: float, *, margin: int = 1) -> np.ndarray:
+    """Return which points ``[N, 3]`` some view sees as empty space (bool ``[N]``): the point projects into the view
+    more than ``margin`` pixels away from the object's mask there, and the view's surface at that pixel is farther
+    than the point by more than ``tolerance`` (or there is none), so the view looks through where the point is.
+
+    Args:
+        points: world points. [N, 3]
+        cameras: the views.
+        object_masks: True on the object in each view. [V, H, W]
+        depths: the scene's depth along each view's optical axis, 0 where nothing. [V, H, W]
+        tolerance: depth slack (world units).
+        margin: pixels around the object's mask that never count as empty (its outline is uncertain).
+
+    Example:
+        >>> cam = Camera(look_at([0, -3, 0], [0, 0, 0]), intrinsics_from_fov(1.0, 16, 16), 16, 16)
+        >>> masks = np.zeros((1, 16, 16), bool)
+        >>> masks[0, 6:10, 6:10] = True
+        >>> depths = np.full((1, 16, 16), 5.0)  # a wall 2 behind the object's centre
+        >>> seen_empty(np.array([[0.0, 0, 0], [0.8, 0, 0], [1.5, 3.0, 0]]), [cam], masks, depths, 0.1).tolist()
+        [False, True, False]
+    """
+    from scipy.ndimage import binary_dilation
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    masks = np.asarray(object_masks, dtype=bool)
+    depths = np.asarray(depths, dtype=np.float64)
+    empty = np.zeros(len(pts), dtype=bool)
+    for k, cam in enumerate(cameras):
+        uv, z = cam.project(pts)
+        with np.errstate(invalid="ignore"):
+            j, i = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+        ok = (z > 0) & (j >= 0) & (j < cam.width) & (i >= 0) & (i < cam.height)
+        idx = np.flatnonzero(ok)
+        ii, jj = i[idx].astype(int), j[idx].astype(int)
+        near_object = binary_dilation(masks[k], iterations=margin) if margin > 0 else masks[k]
+        d = depths[k][ii, jj]
+        through = ~near_object[ii, jj] & ((d <= 0) | (d > z[idx] + tolerance))
+        empty[idx[through]] = True
+    return empty

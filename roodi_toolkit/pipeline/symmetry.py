@@ -13,8 +13,8 @@ base colour (higher SH bands are dropped: their mirror image is not a rotation o
 :class:`SymmetryInpainter` renders the object together with its mirrored copy into the views and takes that render in
 the masked pixels the copy covers; the rest goes to a 2D inpainter (``exemplar`` by default). It also proposes the
 mirrored Gaussians that land where the object has none (:attr:`~roodi_toolkit.pipeline.inpaint.FillContext.proposed`):
-the refinement adds them before fine-tuning, which the training views then correct (a wrong one that a training view
-sees against the background is pulled transparent). Without a context, or when no plane agrees well enough
+mirrored Gaussians that a training view sees through (empty space there: ``FillContext.seen_empty``) are dropped
+first, and the refinement adds the proposed ones before fine-tuning, which the training views then correct. Without a context, or when no plane agrees well enough
 (``min_agreement``), it is the 2D fallback alone.
 """
 
@@ -85,13 +85,14 @@ def _spacing(means: np.ndarray) -> float:
 
 
 def find_mirror(cloud: GaussianCloud, *, up: Optional[Sequence[float]] = None, offsets: int = 21,
-                max_points: int = 4000, colour_tolerance: float = 0.15, seed: int = 0) -> Mirror:
+                max_points: int = 3000, colour_tolerance: float = 0.15, refine: int = 3, seed: int = 0) -> Mirror:
     """Return the candidate plane of symmetry whose mirror image of ``cloud`` agrees best with it (module docstring).
 
     Args:
         cloud: the object's Gaussians.
         up: the scene's up axis, if known (adds it and the horizontal principal axes as candidate normals). [3]
-        offsets: offsets tried per normal, evenly over +-0.4 of the object's extent along it, then refined.
+        offsets: offsets tried per normal, evenly over +-0.4 of the object's extent along it.
+        refine: hill-climb the normal (from 16 degrees down to 1) and offset of this many best planes.
         max_points: score with at most this many Gaussians (a seeded subset beyond).
         colour_tolerance: largest max-channel colour difference of a matching pair.
         seed: seeds the subset.
@@ -127,7 +128,7 @@ def find_mirror(cloud: GaussianCloud, *, up: Optional[Sequence[float]] = None, o
         hax = np.linalg.eigh(np.cov(flat.T, aweights=np.maximum(w, 1e-6)))[1].T
         axes += [u] + [a for a in hax if abs(a @ u) < 0.5]
     tree = cKDTree(means)
-    tol = 3.0 * _spacing(means[pick])
+    tol = 2.0 * _spacing(means[pick])
 
     def agreement(n: np.ndarray, off: float) -> float:
         p = means[pick]
@@ -137,7 +138,7 @@ def find_mirror(cloud: GaussianCloud, *, up: Optional[Sequence[float]] = None, o
         hit[hit] &= np.abs(rgb[j[hit]] - rgb[pick][hit]).max(axis=1) <= colour_tolerance
         return float((w[pick] * hit).sum() / max(w[pick].sum(), 1e-12))
 
-    best = Mirror(np.array([1.0, 0, 0]), 0.0, -1.0)
+    found = []
     for a in axes:
         n = a / np.linalg.norm(a)
         proj = means @ n
@@ -146,12 +147,32 @@ def find_mirror(cloud: GaussianCloud, *, up: Optional[Sequence[float]] = None, o
         cands = mid + np.linspace(-0.4, 0.4, offsets) * span
         scores = [agreement(n, o) for o in cands]
         k = int(np.argmax(scores))
-        step = 0.8 * span / max(offsets - 1, 1)
-        fine = cands[k] + np.linspace(-step, step, 9)
-        fscores = [agreement(n, o) for o in fine]
-        kf = int(np.argmax(fscores))
-        if fscores[kf] > best.agreement:
-            best = Mirror(n, float(fine[kf]), fscores[kf])
+        found.append((scores[k], n, float(cands[k]), max(span, 1e-9)))
+    found.sort(key=lambda f: -f[0])
+    best = Mirror(np.array([1.0, 0, 0]), 0.0, -1.0)
+    # the principal axes of a partly seen object are tilted: hill-climb the best few planes in angle and offset
+    for score, n, off, span in found[:refine]:
+        step_a, step_o = np.radians(16.0), 0.05 * span
+        while step_a > np.radians(0.7):
+            u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+            u /= np.linalg.norm(u)
+            v = np.cross(n, u)
+            moved = False
+            for da in (-step_a, 0.0, step_a):
+                for db in (-step_a, 0.0, step_a):
+                    m = n * np.cos(np.hypot(da, db)) + np.sin(da) * u + np.sin(db) * v
+                    m /= np.linalg.norm(m)
+                    for do in (-step_o, 0.0, step_o):
+                        o = off + do + float((m - n) @ ((means * w[:, None]).sum(0) / max(w.sum(), 1e-12)))
+                        sc = agreement(m, o)
+                        if sc > score + 1e-9:
+                            score, best_m, best_o, moved = sc, m, o, True
+            if moved:
+                n, off = best_m, best_o
+            else:
+                step_a, step_o = step_a / 2, step_o / 2
+        if score > best.agreement:
+            best = Mirror(n, float(off), float(score))
     return best
 
 
@@ -213,6 +234,10 @@ class SymmetryInpainter(Inpainter):
         if mirror.agreement < self.min_agreement:
             return None
         mirrored = mirror_cloud(cloud, mirror.normal, mirror.offset)
+        if context.seen_empty is not None:
+            # what a training view sees through is not part of the object, whatever the mirror says
+            keep = ~np.asarray(context.seen_empty(mirrored.means.astype(np.float64)), dtype=bool)
+            mirrored = mirrored.select(keep)
         both = GaussianParams.from_cloud(GaussianCloud.concatenate([cloud, mirrored]))
         bg = torch.as_tensor(context.background, dtype=torch.float32)
         rgb, alpha = [], []
