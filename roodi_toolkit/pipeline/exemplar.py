@@ -47,8 +47,9 @@ def exemplar_fill(image: np.ndarray, region: np.ndarray, known: Optional[np.ndar
     Args:
         image: float RGB. [H, W, 3]
         region: bool, the pixels to fill. [H, W]
-        known: bool, pixels whose patches may be copied (default: all outside ``region``); a source patch lies
-            wholly outside ``region`` and has its centre in ``known``. [H, W]
+        known: bool, pixels that may be copied (default: all outside ``region``); a source patch lies wholly in
+            ``known`` (or, with fewer than 16 such patches, wholly outside ``region`` with its centre in ``known``).
+            [H, W]
         patch: odd patch side in pixels.
         max_sources: at most this many source patches (a seeded random subset beyond it).
         seed: seeds that subset.
@@ -76,11 +77,17 @@ def exemplar_fill(image: np.ndarray, region: np.ndarray, known: Optional[np.ndar
     knownp = np.pad(known, h, constant_values=False)
     offsets = _patch_offsets(h, Wp)
 
-    # sources: centre known, whole patch outside the region (and inside the image)
-    whole = -_window_max(-torch.from_numpy(valid.astype(np.float32)), patch).numpy() > 0.5
-    src = np.flatnonzero((whole & knownp).ravel())
+    # sources: patches wholly on the object (known) if there are enough, else wholly outside the region with the
+    # centre known; only known pixels of a source are ever copied, so the background never enters the hole
+    def inside(m: np.ndarray) -> np.ndarray:
+        return -_window_max(-torch.from_numpy(m.astype(np.float32)), patch).numpy() > 0.5
+
+    src = np.flatnonzero(inside(knownp).ravel())
+    if len(src) < 16:
+        src = np.flatnonzero((inside(valid) & knownp).ravel())
     if len(src) == 0:
         return None
+    copyable = knownp.ravel().copy()
     if len(src) > max_sources:
         src = np.sort(np.random.default_rng(seed).choice(src, max_sources, replace=False))
     flat = img.reshape(-1, 3)
@@ -123,13 +130,14 @@ def exemplar_fill(image: np.ndarray, region: np.ndarray, known: Optional[np.ndar
         ssd = (M * T * T).sum(1, keepdim=True) - 2 * (M * T) @ Q.T + M @ Q2.T  # [B, C]
         best = src[ssd.argmin(dim=1).numpy()]
         sidx = best[:, None] + offsets
-        write = todo.ravel()[tidx]
+        write = todo.ravel()[tidx] & copyable[sidx]
         flat[tidx[write]] = flat[sidx[write]]
         cflat = conf.reshape(-1)
         cflat[tidx[write]] = np.repeat(c.ravel()[tgt][:, None], tidx.shape[1], axis=1)[write]
         done = tidx[write]
         todo.reshape(-1)[done] = False
         filled_ok.reshape(-1)[done] = True
+        copyable[done] = True
     return img[h:h + H, h:h + W]
 
 
@@ -139,8 +147,8 @@ class ExemplarInpainter(Inpainter):
     What it can do: continue the texture and edges of the object's visible part (stripes, print, grain, a rim) into
     holes and occluded patches, copying from all four views of the grid. What it cannot do: invent what no visible
     patch shows, or know the 3D shape (a hidden handle stays missing); like ``opencv`` it fills only masked pixels
-    inside the outline of the unmasked region (``extent="outline"``, :func:`~roodi_toolkit.pipeline.inpaint.outline_region`),
-    leaving the background far outside as rendered. An image without a single source patch is filled by the
+    inside the outline of the unmasked region (``extent="outline"``, :func:`~roodi_toolkit.pipeline.inpaint.outline_region`)
+    and holes the unmasked region encloses, leaving the background far outside as rendered. An image without a single source patch is filled by the
     ``opencv`` inpainter instead.
 
     Args:
@@ -186,7 +194,14 @@ class ExemplarInpainter(Inpainter):
 
     def fill_image(self, image: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """Return one image ``[H, W, 3]`` with the part of ``mask`` [H, W] this inpainter fills filled."""
-        region = mask if self.extent == "all" else outline_region(mask, self.outline_radius)
+        if self.extent == "all":
+            region = mask
+        else:
+            from scipy.ndimage import binary_fill_holes
+
+            # holes wholly enclosed by the object are filled whatever their size (the outline's closing bridges
+            # only narrow ones)
+            region = outline_region(mask, self.outline_radius) | (binary_fill_holes(~mask) & mask)
         if not region.any():
             return image
         out = exemplar_fill(image, region, ~mask, patch=self.patch_for(*mask.shape), max_sources=self.max_sources,
