@@ -147,10 +147,11 @@ def test_seen_empty_and_fill_picture():
     before, after = torch.ones(4, 16, 16, 3), torch.zeros(4, 16, 16, 3)
     filled = torch.zeros(4, 16, 16, dtype=torch.bool)
     filled[:, 4:12, 4:12] = True
-    pic = fill_picture(before, after, filled, gap=2)
-    assert pic.shape == (34, 70, 3)
-    assert tuple(pic[4, 4]) == pytest.approx((1.0, 0.1, 0.1))  # the outline, in both rows
-    assert tuple(pic[18 + 4, 4]) == pytest.approx((1.0, 0.1, 0.1))
+    pic = fill_picture(before, after, filled, gap=2)  # 16 px views are drawn 8 times larger
+    assert pic.shape == (2 * 128 + 2, 4 * 128 + 6, 3)
+    assert tuple(pic[32, 32]) == pytest.approx((1.0, 0.1, 0.1))  # the outline, in both rows
+    assert tuple(pic[130 + 32, 32]) == pytest.approx((1.0, 0.1, 0.1))
+    assert tuple(pic[64, 64]) == pytest.approx((1.0, 0.775, 0.775))  # inside: tinted
     assert tuple(pic[0, 0]) == (1.0, 1.0, 1.0)
 
 

@@ -394,6 +394,7 @@ class RefineResult:
         debug_dir: where the debug images are (None if not written).
         filled: the masked pixels the inpainter changed (what the fill added). [V, H, W] bool
         proposed: Gaussians a 3D-aware inpainter proposed and the refinement added before fine-tuning.
+        after_views: the refined object rendered in the occlusion views. [V, H, W, 3]
     """
 
     cloud: GaussianCloud
@@ -404,6 +405,7 @@ class RefineResult:
     debug_dir: Optional[Path]
     filled: Optional[Tensor] = None
     proposed: int = 0
+    after_views: Optional[Tensor] = field(default=None, repr=False)
 
 
 def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, images: Tensor, cameras: Sequence[Camera],
@@ -477,16 +479,15 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     inpainted_targets = ViewTargets(occ.cameras, inpainted, torch.ones(inpainted.shape[:3]))
     result = finetune_object(object_cloud, originals, inpainted_targets, finetune, progress=progress,
                              renderer=renderer)
+    after_params = GaussianParams.from_cloud(result.cloud)
+    with torch.no_grad():
+        after = torch.stack([renderer.render(after_params, c, background=bg).rgb.clamp(0, 1) for c in occ.cameras])
     out_dir = None
     if debug_dir is not None:
         out_dir = Path(debug_dir)
         write_occlusion_images(occ, out_dir)
         for name, img in grids.items():
             write_image(img.numpy(), out_dir / f"grid_{name}.png")
-        after_params = GaussianParams.from_cloud(result.cloud)
-        with torch.no_grad():
-            after = torch.stack([renderer.render(after_params, c, background=bg).rgb.clamp(0, 1)
-                                 for c in occ.cameras])
         for k in range(len(occ.cameras)):
             write_image(inpainted[k].numpy(), out_dir / f"view_{k}_inpainted.png")
             write_image(torch.cat([occ.object_rgb[k], after[k]], dim=1).numpy(),
@@ -505,7 +506,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                     "mask_fraction": [float(m.float().mean()) for m in occ.mask],
                     "seconds_finetune": result.seconds, "history": result.history}, out_dir / "refine.json")
     return RefineResult(result.cloud, occ, inpainted, result,
-                        getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir, filled, proposed)
+                        getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir, filled, proposed, after)
 
 
 #: a masked pixel counts as filled when the inpainter changed it by more than this (max over channels)

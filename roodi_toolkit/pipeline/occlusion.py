@@ -347,9 +347,16 @@ def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Option
         filled: the region the fill added, outlined in red in both rows. [V, H, W] bool
         occluded: the region the scene hides, outlined in yellow (optional). [V, H, W] bool
         gap: white pixels between tiles.
+
+    Views smaller than 128 pixels are enlarged by a whole factor first.
     """
     from ..render.pictures import probability_grid
 
+    # small views are enlarged (nearest neighbour) so that one-pixel outlines do not cover them
+    scale = max(1, 128 // max(1, int(before.shape[1])))
+    if scale > 1:
+        before, after, filled = (t.repeat_interleave(scale, 1).repeat_interleave(scale, 2) for t in (before, after, filled))
+        occluded = None if occluded is None else occluded.repeat_interleave(scale, 1).repeat_interleave(scale, 2)
     rows = []
     for views in (before, after):
         row = []
