@@ -231,8 +231,9 @@ def inpaint_views(inpainter: "Inpainter", images: Tensor, masks: Tensor, prompt:
     grid_mask = to_grid(masks, rows, cols)
     if context is not None:
         context.rows, context.cols = rows, cols
-    # context only when given: an inpainter overriding inpaint() with the older three-argument form still works
-    extra = (context,) if context is not None else ()
+    # context only to an inpainter that asks for it: one overriding inpaint() with the older three-argument form
+    # still works
+    extra = (context,) if context is not None and getattr(inpainter, "uses_context", False) else ()
     after = inpainter.inpaint(grid[None], grid_mask[None], prompt, *extra)[0]
     return from_grid(after, rows, cols), {"before": grid, "mask": grid_mask, "after": after}
 
