@@ -28,6 +28,7 @@ def test_extraction_demo_writes_object_pictures_scores_and_says_where(tmp_path, 
     assert set(report["stages_s"]) >= {"make_scene", "train", "distill", "select_prune", "refine", "evaluate"}
     assert (out / "summary.png").stat().st_size > 5_000
     assert (obj_dir / "object.png").is_file() and list((obj_dir / "debug").glob("*.png"))
+    assert (obj_dir / "fill.png").is_file() and (obj_dir / "debug" / "fill_before_after.png").is_file()
     assert (out / "data" / "targets").is_dir() and (out / "extraction" / "distill" / "object_classifier.pt").is_file()
     # the summary ends with where the object and the pictures are
     lines = res.stdout.strip().splitlines()

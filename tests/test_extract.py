@@ -37,7 +37,7 @@ def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cl
     assert len(obj) == report["objects"][str(target)]["gaussians"] > 0
     assert not any(k.startswith("object_feature_") for k in obj.extras)
     assert (out / "distill" / "object_classifier.pt").is_file()
-    assert (out / f"object_{target}" / "object.png").is_file()
+    assert (out / f"object_{target}" / "object.png").is_file() and (out / f"object_{target}" / "fill.png").is_file()
     assert list((out / f"object_{target}" / "debug").iterdir())
     saved = json.loads((out / "report.json").read_text())
     assert saved["objects"][str(target)]["inpainter"] == "opencv" and saved["reused"] == []

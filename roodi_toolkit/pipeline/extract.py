@@ -14,6 +14,8 @@ Layout of ``OUT_DIR``::
     object_<ID>/selected.ply    the object after selection and pruning (the crude model of the paper's Fig. 2d)
     object_<ID>/object.ply      the final object (Inria PLY)
     object_<ID>/object.png      the final object from four directions
+    object_<ID>/fill.png        the four object-centred views before (top) and after (bottom) inpainting and
+                                fine-tuning: what the fill added outlined in red, what the scene hides in yellow
     object_<ID>/debug/          occlusion masks, inpainting grids, renders before and after fine-tuning
     object_<ID>/stage.json      the settings and inputs the object was made with (how a re-run knows to reuse it)
     report.json                 counts, thresholds and times of every stage
@@ -383,6 +385,11 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
                             occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
                             progress=progress, renderer=prepared.renderer)
         final = res.cloud
+        from .occlusion import fill_picture
+
+        files.write_image(fill_picture(res.occlusion.object_rgb, res.after_views, res.filled, res.occlusion.occluded),
+                          odir / "fill.png")
+        entry["proposed_gaussians"] = res.proposed
         entry["perceptual_loss"] = res.finetune.perceptual
         entry["inpainter"] = res.inpainter
     entry["refine_s"] = time.perf_counter() - t

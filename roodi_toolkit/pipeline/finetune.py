@@ -34,7 +34,8 @@ from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
-from .occlusion import OcclusionConfig, OcclusionResult, object_extent, occlusion_masks, write_occlusion_images
+from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, object_extent, occlusion_masks, seen_empty,
+                        write_occlusion_images)
 from ..progress import ProgressFactory, null_progress
 
 
@@ -63,6 +64,9 @@ class FinetuneConfig:
         seed_opacity: opacity of the seeded Gaussians.
         seed_min_difference: a pixel counts as filled when the inpainted colour differs from the background by more
             than this (max over channels).
+        adopt_proposed: add the Gaussians a 3D-aware inpainter proposes (e.g. ``symmetry``'s mirrored copies that
+            land where the object has none; :class:`~roodi_toolkit.pipeline.inpaint.FillContext`) before fine-tuning.
+            2D inpainters propose none, so this changes nothing for them.
     """
 
     iterations: int = 100
@@ -83,6 +87,7 @@ class FinetuneConfig:
     seed_stride: int = 2
     seed_opacity: float = 0.5
     seed_min_difference: float = 0.1
+    adopt_proposed: bool = True
 
     def __post_init__(self) -> None:
         if self.iterations < 0 or self.inpaint_every < 1:
@@ -387,6 +392,9 @@ class RefineResult:
         finetune: the fine-tuning run.
         inpainter: the inpainter's name.
         debug_dir: where the debug images are (None if not written).
+        filled: the masked pixels the inpainter changed (what the fill added). [V, H, W] bool
+        proposed: Gaussians a 3D-aware inpainter proposed and the refinement added before fine-tuning.
+        after_views: the refined object rendered in the occlusion views. [V, H, W, 3]
     """
 
     cloud: GaussianCloud
@@ -395,6 +403,9 @@ class RefineResult:
     finetune: FinetuneResult
     inpainter: str
     debug_dir: Optional[Path]
+    filled: Optional[Tensor] = None
+    proposed: int = 0
+    after_views: Optional[Tensor] = field(default=None, repr=False)
 
 
 def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, images: Tensor, cameras: Sequence[Camera],
@@ -422,7 +433,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         renderer: draws every view of occlusion reasoning and fine-tuning (default: the built-in CPU renderer).
     """
     from ..io.files import write_image, write_json
-    from .inpaint import Inpainter, get_inpainter, inpaint_views
+    from .inpaint import FillContext, Inpainter, get_inpainter, inpaint_views
     from .occlusion import up_from_cameras
 
     if occlusion.num_views != 4:
@@ -436,7 +447,24 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     bg = finetune.background
     renderer = resolve_renderer(renderer)
     occ = occlusion_masks(object_cloud, scene_cloud, None, occlusion, up=up, background=bg, renderer=renderer)
-    inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt)
+    # scene depth in the training views tells where something may hide the object, and where a view looks through
+    # empty space (what a 3D completion must not fill)
+    scene_params = GaussianParams.from_cloud(scene_cloud)
+    with torch.no_grad():
+        depths = torch.stack([renderer.render(scene_params, c).depth[..., 0] for c in cameras])
+    masks_np, depths_np = torch.as_tensor(object_masks).bool().numpy(), depths.numpy()
+
+    def empty(points: np.ndarray) -> np.ndarray:
+        return seen_empty(points, cameras, masks_np, depths_np, occlusion.depth_tolerance * occ.radius)
+
+    context = FillContext(object_cloud, occ.cameras, renderer, bg, occ, up=tuple(float(u) for u in up),
+                          seen_empty=empty)
+    inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt, context=context)
+    filled = occ.mask & ((inpainted - occ.object_rgb).abs().amax(dim=-1) > FILL_CHANGE)
+    proposed = 0
+    if finetune.adopt_proposed and context.proposed is not None and len(context.proposed):
+        proposed = len(context.proposed)
+        object_cloud = GaussianCloud.concatenate([object_cloud, _same_columns(context.proposed, object_cloud)])
     seeded = 0
     if finetune.seed_holes:
         seeds = seed_hole_gaussians(object_cloud, occ, inpainted, stride=finetune.seed_stride,
@@ -446,40 +474,66 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         seeded = len(seeds)
         if seeded:
             object_cloud = GaussianCloud.concatenate([object_cloud, seeds])
-    # scene depth in the training views tells where something may hide the object
-    scene_params = GaussianParams.from_cloud(scene_cloud)
-    with torch.no_grad():
-        depths = torch.stack([renderer.render(scene_params, c).depth[..., 0] for c in cameras])
     originals = object_view_targets(images, cameras, object_masks, depths=depths, centre=occ.centre,
                                     radius=occ.radius, background=bg)
     inpainted_targets = ViewTargets(occ.cameras, inpainted, torch.ones(inpainted.shape[:3]))
     result = finetune_object(object_cloud, originals, inpainted_targets, finetune, progress=progress,
                              renderer=renderer)
+    after_params = GaussianParams.from_cloud(result.cloud)
+    with torch.no_grad():
+        after = torch.stack([renderer.render(after_params, c, background=bg).rgb.clamp(0, 1) for c in occ.cameras])
     out_dir = None
     if debug_dir is not None:
         out_dir = Path(debug_dir)
         write_occlusion_images(occ, out_dir)
         for name, img in grids.items():
             write_image(img.numpy(), out_dir / f"grid_{name}.png")
-        after_params = GaussianParams.from_cloud(result.cloud)
-        with torch.no_grad():
-            after = torch.stack([renderer.render(after_params, c, background=bg).rgb.clamp(0, 1)
-                                 for c in occ.cameras])
         for k in range(len(occ.cameras)):
             write_image(inpainted[k].numpy(), out_dir / f"view_{k}_inpainted.png")
             write_image(torch.cat([occ.object_rgb[k], after[k]], dim=1).numpy(),
                         out_dir / f"view_{k}_object_before_after.png")
         write_image(torch.cat([to_row(occ.object_rgb), to_row(after)], dim=0).numpy(),
                     out_dir / "object_before_after.png")
+        write_image(fill_picture(occ.object_rgb, inpainted, filled, occ.occluded), out_dir / "fill_views.png")
+        write_image(fill_picture(occ.object_rgb, after, filled, occ.occluded), out_dir / "fill_before_after.png")
         write_json({"inpainter": getattr(inpainter, "name", "") or type(inpainter).__name__,
                     "perceptual_loss": result.perceptual, "occlusion": asdict(occlusion),
                     "finetune": asdict(finetune), "object_centre": occ.centre.tolist(), "object_radius": occ.radius,
-                    "seeded_gaussians": seeded,
+                    "seeded_gaussians": seeded, "proposed_gaussians": proposed,
+                    "filled_fraction": [float(m.float().mean()) for m in filled],
+                    "mirror": _mirror_record(inpainter),
                     "occluded_fraction": [float(m.float().mean()) for m in occ.occluded],
                     "mask_fraction": [float(m.float().mean()) for m in occ.mask],
                     "seconds_finetune": result.seconds, "history": result.history}, out_dir / "refine.json")
     return RefineResult(result.cloud, occ, inpainted, result,
-                        getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir)
+                        getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir, filled, proposed, after)
+
+
+#: a masked pixel counts as filled when the inpainter changed it by more than this (max over channels)
+FILL_CHANGE = 0.02
+
+
+def _same_columns(cloud: GaussianCloud, like: GaussianCloud) -> GaussianCloud:
+    """Return ``cloud`` with ``like``'s SH degree, extras (zeros where missing) and normals, ready to concatenate."""
+    k = like.sh_rest.shape[1]
+    rest = np.zeros((len(cloud), k, 3), np.float32)
+    n = min(k, cloud.sh_rest.shape[1])
+    rest[:, :n] = cloud.sh_rest[:, :n]
+    extras = {name: (cloud.extras[name] if name in cloud.extras else np.zeros(len(cloud), col.dtype))
+              for name, col in like.extras.items()}
+    normals = None
+    if like.normals is not None:
+        normals = cloud.normals if cloud.normals is not None else np.zeros((len(cloud), 3), like.normals.dtype)
+    out = cloud.copy()
+    out.sh_rest, out.extras, out.normals = rest, extras, normals
+    return out
+
+
+def _mirror_record(inpainter: Any) -> Optional[dict]:
+    mirror = getattr(inpainter, "last_mirror", None)
+    if mirror is None:
+        return None
+    return {"normal": [float(x) for x in mirror.normal], "offset": mirror.offset, "agreement": mirror.agreement}
 
 
 def to_row(views: Tensor) -> Tensor:

@@ -14,12 +14,20 @@ pixels outside the mask come back exactly as they went in, whatever the backend 
 
 Following the paper (after NeRFiller), the four object-centred views are inpainted together, as one 2x2 grid
 (:func:`inpaint_views`), so that the inpainter sees all of them at once and fills them consistently.
+
+3D-aware inpainters (e.g. ``symmetry``, :mod:`roodi_toolkit.pipeline.symmetry`) set ``uses_context = True`` and then
+get a fourth argument, a :class:`FillContext` (the object's Gaussians, the views' cameras, the renderer, the
+occlusion reasoning) or None when the caller has none (they must still fill, e.g. with a 2D fallback). Inpainters
+that do not set it are called with three arguments exactly as before, so existing plugins keep working unchanged.
+A 3D-aware inpainter may also propose Gaussians to add to the object (:attr:`FillContext.proposed`), which
+:func:`roodi_toolkit.pipeline.finetune.refine_object` adds before fine-tuning.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Optional
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
@@ -28,11 +36,50 @@ from torch import Tensor
 from ..errors import ConfigError, PluginError
 from ..plugins import discover, instantiate
 
+if TYPE_CHECKING:
+    from ..cameras import Camera
+    from ..gaussians import GaussianCloud
+    from ..render.renderer import Renderer
+    from .occlusion import OcclusionResult
+
+
+@dataclass
+class FillContext:
+    """What a 3D-aware inpainter may use besides the pixels (the refinement step passes it; 2D inpainters never see it).
+
+    Attributes:
+        object_cloud: the object's Gaussians (after selection and pruning).
+        cameras: the cameras of the views, in grid order (row by row).
+        renderer: draws the object in those cameras.
+        background: RGB behind the renders.
+        occlusion: the occlusion reasoning of the views (renders, occluded and inpainting masks), if any.
+        up: the scene's up axis, if known. [3]
+        seen_empty: a function of world points ``[N, 3]`` returning which of them (bool ``[N]``) a training view sees
+            as empty space, if known (:func:`roodi_toolkit.pipeline.occlusion.seen_empty`); a 3D completion drops
+            what it would put there.
+        rows: grid rows the views are tiled in.
+        cols: grid columns.
+        proposed: set by the inpainter: Gaussians it proposes to add to the object (same columns), or None.
+    """
+
+    object_cloud: "GaussianCloud"
+    cameras: "list[Camera]"
+    renderer: "Renderer"
+    background: Sequence[float] = (1.0, 1.0, 1.0)
+    occlusion: "Optional[OcclusionResult]" = field(default=None, repr=False)
+    up: Optional[Sequence[float]] = None
+    seen_empty: Optional[Callable[[np.ndarray], np.ndarray]] = field(default=None, repr=False)
+    rows: int = 2
+    cols: int = 2
+    proposed: "Optional[GaussianCloud]" = field(default=None, repr=False)
+
 
 class Inpainter(ABC):
     """Base class of inpainter plugins. Subclasses take their options as keyword arguments of ``__init__``."""
 
     name: str = ""
+    #: True: :meth:`fill` takes a fourth argument, the :class:`FillContext` (or None); see the module docstring.
+    uses_context: bool = False
 
     @classmethod
     def available(cls) -> tuple[bool, str]:
@@ -52,13 +99,16 @@ class Inpainter(ABC):
             float RGB in [0, 1]. [B, H, W, 3]
         """
 
-    def inpaint(self, images: Tensor, masks: Tensor, prompt: Optional[str] = None) -> Tensor:
+    def inpaint(self, images: Tensor, masks: Tensor, prompt: Optional[str] = None,
+                context: Optional[FillContext] = None) -> Tensor:
         """Return the images with the masked pixels inpainted and all other pixels exactly unchanged.
 
         Args:
             images: float RGB in [0, 1]. [B, H, W, 3]
             masks: True (or > 0.5) where pixels are to be filled. [B, H, W]
             prompt: optional text guidance; None means no prompt (the paper uses none).
+            context: the object, cameras and renderer behind the images, for inpainters with ``uses_context``
+                (others ignore it).
 
         Raises:
             ConfigError: malformed images or masks.
@@ -67,7 +117,10 @@ class Inpainter(ABC):
         images, masks = check_batch(images, masks)
         if not bool(masks.any()):
             return images.clone()
-        out = self.fill(images, masks, prompt or "")
+        if self.uses_context:
+            out = self.fill(images, masks, prompt or "", context)  # type: ignore[call-arg]
+        else:
+            out = self.fill(images, masks, prompt or "")
         if not isinstance(out, Tensor) or tuple(out.shape) != tuple(images.shape):
             shape = list(out.shape) if isinstance(out, Tensor) else type(out).__name__
             raise PluginError(f"inpainter {self.name or type(self).__name__!r} returned {shape}, expected "
@@ -91,6 +144,31 @@ def check_batch(images: Tensor, masks: Tensor) -> tuple[Tensor, Tensor]:
         raise ConfigError("inpainting images must be finite and in [0, 1]")
     masks = masks if masks.dtype == torch.bool else masks > 0.5
     return images, masks
+
+
+def outline_region(mask: np.ndarray, radius: float = 0.1) -> np.ndarray:
+    """Return the masked pixels ``[H, W]`` (bool) inside the outline of the unmasked region: its morphological
+    closing with a disc of ``radius`` times the image's shorter side (holes and bays narrower than about that).
+
+    Example:
+        >>> m = np.ones((20, 20), bool)
+        >>> m[5:15, 5:15] = False  # a known square ...
+        >>> m[9:11, 9:11] = True  # ... with a hole
+        >>> r = outline_region(m, 0.1)
+        >>> bool(r[9:11, 9:11].all()), bool(r[0, 0])
+        (True, False)
+    """
+    if mask.all():
+        return mask
+    import cv2
+
+    r = max(1, round(radius * min(mask.shape)))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    known = (~mask).astype(np.uint8)
+    # pad so that the closing does not treat the image border as foreground
+    padded = cv2.copyMakeBorder(known, r, r, r, r, cv2.BORDER_CONSTANT, value=0)
+    closed = cv2.morphologyEx(padded, cv2.MORPH_CLOSE, disc)[r:-r, r:-r].astype(bool)
+    return mask & closed
 
 
 # ---------------------------------------------------------------------------------------------------------- grids
@@ -132,7 +210,8 @@ def from_grid(grid: Tensor, rows: int = 2, cols: int = 2) -> Tensor:
 
 
 def inpaint_views(inpainter: "Inpainter", images: Tensor, masks: Tensor, prompt: Optional[str] = None, *,
-                  rows: int = 2, cols: int = 2) -> tuple[Tensor, dict[str, Tensor]]:
+                  rows: int = 2, cols: int = 2,
+                  context: Optional[FillContext] = None) -> tuple[Tensor, dict[str, Tensor]]:
     """Return the views inpainted together as one grid, and the grids before and after (for debug images).
 
     Args:
@@ -142,6 +221,7 @@ def inpaint_views(inpainter: "Inpainter", images: Tensor, masks: Tensor, prompt:
         prompt: optional text guidance.
         rows: grid rows.
         cols: grid columns.
+        context: passed on to a 3D-aware inpainter (its ``rows`` and ``cols`` are set to the grid's).
 
     Returns:
         The inpainted views ``[rows * cols, H, W, 3]`` and ``{"before": grid, "mask": grid mask, "after": grid}``.
@@ -149,7 +229,12 @@ def inpaint_views(inpainter: "Inpainter", images: Tensor, masks: Tensor, prompt:
     images, masks = check_batch(images, masks)
     grid = to_grid(images, rows, cols)
     grid_mask = to_grid(masks, rows, cols)
-    after = inpainter.inpaint(grid[None], grid_mask[None], prompt)[0]
+    if context is not None:
+        context.rows, context.cols = rows, cols
+    # context only to an inpainter that asks for it: one overriding inpaint() with the older three-argument form
+    # still works
+    extra = (context,) if context is not None and getattr(inpainter, "uses_context", False) else ()
+    after = inpainter.inpaint(grid[None], grid_mask[None], prompt, *extra)[0]
     return from_grid(after, rows, cols), {"before": grid, "mask": grid_mask, "after": after}
 
 
@@ -229,17 +314,7 @@ class OpenCVInpainter(Inpainter):
 
     def fill_region(self, mask: np.ndarray) -> np.ndarray:
         """Return the part of ``mask`` [H, W] (bool) this inpainter fills: all of it, or what lies inside the outline."""
-        if self.extent == "all" or mask.all():
-            return mask
-        import cv2
-
-        r = max(1, round(self.outline_radius * min(mask.shape)))
-        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        known = (~mask).astype(np.uint8)
-        # pad so that the closing does not treat the image border as foreground
-        padded = cv2.copyMakeBorder(known, r, r, r, r, cv2.BORDER_CONSTANT, value=0)
-        closed = cv2.morphologyEx(padded, cv2.MORPH_CLOSE, disc)[r:-r, r:-r].astype(bool)
-        return mask & closed
+        return mask if self.extent == "all" else outline_region(mask, self.outline_radius)
 
     def _fill_one(self, image: np.ndarray, region: np.ndarray, radius: float, levels: int) -> np.ndarray:
         import cv2

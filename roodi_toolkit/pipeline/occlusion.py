@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 import torch
@@ -294,3 +294,118 @@ def write_occlusion_images(result: OcclusionResult, folder: str | Path) -> list[
         for name, img in items.items():
             paths.append(write_image(img, out / f"view_{k}_{name}.png"))
     return paths
+
+
+def outline(mask: np.ndarray | Tensor, width: int = 1) -> np.ndarray:
+    """Return the pixels ``[H, W]`` (bool) on the inside edge of ``mask``, ``width`` pixels thick.
+
+    Example:
+        >>> m = np.zeros((5, 5), bool)
+        >>> m[1:4, 1:4] = True
+        >>> int(outline(m).sum())  # the 3x3 square's 8 border pixels
+        8
+    """
+    from scipy.ndimage import binary_erosion
+
+    m = np.asarray(mask, dtype=bool)
+    return m & ~binary_erosion(m, iterations=max(1, width), border_value=0)
+
+
+def outlined(image: np.ndarray | Tensor, regions: Sequence[tuple[np.ndarray | Tensor, Sequence[float]]], *,
+             width: int = 1, tint: float = 0.25) -> np.ndarray:
+    """Return ``image`` ``[H, W, 3]`` with each ``(mask [H, W], RGB)`` region tinted by ``tint`` and outlined.
+
+    Example:
+        >>> img = np.ones((6, 6, 3), np.float32)
+        >>> m = np.zeros((6, 6), bool)
+        >>> m[2:5, 2:5] = True
+        >>> out = outlined(img, [(m, (1.0, 0.0, 0.0))])
+        >>> out[2, 2].tolist(), out[0, 0].tolist()
+        ([1.0, 0.0, 0.0], [1.0, 1.0, 1.0])
+    """
+    out = np.array(image, dtype=np.float32, copy=True)
+    for mask, colour in regions:
+        m = np.asarray(mask, dtype=bool)
+        c = np.asarray(colour, dtype=np.float32)
+        out[m] = (1 - tint) * out[m] + tint * c
+        out[outline(m, width)] = c
+    return out
+
+
+#: outline colours of the fill pictures: what the fill changed (red) and what the scene hides (yellow)
+FILLED_COLOUR = (1.0, 0.1, 0.1)
+OCCLUDED_COLOUR = (1.0, 0.85, 0.0)
+
+
+def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Optional[Tensor] = None, *,
+                 gap: int = 2) -> np.ndarray:
+    """Return a picture of views before (top row) and after (bottom row) the fill with the filled region outlined.
+
+    Args:
+        before: the object's renders before the fill. [V, H, W, 3]
+        after: the same views after it (the inpainted views or the refined object's renders). [V, H, W, 3]
+        filled: the region the fill added, outlined in red in both rows. [V, H, W] bool
+        occluded: the region the scene hides, outlined in yellow (optional). [V, H, W] bool
+        gap: white pixels between tiles.
+
+    Views smaller than 128 pixels are enlarged by a whole factor first.
+    """
+    from ..render.pictures import probability_grid
+
+    # small views are enlarged (nearest neighbour) so that one-pixel outlines do not cover them
+    scale = max(1, 128 // max(1, int(before.shape[1])))
+    if scale > 1:
+        before, after, filled = (t.repeat_interleave(scale, 1).repeat_interleave(scale, 2) for t in (before, after, filled))
+        occluded = None if occluded is None else occluded.repeat_interleave(scale, 1).repeat_interleave(scale, 2)
+    rows = []
+    for views in (before, after):
+        row = []
+        for k in range(len(views)):
+            regions = [(filled[k], FILLED_COLOUR)]
+            if occluded is not None:
+                regions.append((occluded[k], OCCLUDED_COLOUR))
+            row.append(outlined(np.asarray(views[k]), regions, width=max(1, views.shape[1] // 128)))
+        rows.append(row)
+    return probability_grid(rows, gap=gap)
+
+
+def seen_empty(points: np.ndarray, cameras: Sequence[Camera], object_masks: Tensor | np.ndarray,
+               depths: Tensor | np.ndarray, tolerance: float, *, margin: int = 1) -> np.ndarray:
+    """Return which points ``[N, 3]`` some view sees as empty space (bool ``[N]``): the point projects into the view
+    more than ``margin`` pixels away from the object's mask there, and the view's surface at that pixel is farther
+    than the point by more than ``tolerance`` (or there is none), so the view looks through where the point is.
+
+    Args:
+        points: world points. [N, 3]
+        cameras: the views.
+        object_masks: True on the object in each view. [V, H, W]
+        depths: the scene's depth along each view's optical axis, 0 where nothing. [V, H, W]
+        tolerance: depth slack (world units).
+        margin: pixels around the object's mask that never count as empty (its outline is uncertain).
+
+    Example:
+        >>> cam = Camera(look_at([0, -3, 0], [0, 0, 0]), intrinsics_from_fov(1.0, 16, 16), 16, 16)
+        >>> masks = np.zeros((1, 16, 16), bool)
+        >>> masks[0, 6:10, 6:10] = True
+        >>> depths = np.full((1, 16, 16), 5.0)  # a wall 2 behind the object's centre
+        >>> seen_empty(np.array([[0.0, 0, 0], [0.8, 0, 0], [1.5, 3.0, 0]]), [cam], masks, depths, 0.1).tolist()
+        [False, True, False]
+    """
+    from scipy.ndimage import binary_dilation
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    masks = np.asarray(object_masks, dtype=bool)
+    depths = np.asarray(depths, dtype=np.float64)
+    empty = np.zeros(len(pts), dtype=bool)
+    for k, cam in enumerate(cameras):
+        uv, z = cam.project(pts)
+        with np.errstate(invalid="ignore"):
+            j, i = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+        ok = (z > 0) & (j >= 0) & (j < cam.width) & (i >= 0) & (i < cam.height)
+        idx = np.flatnonzero(ok)
+        ii, jj = i[idx].astype(int), j[idx].astype(int)
+        near_object = binary_dilation(masks[k], iterations=margin) if margin > 0 else masks[k]
+        d = depths[k][ii, jj]
+        through = ~near_object[ii, jj] & ((d <= 0) | (d > z[idx] + tolerance))
+        empty[idx[through]] = True
+    return empty

@@ -12,7 +12,8 @@ Layout of the extraction demo's ``OUT_DIR``::
     data/                       the generated scene (roodi-toolkit make-scene layout)
     extraction/                 roodi-toolkit extract's folder: scene/ (trained, distilled), object_<ID>/...
     extraction/object_<ID>/object.ply   the extracted object (Inria PLY)
-    summary.png                 a training view, the true object, the object before and after refinement
+    summary.png                 a training view, the true object, the object before and after refinement, the test
+                                view's never-seen part (or what the model lacked) outlined on the last three
     report.json                 settings, stage times, metrics, paths
 """
 
@@ -215,11 +216,31 @@ def _view_scores(view: Any) -> str:
     return "" if view.psnr is None else f"\nPSNR {view.psnr:.1f} dB, IoU {view.iou:.2f}"
 
 
+def _never_seen(target_dir: Path, view_name: str, truth_alpha: np.ndarray, before: np.ndarray) -> tuple[np.ndarray, str]:
+    """Return the region of a test view to outline ``[H, W]`` and what it is: the scene's never-seen mask of that
+    view when make-scene wrote one (``test/never_seen/<view>.png`` beside the target's views), else the true
+    object's pixels where the object before the fill shows the white background (what the model lacked)."""
+    from ..evaluate.metrics import ALPHA_THRESHOLD
+    from ..io.files import read_image
+
+    path = target_dir / "test" / "never_seen" / f"{Path(view_name).name}.png"
+    if path.is_file():
+        mask = np.asarray(read_image(path))
+        mask = mask[..., 0] if mask.ndim == 3 else mask
+        if mask.shape == truth_alpha.shape:
+            return mask > 0.5 * mask.max() if mask.max() > 0 else mask > 0, "never seen in training"
+    lacking = (truth_alpha > ALPHA_THRESHOLD) & (np.abs(before - 1.0).max(axis=2) < 0.05)
+    return lacking, "missing before the fill"
+
+
 def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visible: np.ndarray, truth: np.ndarray,
                     truth_alpha: np.ndarray, before: np.ndarray, after: np.ndarray, titles: list[str],
-                    suptitle: str) -> None:
+                    suptitle: str, never_seen: np.ndarray | None = None) -> None:
     """Write five panels: a training view, its close-up (the target outlined, its hidden part in red), then, zoomed
-    in on the object in one test view, the true object and the object before and after refinement."""
+    in on the object in one test view, the true object and the object before and after refinement, with the
+    ``never_seen`` region ``[H, W]`` of that view outlined in red on all three (what the fill had to add)."""
+    from ..pipeline.occlusion import FILLED_COLOUR, outlined
+
     from matplotlib.patches import Rectangle
 
     from ..io import files
@@ -231,7 +252,11 @@ def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visi
     view[_outline(alone)] = (1.0, 0.9, 0.0)
     y0, y1, x0, x1 = zoom_box(alone)
     t0, t1, s0, s1 = zoom_box(truth_alpha > ALPHA_THRESHOLD, 2.0)
-    test = [img[t0:t1, s0:s1] for img in (truth, before, after)]
+    tests = (truth, before, after)
+    if never_seen is not None and never_seen.any():
+        width = max(1, truth.shape[0] // 128)
+        tests = tuple(outlined(img, [(never_seen, FILLED_COLOUR)], width=width, tint=0.0) for img in tests)
+    test = [img[t0:t1, s0:s1] for img in tests]
     fig, axes = files.new_figure(1, 5, figsize=(16, 3.9))
     for ax, img, title in zip(axes, [train_image, view[y0:y1, x0:x1], *test], titles):
         ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
@@ -332,15 +357,17 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     paths = {"object_ply": odir / "object.ply", "summary": out / "summary.png", "object_picture": odir / "object.png",
              "debug": odir / "debug", "selected_ply": odir / "selected.ply", "scene_model": ex_dir / "scene",
              "data": data, "overview": data / "overview.png", "report": out / "report.json"}
+    never_seen, what = _never_seen(find_target(data, object_id)[0], vj.name, truth.alphas[j].numpy(),
+                                   np.asarray(before_renders[j]))
     _summary_figure(paths["summary"], dataset.images[k].numpy(), a[k], visible[k], truth.images[j].numpy(),
                     truth.alphas[j].numpy(), before_renders[j], renders[j],
                     [f"training view {dataset.cameras[k].name}", f"close-up: {name} outlined,\nits hidden part in red",
-                     f"true {name} alone, test view {vj.name} (zoom)",
+                     f"true {name} alone, test view {vj.name} (zoom)\n{what} outlined in red",
                      f"selected + pruned (before inpainting){_view_scores(before.views[j])}",
                      f"extracted (inpainted + fine-tuned){_view_scores(vj)}"],
                     f"ROODI on a generated {config.preset} scene (seed {config.seed}, "
                     f"{settings.width}x{settings.height}): {name}, {hidden_fraction:.0%} of it hidden "
-                    "in the training views")
+                    "in the training views", never_seen=never_seen)
     clock.lap("pictures")
 
     trained = files.read_json(ex_dir / "scene" / "metrics.json", "training metrics")
