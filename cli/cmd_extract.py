@@ -46,7 +46,8 @@ _OPTIONS = [
                  help="Learn the object features together with the scene instead of after it "
                       "(ablation: w/o two-stage)."),
     click.option("--inpainter", default="opencv", show_default=True,
-                 help="Inpainter plugin (see roodi-toolkit plugins)."),
+                 help="Inpainter plugin: opencv, exemplar, symmetry (objects with never-seen parts), sdxl, ... "
+                      "(see roodi-toolkit plugins)."),
 ]
 
 
