@@ -59,18 +59,21 @@ def background_fog(cloud: GaussianCloud, background: str, tolerance: float) -> t
     if background == "none" or n == 0:
         return np.zeros(n, dtype=bool), "none"
     rgb = cloud.rgb
-    candidates = {"white": rgb.min(axis=1) >= 1.0 - tolerance, "black": rgb.max(axis=1) <= tolerance}
+    candidates = {"white": _axis_extreme(rgb, np.minimum) >= 1.0 - tolerance,
+                  "black": _axis_extreme(rgb, np.maximum) <= tolerance}
     if background != "auto":
         return candidates[background], background
-    means = cloud.means.astype(np.float64)
-    radius = np.linalg.norm(means - np.median(means, axis=0), axis=1)
-    opacity = cloud.opacities
+    opacity = radius = None  # computed only when a colour gets that far (most real scenes stop before)
     for colour, sel in candidates.items():
         if sel.mean() < FOG_MIN_FRACTION or sel.all():
             continue
-        spread = np.median(radius[sel]) / max(float(np.median(radius[~sel])), 1e-30)
-        faint = np.median(opacity[sel]) < FOG_MAX_OPACITY_RATIO * np.median(opacity[~sel])
-        if spread >= FOG_MIN_SPREAD and faint:
+        opacity = cloud.opacities if opacity is None else opacity
+        if not np.median(opacity[sel]) < FOG_MAX_OPACITY_RATIO * np.median(opacity[~sel]):  # not faint
+            continue
+        if radius is None:
+            means = cloud.means.astype(np.float64)
+            radius = np.linalg.norm(means - np.median(means, axis=0), axis=1)
+        if np.median(radius[sel]) / max(float(np.median(radius[~sel])), 1e-30) >= FOG_MIN_SPREAD:
             return sel, colour
     return np.zeros(n, dtype=bool), "none"
 
@@ -181,12 +184,12 @@ def _csr_components(neighbors: np.ndarray, linked: np.ndarray) -> tuple[int, np.
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
-    n = len(neighbors)
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(linked.sum(axis=1), out=indptr[1:])
-    # rows are already grouped (row-major selection), so the CSR arrays are built directly; float64 weights, the
-    # type SciPy works in, so it does not copy them
-    graph = csr_matrix((np.ones(int(indptr[-1])), neighbors[linked].astype(np.int32), indptr), shape=(n, n))
+    n, k = neighbors.shape
+    rows = np.arange(n, dtype=np.int32)
+    # an unlinked neighbour becomes a link to the row itself, which joins nothing: every row then has k entries
+    # and the CSR arrays are built without selecting; float64 weights, the type SciPy works in, so no copy
+    cols = np.where(linked, neighbors, rows[:, None]).astype(np.int32).ravel()
+    graph = csr_matrix((np.ones(n * k), cols, np.arange(0, n * k + 1, k, dtype=np.int32)), shape=(n, n))
     return connected_components(graph, directed=False)
 
 
@@ -200,27 +203,33 @@ def components(neighbors: np.ndarray, linked: np.ndarray) -> tuple[np.ndarray, n
 
     first = min(FIRST_COLUMNS, neighbors.shape[1])
     count, label = _csr_components(neighbors[:, :first], linked[:, :first])
-    rest, rest_linked = neighbors[:, first:], linked[:, first:]
-    a = np.broadcast_to(label[:, None], rest.shape)[rest_linked]
-    b = label[rest[rest_linked]]
-    joins = a != b
-    if joins.any():
-        pieces = coo_matrix((np.ones(int(joins.sum())), (a[joins], b[joins])), shape=(count, count))
+    rest = neighbors[:, first:]
+    other = label[rest]  # [N, K - first] the piece of each remaining neighbour
+    rows, cols = np.nonzero((other != label[:, None]) & linked[:, first:])
+    if rows.size:
+        pieces = coo_matrix((np.ones(rows.size), (label[rows], other[rows, cols])), shape=(count, count))
         _, merged = connected_components(pieces, directed=False)
         label = merged[label]
     return label, np.bincount(label)
 
 
+def _axis_extreme(ls: np.ndarray, pick: Any) -> np.ndarray:
+    """Return ``pick`` (np.minimum or np.maximum) over the three columns of ``[N, 3]``: a reduction along rows
+    of three is several times slower than two elementwise passes (same values)."""
+    return pick(pick(ls[:, 0], ls[:, 1]), ls[:, 2])
+
+
 def blob_scores(log_scales: np.ndarray, neighbors: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Return the oversized score ``[N]`` (module docstring): how far the smallest axis exceeds spacing and size."""
     ls = log_scales.astype(np.float32)
-    log_min = ls.min(axis=1)
+    log_min = _axis_extreme(ls, np.minimum)
     log_size = ls.mean(axis=1)
     spacing = np.log(np.maximum(dist.mean(axis=1), np.finfo(np.float32).tiny))
     # median of the neighbours' sizes (the lower middle value for even K): robust to a few blobs among them
     mid = (neighbors.shape[1] - 1) // 2
-    local = np.partition(log_size[neighbors], mid, axis=1)[:, mid]
-    return (log_min - spacing) + (log_min - local)
+    local = log_size[neighbors]
+    local.partition(mid, axis=1)
+    return (log_min - spacing) + (log_min - local[:, mid])
 
 
 def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig") -> LocalDecision:
@@ -237,8 +246,12 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig")
     """
     order, neighbors, dist = graph.order, graph.neighbors, graph.dist
     ls = np.asarray(log_scales, dtype=np.float32)[order]
-    largest_axis = np.exp(ls.max(axis=1))
-    linked = dist < config.reach * (largest_axis[:, None] + largest_axis[neighbors])
+    largest_axis = np.exp(_axis_extreme(ls, np.maximum))
+    reach = largest_axis[neighbors]  # [N, K] becomes reach * (own + neighbour's largest axis), in place
+    reach += largest_axis[:, None]
+    reach *= np.float32(config.reach)
+    linked = dist < reach
+    del reach
     row_label, sizes = components(neighbors, linked)
     n = len(ls)
     label = np.empty(n, dtype=row_label.dtype)
