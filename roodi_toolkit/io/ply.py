@@ -423,5 +423,5 @@ def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[s
                 chunk = np.empty(stop - start, dtype=dtype)
                 for name, col in fields:
                     chunk[name] = col[start:stop]
-                f.write(chunk.tobytes())
+                f.write(chunk.view(np.uint8))  # the buffer itself, no bytes copy
     return Path(path)

@@ -117,7 +117,7 @@ class NeighbourGraph:
     Attributes:
         order: ``[N]`` the input index of each row.
         neighbors: ``[N, K]`` rows (not input indices) of the K nearest centres, excluding the row itself.
-        dist: ``[N, K]`` float32 their distances, ascending.
+        dist: ``[N, K]`` float32 their distances, ascending (may be a view of a wider array).
     """
 
     order: np.ndarray
@@ -136,15 +136,17 @@ class NeighbourGraph:
 def neighbour_graph(means: np.ndarray, k: int, progress: ProgressFactory = null_progress) -> NeighbourGraph:
     """Return the K nearest centres of every Gaussian (excluding itself by index), rows in Morton order.
 
-    pykdtree (a maintained C kd-tree with OpenMP queries, as Open3D's statistical outlier removal uses nanoflann)
-    queried with its own points in Morton order, so that nearby queries in a row touch the same tree nodes. In
-    float64 it returns the same distances as SciPy's cKDTree, and the same neighbours up to the order of neighbours
-    at exactly equal distances, 1.5x faster on 611k Gaussians (``benchmarks/RESULTS.md``, "Prune on real splats";
-    Open3D's tensor search is as slow as cKDTree and importing Open3D alone costs 1.2 s). This search is most of
-    the prune.
+    pykdtree (a maintained C kd-tree with OpenMP queries) searches float32 centres, queried with its own points in
+    Morton order so that nearby queries in a row touch the same tree nodes. This search is most of the prune; on the
+    2-core machine, CPU seconds for the 17 nearest of 611k real centres (``benchmarks/RESULTS.md``, "Prune on real
+    splats"): pykdtree float32 1.4-1.65, pykdtree float64 2.05-2.1, SciPy's cKDTree 2.3-2.8, Open3D's tensor
+    search 2.2-2.3, Open3D's whole statistical outlier removal 1.4-1.5; importing Open3D alone takes 1.2 s.
+    Against float64 distances rounded to float32, the float32 search gives distances within 2 ulp and, where
+    neighbours are tied to within that, may list another of them (33 of the real biker's 152,746 rows): the
+    prune's decisions on the real donut, biker and lego splats are the same (measured, same RESULTS section).
 
     Args:
-        means: ``[N, 3]`` centres (searched as float64 copies of their float32 values).
+        means: ``[N, 3]`` centres (searched as float32).
         k: neighbours per Gaussian, 1 <= k < N.
         progress: progress factory.
     """
@@ -158,19 +160,18 @@ def neighbour_graph(means: np.ndarray, k: int, progress: ProgressFactory = null_
     check_k(k, n)
     points = np.ascontiguousarray(means, dtype=np.float32)
     order = morton_order(points)
-    data = np.ascontiguousarray(points[order], dtype=np.float64)
+    data = np.ascontiguousarray(points[order])
     with progress(total=n, desc="nearest neighbours") as bar:
         dist, idx = KDTree(data).query(data, k=k + 1)
         bar.update(n)
+    # a query finds itself first unless another Gaussian shares its centre; only those rows need the general rule,
+    # written back in place so that the distances stay a view (no copy of [N, K])
     rows = np.arange(n)
-    # a query finds itself first unless another Gaussian shares its centre; only those rows need the general rule
     other = np.flatnonzero(idx[:, 0] != rows)
-    neighbors = idx[:, 1:].astype(np.intp)
-    out = dist[:, 1:].astype(np.float32)
     if other.size:
-        fixed_idx, fixed_dist = _drop_self(idx[other].astype(np.intp), dist[other], rows[other])
-        neighbors[other], out[other] = fixed_idx, fixed_dist
-    return NeighbourGraph(order, neighbors, out)
+        fixed_idx, fixed_dist = _drop_self(idx[other], dist[other], rows[other])
+        idx[other, 1:], dist[other, 1:] = fixed_idx, fixed_dist
+    return NeighbourGraph(order, idx[:, 1:].astype(np.intp), dist[:, 1:])
 
 
 FIRST_COLUMNS = 4
