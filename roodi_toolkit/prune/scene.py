@@ -116,7 +116,8 @@ class NeighbourGraph:
 
     Attributes:
         order: ``[N]`` the input index of each row.
-        neighbors: ``[N, K]`` rows (not input indices) of the K nearest centres, excluding the row itself.
+        neighbors: ``[N, K]`` rows (not input indices, uint32 or any integer type) of the K nearest centres,
+            excluding the row itself (may be a view of a wider array).
         dist: ``[N, K]`` float32 their distances, ascending (may be a view of a wider array).
     """
 
@@ -126,7 +127,7 @@ class NeighbourGraph:
 
     def to_input_order(self) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(neighbors, dist)`` ``[N, K]`` with rows and indices in the input order."""
-        neighbors = np.empty_like(self.neighbors)
+        neighbors = np.empty(self.neighbors.shape, dtype=np.intp)
         dist = np.empty_like(self.dist)
         neighbors[self.order] = self.order[self.neighbors]
         dist[self.order] = self.dist
@@ -171,7 +172,9 @@ def neighbour_graph(means: np.ndarray, k: int, progress: ProgressFactory = null_
     if other.size:
         fixed_idx, fixed_dist = _drop_self(idx[other], dist[other], rows[other])
         idx[other, 1:], dist[other, 1:] = fixed_idx, fixed_dist
-    return NeighbourGraph(order, idx[:, 1:].astype(np.intp), dist[:, 1:])
+    # both stay views of the search's output: on this machine first touching fresh memory costs about as much as a
+    # pass over it, so an [N, K] copy (or an int64 one, 2x larger) is not free
+    return NeighbourGraph(order, idx[:, 1:], dist[:, 1:])
 
 
 FIRST_COLUMNS = 4
