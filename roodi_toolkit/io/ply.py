@@ -457,9 +457,10 @@ def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[s
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(header)
+            buffer = np.empty(min(n, CHUNK_ROWS), dtype=dtype)  # one buffer for every chunk: fresh memory is slow
             for start in range(0, n, CHUNK_ROWS):
                 stop = min(n, start + CHUNK_ROWS)
-                chunk = np.empty(stop - start, dtype=dtype)
+                chunk = buffer[:stop - start]
                 for name, col in fields:
                     chunk[name] = col[start:stop]
                 f.write(chunk.view(np.uint8))  # the buffer itself, no bytes copy
