@@ -3,7 +3,7 @@
 The statistical rules of :mod:`.outliers` compare every Gaussian's neighbour distance with one global threshold.
 Real scenes have wide distributions of that distance (log-MAD 1.24 on a real donut against 0.3 on the synthetic
 surfaces), so a global cut either sits far above the floaters or cuts into real content. Here each Gaussian is
-judged against its own neighbourhood instead, with two tests that need only the K nearest centres (one Open3D
+judged against its own neighbourhood instead, with two tests that need only the K nearest centres (one K-NN
 search, as Euclidean statistical outlier removal) and work in any units:
 
 - **detached** (far specks, fog detached from the content): two Gaussians are linked when their centres are closer
