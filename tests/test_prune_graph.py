@@ -112,3 +112,13 @@ def test_morton_order_equals_a_stable_argsort_of_the_codes(bits):
     for pts in (rng.normal(size=(2000, 3)).astype(np.float32),
                 rng.integers(0, 4, size=(2000, 3)).astype(np.float64)):  # many equal codes: input order kept
         np.testing.assert_array_equal(morton_order(pts, bits), _stable_morton_reference(pts, bits))
+
+
+def test_neighbour_graph_with_centres_too_far_apart_for_float32_squares():
+    pts = np.random.default_rng(3).normal(size=(40, 3)).astype(np.float32)
+    pts[3] = 1e38  # its squared distances overflow float32: the search falls back to float64
+    neighbors, dist = neighbour_graph(pts, 4).to_input_order()
+    assert neighbors.max() < len(pts) and not np.any(neighbors == np.arange(len(pts))[:, None])
+    ref, _ = _brute_knn(pts, 4)
+    np.testing.assert_allclose(dist, ref, rtol=1e-6)
+    assert np.all(dist[3] > 1e38)

@@ -164,6 +164,12 @@ def neighbour_graph(means: np.ndarray, k: int, progress: ProgressFactory = null_
     data = np.ascontiguousarray(points[order])
     with progress(total=n, desc="nearest neighbours") as bar:
         dist, idx = KDTree(data).query(data, k=k + 1)
+        if (idx[:, -1] >= n).any():
+            # squared distances past float32's range (centres ~1e19 apart): pykdtree then reports no neighbour
+            # (index 2^32 - 1), so search again in float64, where float32 centres cannot overflow
+            data = data.astype(np.float64)
+            dist, idx = KDTree(data).query(data, k=k + 1)
+            dist = dist.astype(np.float32)
         bar.update(n)
     # a query finds itself first unless another Gaussian shares its centre; only those rows need the general rule,
     # written back in place so that the distances stay a view (no copy of [N, K])
