@@ -100,7 +100,7 @@ def safety(paths: list[str], size: int, seed: int) -> list[dict]:
 
 def fog(model: str, data: str, every: int, downscale: float) -> dict:
     """Alpha IoU (threshold 0.5) of the unpruned and the default-pruned model against lego's masks, held-out views."""
-    from roodi_toolkit.io.datasets import load_cameras
+    from roodi_toolkit.io.dataset import load_cameras
     from roodi_toolkit.io.files import read_image
     from roodi_toolkit.prune.scene import prune_cloud
 
