@@ -1,17 +1,19 @@
 """The default ``prune`` on real splats: render safety, planted floaters, lego's fog, and speed against Open3D SOR.
 
 Real files come from other tools (``../shared/data``, see its README) or from ``roodi-toolkit train`` on the posed
-datasets there. Until the toolkit reads ``.compressed.ply`` / ``.spz`` itself, decode them with splat-transform
-first (``npx splat-transform biker.compressed.ply /tmp/biker.ply``); opacity logits of +-inf in such a decode are
-mapped to +-20 here (fully opaque / transparent), which is what the reader-side rule is for.
+datasets there. Decode ``.compressed.ply`` / ``.spz`` to PLY first (``roodi-toolkit convert
+../shared/data/biker/biker.compressed.ply /tmp/biker.ply``); opacity logits of +-inf in such a decode are mapped
+to +-20 here (fully opaque / transparent), which is what the reader-side rule is for.
 
     # safety (8 fixed views, same cameras for both clouds) and 300 + 300 planted floaters, per file
     .venv/bin/python benchmarks/bench_real_prune.py safety ../shared/data/donut/point_cloud.ply /tmp/biker.ply
     # lego trained on its white background: alpha IoU on the held-out views (r_0, r_8, ...) against the masks
     .venv/bin/python benchmarks/bench_real_prune.py fog /work/exp/lego_model/point_cloud/iteration_2000/point_cloud.ply \\
         ../shared/data/lego
+    # larger real scenes: copies of the biker side by side (x shifted by 1.2x its width)
+    .venv/bin/python benchmarks/bench_real_prune.py tile /tmp/biker.ply /tmp/biker_x4.ply --copies 4
     # whole command (read, decide, write) against plyfile + Open3D remove_statistical_outlier(16, 2.0) + write
-    .venv/bin/python benchmarks/bench_real_prune.py speed /tmp/biker.ply --repeats 3
+    .venv/bin/python benchmarks/bench_real_prune.py speed /tmp/biker.ply /tmp/biker_x4.ply --repeats 3
 """
 
 from __future__ import annotations
@@ -98,7 +100,7 @@ def safety(paths: list[str], size: int, seed: int) -> list[dict]:
 
 def fog(model: str, data: str, every: int, downscale: float) -> dict:
     """Alpha IoU (threshold 0.5) of the unpruned and the default-pruned model against lego's masks, held-out views."""
-    from roodi_toolkit.io.datasets import load_cameras
+    from roodi_toolkit.io.dataset import load_cameras
     from roodi_toolkit.io.files import read_image
     from roodi_toolkit.prune.scene import prune_cloud
 
@@ -174,6 +176,20 @@ def speed(paths: list[str], repeats: int) -> list[dict]:
     return rows
 
 
+def tile(path: str, out: str, copies: int) -> None:
+    """Write ``copies`` of a real cloud (finite opacities, :func:`load_real`) side by side along x, each shifted by
+    1.2x the cloud's width: a larger scene with the same local structure."""
+    from roodi_toolkit.gaussians import GaussianCloud
+    from roodi_toolkit.io.ply import write_ply
+
+    cloud = load_real(path)
+    width = float(np.ptp(cloud.means[:, 0]))
+    parts = [cloud.with_fields(means=(cloud.means + np.array([1.2 * width * i, 0, 0], dtype=np.float32))
+                               .astype(np.float32)) for i in range(copies)]
+    write_ply(GaussianCloud.concatenate(parts), out)
+    print(json.dumps({"file": out, "gaussians": len(cloud) * copies}), flush=True)
+
+
 def _count(path: Path) -> int:
     from roodi_toolkit.io.ply import read_header
 
@@ -195,11 +211,17 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("speed")
     p.add_argument("files", nargs="+")
     p.add_argument("--repeats", type=int, default=3)
+    t = sub.add_parser("tile")
+    t.add_argument("file")
+    t.add_argument("out")
+    t.add_argument("--copies", type=int, default=4)
     args = parser.parse_args(argv)
     if args.what == "safety":
         safety(args.files, args.size, args.seed)
     elif args.what == "fog":
         fog(args.model, args.data, args.every, args.downscale)
+    elif args.what == "tile":
+        tile(args.file, args.out, args.copies)
     else:
         speed(args.files, args.repeats)
     return 0

@@ -17,6 +17,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -234,8 +235,14 @@ def _body_offset(p: Path, header: PlyHeader, file_size: int) -> tuple[int, PlyEl
     raise _fail(p, "no 'vertex' element: not a Gaussian splat PLY")
 
 
-def _read_columns(p: Path, header: PlyHeader, file_size: int) -> dict[str, np.ndarray]:
-    """Read every vertex property into a native-endian column, chunk by chunk."""
+def _read_columns(p: Path, header: PlyHeader, file_size: int,
+                  into: Callable[[int], dict[str, np.ndarray]] | None = None) -> dict[str, np.ndarray]:
+    """Read every vertex property into a native-endian column, chunk by chunk.
+
+    ``into(count)``, called once the body is known to hold ``count`` vertices (binary files only), may give
+    destination columns ``[count]`` (views into the cloud's arrays) for some properties; they are filled in place
+    and returned, so the values are copied once.
+    """
     vertex_names = [n for n, _ in header.vertex().properties] if any(
         e.name == "vertex" for e in header.elements) else []
     if not vertex_names and not any(e.name == "vertex" for e in header.elements):
@@ -250,7 +257,8 @@ def _read_columns(p: Path, header: PlyHeader, file_size: int) -> dict[str, np.nd
         raise _fail(p, "file declares 0 vertices: there are no Gaussians to read")
     endian = _FORMATS[header.format]
     dtype = np.dtype([(n, endian + t) for n, t in vertex.properties])
-    columns = {n: np.empty(vertex.count, dtype=np.dtype(t)) for n, t in vertex.properties}
+    given = into(vertex.count) if into is not None else {}
+    columns = {n: given[n] if n in given else np.empty(vertex.count, dtype=np.dtype(t)) for n, t in vertex.properties}
     try:
         with open(p, "rb") as f:
             f.seek(offset)
@@ -324,7 +332,8 @@ def read_ply(path: str | os.PathLike) -> GaussianCloud:
     """
     p, size = _open_checked(path)
     header = read_header(p)
-    columns = _read_columns(p, header, size)
+    arrays: dict[str, np.ndarray] = {}
+    columns = _read_columns(p, header, size, into=lambda count: _cloud_columns(header, count, arrays))
     names = list(columns)
     missing = [n for n in _REQUIRED if n not in columns]
     if missing:
@@ -337,10 +346,14 @@ def read_ply(path: str | os.PathLike) -> GaussianCloud:
     n = len(columns["x"])
 
     def stack(keys: list[str]) -> np.ndarray:
+        if keys[0] in arrays:  # read in place (binary files)
+            return arrays[keys[0]]
         return np.stack([columns[k].astype(np.float32, copy=False) for k in keys], axis=1)
 
     per_channel = len(rest_names) // 3
-    if per_channel:
+    if per_channel and "sh_rest" in arrays:
+        rest = arrays["sh_rest"]
+    elif per_channel:
         rest = stack(rest_names).reshape(n, 3, per_channel).transpose(0, 2, 1).copy()
     else:
         rest = np.zeros((n, 0, 3), dtype=np.float32)
@@ -351,12 +364,38 @@ def read_ply(path: str | os.PathLike) -> GaussianCloud:
         means=stack(["x", "y", "z"]),
         quats_wxyz=stack(_ROT),
         log_scales=stack(_SCALE),
-        opacity_logits=columns["opacity"].astype(np.float32),
+        opacity_logits=columns["opacity"].astype(np.float32, copy="opacity" not in arrays),
         sh_dc=stack(_DC),
         sh_rest=rest,
         extras=extras,
         normals=normals,
     )
+
+
+def _cloud_columns(header: PlyHeader, count: int, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Allocate the cloud's float32 arrays for ``count`` Gaussians and return the vertex properties' destination
+    columns in them (none when the properties are not a valid 3DGS layout: read_ply then reports why).
+
+    ``arrays`` receives the arrays, keyed by their first property (``x`` for the means, ...), ``opacity`` and
+    ``sh_rest``.
+    """
+    names = [n for n, _ in header.vertex().properties]
+    rest_names = sorted((n for n in names if _REST_RE.match(n)), key=lambda n: int(n[7:]))
+    if (any(n not in names for n in _REQUIRED) or len(rest_names) not in _REST_COUNTS
+            or [int(n[7:]) for n in rest_names] != list(range(len(rest_names)))):
+        return {}
+    groups = [["x", "y", "z"], _ROT, _SCALE, _DC] + ([_NORMALS] if all(n in names for n in _NORMALS) else [])
+    into: dict[str, np.ndarray] = {}
+    for keys in groups:
+        arrays[keys[0]] = block = np.empty((count, len(keys)), dtype=np.float32)
+        into.update((k, block[:, i]) for i, k in enumerate(keys))
+    arrays["opacity"] = into["opacity"] = np.empty(count, dtype=np.float32)
+    per_channel = len(rest_names) // 3
+    if per_channel:
+        arrays["sh_rest"] = rest = np.empty((count, per_channel, 3), dtype=np.float32)
+        # on disk channel-major: f_rest_i is channel i // per_channel, coefficient i % per_channel
+        into.update((name, rest[:, i % per_channel, i // per_channel]) for i, name in enumerate(rest_names))
+    return into
 
 
 def _ply_type(dtype: np.dtype, name: str) -> str:
@@ -418,10 +457,11 @@ def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[s
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(header)
+            buffer = np.empty(min(n, CHUNK_ROWS), dtype=dtype)  # one buffer for every chunk: fresh memory is slow
             for start in range(0, n, CHUNK_ROWS):
                 stop = min(n, start + CHUNK_ROWS)
-                chunk = np.empty(stop - start, dtype=dtype)
+                chunk = buffer[:stop - start]
                 for name, col in fields:
                     chunk[name] = col[start:stop]
-                f.write(chunk.tobytes())
+                f.write(chunk.view(np.uint8))  # the buffer itself, no bytes copy
     return Path(path)

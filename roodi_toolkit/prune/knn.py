@@ -26,8 +26,16 @@ def _spread_bits(x: np.ndarray) -> np.ndarray:
     return (x | (x << np.uint32(2))) & np.uint32(0x09249249)
 
 
+_INDEX_BITS = 34
+"""morton_order packs a 30-bit code and a 34-bit index into one uint64 key."""
+
+
 def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
     """Return the permutation ``[N]`` that sorts points ``[N, 3]`` along a Z-order curve on a 2^bits grid (bits <= 10).
+
+    Equal codes keep their input order (a stable sort): the code and the index are packed into one uint64 key and
+    sorted, which is several times faster than a stable argsort of the codes (NumPy's radix sort only takes keys
+    of up to 16 bits).
 
     Example:
         >>> morton_order(np.array([[1.0, 1, 1], [0, 0, 0], [1, 0, 0], [0, 1, 0]])).tolist()
@@ -35,15 +43,30 @@ def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
     """
     if not 1 <= bits <= 10:
         raise ConfigError(f"morton_order supports 1 to 10 bits per axis, got {bits}")
-    p = np.asarray(points, dtype=np.float64)
-    lo = p.min(axis=0)
-    span = float((p.max(axis=0) - lo).max())
+    p = np.asarray(points)
+    if p.dtype.kind != "f":
+        p = p.astype(np.float64)
+    n = len(p)
+    if n == 0:
+        return np.arange(0)
+    lo = p.min(axis=0).astype(np.float64)
+    span = float((p.max(axis=0).astype(np.float64) - lo).max())
     if not np.isfinite(span) or span <= 0:
-        return np.arange(len(p))
-    cells = ((p - lo) * ((2**bits - 1) / span)).astype(np.uint32)
-    code = _spread_bits(cells[:, 0]) | (_spread_bits(cells[:, 1]) << np.uint32(1)) | (
-        _spread_bits(cells[:, 2]) << np.uint32(2))
-    return np.argsort(code, kind="stable")
+        return np.arange(n)
+    scale = (2**bits - 1) / span
+    spread = _spread_bits(np.arange(1 << bits, dtype=np.uint32))  # a table: one gather per axis
+    if n >= 1 << _INDEX_BITS:
+        code = np.zeros(n, dtype=np.uint32)
+        for axis in range(3):
+            cells = ((p[:, axis].astype(np.float64) - lo[axis]) * scale).astype(np.uint32)
+            code |= spread[cells] << np.uint32(axis)
+        return np.argsort(code, kind="stable")
+    key = np.arange(n, dtype=np.uint64)
+    for axis in range(3):
+        cells = ((p[:, axis].astype(np.float64) - lo[axis]) * scale).astype(np.uint32)
+        key |= spread[cells].astype(np.uint64) << np.uint64(axis + _INDEX_BITS)
+    key.sort()
+    return (key & np.uint64((1 << _INDEX_BITS) - 1)).astype(np.intp)
 
 
 def _drop_self(idx: np.ndarray, dist2: np.ndarray, own: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -3,7 +3,7 @@
 The statistical rules of :mod:`.outliers` compare every Gaussian's neighbour distance with one global threshold.
 Real scenes have wide distributions of that distance (log-MAD 1.24 on a real donut against 0.3 on the synthetic
 surfaces), so a global cut either sits far above the floaters or cuts into real content. Here each Gaussian is
-judged against its own neighbourhood instead, with two tests that need only the K nearest centres (one Open3D
+judged against its own neighbourhood instead, with two tests that need only the K nearest centres (one K-NN
 search, as Euclidean statistical outlier removal) and work in any units:
 
 - **detached** (far specks, fog detached from the content): two Gaussians are linked when their centres are closer
@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..errors import CloudError
+from ..errors import CloudError, EnvironmentProblemError
 from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
 from .knn import _drop_self, check_k, morton_order
@@ -59,18 +59,21 @@ def background_fog(cloud: GaussianCloud, background: str, tolerance: float) -> t
     if background == "none" or n == 0:
         return np.zeros(n, dtype=bool), "none"
     rgb = cloud.rgb
-    candidates = {"white": rgb.min(axis=1) >= 1.0 - tolerance, "black": rgb.max(axis=1) <= tolerance}
+    candidates = {"white": _axis_extreme(rgb, np.minimum) >= 1.0 - tolerance,
+                  "black": _axis_extreme(rgb, np.maximum) <= tolerance}
     if background != "auto":
         return candidates[background], background
-    means = cloud.means.astype(np.float64)
-    radius = np.linalg.norm(means - np.median(means, axis=0), axis=1)
-    opacity = cloud.opacities
+    opacity = radius = None  # computed only when a colour gets that far (most real scenes stop before)
     for colour, sel in candidates.items():
         if sel.mean() < FOG_MIN_FRACTION or sel.all():
             continue
-        spread = np.median(radius[sel]) / max(float(np.median(radius[~sel])), 1e-30)
-        faint = np.median(opacity[sel]) < FOG_MAX_OPACITY_RATIO * np.median(opacity[~sel])
-        if spread >= FOG_MIN_SPREAD and faint:
+        opacity = cloud.opacities if opacity is None else opacity
+        if not np.median(opacity[sel]) < FOG_MAX_OPACITY_RATIO * np.median(opacity[~sel]):  # not faint
+            continue
+        if radius is None:
+            means = cloud.means.astype(np.float64)
+            radius = np.linalg.norm(means - np.median(means, axis=0), axis=1)
+        if np.median(radius[sel]) / max(float(np.median(radius[~sel])), 1e-30) >= FOG_MIN_SPREAD:
             return sel, colour
     return np.zeros(n, dtype=bool), "none"
 
@@ -104,76 +107,178 @@ class LocalDecision:
         return self.detached | self.oversized
 
 
-def neighbour_graph(means: np.ndarray, k: int, progress: ProgressFactory = null_progress
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Return the K nearest centres ``[N, K]`` (int32, excluding self by index) and their distances ``[N, K]``.
+@dataclass(frozen=True)
+class NeighbourGraph:
+    """The K nearest centres of every Gaussian, rows in Morton (Z-curve) order.
 
-    SciPy's cKDTree on all cores: on the real biker (152k) it answers in 0.50 s what Open3D's tensor search
-    (:class:`~roodi_toolkit.prune.knn.CentreIndex`) answers in 1.19 s, and this search is most of the prune.
+    The local tests run in this order and only their per-Gaussian results go back to the input order: a row's
+    neighbours are then mostly nearby rows, so the gathers over ``[N, K]`` (sizes, scales, graph links) hit the cache.
+
+    Attributes:
+        order: ``[N]`` the input index of each row.
+        neighbors: ``[N, K]`` rows (not input indices, uint32 or any integer type) of the K nearest centres,
+            excluding the row itself (may be a view of a wider array).
+        dist: ``[N, K]`` float32 their distances, ascending (may be a view of a wider array).
     """
-    from scipy.spatial import cKDTree
 
-    check_k(k, len(means))
+    order: np.ndarray
+    neighbors: np.ndarray
+    dist: np.ndarray
+
+    def to_input_order(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(neighbors, dist)`` ``[N, K]`` with rows and indices in the input order."""
+        neighbors = np.empty(self.neighbors.shape, dtype=np.intp)
+        dist = np.empty_like(self.dist)
+        neighbors[self.order] = self.order[self.neighbors]
+        dist[self.order] = self.dist
+        return neighbors, dist
+
+
+def neighbour_graph(means: np.ndarray, k: int, progress: ProgressFactory = null_progress) -> NeighbourGraph:
+    """Return the K nearest centres of every Gaussian (excluding itself by index), rows in Morton order.
+
+    pykdtree (a maintained C kd-tree with OpenMP queries) searches float32 centres, queried with its own points in
+    Morton order so that nearby queries in a row touch the same tree nodes. This search is most of the prune; on the
+    2-core machine, CPU seconds for the 17 nearest of 611k real centres (``benchmarks/RESULTS.md``, "Prune on real
+    splats"): pykdtree float32 1.4-1.65, pykdtree float64 2.05-2.1, SciPy's cKDTree 2.3-2.8, Open3D's tensor
+    search 2.2-2.3, Open3D's whole statistical outlier removal 1.4-1.5; importing Open3D alone takes 1.2 s.
+    Against float64 distances rounded to float32, the float32 search gives distances within 2 ulp and, where
+    neighbours are tied to within that, may list another of them (33 of the real biker's 152,746 rows): the
+    prune's decisions on the real donut, biker and lego splats are the same (measured, same RESULTS section).
+
+    Args:
+        means: ``[N, 3]`` centres (searched as float32).
+        k: neighbours per Gaussian, 1 <= k < N.
+        progress: progress factory.
+    """
+    try:
+        from pykdtree.kdtree import KDTree
+    except ImportError as exc:  # a dependency of the package; only a broken install lacks it
+        raise EnvironmentProblemError("the default prune needs pykdtree (a dependency of roodi-toolkit); install it "
+                                      "with `pip install pykdtree`") from exc
+
+    n = len(means)
+    check_k(k, n)
     points = np.ascontiguousarray(means, dtype=np.float32)
-    order = morton_order(points)  # nearby queries in a row: fewer cache misses in the tree
-    tree = cKDTree(points[order])
-    with progress(total=len(points), desc="nearest neighbours") as bar:
-        dist, idx = tree.query(points[order], k + 1, workers=-1)
-        bar.update(len(points))
-    idx, dist = _drop_self(idx, dist, np.arange(len(points)))
-    neighbors = np.empty((len(points), k), dtype=np.int32)
-    out = np.empty((len(points), k), dtype=np.float32)
-    neighbors[order] = order[idx]
-    out[order] = dist
-    return neighbors, out
+    order = morton_order(points)
+    data = np.ascontiguousarray(points[order])
+    with progress(total=n, desc="nearest neighbours") as bar:
+        dist, idx = KDTree(data).query(data, k=k + 1)
+        if (idx[:, -1] >= n).any():
+            # squared distances past float32's range (centres ~1e19 apart): pykdtree then reports no neighbour
+            # (index 2^32 - 1), so search again in float64, where float32 centres cannot overflow
+            data = data.astype(np.float64)
+            dist, idx = KDTree(data).query(data, k=k + 1)
+            dist = dist.astype(np.float32)
+        bar.update(n)
+    # a query finds itself first unless another Gaussian shares its centre; only those rows need the general rule,
+    # written back in place so that the distances stay a view (no copy of [N, K])
+    rows = np.arange(n)
+    other = np.flatnonzero(idx[:, 0] != rows)
+    if other.size:
+        fixed_idx, fixed_dist = _drop_self(idx[other], dist[other], rows[other])
+        idx[other, 1:], dist[other, 1:] = fixed_idx, fixed_dist
+    # both stay views of the search's output: on this machine first touching fresh memory costs about as much as a
+    # pass over it, so an [N, K] copy (or an int64 one, 2x larger) is not free
+    return NeighbourGraph(order, idx[:, 1:], dist[:, 1:])
+
+
+FIRST_COLUMNS = 4
+"""components: pieces are first found along the links to the 4 nearest neighbours, then joined by the remaining
+links between different pieces. Same pieces as one pass over all links; on 611k Gaussians (10M links) SciPy's
+transpose of the full graph took 0.4 s, the two passes 0.16 s (184 pieces after the first, 11.5k joining links)."""
+
+
+def _csr_components(neighbors: np.ndarray, linked: np.ndarray) -> tuple[int, np.ndarray]:
+    """Return the number of pieces and the piece id ``[N]`` of every row along the links i -> neighbors[i, j]."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n, k = neighbors.shape
+    rows = np.arange(n, dtype=np.int32)
+    # an unlinked neighbour becomes a link to the row itself, which joins nothing: every row then has k entries
+    # and the CSR arrays are built without selecting; float64 weights, the type SciPy works in, so no copy
+    cols = np.where(linked, neighbors, rows[:, None]).astype(np.int32).ravel()
+    graph = csr_matrix((np.ones(n * k), cols, np.arange(0, n * k + 1, k, dtype=np.int32)), shape=(n, n))
+    return connected_components(graph, directed=False)
 
 
 def components(neighbors: np.ndarray, linked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the piece id ``[N]`` of every node and the size of every piece ``[C]`` (undirected links i -> nb)."""
+    """Return the piece id ``[N]`` of every node and the size of every piece ``[C]`` (undirected links i -> nb).
+
+    Piece ids are in an unspecified order (see :data:`FIRST_COLUMNS` for the two passes).
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    n = len(neighbors)
-    rows = np.broadcast_to(np.arange(n, dtype=np.int32)[:, None], neighbors.shape)[linked]
-    cols = neighbors[linked]
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n)).tocsr()
-    _, label = connected_components(graph, directed=False)
+    first = min(FIRST_COLUMNS, neighbors.shape[1])
+    count, label = _csr_components(neighbors[:, :first], linked[:, :first])
+    rest = neighbors[:, first:]
+    other = label[rest]  # [N, K - first] the piece of each remaining neighbour
+    rows, cols = np.nonzero((other != label[:, None]) & linked[:, first:])
+    if rows.size:
+        pieces = coo_matrix((np.ones(rows.size), (label[rows], other[rows, cols])), shape=(count, count))
+        _, merged = connected_components(pieces, directed=False)
+        label = merged[label]
     return label, np.bincount(label)
+
+
+def _axis_extreme(ls: np.ndarray, pick: Any) -> np.ndarray:
+    """Return ``pick`` (np.minimum or np.maximum) over the three columns of ``[N, 3]``: a reduction along rows
+    of three is several times slower than two elementwise passes (same values)."""
+    return pick(pick(ls[:, 0], ls[:, 1]), ls[:, 2])
 
 
 def blob_scores(log_scales: np.ndarray, neighbors: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Return the oversized score ``[N]`` (module docstring): how far the smallest axis exceeds spacing and size."""
     ls = log_scales.astype(np.float32)
-    log_min = ls.min(axis=1)
+    log_min = _axis_extreme(ls, np.minimum)
     log_size = ls.mean(axis=1)
     spacing = np.log(np.maximum(dist.mean(axis=1), np.finfo(np.float32).tiny))
     # median of the neighbours' sizes (the lower middle value for even K): robust to a few blobs among them
     mid = (neighbors.shape[1] - 1) // 2
-    local = np.partition(log_size[neighbors], mid, axis=1)[:, mid]
-    return (log_min - spacing) + (log_min - local)
+    local = log_size[neighbors]
+    local.partition(mid, axis=1)
+    return (log_min - spacing) + (log_min - local[:, mid])
 
 
-def decide(log_scales: np.ndarray, neighbors: np.ndarray, dist: np.ndarray, config: "PruneConfig") -> LocalDecision:
+def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig") -> LocalDecision:
     """Run the detached and oversized tests (module docstring) on the K-nearest-centre graph of finite Gaussians.
 
     Args:
-        log_scales: ``[N, 3]`` log scales.
-        neighbors: ``[N, K]`` nearest centres (excluding self).
-        dist: ``[N, K]`` their distances.
+        log_scales: ``[N, 3]`` log scales, input order.
+        graph: the K nearest centres (:func:`neighbour_graph`).
         config: reach, min_cluster, blob_score, object_fraction and the mode (``auto`` is resolved here).
+
+    Returns:
+        The decision, every field in the input order; pieces are numbered by their first Gaussian in that order
+        (object mode keeps the first of equally large largest pieces).
     """
-    ls = np.asarray(log_scales, dtype=np.float32)
-    largest_axis = np.exp(ls.max(axis=1))
-    linked = dist < config.reach * (largest_axis[:, None] + largest_axis[neighbors])
-    label, sizes = components(neighbors, linked)
+    order, neighbors, dist = graph.order, graph.neighbors, graph.dist
+    ls = np.asarray(log_scales, dtype=np.float32)[order]
+    largest_axis = np.exp(_axis_extreme(ls, np.maximum))
+    reach = largest_axis[neighbors]  # [N, K] becomes reach * (own + neighbour's largest axis), in place
+    reach += largest_axis[:, None]
+    reach *= np.float32(config.reach)
+    linked = dist < reach
+    del reach
+    row_label, sizes = components(neighbors, linked)
     n = len(ls)
+    label = np.empty(n, dtype=row_label.dtype)
+    label[order] = row_label
+    first = np.full(len(sizes), n, dtype=np.int64)
+    np.minimum.at(first, label, np.arange(n))
+    renumber = np.empty(len(sizes), dtype=label.dtype)
+    renumber[np.argsort(first)] = np.arange(len(sizes), dtype=label.dtype)
+    label, sizes = renumber[label], sizes[np.argsort(first)]
     largest_fraction = float(sizes.max() / n)
     mode, reason = choose_mode(config, largest_fraction)
     if mode == "object":
         detached = label != int(np.argmax(sizes))
     else:
         detached = sizes[label] < max(1.0, config.min_cluster * n)
-    scores = blob_scores(ls, neighbors, dist)
+    scores = np.empty(n, dtype=np.float32)
+    scores[order] = blob_scores(ls, neighbors, dist)
     oversized = (scores > config.blob_score) & ~detached
     return LocalDecision(detached, oversized, label, sizes, scores, largest_fraction, mode, reason)
 
@@ -227,10 +332,10 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *,
     sub = cloud.select(evaluated) if evaluated.size < n else cloud
     t1 = time.perf_counter()
     means = np.ascontiguousarray(sub.means, dtype=np.float32)
-    neighbors, dist = neighbour_graph(means, config.k, progress)
+    graph = neighbour_graph(means, config.k, progress)
     report.timings["neighbours_and_distances"] = time.perf_counter() - t1
     t2 = time.perf_counter()
-    decision = decide(sub.log_scales, neighbors, dist, config)
+    decision = decide(sub.log_scales, graph, config)
     fog, background = background_fog(sub, config.background, config.fog_tolerance)
     fog &= ~decision.flagged
     report.mode, report.mode_reason = decision.mode, decision.reason
