@@ -24,7 +24,7 @@ EXAMPLE = """Example:
 EXTRACT_ONLY = {"preset": "--preset", "object_id": "--object", "size_text": "--size", "train_views": "--train-views",
                 "test_views": "--test-views", "iterations": "--iterations", "max_gaussians": "--max-gaussians",
                 "distill_iterations": "--distill-iterations", "finetune_iterations": "--finetune-iterations",
-                "view_size": "--view-size"}
+                "view_size": "--view-size", "inpainter": "--inpainter", "occluded": "--occluded"}
 
 
 def _duration(seconds: float) -> str:
@@ -54,6 +54,11 @@ def _scores(ev) -> str:
 @click.option("--finetune-iterations", type=click.IntRange(0), default=None, help="Fine-tuning steps [100].")
 @click.option("--view-size", type=click.IntRange(8, 4096), default=None,
               help="Side in pixels of the four object-centred views that are inpainted [256].")
+@click.option("--inpainter", default=None,
+              help="Inpainter plugin: opencv, exemplar, symmetry, sdxl, ... (roodi-toolkit plugins) [opencv].")
+@click.option("--occluded", is_flag=True, default=None,
+              help="The preset's occluded variant (make-scene --occluded): the target stands in a wrap that hides "
+                   "part of it from every training view.")
 @click.option("--prune-only", is_flag=True, help="Run the planted-floater pruning demo instead (seconds).")
 @click.option("--surface", type=click.Choice(SURFACES), default=None,
               help="With --prune-only: the generated object's surface [ant].")
@@ -62,7 +67,8 @@ def _scores(ev) -> str:
 @quiet_option
 def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | None, size_text: str | None,
          train_views: int | None, test_views: int | None, iterations: int | None, max_gaussians: int | None,
-         distill_iterations: int | None, finetune_iterations: int | None, view_size: int | None, prune_only: bool,
+         distill_iterations: int | None, finetune_iterations: int | None, view_size: int | None,
+         inpainter: str | None, occluded: bool | None, prune_only: bool,
          surface: str | None, overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Extract one object from a generated scene into OUT_DIR, score it, and say where the PLY and pictures are.
 
@@ -90,7 +96,8 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
     base = ExtractDemoConfig()
     width, height = parse_size(size_text) if size_text is not None else (base.scene.width, base.scene.height)
     scene = SceneSettings(width=width, height=height, train_views=train_views or base.scene.train_views,
-                          test_views=test_views or base.scene.test_views)
+                          test_views=test_views or base.scene.test_views,
+                          occluded=base.scene.occluded if occluded is None else occluded)
     ex = base.extract
     train = config_with(ex.train, iterations=iterations, cap_max=max_gaussians,
                         init_num_points=None if max_gaussians is None else max(1, max_gaussians // 2))
@@ -98,7 +105,12 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
                       distill=replace(ex.distill, iterations=distill_iterations or ex.distill.iterations),
                       finetune=replace(ex.finetune, iterations=ex.finetune.iterations if finetune_iterations is None
                                        else finetune_iterations),
-                      occlusion=replace(ex.occlusion, size=view_size or ex.occlusion.size))
+                      occlusion=replace(ex.occlusion, size=view_size or ex.occlusion.size),
+                      inpainter=inpainter or ex.inpainter)
+    if extract.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
+        from roodi_toolkit.plugins import load_plugin
+
+        load_plugin("inpainters", extract.inpainter)
     config = replace(base, preset=preset or base.preset, seed=base.seed if seed is None else seed,
                      object_id=object_id, scene=scene, extract=extract)
     res = run_extract_demo(out_dir, config, overwrite=overwrite, progress=progress, renderer=renderer)

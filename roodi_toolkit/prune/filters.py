@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..gaussians import _REQUIRED, GaussianCloud
+from ..gaussians import GaussianCloud
 
 if TYPE_CHECKING:
     from .outliers import PruneConfig, PruneReport
@@ -25,13 +25,6 @@ def named_value(cloud: GaussianCloud, name: str) -> np.ndarray:
     return np.exp(log_scales.max(axis=1) if name == "scale" else log_scales.min(axis=1))
 
 
-def _any_nonfinite(cloud: GaussianCloud) -> bool:
-    """Return whether any value that ``GaussianCloud.nonfinite_rows`` checks is NaN or Inf: one flat pass per
-    field, 10x faster than its row-wise test, which then runs only for the clouds that have such values."""
-    arrays = [getattr(cloud, name) for name in _REQUIRED] + [c for c in cloud.extras.values() if c.dtype.kind == "f"]
-    return not all(np.isfinite(a).all() for a in arrays)
-
-
 def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, list[tuple[str, int]]]:
     """Return the keep mask ``[N]`` of the pre-statistics filters and the removed count of each filter, in order.
 
@@ -41,7 +34,7 @@ def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, 
     n = len(cloud)
     keep = np.ones(n, dtype=bool)
     stages: list[tuple[str, int]] = []
-    bad = cloud.nonfinite_rows() if _any_nonfinite(cloud) else np.zeros(n, dtype=bool)
+    bad = cloud.nonfinite_rows()
     if bad.any() and not config.filter_nan:
         cloud.require_finite("input")
     stages.append(("nonfinite", int(bad.sum())))
