@@ -14,6 +14,8 @@ Layout of a generated scene (``OUT_DIR``)::
     train/masks/r_000.png ...       8-bit instance ids (0 = ground / background, objects 1..N)
     train/depth/r_000.png ...       16-bit z-depth times ``depth_scale`` (0 = nothing hit)
     targets/03_mug/transforms_test.json, test/r_000.png (RGBA on white), test/masks/r_000.png
+    targets/03_mug/test/never_seen/r_000.png   with --occluded or --never-seen: 255 where no training view sees
+                                    the target's surface (:mod:`roodi_toolkit.synth.visibility`)
     overview.png                    a grid of training views with the targets outlined
 """
 
@@ -33,8 +35,10 @@ from ..errors import ConfigError, DatasetError
 from ..io.files import prepare_output_dir, write_image, write_json
 from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
 from ..progress import ProgressFactory, null_progress
-from .objects import BUILDERS, MAX_OBJECTS, PRESETS, Light, Part, SceneObject, _environment, _NOT_TARGETS, _rot
-from .tracer import render_views
+from .objects import (BUILDERS, MAX_OBJECTS, PRESETS, WRAPPABLE, Light, Part, SceneObject, _environment, _NOT_TARGETS,
+                      _rot, wrap_parts)
+from .tracer import _Tracer, render_views
+from .visibility import VISIBILITY_TOLERANCE, never_seen_masks
 
 __all__ = [
     "Scene",
@@ -48,6 +52,8 @@ __all__ = [
     "scene_from_record",
 ]
 
+NEVER_SEEN_DIR = "test/never_seen"
+"""Folder of a target's never-seen masks, beside its test views."""
 DEPTH_SCALE = 1e-4  # metres per 16-bit depth unit: 0.1 mm resolution, 6.5 m range (the ground is cut at that range)
 
 # kinds that cannot be targets: furniture and flat things that are scenery rather than objects to extract
@@ -71,6 +77,10 @@ class SceneSettings:
             training views' hemisphere, at their distance, aimed at the target, so the object is as large as in
             training and anything kept elsewhere in the scene, such as floaters, shows in the view) or ``"object"``
             (close-ups in which the target fills the frame: a stricter test of the object's detail).
+        occluded: the occluded variant of the preset: every target stands in a wrap that hides its lower part from
+            every training view (:func:`build_scene`); implies ``never_seen``.
+        never_seen: write each target's never-seen masks (its test views' pixels that no training view sees,
+            :mod:`roodi_toolkit.synth.visibility`) and their share in scene.json.
     """
 
     width: int = 200
@@ -82,6 +92,22 @@ class SceneSettings:
     n_targets: int | None = None
     n_objects: int | None = None
     test_framing: str = "scene"
+    occluded: bool = False
+    never_seen: bool = False
+
+    @property
+    def writes_never_seen(self) -> bool:
+        """Whether make-scene computes and writes the never-seen masks."""
+        return self.occluded or self.never_seen
+
+    def record(self) -> dict[str, Any]:
+        """Return the settings as scene.json records them: the variant flags only when set, so a scene of the plain
+        presets keeps the record (and the bytes) it had before they existed."""
+        out = asdict(self)
+        for key in ("occluded", "never_seen"):
+            if not out[key]:
+                del out[key]
+        return out
 
     def __post_init__(self) -> None:
         if not (8 <= self.width <= 8192 and 8 <= self.height <= 8192):
@@ -157,7 +183,7 @@ def _transform(parts: list[Part], yaw: float, at: np.ndarray) -> list[Part]:
 
 
 def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None = None,
-                n_targets: int | None = None) -> Scene:
+                n_targets: int | None = None, occluded: bool = False) -> Scene:
     """Return a scene of the preset, laid out from the seed (same arguments -> the same scene).
 
     Targets are placed near the middle and each gets an occluder right beside it, so that in many views of the
@@ -166,8 +192,14 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
     Args:
         preset: ``bedroom``, ``kitchen``, ``livingroom`` or ``picnic``.
         seed: random seed of the layout, shapes, colours and lights.
-        n_objects: object count (5 to 20), default drawn from the preset's range.
-        n_targets: target count (1 to 4), default 3 or 4.
+        n_objects: object count (5 to 20), default drawn from the preset's range (at least twice the targets when
+            ``occluded``).
+        n_targets: target count (1 to 4), default 3 or 4 (4 when ``occluded``).
+        occluded: the occluded variant: targets are drawn from the compact kinds
+            (:data:`~roodi_toolkit.synth.objects.WRAPPABLE`) and each stands in a wrap that touches it (a box or
+            sleeve open at the top, or a bowl: :func:`~roodi_toolkit.synth.objects.wrap_parts`), an object of its
+            own placed right after the targets (ids ``n_targets + 1 ...``), which hides the target's lower part from
+            every training camera. Without it the scene is the same as before the variant existed, bit for bit.
 
     Raises:
         ConfigError: unknown preset or counts out of range.
@@ -179,13 +211,23 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
     n = int(n_objects) if n_objects is not None else int(rng.integers(P.n_objects[0], P.n_objects[1] + 1))
     if not 5 <= n <= MAX_OBJECTS:
         raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {n}")
-    n_t = int(n_targets) if n_targets is not None else int(rng.integers(3, 5))
+    if occluded:
+        n_t = int(n_targets) if n_targets is not None else 4
+    else:
+        n_t = int(n_targets) if n_targets is not None else int(rng.integers(3, 5))
     if not 1 <= n_t <= 4:
         raise ConfigError(f"n_targets must be 1 to 4, got {n_t}")
+    n_wraps = n_t if occluded else 0  # one wrap per target, ids right after the targets'
+    if occluded:
+        if n_objects is None:
+            n = max(n, 2 * n_t)
+        elif n < 2 * n_t:
+            raise ConfigError(f"an occluded scene needs at least two objects per target (the target and its wrap): "
+                              f"n_objects {n} < 2 x {n_t} targets")
 
     kinds_all = sorted(P.catalog)
     weights = np.array([P.catalog[k] for k in kinds_all])
-    target_kinds = [k for k in kinds_all if k not in _NOT_TARGETS]
+    target_kinds = [k for k in kinds_all if k not in _NOT_TARGETS and (not occluded or k in WRAPPABLE)]
     t_weights = np.array([P.catalog[k] for k in target_kinds])
 
     def draw(pool: list[str], w: np.ndarray, used: list[str]) -> str:
@@ -195,22 +237,31 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
     kinds: list[str] = []
     for _ in range(n_t):
         kinds.append(draw(target_kinds, t_weights, kinds))
-    for _ in range(n - n_t):
+    kinds += ["wrap"] * n_wraps  # named once built
+    for _ in range(n - n_t - n_wraps):
         kinds.append(draw(kinds_all, weights, kinds))
 
     built = []
     for k in kinds:
+        if k == "wrap":
+            built.append([])
+            continue
         glossy = bool(rng.uniform() < P.glossy_fraction)
         parts = BUILDERS[k](rng, glossy)
         lowest = min(float(p.vertices[:, 2].min()) for p in parts)
         for p in parts:  # stand exactly on z = 0 (no part sinks into the ground or floats above it)
             p.vertices = p.vertices - np.array([0.0, 0.0, lowest])
         built.append(parts)
+    for j in range(n_wraps):  # the wrap fits its target as built (local coordinates) and moves with it
+        kinds[n_t + j], built[n_t + j] = wrap_parts(kinds[j], built[j], rng)
+
+    def footprint(i: int) -> tuple[float, float]:
+        return _footprint(built[i] + built[n_t + i]) if i < n_wraps else _footprint(built[i])
 
     # placement: large things first keep the rejection sampling short; targets then occluders near the centre
     placed: list[dict[str, Any]] = []  # x, y, r, h, z, table
     order = list(range(n_t))  # targets
-    others = sorted(range(n_t, n), key=lambda i: -_footprint(built[i])[0])
+    others = sorted(range(n_t + n_wraps, n), key=lambda i: -_footprint(built[i])[0])
     big = [i for i in others if _footprint(built[i])[0] > 0.3]
     small = [i for i in others if i not in big]
     occluders = small[:n_t] if len(small) >= n_t else small
@@ -239,7 +290,7 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
         return None
 
     def place(i: int, center: tuple[float, float], radius: float, allow_table: bool) -> None:
-        r, h = _footprint(built[i])
+        r, h = footprint(i)
         spot = try_table(i, r, h) if allow_table else None
         if spot is None:
             rad = radius
@@ -278,11 +329,13 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
         place(i, (0.0, 0.0), R * 0.45, True)
     for j, i in enumerate(occluders):
         tx, ty, _ = positions[order[j % n_t]][0]
-        r_t, r_o = infos[order[j % n_t]]["r"], _footprint(built[i])[0]
+        r_t, r_o = infos[order[j % n_t]]["r"], footprint(i)[0]
         place(i, (tx, ty), r_t + r_o + 0.15, False)
     for i in rest:
         if i not in positions:
             place(i, (0.0, 0.0), R, True)
+    for j in range(n_wraps):
+        positions[n_t + j] = positions[j]
 
     objects = []
     counters: dict[str, int] = {}
@@ -478,7 +531,8 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
     """
     out = prepare_output_dir(out_dir, overwrite=overwrite)
     t0 = time.perf_counter()
-    scene = build_scene(preset, seed, n_objects=settings.n_objects, n_targets=settings.n_targets)
+    scene = build_scene(preset, seed, n_objects=settings.n_objects, n_targets=settings.n_targets,
+                        occluded=settings.occluded)
     W, H = settings.width, settings.height
     cams = training_cameras(scene, settings.train_views, W, H, fov_x_deg=settings.fov_x_deg)
     renders = render_views(scene, cams, supersample=settings.supersample, progress=progress)
@@ -506,6 +560,7 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
 
     target_records = []
     thumbs = []
+    full_tracer = None
     for k, obj in enumerate(scene.targets):
         folder = f"targets/{obj.id:02d}_{obj.name}"
         tdir = out / folder
@@ -519,12 +574,24 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
             write_image(np.concatenate([r.rgb, r.alpha[..., None]], axis=2), tdir / "test" / f"{cam.name}.png")
             write_image(r.ids, tdir / "test" / "masks" / f"{cam.name}.png")
             extra.append({"mask_path": f"test/masks/{cam.name}.png"})
+        never_seen: dict[str, Any] = {}
+        if settings.writes_never_seen:
+            full_tracer = full_tracer or _Tracer(scene, None, True)
+            ns = never_seen_masks(scene, obj.id, tcams, tr, cams, tracer=full_tracer)
+            (tdir / NEVER_SEEN_DIR).mkdir(parents=True, exist_ok=True)
+            for cam, m, e in zip(tcams, ns, extra):
+                write_image(m.astype(np.uint8) * 255, tdir / NEVER_SEEN_DIR / f"{cam.name}.png")
+                e["never_seen_path"] = f"{NEVER_SEEN_DIR}/{cam.name}.png"
+            on = int(sum(int((r.ids == obj.id).sum()) for r in tr))
+            hidden = int(sum(int(m.sum()) for m in ns))
+            never_seen = {"never_seen": NEVER_SEEN_DIR, "never_seen_share": round(hidden / max(on, 1), 6),
+                          "never_seen_pixels": hidden, "object_pixels": on}
         write_blender_transforms(tdir / "transforms_test.json", tcams, [f"test/{c.name}" for c in tcams],
                                  extra={"background": [1.0, 1.0, 1.0], "scene_bounds": scene_bounds,
                                         "object_id": obj.id, "object_name": obj.name},
                                  frame_extra=extra)
         thumbs.append(np.where(tr[0].alpha[..., None] > 0, tr[0].rgb, 1.0))
-        target_records.append({"id": obj.id, "name": obj.name, "path": folder})
+        target_records.append({"id": obj.id, "name": obj.name, "path": folder, **never_seen})
 
     target_ids = [o.id for o in scene.targets]
     write_image(overview_image([r.rgb for r in renders], [r.ids for r in renders], target_ids,
@@ -533,7 +600,7 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
     record = {
         "format": SCENE_FORMAT, "version": SCENE_FORMAT_VERSION, "generator": f"roodi-toolkit {__version__}",
         "preset": preset, "description": P.description, "seed": int(seed),
-        "settings": asdict(settings),
+        "settings": settings.record(),
         "renderer": "open3d RaycastingScene (Embree) + Lambert/Blinn-Phong, shadow rays, one mirror bounce",
         "objects": [_object_record(o) for o in scene.objects],
         "targets": target_records,
@@ -543,6 +610,15 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
                   "depth": "train/depth (uint16 z-depth / depth_scale, 0 = nothing hit)",
                   "targets": "targets/<id>_<name>/transforms_test.json (RGBA on white)", "overview": "overview.png"},
     }
+    if settings.writes_never_seen:
+        record["files"]["never_seen"] = (f"targets/<id>_<name>/{NEVER_SEEN_DIR} (uint8, 255 = the target's surface "
+                                         "at this pixel is seen by no training view)")
+        record["never_seen"] = {
+            "definition": "pixels of the object-alone test view whose pixel-centre surface point is seen by no "
+                          "training camera (outside its image, behind it, or blocked short of the point by "
+                          f"{VISIBILITY_TOLERANCE} m), by ray casting the meshes; share = never-seen pixels / "
+                          "target pixels over all test views",
+            "tolerance_m": VISIBILITY_TOLERANCE}
     write_json(record, out / SCENE_FILE)
     record["_seconds"] = time.perf_counter() - t0
     return record
@@ -554,7 +630,8 @@ def scene_from_record(record: dict[str, Any]) -> Scene:
         preset, seed, settings = record["preset"], int(record["seed"]), record.get("settings", {})
     except (KeyError, TypeError, ValueError):
         raise DatasetError("scene.json: missing 'preset' or 'seed'") from None
-    scene = build_scene(preset, seed, n_objects=settings.get("n_objects"), n_targets=settings.get("n_targets"))
+    scene = build_scene(preset, seed, n_objects=settings.get("n_objects"), n_targets=settings.get("n_targets"),
+                        occluded=bool(settings.get("occluded", False)))
     names = [o["name"] for o in record.get("objects", [])]
     if names and names != [o.name for o in scene.objects]:
         raise DatasetError("scene.json: the objects rebuilt from its preset and seed differ from the ones it lists "
