@@ -433,11 +433,11 @@ def checks(mean: dict[str, dict[str, Optional[float]]]) -> list[dict[str, Any]]:
     if full.get("ns_iou") is not None:
         for base in ("gaussian_grouping", "feature_similarity"):
             other = mean.get(base)
-            for k, unit, need in (("psnr", "dB PSNR", 1.0), ("iou", "IoU", 0.05)):
+            for k, label, need, unit in (("psnr", "PSNR", 1.0, " dB"), ("iou", "IoU", 0.05, "")):
                 if other and full.get(k) is not None and other.get(k) is not None:
                     d = full[k] - other[k]
-                    out.append({"check": f"occluded scenes: full - {SHORT[base]} {unit} >= {need:g}", "value": d,
-                                "met": d >= need})
+                    out.append({"check": f"occluded scenes: full - {SHORT[base]} {label} >= {need:g}{unit}",
+                                "value": d, "met": d >= need})
     # not checks of the issue: Gaussian Grouping with the paper's "argmax" instead of its code's selection, and what
     # ROODI's later stages add to the argmax on its own features
     for method, what in (("gaussian_grouping_argmax", "argmax on its joint features"),

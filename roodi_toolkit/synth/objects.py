@@ -658,7 +658,8 @@ def wrap_parts(kind: str, target: list[Part], rng: np.random.Generator) -> tuple
         rim = (lo[2] + frac * h - c[2]) / r  # height of the rim on the unit sphere
         sv, st = _mesh_arrays(_o3d().geometry.TriangleMesh.create_sphere(1.0, 24))
         st = st[(sv[st][:, :, 2] <= rim + 1e-9).all(axis=1)]
-        return "bowl_wrap", [Part(sv * r + c, st, mat, True)]
+        used, st = np.unique(st, return_inverse=True)  # drop the vertices above the rim (bounds, footprint)
+        return "bowl_wrap", [Part(sv[used] * r + c, st.reshape(-1, 3), mat, True)]
     wall_h = frac * h
     # every triangle that reaches below the rim: the hull of their corners holds the target's part below it
     low = np.concatenate([p.vertices[np.unique(p.triangles[p.vertices[p.triangles][:, :, 2].min(axis=1) < wall_h])]
