@@ -144,3 +144,29 @@ def test_benchmark_averages_checks_and_tables() -> None:
     plain = {**results, "mean": plain_mean, "checks": checks(plain_mean)}
     assert not any("never-seen" in c["check"] or "occluded" in c["check"] for c in plain["checks"])
     assert "never-seen region" not in results_markdown(plain).split("## Per scene")[0]
+
+
+@pytest.mark.slow  # about a minute: trains a scene and extracts four objects
+def test_benchmark_on_an_occluded_scene(tmp_path: Path) -> None:
+    from roodi_toolkit.evaluate.benchmark import BenchmarkSize, run_benchmark
+    from tests.test_benchmark import TINY
+
+    size = BenchmarkSize(size=32, train_views=10, test_views=2, iterations=40, init_points=800, cap_max=1000,
+                         supersample=1)
+    results = run_benchmark(tmp_path / "scenes", tmp_path / "bench", presets=["picnic"], size=size, config=TINY,
+                            methods=["full", "no_inpaint", "feature_similarity"], occluded=True)
+    assert (tmp_path / "scenes" / "picnic_occluded" / "scene.json").is_file()
+    per = results["scenes"]["picnic_occluded"]
+    for m in ("full", "no_inpaint", "feature_similarity"):
+        assert all("ns_iou" in o and "never_seen_share" in o for o in per[m]["objects"])
+        assert "ns_iou" in per[m]["mean"] and "ns_iou" in results["mean"][m]
+    assert any(c["check"].startswith("never-seen region") for c in results["checks"])
+    md = (tmp_path / "bench" / "results.md").read_text()
+    assert "Inside the never-seen region" in md and "Never seen in training" in md
+    assert results["occluded"] is True and results["inpainter"] == "opencv"
+
+
+def test_benchmark_command_refuses_an_unknown_inpainter(tmp_path: Path, run_cli) -> None:
+    res = run_cli("benchmark", tmp_path / "r", tmp_path / "o", "--occluded", "--inpainter", "no_such_fill", "-q")
+    assert res.exit_code == 1 and "no_such_fill" in res.stderr
+    assert not (tmp_path / "r").exists()
