@@ -509,7 +509,8 @@ def results_markdown(results: dict[str, Any]) -> str:
             lines.append(_row(METHODS[m], e["mean"])[:-1] + f"| {objs} | {e['seconds'] / 60:.1f} |")
         if any("ns_iou" in per[m]["mean"] for m in results["methods"]):
             lines += ["", "Inside the never-seen region:", "",
-                      "| Method | PSNR | SSIM | LPIPS | IoU | per object IoU |", "| --- | --- | --- | --- | --- | --- |"]
+                      "| Method | PSNR | SSIM | LPIPS | IoU | per object IoU |",
+                      "| --- | --- | --- | --- | --- | --- |"]
             for m in results["methods"]:
                 e = per[m]
                 objs = ", ".join(f"{o['object_name']} {_fmt(o.get('ns_iou'), 3)}" for o in e["objects"])
