@@ -498,8 +498,10 @@ def results_markdown(results: dict[str, Any]) -> str:
         lines += [f"### {preset}", "", f"Picture: `{per['_picture']}`", ""]
         shares = [o for o in per["full"]["objects"] if "never_seen_share" in o]
         if shares:
-            lines += ["Never seen in training (share of each target's test-view pixels): " + ", ".join(
-                f"{o['object_name']} {100 * o['never_seen_share']:.1f}%" for o in shares) + ".", ""]
+            lines += ["Never seen in training (share of each target's test-view pixels; never-seen pixels over its "
+                      "test views): " + ", ".join(
+                          f"{o['object_name']} {100 * o['never_seen_share']:.1f}%"
+                          + (f" ({o['ns_pixels']} px)" if "ns_pixels" in o else "") for o in shares) + ".", ""]
         lines += ["| Method | PSNR | SSIM | LPIPS | IoU | per object IoU | compute (min) |",
                   "| --- | --- | --- | --- | --- | --- | --- |"]
         for m in results["methods"]:
