@@ -14,11 +14,12 @@ from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.cli.main import main
 from roodi_toolkit.errors import ConfigError
 from roodi_toolkit.io.files import read_image, read_json
-from roodi_toolkit.synth.objects import PRESETS, WRAP_GAP, WRAPPABLE, Material, SceneObject, box
+from roodi_toolkit.synth.objects import PRESETS, Material, SceneObject, box
 from roodi_toolkit.synth.scene import (NEVER_SEEN_DIR, Scene, SceneSettings, build_scene, make_scene,
                                        scene_from_record, target_cameras, training_cameras)
 from roodi_toolkit.synth.tracer import _Tracer, render_views
 from roodi_toolkit.synth.visibility import VISIBILITY_TOLERANCE, never_seen_masks, seen_by_any
+from roodi_toolkit.synth.wraps import WRAP_GAP, WRAP_KINDS, WRAPPABLE
 
 # sha256 over "path=sha256;" of every file (sorted paths) of make-scene kitchen, seed 3, 48x40, 6 + 3 views,
 # supersample 1: recorded at commit 39c5420, before the occluded variant existed
@@ -122,7 +123,7 @@ def test_occluded_scene_shares_and_files(kitchen_occ: Path) -> None:
     n_t = len(scene.targets)
     for t in scene.targets:
         wrap = scene.object(t.id + n_t)
-        assert wrap.kind in ("open_box", "sleeve", "bowl_wrap") and not wrap.is_target
+        assert wrap.kind in WRAP_KINDS and not wrap.is_target
         gap = np.linalg.norm(wrap.center[:2] - t.center[:2])
         assert gap < 0.05
         assert wrap.bounds[1, 2] < t.bounds[1, 2]  # lower than the target: its top stays in view
@@ -184,7 +185,7 @@ def test_plain_presets_are_unchanged(tmp_path: Path) -> None:
     assert whole.hexdigest() == PLAIN_KITCHEN_DIGEST
     for p in PRESETS:  # the plain layouts draw nothing more than before
         plain_scene = build_scene(p, 1)
-        assert not any(o.kind in ("open_box", "sleeve", "bowl_wrap") for o in plain_scene.objects)
+        assert not any(o.kind in WRAP_KINDS for o in plain_scene.objects)
 
 
 def test_never_seen_option_on_a_plain_preset_and_errors(tmp_path: Path) -> None:

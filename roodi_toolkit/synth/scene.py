@@ -35,10 +35,11 @@ from ..errors import ConfigError, DatasetError
 from ..io.files import prepare_output_dir, write_image, write_json
 from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
 from ..progress import ProgressFactory, null_progress
-from .objects import (BUILDERS, MAX_OBJECTS, PRESETS, WRAPPABLE, Light, Part, SceneObject, _environment, _NOT_TARGETS,
-                      _rot, wrap_parts)
+from .objects import BUILDERS, MAX_OBJECTS, PRESETS, Light, Part, SceneObject, _environment, _NOT_TARGETS, _rot
+from .wraps import WRAPPABLE, wrap_parts
 from .tracer import _Tracer, render_views
-from .visibility import VISIBILITY_TOLERANCE, never_seen_masks
+from .visibility import NEVER_SEEN_DIR, never_seen_record, write_never_seen
+from .overview import overview_image
 
 __all__ = [
     "Scene",
@@ -52,8 +53,6 @@ __all__ = [
     "scene_from_record",
 ]
 
-NEVER_SEEN_DIR = "test/never_seen"
-"""Folder of a target's never-seen masks, beside its test views."""
 DEPTH_SCALE = 1e-4  # metres per 16-bit depth unit: 0.1 mm resolution, 6.5 m range (the ground is cut at that range)
 
 # kinds that cannot be targets: furniture and flat things that are scenery rather than objects to extract
@@ -103,11 +102,7 @@ class SceneSettings:
     def record(self) -> dict[str, Any]:
         """Return the settings as scene.json records them: the variant flags only when set, so a scene of the plain
         presets keeps the record (and the bytes) it had before they existed."""
-        out = asdict(self)
-        for key in ("occluded", "never_seen"):
-            if not out[key]:
-                del out[key]
-        return out
+        return {k: v for k, v in asdict(self).items() if v or k not in ("occluded", "never_seen")}
 
     def __post_init__(self) -> None:
         if not (8 <= self.width <= 8192 and 8 <= self.height <= 8192):
@@ -211,18 +206,14 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
     n = int(n_objects) if n_objects is not None else int(rng.integers(P.n_objects[0], P.n_objects[1] + 1))
     if not 5 <= n <= MAX_OBJECTS:
         raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {n}")
-    if occluded:
-        n_t = int(n_targets) if n_targets is not None else 4
-    else:
-        n_t = int(n_targets) if n_targets is not None else int(rng.integers(3, 5))
+    n_t = int(n_targets) if n_targets is not None else (4 if occluded else int(rng.integers(3, 5)))
     if not 1 <= n_t <= 4:
         raise ConfigError(f"n_targets must be 1 to 4, got {n_t}")
     n_wraps = n_t if occluded else 0  # one wrap per target, ids right after the targets'
-    if occluded:
-        if n_objects is None:
-            n = max(n, 2 * n_t)
-        elif n < 2 * n_t:
-            raise ConfigError(f"an occluded scene needs at least two objects per target (the target and its wrap): "
+    if occluded and n_objects is None:
+        n = max(n, 2 * n_t)
+    if n < n_t + n_wraps:
+        raise ConfigError(f"an occluded scene needs at least two objects per target (the target and its wrap): "
                               f"n_objects {n} < 2 x {n_t} targets")
 
     kinds_all = sorted(P.catalog)
@@ -443,61 +434,6 @@ def target_cameras(scene: Scene, target: SceneObject, n: int, width: int, height
 # ------------------------------------------------------------------------------------------------------ writing
 
 
-_OUTLINE_COLORS = [(1.0, 0.1, 0.1), (0.1, 0.9, 0.2), (0.15, 0.4, 1.0), (1.0, 0.85, 0.0)]
-
-
-def _outline(mask: np.ndarray) -> np.ndarray:
-    """Return the pixels of ``mask`` that touch a pixel outside it (4-neighbourhood), thickened by one pixel."""
-    m = np.pad(mask, 1)
-    inner = m[1:-1, 1:-1] & m[:-2, 1:-1] & m[2:, 1:-1] & m[1:-1, :-2] & m[1:-1, 2:]
-    edge = mask & ~inner
-    e = np.pad(edge, 1)
-    return e[1:-1, 1:-1] | e[:-2, 1:-1] | e[2:, 1:-1] | e[1:-1, :-2] | e[1:-1, 2:]
-
-
-def overview_image(images: Sequence[np.ndarray], masks: Sequence[np.ndarray], target_ids: Sequence[int], *,
-                   columns: int = 4, max_views: int = 12, target_thumbnails: Sequence[np.ndarray] = ()) -> np.ndarray:
-    """Return an ``[H', W', 3]`` float32 grid of views with each target's visible outline in its own colour.
-
-    Args:
-        images: ``[H, W, 3]`` float views.
-        masks: ``[H, W]`` instance ids of the views.
-        target_ids: ids to outline (colours: red, green, blue, yellow in this order).
-        columns: views per row.
-        max_views: views shown, evenly picked.
-        target_thumbnails: optional ``[H, W, 3]`` images of each target alone, shown in a last row framed in the
-            target's colour.
-    """
-    if not images:
-        raise ConfigError("overview needs at least one view")
-    idx = np.unique(np.linspace(0, len(images) - 1, min(max_views, len(images))).round().astype(int))
-    H, W = images[0].shape[:2]
-    tiles = []
-    for i in idx:
-        tile = np.asarray(images[i], dtype=np.float32).copy()
-        for k, tid in enumerate(target_ids):
-            tile[_outline(np.asarray(masks[i]) == tid)] = _OUTLINE_COLORS[k % len(_OUTLINE_COLORS)]
-        tiles.append(tile)
-    for k, thumb in enumerate(target_thumbnails):
-        tile = np.asarray(thumb, dtype=np.float32).copy()
-        frame = np.zeros((H, W), dtype=bool)
-        frame[:2], frame[-2:], frame[:, :2], frame[:, -2:] = True, True, True, True
-        tile[frame] = _OUTLINE_COLORS[k % len(_OUTLINE_COLORS)]
-        if k == 0:
-            while len(tiles) % columns:
-                tiles.append(np.ones((H, W, 3), np.float32))
-        tiles.append(tile)
-    while len(tiles) % columns:
-        tiles.append(np.ones((H, W, 3), np.float32))
-    gap = 2
-    rows = len(tiles) // columns
-    out = np.ones((rows * H + (rows - 1) * gap, columns * W + (columns - 1) * gap, 3), np.float32)
-    for j, tile in enumerate(tiles):
-        r, c = divmod(j, columns)
-        out[r * (H + gap):r * (H + gap) + H, c * (W + gap):c * (W + gap) + W] = tile
-    return out
-
-
 def _depth_png(depth: np.ndarray) -> np.ndarray:
     q = np.round(depth.astype(np.float64) / DEPTH_SCALE)
     return np.clip(q, 0, 65535).astype(np.uint16)
@@ -575,17 +511,9 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
             write_image(r.ids, tdir / "test" / "masks" / f"{cam.name}.png")
             extra.append({"mask_path": f"test/masks/{cam.name}.png"})
         never_seen: dict[str, Any] = {}
-        if settings.writes_never_seen:
+        if settings.writes_never_seen:  # the masks, and each frame's never_seen_path in ``extra``
             full_tracer = full_tracer or _Tracer(scene, None, True)
-            ns = never_seen_masks(scene, obj.id, tcams, tr, cams, tracer=full_tracer)
-            (tdir / NEVER_SEEN_DIR).mkdir(parents=True, exist_ok=True)
-            for cam, m, e in zip(tcams, ns, extra):
-                write_image(m.astype(np.uint8) * 255, tdir / NEVER_SEEN_DIR / f"{cam.name}.png")
-                e["never_seen_path"] = f"{NEVER_SEEN_DIR}/{cam.name}.png"
-            on = int(sum(int((r.ids == obj.id).sum()) for r in tr))
-            hidden = int(sum(int(m.sum()) for m in ns))
-            never_seen = {"never_seen": NEVER_SEEN_DIR, "never_seen_share": round(hidden / max(on, 1), 6),
-                          "never_seen_pixels": hidden, "object_pixels": on}
+            never_seen = write_never_seen(tdir, scene, obj.id, tcams, tr, cams, extra, full_tracer)
         write_blender_transforms(tdir / "transforms_test.json", tcams, [f"test/{c.name}" for c in tcams],
                                  extra={"background": [1.0, 1.0, 1.0], "scene_bounds": scene_bounds,
                                         "object_id": obj.id, "object_name": obj.name},
@@ -613,12 +541,7 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
     if settings.writes_never_seen:
         record["files"]["never_seen"] = (f"targets/<id>_<name>/{NEVER_SEEN_DIR} (uint8, 255 = the target's surface "
                                          "at this pixel is seen by no training view)")
-        record["never_seen"] = {
-            "definition": "pixels of the object-alone test view whose pixel-centre surface point is seen by no "
-                          "training camera (outside its image, behind it, or blocked short of the point by "
-                          f"{VISIBILITY_TOLERANCE} m), by ray casting the meshes; share = never-seen pixels / "
-                          "target pixels over all test views",
-            "tolerance_m": VISIBILITY_TOLERANCE}
+        record["never_seen"] = never_seen_record()
     write_json(record, out / SCENE_FILE)
     record["_seconds"] = time.perf_counter() - t0
     return record

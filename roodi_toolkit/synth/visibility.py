@@ -13,14 +13,19 @@ Example:
 
 from __future__ import annotations
 
-from typing import Sequence
+from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
 
 from ..cameras import Camera
 from .tracer import RenderResult, _Tracer
 
-__all__ = ["VISIBILITY_TOLERANCE", "surface_points", "seen_by_any", "never_seen_masks"]
+__all__ = ["VISIBILITY_TOLERANCE", "NEVER_SEEN_DIR", "surface_points", "seen_by_any", "never_seen_masks",
+           "write_never_seen", "never_seen_record"]
+
+NEVER_SEEN_DIR = "test/never_seen"
+"""Folder of a target's never-seen masks, beside its test views (relative to the target's folder)."""
 
 VISIBILITY_TOLERANCE = 0.001
 """Metres short of the surface point at which the segment from a training camera stops: absorbs the float32 ray
@@ -97,3 +102,31 @@ def never_seen_masks(scene, object_id: int, test_cameras: Sequence[Camera], test
             mask[on_target] = ~seen_by_any(tracer, pts, train_cameras, tolerance)
         out.append(mask)
     return out
+
+
+def write_never_seen(target_dir: Path, scene, object_id: int, test_cameras: Sequence[Camera],
+                     test_renders: Sequence[RenderResult], train_cameras: Sequence[Camera],
+                     frame_extra: Sequence[dict[str, Any]], tracer: _Tracer) -> dict[str, Any]:
+    """Write a target's never-seen masks (uint8, 255 = never seen) under ``target_dir/NEVER_SEEN_DIR``, add each
+    frame's ``never_seen_path`` to ``frame_extra``, and return the target's scene.json entries (folder, share,
+    pixel counts)."""
+    from ..io.files import write_image
+
+    masks = never_seen_masks(scene, object_id, test_cameras, test_renders, train_cameras, tracer=tracer)
+    (target_dir / NEVER_SEEN_DIR).mkdir(parents=True, exist_ok=True)
+    for cam, m, e in zip(test_cameras, masks, frame_extra):
+        write_image(m.astype(np.uint8) * 255, target_dir / NEVER_SEEN_DIR / f"{cam.name}.png")
+        e["never_seen_path"] = f"{NEVER_SEEN_DIR}/{cam.name}.png"
+    on = int(sum(int((r.ids == object_id).sum()) for r in test_renders))
+    hidden = int(sum(int(m.sum()) for m in masks))
+    return {"never_seen": NEVER_SEEN_DIR, "never_seen_share": round(hidden / max(on, 1), 6),
+            "never_seen_pixels": hidden, "object_pixels": on}
+
+
+def never_seen_record() -> dict[str, Any]:
+    """Return scene.json's description of the never-seen masks."""
+    return {"definition": "pixels of the object-alone test view whose pixel-centre surface point is seen by no "
+                          "training camera (outside its image, behind it, or blocked short of the point by "
+                          f"{VISIBILITY_TOLERANCE} m), by ray casting the meshes; share = never-seen pixels / "
+                          "target pixels over all test views",
+            "tolerance_m": VISIBILITY_TOLERANCE}
