@@ -170,3 +170,21 @@ def test_benchmark_command_refuses_an_unknown_inpainter(tmp_path: Path, run_cli)
     res = run_cli("benchmark", tmp_path / "r", tmp_path / "o", "--occluded", "--inpainter", "no_such_fill", "-q")
     assert res.exit_code == 1 and "no_such_fill" in res.stderr
     assert not (tmp_path / "r").exists()
+
+
+def test_region_lpips_sees_only_the_region() -> None:
+    import torch
+
+    def l1(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:  # stands in for LPIPS: [1] mean absolute difference
+        return (x - y).abs().mean(dim=(1, 2, 3))
+
+    rng = np.random.default_rng(2)
+    truth = rng.uniform(size=(32, 32, 3)).astype(np.float32)
+    alpha = np.ones((32, 32), np.float32)
+    region = _region()
+    outside = truth.copy()
+    outside[~region] = 0.0  # wrong everywhere but in the region
+    assert region_scores(outside, alpha, truth, alpha, region, l1)["ns_lpips"] == 0.0
+    inside = truth.copy()
+    inside[region] = np.clip(truth[region] + 0.5, 0, 1)
+    assert region_scores(inside, alpha, truth, alpha, region, l1)["ns_lpips"] > 0.05
