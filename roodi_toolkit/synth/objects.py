@@ -585,4 +585,3 @@ def _environment(P: Preset, rng: np.random.Generator) -> tuple[Part, list[Light]
         ambient = (0.32, 0.31, 0.3)
         sky = ((0.72, 0.7, 0.66), (0.9, 0.89, 0.86))
     return Part(gv, gt[keep], mat, False), lights, ambient, sky
-
