@@ -191,8 +191,8 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
             ``occluded``).
         n_targets: target count (1 to 4), default 3 or 4 (4 when ``occluded``).
         occluded: the occluded variant: targets are drawn from the compact kinds
-            (:data:`~roodi_toolkit.synth.objects.WRAPPABLE`) and each stands in a wrap that touches it (a box or
-            sleeve open at the top, or a bowl: :func:`~roodi_toolkit.synth.objects.wrap_parts`), an object of its
+            (:data:`~roodi_toolkit.synth.wraps.WRAPPABLE`) and each stands in a wrap that touches it (a box or
+            sleeve open at the top, or a bowl: :func:`~roodi_toolkit.synth.wraps.wrap_parts`), an object of its
             own placed right after the targets (ids ``n_targets + 1 ...``), which hides the target's lower part from
             every training camera. Without it the scene is the same as before the variant existed, bit for bit.
 
