@@ -36,6 +36,9 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
 
     PSNR, SSIM and LPIPS inside 1.2x the true object's tight bounding box, and IoU of the rendered alpha, on a
     white background, averaged over the target's test views. LPIPS is reported as unavailable without local weights.
+    When DATA_DIR has never-seen masks (make-scene --occluded / --never-seen) the same metrics are also given inside
+    each view's never-seen region (PSNR over its pixels, the SSIM map averaged over it, IoU of alpha > 0.5 counting
+    its pixels only, LPIPS of its box with the render pasted into the truth inside it).
     """
     import numpy as np
 
@@ -69,3 +72,11 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     lp = f"{ev.lpips:.4f}" if ev.lpips is not None else f"unavailable ({ev.lpips_status.removeprefix('unavailable: ')})"
     click.echo(f"{ev.object_name} (id {ev.object_id}), {len(ev.views)} views: PSNR {ev.psnr:.2f} dB, "
                f"SSIM {ev.ssim:.4f}, LPIPS {lp}, IoU {ev.iou:.4f}")
+    if ev.never_seen:
+        with_region = sum(v.ns_pixels > 0 for v in ev.views)
+        if ev.ns_iou is None:
+            click.echo(f"never-seen region: none in these {len(ev.views)} views")
+        else:
+            ns_lp = f"{ev.ns_lpips:.4f}" if ev.ns_lpips is not None else "unavailable"
+            click.echo(f"never-seen region ({with_region} views, {sum(v.ns_pixels for v in ev.views)} pixels): "
+                       f"PSNR {ev.ns_psnr:.2f} dB, SSIM {ev.ns_ssim:.4f}, LPIPS {ns_lp}, IoU {ev.ns_iou:.4f}")

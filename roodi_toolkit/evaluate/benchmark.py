@@ -28,6 +28,13 @@ that fails (for example no Gaussian passes the selection) is scored as an empty 
 the method instead of vanishing from its average.
 
 Every stage's result stays in ``OUT``; a re-run reuses the scenes, trained models, extracted objects and scores.
+
+With ``occluded=True`` (``benchmark --occluded``) the scenes are the presets' occluded variants
+(``make-scene --occluded``, in ``ROOT/<preset>_occluded``): every target stands in a wrap that hides its lower part
+from all training views. Their targets have never-seen masks, and every method is also scored inside that region
+(:func:`roodi_toolkit.evaluate.metrics.region_scores`: PSNR, SSIM, IoU and, with weights, LPIPS), in a table of its
+own with the issue's checks (full against "w/o inpainting" inside the region, full against the baselines on the box
+metrics).
 """
 
 from __future__ import annotations
@@ -75,6 +82,13 @@ MODEL_OF = {"gaussian_grouping": "no_two_stage", "gaussian_grouping_argmax": "no
             "no_inpaint": "full", "no_prune": "full", "euclidean": "full", "paper_rule": "full"}
 ABLATIONS = ("no_two_stage", "no_inpaint", "no_prune", "euclidean", "paper_rule")
 METRICS = ("psnr", "ssim", "lpips", "iou")
+REGION_METRICS = ("ns_psnr", "ns_ssim", "ns_lpips", "ns_iou")  # inside the never-seen region (occluded scenes)
+OCCLUDED_SUFFIX = "_occluded"
+
+
+def scene_name(preset: str, occluded: bool = False) -> str:
+    """Return the folder (and results key) of a preset's scene: ``kitchen`` or ``kitchen_occluded``."""
+    return preset + OCCLUDED_SUFFIX if occluded else preset
 
 # The paper's Tables 1 and 2 (PSNR, SSIM, LPIPS, IoU), for reference beside ours.
 PAPER_TABLE1 = {
@@ -157,36 +171,40 @@ def method_config(method: str, base: ExtractConfig) -> ExtractConfig:
 def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
     """Return the metrics of an empty extraction (a white render, no coverage)."""
     from ..io.dataset import load_dataset
-    from .metrics import Evaluation, find_target, score_views
+    from .metrics import Evaluation, find_target, load_never_seen, score_views
 
     folder, name = find_target(data_dir, object_id)
     truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
     n = len(truth)
     white = np.ones((n, truth.height, truth.width, 3), np.float32)
+    never_seen = load_never_seen(data_dir, object_id, truth.names)
     views = score_views(white, np.zeros((n, truth.height, truth.width), np.float32), truth.images.numpy(),
-                        truth.alphas.numpy(), truth.names)
-    return Evaluation.from_views(object_id, name, views, lpips_status="not computed: empty extraction").to_dict(
-        per_view=False)
+                        truth.alphas.numpy(), truth.names, never_seen=never_seen)
+    return Evaluation.from_views(object_id, name, views, lpips_status="not computed: empty extraction",
+                                 never_seen=never_seen is not None).to_dict(per_view=False)
 
 
 def _targets(data_dir: Path) -> list[dict[str, Any]]:
     from ..io.generated import read_scene_record
 
     record = read_scene_record(data_dir)
-    return [{"id": int(t["id"]), "name": str(t["name"])} for t in record["targets"]]
+    return [{"id": int(t["id"]), "name": str(t["name"]),
+             **({"never_seen_share": float(t["never_seen_share"])} if "never_seen_share" in t else {})}
+            for t in record["targets"]]
 
 
-def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: ProgressFactory) -> Path:
+def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: ProgressFactory,
+           occluded: bool = False) -> Path:
     from ..synth.scene import SceneSettings, make_scene
 
-    data = root / preset
+    data = root / scene_name(preset, occluded)
     if (data / "scene.json").is_file():  # reused as it is; its own settings are reported in results["scene_settings"]
         return data
     if data.exists() and any(data.iterdir()):
         raise ConfigError(f"{data} exists but holds no scene.json; remove it or choose another ROOT (the benchmark "
                           "generates its scenes there and never writes over other files)")
     settings = SceneSettings(width=size.size, height=size.size, train_views=size.train_views,
-                             test_views=size.test_views, supersample=size.supersample)
+                             test_views=size.test_views, supersample=size.supersample, occluded=occluded)
     make_scene(data, preset, seed, settings=settings, progress=progress)
     return data
 
@@ -255,7 +273,8 @@ def _fingerprint(ply: Path, data: Path, renderer: Renderer) -> str:
 def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[str] = PRESETS, seed: int = 0,
                   size: BenchmarkSize = MACHINE_SIZE, methods: Sequence[str] = tuple(METHODS),
                   config: ExtractConfig | None = None, overwrite: bool = False,
-                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> dict[str, Any]:
+                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
+                  occluded: bool = False) -> dict[str, Any]:
     """Run every method on every preset scene; write ``results.json``, ``results.md`` and a picture grid per scene
     into ``out_dir``; return the results.
 
@@ -271,6 +290,8 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
         overwrite: start afresh in ``out_dir``.
         progress: progress factory.
         renderer: every rendering of every method, training included (default: the built-in CPU renderer).
+        occluded: run on the presets' occluded variants (``ROOT/<preset>_occluded``) and score the never-seen
+            region too.
     """
     from ..io import files
     from ..io.generated import read_scene_record
@@ -297,13 +318,17 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     config = config or extract_config(size, seed)
     renderer = resolve_renderer(renderer)
     results: dict[str, Any] = {"root": str(root), "seed": seed, "size": asdict(size), "methods": methods,
-                               "iterations": config.train.iterations, "labels": {m: METHODS[m] for m in methods}, "scenes": {}}
+                               "iterations": config.train.iterations, "labels": {m: METHODS[m] for m in methods},
+                               "scenes": {}, "inpainter": config.inpainter}
+    if occluded:
+        results["occluded"] = True
+    names = [scene_name(p, occluded) for p in presets]
     recomputed: dict[str, str] = {}
     results["recomputed"] = recomputed
     t_all = time.perf_counter()
-    for preset in presets:
-        data = _scene(root, preset, seed, size, progress)
-        scene_out = out / preset
+    for preset, name in zip(presets, names):
+        data = _scene(root, preset, seed, size, progress, occluded)
+        scene_out = out / name
         scene_out.mkdir(parents=True, exist_ok=True)
         scores_path = scene_out / "scores.json"
         if scores_path.is_file() and not overwrite:
@@ -316,7 +341,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
             rows = []
             pictures[method] = {}
             for target in _targets(data):
-                key = f"{preset}/{method}/{target['id']}"
+                key = f"{name}/{method}/{target['id']}"
                 mout = scene_out / method
                 t = time.perf_counter()
                 try:
@@ -333,6 +358,9 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                         # the object or the scene changed since (other settings): the old score is not this one's
                         recomputed[key] = "the object or scene differs from the one scored before"
                         cache.pop(key)
+                    if key in cache and "never_seen_share" in target and "ns_iou" not in cache[key]:
+                        recomputed[key] = "scored before the never-seen region was"
+                        cache.pop(key)
                     if key in cache:  # scored by an earlier run: render the picture's view only
                         row, renders = cache[key], evaluate_object(cloud, data, target["id"], max_views=1,
                                                                    renderer=renderer)[1]
@@ -345,16 +373,18 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                 except RoodiError as exc:
                     row = cache.get(key) or {**_empty_scores(data, target["id"]), "failed": str(exc), "gaussians": 0,
                                              "seconds": time.perf_counter() - t}
+                if "never_seen_share" in target:
+                    row["never_seen_share"] = target["never_seen_share"]
                 cache[key] = row
                 rows.append(row)
-                files.write_json({k: v for k, v in cache.items() if k.startswith(f"{preset}/")}, scores_path)
+                files.write_json({k: v for k, v in cache.items() if k.startswith(f"{name}/")}, scores_path)
             # seconds of the first run that computed each object (training included where the method trains)
             per_method[method] = {"objects": rows, "mean": _average(rows),
                                   "seconds": float(sum(r.get("seconds", 0.0) for r in rows))}
-        results["scenes"][preset] = {m: per_method[m] for m in methods}
-        results.setdefault("scene_settings", {})[preset] = read_scene_record(data)["settings"]
-        results["scenes"][preset]["_picture"] = str(_scene_grid(data, preset, methods, pictures, out))
-    results["mean"] = {m: _average([results["scenes"][p][m]["mean"] for p in presets]) for m in methods}
+        results["scenes"][name] = {m: per_method[m] for m in methods}
+        results.setdefault("scene_settings", {})[name] = read_scene_record(data)["settings"]
+        results["scenes"][name]["_picture"] = str(_scene_grid(data, name, methods, pictures, out))
+    results["mean"] = {m: _average([results["scenes"][p][m]["mean"] for p in names]) for m in methods}
     results["checks"] = checks(results["mean"])
     results["seconds"] = time.perf_counter() - t_all
     files.write_json(results, out / "results.json")
@@ -363,10 +393,16 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
 
 
 def _average(rows: Sequence[dict[str, Any]]) -> dict[str, Optional[float]]:
+    """Mean of each box metric over ``rows`` (None unless every row has it) and, where any row has them, of each
+    never-seen region metric over the rows that have one (objects or scenes without never-seen pixels have none)."""
     out: dict[str, Optional[float]] = {}
     for k in METRICS:
         vals = [r[k] for r in rows if r.get(k) is not None and not math.isnan(r[k])]
         out[k] = float(np.mean(vals)) if vals and len(vals) == len(rows) else None
+    if any(k in r for r in rows for k in REGION_METRICS):
+        for k in REGION_METRICS:
+            vals = [r[k] for r in rows if r.get(k) is not None and not math.isnan(r[k])]
+            out[k] = float(np.mean(vals)) if vals else None
     return out
 
 
@@ -386,6 +422,22 @@ def checks(mean: dict[str, dict[str, Optional[float]]]) -> list[dict[str, Any]]:
         if a in mean and mean[a].get("iou") is not None and full.get("iou") is not None:
             d = full["iou"] - mean[a]["iou"]
             out.append({"check": f"{METHODS[a]} IoU below full", "value": d, "met": d > 0})
+    # issue 22, on scenes with never-seen regions: the fill must show where only it can, and beat the baselines
+    no_inp = mean.get("no_inpaint")
+    if no_inp and full.get("ns_iou") is not None and no_inp.get("ns_iou") is not None:
+        d = full["ns_iou"] - no_inp["ns_iou"]
+        out.append({"check": "never-seen region: full - w/o inpainting IoU >= 0.05", "value": d, "met": d >= 0.05})
+    if no_inp and full.get("ns_psnr") is not None and no_inp.get("ns_psnr") is not None:
+        d = full["ns_psnr"] - no_inp["ns_psnr"]
+        out.append({"check": "never-seen region: full - w/o inpainting PSNR >= 2 dB", "value": d, "met": d >= 2.0})
+    if full.get("ns_iou") is not None:
+        for base in ("gaussian_grouping", "feature_similarity"):
+            other = mean.get(base)
+            for k, label, need, unit in (("psnr", "PSNR", 1.0, " dB"), ("iou", "IoU", 0.05, "")):
+                if other and full.get(k) is not None and other.get(k) is not None:
+                    d = full[k] - other[k]
+                    out.append({"check": f"occluded scenes: full - {SHORT[base]} {label} >= {need:g}{unit}",
+                                "value": d, "met": d >= need})
     # not checks of the issue: Gaussian Grouping with the paper's "argmax" instead of its code's selection, and what
     # ROODI's later stages add to the argmax on its own features
     for method, what in (("gaussian_grouping_argmax", "argmax on its joint features"),
@@ -402,9 +454,13 @@ def _fmt(v: Optional[float], digits: int = 4) -> str:
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
-def _row(label: str, m: dict[str, Optional[float]]) -> str:
-    return (f"| {label} | {_fmt(m.get('psnr'), 2)} | {_fmt(m.get('ssim'))} | {_fmt(m.get('lpips'))} | "
-            f"{_fmt(m.get('iou'))} |")
+def _row(label: str, m: dict[str, Optional[float]], prefix: str = "") -> str:
+    return (f"| {label} | {_fmt(m.get(prefix + 'psnr'), 2)} | {_fmt(m.get(prefix + 'ssim'))} | "
+            f"{_fmt(m.get(prefix + 'lpips'))} | {_fmt(m.get(prefix + 'iou'))} |")
+
+
+def _has_region(results: dict[str, Any]) -> bool:
+    return any("ns_iou" in m for m in results["mean"].values())
 
 
 def results_markdown(results: dict[str, Any]) -> str:
@@ -426,19 +482,41 @@ def results_markdown(results: dict[str, Any]) -> str:
     lines += [_row(METHODS[m], mean[m]) for m in (*ABLATIONS, "full") if m in mean]
     lines += ["", "The paper's Table 2:", "", head]
     lines += [_row(k, dict(zip(METRICS, v))) for k, v in PAPER_TABLE2.items()]
+    if _has_region(results):
+        lines += ["", "## Inside the never-seen region (occluded scenes)", "",
+                  "Each test view's pixels whose surface no training view sees (`make-scene --occluded`). PSNR over "
+                  "the region's pixels; SSIM: the whole view's SSIM map averaged over the region; IoU: alpha > 0.5 "
+                  "against the true alpha > 0.5 counting only the region's pixels; LPIPS: the 1.2x box around the "
+                  "region with the render pasted into the truth inside the region only. Means over the views with a "
+                  f"region, then objects, then scenes. Inpainter: `{results.get('inpainter', 'opencv')}`.", "", head]
+        lines += [_row(METHODS[m], mean[m], "ns_") for m in (*COMPARISON, *ABLATIONS) if m in mean]
     lines += ["", "## Checks", "", "| check | value | met |", "| --- | --- | --- |"]
     lines += [f"| {c['check']} | {c['value']:+.4f} | {'-' if c['met'] is None else 'yes' if c['met'] else 'no'} |"
               for c in results["checks"]]
     lines += ["", "## Per scene", ""]
     for preset, per in results["scenes"].items():
-        lines += [f"### {preset}", "", f"Picture: `{per['_picture']}`", "",
-                  "| Method | PSNR | SSIM | LPIPS | IoU | per object IoU | compute (min) |",
+        lines += [f"### {preset}", "", f"Picture: `{per['_picture']}`", ""]
+        shares = [o for o in per["full"]["objects"] if "never_seen_share" in o]
+        if shares:
+            lines += ["Never seen in training (share of each target's test-view pixels; never-seen pixels over its "
+                      "test views): " + ", ".join(
+                          f"{o['object_name']} {100 * o['never_seen_share']:.1f}%"
+                          + (f" ({o['ns_pixels']} px)" if "ns_pixels" in o else "") for o in shares) + ".", ""]
+        lines += ["| Method | PSNR | SSIM | LPIPS | IoU | per object IoU | compute (min) |",
                   "| --- | --- | --- | --- | --- | --- | --- |"]
         for m in results["methods"]:
             e = per[m]
             objs = ", ".join(f"{o['object_name']} {o['iou']:.3f}{' (failed)' if 'failed' in o else ''}"
                              for o in e["objects"])
             lines.append(_row(METHODS[m], e["mean"])[:-1] + f"| {objs} | {e['seconds'] / 60:.1f} |")
+        if any("ns_iou" in per[m]["mean"] for m in results["methods"]):
+            lines += ["", "Inside the never-seen region:", "",
+                      "| Method | PSNR | SSIM | LPIPS | IoU | per object IoU |",
+                      "| --- | --- | --- | --- | --- | --- |"]
+            for m in results["methods"]:
+                e = per[m]
+                objs = ", ".join(f"{o['object_name']} {_fmt(o.get('ns_iou'), 3)}" for o in e["objects"])
+                lines.append(_row(METHODS[m], e["mean"], "ns_") + f" {objs} |")
         lines.append("")
     return "\n".join(lines) + "\n"
 

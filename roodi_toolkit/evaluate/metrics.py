@@ -4,6 +4,19 @@ of the true object, and IoU of the rendered alpha against the true alpha.
 The extracted object is rendered from the target's test cameras on a white background, as the ground truth views of
 the object alone are. LPIPS needs weights on this machine (:mod:`roodi_toolkit.evaluate.lpips`); without them it is reported
 as unavailable (``None``), never replaced by another number.
+
+Where the scene has never-seen masks (``make-scene --occluded`` or ``--never-seen``: the pixels of each test view whose
+surface no training view sees, :mod:`roodi_toolkit.synth.visibility`), the same metrics are also computed inside that
+region R of each view (:func:`region_scores`), where a method can only have guessed:
+
+- PSNR: 10 log10(1 / MSE) with the MSE over the pixels of R (all three channels); inf when they are identical.
+- SSIM: the SSIM map of the whole view (kornia, 11-pixel Gaussian window, channels averaged) averaged over R.
+- IoU: rendered alpha > 0.5 against true alpha > 0.5, counting only the pixels of R:
+  |pred & true & R| / |(pred | true) & R| (R lies on the true object, so this is close to the share of R covered).
+- LPIPS: of the 1.2x box around R, between the truth with the render pasted into it inside R only, and the truth
+  (so only what the method drew inside R differs).
+
+Views whose R is empty have no region scores; an object's region scores are means over its views that have one.
 """
 
 from __future__ import annotations
@@ -86,15 +99,25 @@ def lpips_crop(model: Any, a: np.ndarray, b: np.ndarray) -> float:
         return float(model(x, y)[0])
 
 
+REGION_METRICS = ("ns_psnr", "ns_ssim", "ns_lpips", "ns_iou")
+"""The never-seen region's metrics (keys in :class:`ViewScores`, :class:`Evaluation` and the benchmark's rows)."""
+
+
 @dataclass
 class ViewScores:
-    """The paper's metrics for one test view (crop-based ones are None when the true object is not in view)."""
+    """The paper's metrics for one test view (crop-based ones are None when the true object is not in view), and
+    those inside the view's never-seen region (None when the view has none, or the scene no masks)."""
 
     name: str
     psnr: Optional[float]
     ssim: Optional[float]
     lpips: Optional[float]
     iou: float
+    ns_psnr: Optional[float] = None
+    ns_ssim: Optional[float] = None
+    ns_lpips: Optional[float] = None
+    ns_iou: Optional[float] = None
+    ns_pixels: int = 0
 
 
 @dataclass
@@ -107,6 +130,8 @@ class Evaluation:
         views: per-view scores.
         psnr, ssim, lpips, iou: means over the views (lpips None when unavailable).
         lpips_status: ``"ok"`` or why LPIPS is unavailable.
+        never_seen: whether the scene has never-seen masks (then ``ns_*`` are the region's means, None where no view
+            has a never-seen pixel).
     """
 
     object_id: int
@@ -117,30 +142,122 @@ class Evaluation:
     lpips: Optional[float] = None
     iou: float = float("nan")
     lpips_status: str = "ok"
+    never_seen: bool = False
+    ns_psnr: Optional[float] = None
+    ns_ssim: Optional[float] = None
+    ns_lpips: Optional[float] = None
+    ns_iou: Optional[float] = None
 
     @classmethod
     def from_views(cls, object_id: int, object_name: str, views: list[ViewScores],
-                   lpips_status: str = "ok") -> "Evaluation":
+                   lpips_status: str = "ok", never_seen: bool = False) -> "Evaluation":
         """Return the evaluation averaging ``views`` (crop metrics over the views that have them; LPIPS only when
-        ``lpips_status`` is ``"ok"``)."""
+        ``lpips_status`` is ``"ok"``; region metrics over the views with a never-seen region)."""
         nan = float("nan")
         mean_psnr, mean_ssim = _mean([v.psnr for v in views]), _mean([v.ssim for v in views])
+        ok = lpips_status == "ok"
         return cls(object_id, object_name, views, psnr=nan if mean_psnr is None else mean_psnr,
                    ssim=nan if mean_ssim is None else mean_ssim,
-                   lpips=_mean([v.lpips for v in views]) if lpips_status == "ok" else None,
-                   iou=float(np.mean([v.iou for v in views])), lpips_status=lpips_status)
+                   lpips=_mean([v.lpips for v in views]) if ok else None,
+                   iou=float(np.mean([v.iou for v in views])), lpips_status=lpips_status, never_seen=never_seen,
+                   ns_psnr=_mean([v.ns_psnr for v in views]), ns_ssim=_mean([v.ns_ssim for v in views]),
+                   ns_lpips=_mean([v.ns_lpips for v in views]) if ok else None,
+                   ns_iou=_mean([v.ns_iou for v in views]))
 
     def to_dict(self, per_view: bool = True) -> dict[str, Any]:
         out = {"object_id": self.object_id, "object_name": self.object_name, "psnr": self.psnr, "ssim": self.ssim,
                "lpips": self.lpips, "iou": self.iou, "lpips_status": self.lpips_status,
                "views": len(self.views)}
+        if self.never_seen:  # only for scenes with masks: other scenes' records stay as they were
+            out.update({k: getattr(self, k) for k in REGION_METRICS})
+            out["ns_pixels"] = int(sum(v.ns_pixels for v in self.views))
+            out["ns_views"] = int(sum(v.ns_pixels > 0 for v in self.views))
         if per_view:
-            out["per_view"] = [v.__dict__ for v in self.views]
+            keep = (lambda k: True) if self.never_seen else (lambda k: not k.startswith("ns_"))
+            out["per_view"] = [{k: x for k, x in v.__dict__.items() if keep(k)} for v in self.views]
         return out
 
 
+def region_scores(render: np.ndarray, alpha: np.ndarray, truth: np.ndarray, truth_alpha: np.ndarray,
+                  region: np.ndarray, lpips_model: Any = None) -> dict[str, Any]:
+    """Return PSNR, SSIM, IoU (and LPIPS with a model) of one view inside ``region`` (see the module's definitions).
+
+    Args:
+        render: ``[H, W, 3]`` the extracted object on white, in [0, 1].
+        alpha: ``[H, W]`` its alpha.
+        truth: ``[H, W, 3]`` the true object alone on white.
+        truth_alpha: ``[H, W]`` its alpha.
+        region: ``[H, W]`` bool, the never-seen pixels.
+        lpips_model: an LPIPS module, or None.
+
+    Returns:
+        ``{"ns_psnr", "ns_ssim", "ns_lpips", "ns_iou", "ns_pixels"}``; all None (and 0 pixels) for an empty region.
+
+    Example:
+        >>> t = np.ones((16, 16, 3)); r = t.copy(); m = np.zeros((16, 16), bool); m[4:8, 4:8] = True
+        >>> r[m] = 0.9  # a difference of 0.1 in the region: MSE 0.01, 20 dB
+        >>> round(region_scores(r, np.ones((16, 16)), t, np.ones((16, 16)), m)["ns_psnr"], 6)
+        20.0
+    """
+    import kornia
+
+    region = np.asarray(region, dtype=bool)
+    n = int(region.sum())
+    if n == 0:
+        return {"ns_psnr": None, "ns_ssim": None, "ns_lpips": None, "ns_iou": None, "ns_pixels": 0}
+    a = np.clip(np.asarray(render, dtype=np.float64), 0, 1)
+    b = np.asarray(truth, dtype=np.float64)
+    mse = float(((a[region] - b[region]) ** 2).mean())
+    region_psnr = float("inf") if mse == 0 else 10.0 * math.log10(1.0 / mse)
+    x = torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32).permute(2, 0, 1)[None]
+    y = torch.as_tensor(np.ascontiguousarray(b), dtype=torch.float32).permute(2, 0, 1)[None]
+    win = min(11, min(region.shape))
+    win = win if win % 2 == 1 else win - 1
+    ssim_map = kornia.metrics.ssim(x, y, max(win, 1))[0].mean(dim=0).numpy()  # [H, W]
+    pred, true = np.asarray(alpha) > ALPHA_THRESHOLD, np.asarray(truth_alpha) > ALPHA_THRESHOLD
+    union = int(((pred | true) & region).sum())
+    region_iou = 1.0 if union == 0 else float((pred & true & region).sum() / union)
+    region_lpips = None
+    if lpips_model is not None:
+        y0, y1, x0, x1 = box_around(region.astype(np.float32))
+        pasted = np.where(region[..., None], a, b)
+        region_lpips = lpips_crop(lpips_model, pasted[y0:y1, x0:x1].astype(np.float32),
+                                  b[y0:y1, x0:x1].astype(np.float32))
+    return {"ns_psnr": region_psnr, "ns_ssim": float(ssim_map[region].mean()), "ns_lpips": region_lpips,
+            "ns_iou": region_iou, "ns_pixels": n}
+
+
+def load_never_seen(data_dir: str | Path, object_id: int, names: Sequence[str]) -> np.ndarray | None:
+    """Return ``[N, H, W]`` bool never-seen masks of target ``object_id``'s test views ``names``, or None when the
+    scene has none (made without ``--occluded`` / ``--never-seen``).
+
+    Raises:
+        DatasetError: scene.json names masks that are missing or unreadable.
+    """
+    from ..io.files import read_image
+    from ..io.generated import read_scene_record
+    from ..errors import RoodiError
+
+    root = Path(data_dir)
+    target = {int(t["id"]): t for t in read_scene_record(root).get("targets", [])}.get(int(object_id))
+    if target is None or "never_seen" not in target:
+        return None
+    folder = root / target["path"] / str(target["never_seen"])
+    masks = []
+    for name in names:
+        path = folder / f"{Path(name).name}.png"
+        try:
+            m = read_image(path)
+        except (RoodiError, OSError) as exc:
+            raise DatasetError(f"{path}: cannot read the never-seen mask named by scene.json ({exc}); regenerate the "
+                               "scene with make-scene") from None
+        masks.append(np.asarray(m).reshape(m.shape[0], m.shape[1], -1)[..., 0] > 127)
+    return np.stack(masks)
+
+
 def score_views(renders: np.ndarray, alphas: np.ndarray, truth: np.ndarray, truth_alpha: np.ndarray,
-                names: Sequence[str], lpips_model: Any = None) -> list[ViewScores]:
+                names: Sequence[str], lpips_model: Any = None,
+                never_seen: np.ndarray | None = None) -> list[ViewScores]:
     """Return per-view scores of renders against the true object-alone views.
 
     Args:
@@ -150,18 +267,21 @@ def score_views(renders: np.ndarray, alphas: np.ndarray, truth: np.ndarray, trut
         truth_alpha: ``[N, H, W]`` the true object's alpha.
         names: the views' names.
         lpips_model: an LPIPS module, or None when unavailable.
+        never_seen: ``[N, H, W]`` bool never-seen masks (:func:`load_never_seen`), or None.
     """
     scores = []
     for i, name in enumerate(names):
         box = box_around(truth_alpha[i])
         view_iou = iou(alphas[i], truth_alpha[i])
+        region = {} if never_seen is None else region_scores(renders[i], alphas[i], truth[i], truth_alpha[i],
+                                                             never_seen[i], lpips_model)
         if box is None:
-            scores.append(ViewScores(name, None, None, None, view_iou))
+            scores.append(ViewScores(name, None, None, None, view_iou, **region))
             continue
         y0, y1, x0, x1 = box
         a, b = np.clip(renders[i, y0:y1, x0:x1], 0, 1), truth[i, y0:y1, x0:x1]
         scores.append(ViewScores(name, psnr(a, b), float(ssim(a, b)),
-                                 None if lpips_model is None else lpips_crop(lpips_model, a, b), view_iou))
+                                 None if lpips_model is None else lpips_crop(lpips_model, a, b), view_iou, **region))
     return scores
 
 
@@ -233,6 +353,11 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
             alphas.append(out.alpha[..., 0].numpy())
             bar.update(1)
     renders_np, alphas_np = np.stack(renders), np.stack(alphas)
+    never_seen = load_never_seen(data_dir, object_id, truth.names[:count])
+    if never_seen is not None and never_seen.shape[1:] != alphas_np.shape[1:]:
+        raise DatasetError(f"{folder}: the never-seen masks are {never_seen.shape[2]}x{never_seen.shape[1]} but the "
+                           f"test views {alphas_np.shape[2]}x{alphas_np.shape[1]}; regenerate the scene")
     views = score_views(renders_np, alphas_np, truth.images[:count].numpy(), truth.alphas[:count].numpy(),
-                        truth.names[:count], lpips_model)
-    return Evaluation.from_views(object_id, name, views, lpips_status=status), renders_np
+                        truth.names[:count], lpips_model, never_seen)
+    return Evaluation.from_views(object_id, name, views, lpips_status=status,
+                                 never_seen=never_seen is not None), renders_np

@@ -14,6 +14,8 @@ Layout of a generated scene (``OUT_DIR``)::
     train/masks/r_000.png ...       8-bit instance ids (0 = ground / background, objects 1..N)
     train/depth/r_000.png ...       16-bit z-depth times ``depth_scale`` (0 = nothing hit)
     targets/03_mug/transforms_test.json, test/r_000.png (RGBA on white), test/masks/r_000.png
+    targets/03_mug/test/never_seen/r_000.png   with --occluded or --never-seen: 255 where no training view sees
+                                    the target's surface (:mod:`roodi_toolkit.synth.visibility`)
     overview.png                    a grid of training views with the targets outlined
 """
 
@@ -34,7 +36,10 @@ from ..io.files import prepare_output_dir, write_image, write_json
 from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
 from ..progress import ProgressFactory, null_progress
 from .objects import BUILDERS, MAX_OBJECTS, PRESETS, Light, Part, SceneObject, _environment, _NOT_TARGETS, _rot
-from .tracer import render_views
+from .wraps import WRAPPABLE, wrap_parts
+from .tracer import _Tracer, render_views
+from .visibility import NEVER_SEEN_DIR, never_seen_record, write_never_seen
+from .overview import overview_image
 
 __all__ = [
     "Scene",
@@ -71,6 +76,10 @@ class SceneSettings:
             training views' hemisphere, at their distance, aimed at the target, so the object is as large as in
             training and anything kept elsewhere in the scene, such as floaters, shows in the view) or ``"object"``
             (close-ups in which the target fills the frame: a stricter test of the object's detail).
+        occluded: the occluded variant of the preset: every target stands in a wrap that hides its lower part from
+            every training view (:func:`build_scene`); implies ``never_seen``.
+        never_seen: write each target's never-seen masks (its test views' pixels that no training view sees,
+            :mod:`roodi_toolkit.synth.visibility`) and their share in scene.json.
     """
 
     width: int = 200
@@ -82,6 +91,18 @@ class SceneSettings:
     n_targets: int | None = None
     n_objects: int | None = None
     test_framing: str = "scene"
+    occluded: bool = False
+    never_seen: bool = False
+
+    @property
+    def writes_never_seen(self) -> bool:
+        """Whether make-scene computes and writes the never-seen masks."""
+        return self.occluded or self.never_seen
+
+    def record(self) -> dict[str, Any]:
+        """Return the settings as scene.json records them: the variant flags only when set, so a scene of the plain
+        presets keeps the record (and the bytes) it had before they existed."""
+        return {k: v for k, v in asdict(self).items() if v or k not in ("occluded", "never_seen")}
 
     def __post_init__(self) -> None:
         if not (8 <= self.width <= 8192 and 8 <= self.height <= 8192):
@@ -157,7 +178,7 @@ def _transform(parts: list[Part], yaw: float, at: np.ndarray) -> list[Part]:
 
 
 def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None = None,
-                n_targets: int | None = None) -> Scene:
+                n_targets: int | None = None, occluded: bool = False) -> Scene:
     """Return a scene of the preset, laid out from the seed (same arguments -> the same scene).
 
     Targets are placed near the middle and each gets an occluder right beside it, so that in many views of the
@@ -166,8 +187,14 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
     Args:
         preset: ``bedroom``, ``kitchen``, ``livingroom`` or ``picnic``.
         seed: random seed of the layout, shapes, colours and lights.
-        n_objects: object count (5 to 20), default drawn from the preset's range.
-        n_targets: target count (1 to 4), default 3 or 4.
+        n_objects: object count (5 to 20), default drawn from the preset's range (at least twice the targets when
+            ``occluded``).
+        n_targets: target count (1 to 4), default 3 or 4 (4 when ``occluded``).
+        occluded: the occluded variant: targets are drawn from the compact kinds
+            (:data:`~roodi_toolkit.synth.wraps.WRAPPABLE`) and each stands in a wrap that touches it (a box or
+            sleeve open at the top, or a bowl: :func:`~roodi_toolkit.synth.wraps.wrap_parts`), an object of its
+            own placed right after the targets (ids ``n_targets + 1 ...``), which hides the target's lower part from
+            every training camera. Without it the scene is the same as before the variant existed, bit for bit.
 
     Raises:
         ConfigError: unknown preset or counts out of range.
@@ -179,13 +206,19 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
     n = int(n_objects) if n_objects is not None else int(rng.integers(P.n_objects[0], P.n_objects[1] + 1))
     if not 5 <= n <= MAX_OBJECTS:
         raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {n}")
-    n_t = int(n_targets) if n_targets is not None else int(rng.integers(3, 5))
+    n_t = int(n_targets) if n_targets is not None else (4 if occluded else int(rng.integers(3, 5)))
     if not 1 <= n_t <= 4:
         raise ConfigError(f"n_targets must be 1 to 4, got {n_t}")
+    n_wraps = n_t if occluded else 0  # one wrap per target, ids right after the targets'
+    if occluded and n_objects is None:
+        n = max(n, 2 * n_t)
+    if n < n_t + n_wraps:
+        raise ConfigError(f"an occluded scene needs at least two objects per target (the target and its wrap): "
+                              f"n_objects {n} < 2 x {n_t} targets")
 
     kinds_all = sorted(P.catalog)
     weights = np.array([P.catalog[k] for k in kinds_all])
-    target_kinds = [k for k in kinds_all if k not in _NOT_TARGETS]
+    target_kinds = [k for k in kinds_all if k not in _NOT_TARGETS and (not occluded or k in WRAPPABLE)]
     t_weights = np.array([P.catalog[k] for k in target_kinds])
 
     def draw(pool: list[str], w: np.ndarray, used: list[str]) -> str:
@@ -195,22 +228,31 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
     kinds: list[str] = []
     for _ in range(n_t):
         kinds.append(draw(target_kinds, t_weights, kinds))
-    for _ in range(n - n_t):
+    kinds += ["wrap"] * n_wraps  # named once built
+    for _ in range(n - n_t - n_wraps):
         kinds.append(draw(kinds_all, weights, kinds))
 
     built = []
     for k in kinds:
+        if k == "wrap":
+            built.append([])
+            continue
         glossy = bool(rng.uniform() < P.glossy_fraction)
         parts = BUILDERS[k](rng, glossy)
         lowest = min(float(p.vertices[:, 2].min()) for p in parts)
         for p in parts:  # stand exactly on z = 0 (no part sinks into the ground or floats above it)
             p.vertices = p.vertices - np.array([0.0, 0.0, lowest])
         built.append(parts)
+    for j in range(n_wraps):  # the wrap fits its target as built (local coordinates) and moves with it
+        kinds[n_t + j], built[n_t + j] = wrap_parts(kinds[j], built[j], rng)
+
+    def footprint(i: int) -> tuple[float, float]:
+        return _footprint(built[i] + built[n_t + i]) if i < n_wraps else _footprint(built[i])
 
     # placement: large things first keep the rejection sampling short; targets then occluders near the centre
     placed: list[dict[str, Any]] = []  # x, y, r, h, z, table
     order = list(range(n_t))  # targets
-    others = sorted(range(n_t, n), key=lambda i: -_footprint(built[i])[0])
+    others = sorted(range(n_t + n_wraps, n), key=lambda i: -_footprint(built[i])[0])
     big = [i for i in others if _footprint(built[i])[0] > 0.3]
     small = [i for i in others if i not in big]
     occluders = small[:n_t] if len(small) >= n_t else small
@@ -239,7 +281,7 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
         return None
 
     def place(i: int, center: tuple[float, float], radius: float, allow_table: bool) -> None:
-        r, h = _footprint(built[i])
+        r, h = footprint(i)
         spot = try_table(i, r, h) if allow_table else None
         if spot is None:
             rad = radius
@@ -278,11 +320,13 @@ def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None
         place(i, (0.0, 0.0), R * 0.45, True)
     for j, i in enumerate(occluders):
         tx, ty, _ = positions[order[j % n_t]][0]
-        r_t, r_o = infos[order[j % n_t]]["r"], _footprint(built[i])[0]
+        r_t, r_o = infos[order[j % n_t]]["r"], footprint(i)[0]
         place(i, (tx, ty), r_t + r_o + 0.15, False)
     for i in rest:
         if i not in positions:
             place(i, (0.0, 0.0), R, True)
+    for j in range(n_wraps):
+        positions[n_t + j] = positions[j]
 
     objects = []
     counters: dict[str, int] = {}
@@ -390,61 +434,6 @@ def target_cameras(scene: Scene, target: SceneObject, n: int, width: int, height
 # ------------------------------------------------------------------------------------------------------ writing
 
 
-_OUTLINE_COLORS = [(1.0, 0.1, 0.1), (0.1, 0.9, 0.2), (0.15, 0.4, 1.0), (1.0, 0.85, 0.0)]
-
-
-def _outline(mask: np.ndarray) -> np.ndarray:
-    """Return the pixels of ``mask`` that touch a pixel outside it (4-neighbourhood), thickened by one pixel."""
-    m = np.pad(mask, 1)
-    inner = m[1:-1, 1:-1] & m[:-2, 1:-1] & m[2:, 1:-1] & m[1:-1, :-2] & m[1:-1, 2:]
-    edge = mask & ~inner
-    e = np.pad(edge, 1)
-    return e[1:-1, 1:-1] | e[:-2, 1:-1] | e[2:, 1:-1] | e[1:-1, :-2] | e[1:-1, 2:]
-
-
-def overview_image(images: Sequence[np.ndarray], masks: Sequence[np.ndarray], target_ids: Sequence[int], *,
-                   columns: int = 4, max_views: int = 12, target_thumbnails: Sequence[np.ndarray] = ()) -> np.ndarray:
-    """Return an ``[H', W', 3]`` float32 grid of views with each target's visible outline in its own colour.
-
-    Args:
-        images: ``[H, W, 3]`` float views.
-        masks: ``[H, W]`` instance ids of the views.
-        target_ids: ids to outline (colours: red, green, blue, yellow in this order).
-        columns: views per row.
-        max_views: views shown, evenly picked.
-        target_thumbnails: optional ``[H, W, 3]`` images of each target alone, shown in a last row framed in the
-            target's colour.
-    """
-    if not images:
-        raise ConfigError("overview needs at least one view")
-    idx = np.unique(np.linspace(0, len(images) - 1, min(max_views, len(images))).round().astype(int))
-    H, W = images[0].shape[:2]
-    tiles = []
-    for i in idx:
-        tile = np.asarray(images[i], dtype=np.float32).copy()
-        for k, tid in enumerate(target_ids):
-            tile[_outline(np.asarray(masks[i]) == tid)] = _OUTLINE_COLORS[k % len(_OUTLINE_COLORS)]
-        tiles.append(tile)
-    for k, thumb in enumerate(target_thumbnails):
-        tile = np.asarray(thumb, dtype=np.float32).copy()
-        frame = np.zeros((H, W), dtype=bool)
-        frame[:2], frame[-2:], frame[:, :2], frame[:, -2:] = True, True, True, True
-        tile[frame] = _OUTLINE_COLORS[k % len(_OUTLINE_COLORS)]
-        if k == 0:
-            while len(tiles) % columns:
-                tiles.append(np.ones((H, W, 3), np.float32))
-        tiles.append(tile)
-    while len(tiles) % columns:
-        tiles.append(np.ones((H, W, 3), np.float32))
-    gap = 2
-    rows = len(tiles) // columns
-    out = np.ones((rows * H + (rows - 1) * gap, columns * W + (columns - 1) * gap, 3), np.float32)
-    for j, tile in enumerate(tiles):
-        r, c = divmod(j, columns)
-        out[r * (H + gap):r * (H + gap) + H, c * (W + gap):c * (W + gap) + W] = tile
-    return out
-
-
 def _depth_png(depth: np.ndarray) -> np.ndarray:
     q = np.round(depth.astype(np.float64) / DEPTH_SCALE)
     return np.clip(q, 0, 65535).astype(np.uint16)
@@ -478,7 +467,8 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
     """
     out = prepare_output_dir(out_dir, overwrite=overwrite)
     t0 = time.perf_counter()
-    scene = build_scene(preset, seed, n_objects=settings.n_objects, n_targets=settings.n_targets)
+    scene = build_scene(preset, seed, n_objects=settings.n_objects, n_targets=settings.n_targets,
+                        occluded=settings.occluded)
     W, H = settings.width, settings.height
     cams = training_cameras(scene, settings.train_views, W, H, fov_x_deg=settings.fov_x_deg)
     renders = render_views(scene, cams, supersample=settings.supersample, progress=progress)
@@ -506,6 +496,7 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
 
     target_records = []
     thumbs = []
+    full_tracer = None
     for k, obj in enumerate(scene.targets):
         folder = f"targets/{obj.id:02d}_{obj.name}"
         tdir = out / folder
@@ -519,12 +510,16 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
             write_image(np.concatenate([r.rgb, r.alpha[..., None]], axis=2), tdir / "test" / f"{cam.name}.png")
             write_image(r.ids, tdir / "test" / "masks" / f"{cam.name}.png")
             extra.append({"mask_path": f"test/masks/{cam.name}.png"})
+        never_seen: dict[str, Any] = {}
+        if settings.writes_never_seen:  # the masks, and each frame's never_seen_path in ``extra``
+            full_tracer = full_tracer or _Tracer(scene, None, True)
+            never_seen = write_never_seen(tdir, scene, obj.id, tcams, tr, cams, extra, full_tracer)
         write_blender_transforms(tdir / "transforms_test.json", tcams, [f"test/{c.name}" for c in tcams],
                                  extra={"background": [1.0, 1.0, 1.0], "scene_bounds": scene_bounds,
                                         "object_id": obj.id, "object_name": obj.name},
                                  frame_extra=extra)
         thumbs.append(np.where(tr[0].alpha[..., None] > 0, tr[0].rgb, 1.0))
-        target_records.append({"id": obj.id, "name": obj.name, "path": folder})
+        target_records.append({"id": obj.id, "name": obj.name, "path": folder, **never_seen})
 
     target_ids = [o.id for o in scene.targets]
     write_image(overview_image([r.rgb for r in renders], [r.ids for r in renders], target_ids,
@@ -533,7 +528,7 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
     record = {
         "format": SCENE_FORMAT, "version": SCENE_FORMAT_VERSION, "generator": f"roodi-toolkit {__version__}",
         "preset": preset, "description": P.description, "seed": int(seed),
-        "settings": asdict(settings),
+        "settings": settings.record(),
         "renderer": "open3d RaycastingScene (Embree) + Lambert/Blinn-Phong, shadow rays, one mirror bounce",
         "objects": [_object_record(o) for o in scene.objects],
         "targets": target_records,
@@ -543,6 +538,10 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
                   "depth": "train/depth (uint16 z-depth / depth_scale, 0 = nothing hit)",
                   "targets": "targets/<id>_<name>/transforms_test.json (RGBA on white)", "overview": "overview.png"},
     }
+    if settings.writes_never_seen:
+        record["files"]["never_seen"] = (f"targets/<id>_<name>/{NEVER_SEEN_DIR} (uint8, 255 = the target's surface "
+                                         "at this pixel is seen by no training view)")
+        record["never_seen"] = never_seen_record()
     write_json(record, out / SCENE_FILE)
     record["_seconds"] = time.perf_counter() - t0
     return record
@@ -554,7 +553,8 @@ def scene_from_record(record: dict[str, Any]) -> Scene:
         preset, seed, settings = record["preset"], int(record["seed"]), record.get("settings", {})
     except (KeyError, TypeError, ValueError):
         raise DatasetError("scene.json: missing 'preset' or 'seed'") from None
-    scene = build_scene(preset, seed, n_objects=settings.get("n_objects"), n_targets=settings.get("n_targets"))
+    scene = build_scene(preset, seed, n_objects=settings.get("n_objects"), n_targets=settings.get("n_targets"),
+                        occluded=bool(settings.get("occluded", False)))
     names = [o["name"] for o in record.get("objects", [])]
     if names and names != [o.name for o in scene.objects]:
         raise DatasetError("scene.json: the objects rebuilt from its preset and seed differ from the ones it lists "
