@@ -199,7 +199,7 @@ def test_a_checkpoint_of_another_version_is_refused_in_one_line(tiny_scene, tmp_
 def test_sparse_sfm_points_are_topped_up_on_their_surfaces():
     """A capture's few SfM points are topped up to init_num_points: the originals first, each added point a copy of
     one of them (its colour) moved by about its own neighbourhood's spread."""
-    from roodi_toolkit.pipeline.train import densified_points
+    from roodi_toolkit.pipeline.init_points import densified_points
 
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(-1, 1, (50, 2)), np.zeros(50)]  # a flat patch: z = 0
@@ -224,7 +224,7 @@ def test_sparse_sfm_points_are_topped_up_on_their_surfaces():
 def test_sparse_sfm_points_also_get_points_on_the_views_rays():
     """Half of the top-up lies on training views' rays, between 0.8x and 4x the SfM depths there, coloured by the
     pixel: a background SfM missed (the statue's) gets Gaussians to grow from."""
-    from roodi_toolkit.pipeline.train import RAY_DEPTH_RANGE, sfm_initial_points
+    from roodi_toolkit.pipeline.init_points import RAY_DEPTH_RANGE, sfm_initial_points
 
     from .object_scene import object_dataset
 
