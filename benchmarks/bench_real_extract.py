@@ -2,7 +2,7 @@
 trained model, and score the object's alpha from the held-out cameras against hand-drawn polygon masks.
 
     .venv/bin/python benchmarks/bench_real_extract.py MODEL_DIR OUT_DIR --click 520,560 --view DSC_5284 \
-        [--negative-click X,Y ...] [--polygons tests/data/statue_masks/polygons.json] [-- EXTRA extract OPTIONS]
+        [--negative-click X,Y ...] [--polygons tests/data/statue_masks/polygons.json] [EXTRA extract OPTIONS]
 
 Runs ``roodi-toolkit extract OUT_DIR --model MODEL_DIR --click ...`` (skipped with ``--score-only``), then renders
 ``OUT_DIR/object_1/object.ply`` and the whole scene from the cameras of the polygons' views (the held-out photos) and
@@ -40,8 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--view", default=None)
     ap.add_argument("--polygons", default=str(ROOT / "tests" / "data" / "statue_masks" / "polygons.json"))
     ap.add_argument("--score-only", action="store_true", help="score an existing OUT_DIR, do not run extract")
-    ap.add_argument("extra", nargs="*", help="more extract options (after --)")
-    args = ap.parse_args(argv)
+    args, extra = ap.parse_known_args(argv)  # the rest goes to extract as it is
 
     from roodi_toolkit.evaluate.polygons import polygon_masks
     from roodi_toolkit.imaging import mask_iou
@@ -61,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
             cmd += ["--negative-click", c]
         if args.view:
             cmd += ["--view", args.view]
-        cmd += list(args.extra)
+        cmd += [a for a in extra if a != "--"]
         print("$", " ".join(cmd), flush=True)
         t0 = time.perf_counter()
         subprocess.run(cmd, check=True)

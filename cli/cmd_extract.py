@@ -94,6 +94,9 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
 @click.option("--segmenter", default=None,
               help="Segmenter plugin whose masks are distilled: files (the dataset's instance masks, or --masks), "
                    "click, sam2, ... [click with --click, else files].")
+@click.option("--segmenter-option", "segmenter_options", multiple=True, metavar="KEY=VALUE",
+              help="Segmenter option (repeatable), e.g. region_radius=0.5 for click (ClickSettings) or "
+                   "checkpoint=PATH for sam2.")
 @click.option("--masks", "mask_dir", type=click.Path(file_okay=False, path_type=str), default=None,
               help="files segmenter: a folder of mask PNGs named like the views [the dataset's own masks].")
 @extract_options
@@ -102,7 +105,8 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
 @quiet_option
 def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[str, ...],
             negative_clicks: tuple[str, ...], view: str | None,
-            segmenter: str | None, mask_dir: str | None, model_dir: str | None, distill_dir: str | None,
+            segmenter: str | None, segmenter_options: tuple[str, ...], mask_dir: str | None,
+            model_dir: str | None, distill_dir: str | None,
             overwrite: bool, renderer: Any, quiet: bool, **stage_options: Any) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
 
@@ -139,7 +143,13 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
                                    "[--view IMAGE_NAME] (any dataset)")
         object_ids = ("1",)  # a click or prompt segmenter's binary masks: 1 is the target
     config = extract_config_from_options(**stage_options)
-    config = replace(config, segmenter=segmenter,
+    opts = {}
+    for item in segmenter_options:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--segmenter-option")
+        opts[key.strip()] = value
+    config = replace(config, segmenter=segmenter, segmenter_options=opts,
                      prompt=SegmentPrompt(clicks=parsed, mask_dir=Path(mask_dir) if mask_dir else None))
     if config.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
         from roodi_toolkit.plugins import load_plugin

@@ -6,7 +6,7 @@ See :class:`ClickSegmenter` for the method; the interface it implements is :mod:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Optional, Sequence
 
 import numpy as np
@@ -189,6 +189,14 @@ class ClickSegmenter(Segmenter):
         self.renderer = resolve_renderer(renderer)
         self._weights_renderer = self.renderer if has_compositing_weights(self.renderer) else TorchRenderer()
         self.seed = seed
+        types = {f.name: type(f.default) for f in fields(ClickSettings)}
+        for key, value in settings.items():  # options from the command line arrive as text
+            if key in types and isinstance(value, str):
+                try:
+                    settings[key] = types[key](value)
+                except ValueError:
+                    raise ConfigError(f"click segmenter option {key}={value!r}: expected a "
+                                      f"{types[key].__name__}") from None
         try:
             self.settings = ClickSettings(**settings)
         except TypeError as exc:
