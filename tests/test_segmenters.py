@@ -224,3 +224,13 @@ def test_click_keeps_the_depth_region_when_grabcut_throws_it_away(scene, monkeyp
     assert mask_iou(kept.masks[v] == 1, ds.masks[v] == 1) > 0.6
     with pytest.raises(SegmentationError, match="1 seeds"):  # trusting GrabCut leaves the click alone: nothing
         ClickSegmenter(grabcut_min_keep=0.0).segment(ds, SegmentPrompt((click,)), scene=cloud)
+
+
+def test_click_settings_from_the_command_line_are_converted():
+    """extract --segmenter-option region_radius=0.5 arrives as text."""
+    seg = ClickSegmenter(region_radius="0.5", vote_rounds="3")
+    assert seg.settings.region_radius == 0.5 and seg.settings.vote_rounds == 3
+    with pytest.raises(ConfigError, match="region_radius='wide': expected a float"):
+        ClickSegmenter(region_radius="wide")
+    with pytest.raises(ConfigError, match="click segmenter"):
+        ClickSegmenter(no_such_setting="1")
