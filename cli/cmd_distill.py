@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option, renderer_option
+from .common import overwrite_option, parse_key_values, progress_factory, quiet_option, renderer_option
 
 EXAMPLE = """Examples:
 
@@ -61,12 +61,7 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
     from roodi_toolkit.errors import ConfigError
     from roodi_toolkit.pipeline.segment import Click
 
-    opts = {}
-    for item in options:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--option")
-        opts[key.strip()] = value
+    opts = parse_key_values(options, "--option")
     parsed = []
     for texts, positive, hint in ((clicks, True, "--click"), (negative_clicks, False, "--negative-click")):
         for c in texts:

@@ -6,7 +6,8 @@ from typing import Any
 
 import click
 
-from .common import overwrite_option, parse_floats, progress_factory, quiet_option, renderer_option
+from .common import (overwrite_option, parse_floats, parse_key_values, progress_factory, quiet_option,
+                     renderer_option)
 
 EXAMPLE = """Example:
 
@@ -143,12 +144,7 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
                                    "[--view IMAGE_NAME] (any dataset)")
         object_ids = ("1",)  # a click or prompt segmenter's binary masks: 1 is the target
     config = extract_config_from_options(**stage_options)
-    opts = {}
-    for item in segmenter_options:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--segmenter-option")
-        opts[key.strip()] = value
+    opts = parse_key_values(segmenter_options, "--segmenter-option")
     config = replace(config, segmenter=segmenter, segmenter_options=opts,
                      prompt=SegmentPrompt(clicks=parsed, mask_dir=Path(mask_dir) if mask_dir else None))
     if config.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained

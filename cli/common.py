@@ -40,6 +40,17 @@ def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:
     return values
 
 
+def parse_key_values(items: tuple[str, ...], name: str) -> dict[str, str]:
+    """Return ``{key: value}`` of repeated ``KEY=VALUE`` option values (values stay text; the plugin converts)."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint=name)
+        out[key.strip()] = value
+    return out
+
+
 def parse_size(text: str, name: str = "--size") -> tuple[int, int]:
     """Parse 'WxH' (or a single number for a square) into (width, height)."""
     t = text.lower().strip()

@@ -124,3 +124,10 @@ def test_extract_negative_click(half_model, tmp_path, run_cli):
     assert mask[y // 2, x // 2] == 1 and mask[ny // 2, nx // 2] == 0
     res = run_cli("extract", tmp_path / "n", "--model", model, "--negative-click", f"{nx},{ny}", "-q")
     assert res.exit_code == 2 and "--click" in res.stderr and not (tmp_path / "n").exists()
+
+
+def test_extract_segmenter_options_are_checked_before_any_work(half_model, tmp_path, run_cli):
+    data, model = half_model
+    out = tmp_path / "o"
+    res = run_cli("extract", out, "--model", model, "--click", "4,5", "--segmenter-option", "oops", "-q")
+    assert res.exit_code == 2 and "expected KEY=VALUE, got 'oops'" in res.stderr and not out.exists()

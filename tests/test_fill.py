@@ -14,7 +14,7 @@ from roodi_toolkit.errors import ConfigError
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.params import GaussianParams
 from roodi_toolkit.pipeline.exemplar import ExemplarInpainter, exemplar_fill
-from roodi_toolkit.pipeline.inpaint import FillContext, OpenCVInpainter, get_inpainter, inpaint_views, to_grid
+from roodi_toolkit.pipeline.inpaint import FillContext, OpenCVInpainter, get_inpainter, inpaint_views
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, fill_picture, object_cameras, seen_empty
 from roodi_toolkit.pipeline.symmetry import SymmetryInpainter, find_mirror, mirror_cloud
 from roodi_toolkit.plugins import discover
