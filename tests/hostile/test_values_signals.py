@@ -187,9 +187,15 @@ def test_killed_mid_write_leaves_nothing(sig: int, code: int, command: str, worl
             "render": ["render", world.ply, out / "r", "--orbit", "2", "--size", "8x8", "-q"],
             "evaluate json": ["evaluate", world.ply, world.gen, "--object", "1", "--json", out / "s.json", "-q"],
             "select": ["select", world.dist, out / "o.ply", "--object", "1", "-q"]}[command]
+    # Ctrl-C reaches a process that has Python's SIGINT handler; a suite started as a background job inherits SIGINT
+    # ignored (POSIX), so the handler is put in place for this run and the previous one restored after it
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     monkeypatch.setattr(os, "replace", killed)
-    res = run_cli(*args)
-    monkeypatch.setattr(os, "replace", real_replace)
+    try:
+        res = run_cli(*args)
+    finally:
+        monkeypatch.setattr(os, "replace", real_replace)
+        signal.signal(signal.SIGINT, previous)
     assert res.exit_code == code, res.stderr
     assert [p.name for p in out.rglob("*") if p.is_file()] == []
     assert world.unchanged()
