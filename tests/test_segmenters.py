@@ -234,3 +234,23 @@ def test_click_settings_from_the_command_line_are_converted():
         ClickSegmenter(region_radius="wide")
     with pytest.raises(ConfigError, match="click segmenter"):
         ClickSegmenter(no_such_setting="1")
+
+
+def test_the_default_region_radius_follows_what_the_scene_box_is(scene):
+    """Without sparse points the box holds the whole scene (0.15 of it); a capture's box is its SfM points' (0.5)."""
+    from roodi_toolkit.pipeline.click import CAPTURE_REGION_RADIUS, SCENE_REGION_RADIUS
+
+    ds, cloud, _ = scene
+    v = 3
+    ys, xs = np.nonzero((ds.masks[v] == 1).numpy())
+    prompt = SegmentPrompt((Click(ds.names[v], xs[0] + 0.5, ys[0] + 0.5),))
+    kw = dict(leak_ratio=1e9, depth_tolerance_max=0.5)  # a fill that the radius alone stops
+    default = ClickSegmenter(**kw).segment(ds, prompt, scene=cloud).masks
+    assert torch.equal(default, ClickSegmenter(region_radius=SCENE_REGION_RADIUS, **kw).segment(
+        ds, prompt, scene=cloud).masks)
+    capture = ds.subset(range(len(ds)))
+    capture.points = cloud.means.astype(np.float64)
+    wide = ClickSegmenter(**kw).segment(capture, prompt, scene=cloud).masks
+    assert torch.equal(wide, ClickSegmenter(region_radius=CAPTURE_REGION_RADIUS, **kw).segment(
+        capture, prompt, scene=cloud).masks)
+    assert not torch.equal(default, wide)  # the two radii do differ on this scene
