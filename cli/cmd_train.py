@@ -28,8 +28,8 @@ EXAMPLE = """Example:
 @click.option("--init", type=click.Choice(["auto", "points", "random", "depth"]), default=None,
               help="Initial Gaussians: sparse points (COLMAP), random in the scene box, or lifted from the views' "
               "depth maps (datasets with depth, e.g. make-scene) [auto: points if any, else random].")
-@click.option("--init-points", type=click.IntRange(4), default=None, help="Random initialisation size; sparse SfM points fewer than this are topped up to it "
-                   "[20000].")
+@click.option("--init-points", type=click.IntRange(4), default=None,
+              help="Random initialisation size; sparse SfM points fewer than this are topped up to it [20000].")
 @click.option("--random-background/--fixed-background", default=None,
               help="Composite images with alpha on a random colour each step, or on the dataset's background "
               "[default: random when the images have alpha, as 3DGS trainers do; cfg.json records the choice].")

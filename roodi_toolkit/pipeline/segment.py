@@ -16,9 +16,10 @@ Built-ins:
 
 - ``files`` (default): masks or instance-id maps from a folder of PNGs matched to the views by name, or the
   dataset's own masks (Blender frames with ``mask_path``, as the generated benchmark scenes have).
-- ``click``: clicks in one view, positive on the target and optionally negative on what is not; the clicked surface's Gaussians (by their compositing weights there) are
-  grown through a 3D neighbour graph of the trained scene's Gaussians, and every view's mask is where the selected
-  Gaussians give most of the rendered alpha (see :class:`roodi_toolkit.pipeline.click.ClickSegmenter`).
+- ``click``: clicks in one view, positive on the target and optionally negative on what is not; the clicked surface's
+  Gaussians (by their compositing weights there) are grown through a 3D neighbour graph of the trained scene's
+  Gaussians, and every view's mask is where the selected Gaussians give most of the rendered alpha (see
+  :class:`roodi_toolkit.pipeline.click.ClickSegmenter`).
 """
 
 from __future__ import annotations
