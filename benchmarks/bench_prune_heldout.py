@@ -10,7 +10,6 @@ photos. The issue's check: the pruned cloud no worse than the unpruned one, with
 
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np
@@ -31,7 +30,7 @@ def main(argv: list[str]) -> int:
 
     torch.set_num_threads(1)
     model = find_model(argv[0])
-    cfg = json.loads((model.root / "cfg.json").read_text())
+    cfg = model.config
     ds = load_dataset(cfg["data_dir"], float(cfg.get("downscale", 1) or 1))
     _, held_out = split_views(ds, int(cfg.get("holdout_every", 8)))
     figures = {}
