@@ -98,10 +98,14 @@ def safety(paths: list[str], size: int, seed: int) -> list[dict]:
     return rows
 
 
-def fog(model: str, data: str, every: int, downscale: float) -> dict:
-    """Alpha IoU (threshold 0.5) of the unpruned and the default-pruned model against lego's masks, held-out views."""
+def fog(model: str, data: str, every: int, downscale: float, photos: str = "auto") -> dict:
+    """Alpha IoU (threshold 0.5) of the unpruned and the default-pruned model against lego's masks, held-out views.
+
+    The prune is the command's default, photo check included: the model's training photos when the PLY sits in its
+    model folder (``photos`` as ``prune --photos``)."""
     from roodi_toolkit.io.dataset import load_cameras
     from roodi_toolkit.io.files import read_image
+    from roodi_toolkit.prune.photos import find_photos
     from roodi_toolkit.prune.scene import prune_cloud
 
     cloud = load_real(model)
@@ -109,9 +113,10 @@ def fog(model: str, data: str, every: int, downscale: float) -> dict:
         return int("".join(ch for ch in name if ch.isdigit()) or 0)
 
     held = [cam.scaled(1 / downscale) for cam in load_cameras(data) if number(cam.name) % every == 0]
-    pruned, keep, report = prune_cloud(cloud)
+    checked = find_photos(model, photos)
+    pruned, keep, report = prune_cloud(cloud, photos=checked)
     result = {"model": model, "gaussians": len(cloud), "mode": report.mode, "removed": int((~keep).sum()),
-              "stages": report.to_dict()["stages"], "views": len(held), "size": [held[0].width, held[0].height]}
+              "photos": None if checked is None else checked.source, "stages": report.to_dict()["stages"], "views": len(held), "size": [held[0].width, held[0].height]}
     from roodi_toolkit.evaluate.metrics import psnr
 
     truth = [_truth_on_white(read_image, data, cam) for cam in held]
@@ -208,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("data")
     f.add_argument("--every", type=int, default=8)
     f.add_argument("--downscale", type=float, default=4, help="render and compare at 1/this of the image size")
+    f.add_argument("--photos", default="auto", help="as prune --photos (auto: the model folder's training photos)")
     p = sub.add_parser("speed")
     p.add_argument("files", nargs="+")
     p.add_argument("--repeats", type=int, default=3)
@@ -219,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.what == "safety":
         safety(args.files, args.size, args.seed)
     elif args.what == "fog":
-        fog(args.model, args.data, args.every, args.downscale)
+        fog(args.model, args.data, args.every, args.downscale, args.photos)
     elif args.what == "tile":
         tile(args.file, args.out, args.copies)
     else:

@@ -18,6 +18,8 @@ Examples:
   roodi-toolkit prune scene.ply clean.ply --floaters-out floaters.ply --report prune.json
   roodi-toolkit prune scene.ply clean.ply --dry-run                  # clean.prune.json + clean.prune.png only
   roodi-toolkit prune scene.ply clean.ply --mode object              # one object: everything detached goes
+  roodi-toolkit prune models/room/point_cloud/iteration_7000/point_cloud.ply clean.ply   # checked against its photos
+  roodi-toolkit prune other_tool.ply clean.ply --photos ../captures/room   # a dataset folder: its photos
   roodi-toolkit prune scene.ply clean.ply --mode statistical --rule paper --alpha 2 --k 16   # the paper's rule
   roodi-toolkit prune scene.ply clean.ply --filter-nan --min-opacity 0.004 --filter-sphere 0,0,0,3
   roodi-toolkit prune scene.ply clean.ply --filter-value scale,0,0.5 --filter-value z,-1,10
@@ -29,6 +31,12 @@ Examples:
 @click.argument("output_ply", metavar="OUT", type=click.Path(path_type=str))
 @prune_options
 @prune_mode_options
+@click.option("--photos", "photos_spec", default="auto", show_default=True, metavar="auto|none|FOLDER",
+              help="scene/object: keep what the posed photos show. auto: the training photos of the model folder "
+                   "IN sits in (its cfg.json), if any; FOLDER: a model folder or a dataset folder (COLMAP, "
+                   "NeRF-synthetic; decoded at 1/4 size); none: judge from the cloud alone.")
+@click.option("--photo-views", type=click.IntRange(min=1), default=32, show_default=True,
+              help="Render at most this many of the photos' views (evenly spaced).")
 @click.option("--dry-run", is_flag=True,
               help="Write no cloud: only the report (--report, default OUT's name + .prune.json) and a picture of "
                    "what would go (OUT's name + .prune.png, removed Gaussians in red).")
@@ -41,7 +49,7 @@ Examples:
 def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
           filter_nan: bool, min_opacity: float | None, filter_box: str | None, filter_sphere: str | None,
           mode: str, reach: float, min_cluster: float, blob_score: float, background: str, filter_values: tuple[str, ...],
-          dry_run: bool, floaters_out: str | None, report_path: str | None, overwrite: bool, quiet: bool) -> None:
+          photos_spec: str, photo_views: int, dry_run: bool, floaters_out: str | None, report_path: str | None, overwrite: bool, quiet: bool) -> None:
     """Remove floaters from IN (any readable splat format) and write the kept Gaussians to OUT (.ply,
     .compressed.ply or .spz, from its extension).
 
@@ -53,6 +61,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
 
     from roodi_toolkit.io.files import check_outputs, write_json
     from roodi_toolkit.io.splat import read_cloud, write_cloud
+    from roodi_toolkit.prune.photos import find_photos
     from roodi_toolkit.prune.scene import prune_cloud
 
     start = time.perf_counter()
@@ -63,6 +72,9 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
                                        filter_sphere=filter_sphere, mode=mode, reach=reach,
                                        min_cluster=min_cluster, blob_score=blob_score, background=background,
                                        filter_values=filter_values)
+    if mode == "statistical" and photos_spec not in ("auto", "none"):
+        raise click.BadParameter("the photo check belongs to the local tests (--mode auto, scene or object); the "
+                                 "statistical rule runs as published", param_hint="--photos")
     picture = None
     if dry_run:
         stem = Path(output_ply)
@@ -80,7 +92,11 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     cloud = read_cloud(input_ply)
     read_s = time.perf_counter() - t_read
     progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
-    pruned, keep, report = prune_cloud(cloud, config, progress=progress)
+    photos = None
+    if mode != "statistical":
+        photos = find_photos(input_ply, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
+    pruned, keep, report = prune_cloud(cloud, config, photos=photos,
+                                       progress=progress_factory(quiet) if photos else progress)
 
     t_write = time.perf_counter()
     if dry_run:

@@ -35,7 +35,8 @@ from ..progress import ProgressFactory, null_progress
 from .knn import _drop_self, check_k, morton_order
 
 if TYPE_CHECKING:
-    from .outliers import PruneConfig, PruneResult
+    from .outliers import PruneConfig, PruneReport, PruneResult
+    from .photos import Photos
 
 DETACHED, OVERSIZED, FOG = "detached", "oversized", "fog"
 FOG_MIN_FRACTION = 0.05
@@ -294,13 +295,18 @@ def choose_mode(config: "PruneConfig", largest_fraction: float) -> tuple[str, st
                      f"(< {config.object_fraction:.0%}), so pieces under {config.min_cluster:.1%} go")
 
 
-def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *,
-                progress: ProgressFactory = null_progress, **options: Any) -> "PruneResult":
+def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, photos: "Photos | None" = None,
+                renderer: Any = None, progress: ProgressFactory = null_progress, **options: Any) -> "PruneResult":
     """Return the cloud without floaters in the config's mode, the keep mask ``[N]`` and a report (mode included).
 
     The default (``mode="auto"``) runs the local tests of this module; ``mode="statistical"`` is
     :func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers` with the config's rule (``paper`` included,
     unchanged). Filters (NaN, opacity, box, sphere, value ranges) run first in every mode.
+
+    With ``photos`` (the posed photos the cloud was trained on, :func:`~roodi_toolkit.prune.photos.find_photos`),
+    the local modes keep every flagged Gaussian whose removal would make the photos worse
+    (:mod:`~roodi_toolkit.prune.photos`); ``renderer`` renders them (default: the built-in one). The statistical
+    mode ignores them.
 
     Raises:
         CloudError: NaN/Inf values without ``filter_nan``, or nothing left to evaluate.
@@ -342,6 +348,10 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *,
     if background != "none":
         report.mode_reason += f"; {background}-background fog removed ({config.background} background)"
     report.timings["rule"] = time.perf_counter() - t2
+    detached, oversized, photo_figures = decision.detached, decision.oversized, {}
+    if photos is not None and (decision.flagged | fog).any():
+        supported, photo_figures = _photo_supported(sub, decision.flagged | fog, photos, renderer, progress, report)
+        detached, oversized, fog = detached & ~supported, oversized & ~supported, fog & ~supported
     report.evaluated = evaluated
     report.mean_distances = decision.blob_score
     report.first_mean_distances = decision.blob_score
@@ -350,12 +360,29 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *,
     report.iterations, report.converged = 1, True
     report.statistics = {"pieces": int(len(decision.component_sizes)), "largest_fraction": decision.largest_fraction,
                          "blob_score_median": float(np.median(decision.blob_score))}
-    report.stages += [(DETACHED, int(decision.detached.sum())), (OVERSIZED, int(decision.oversized.sum())),
-                      (FOG, int(fog.sum()))]
-    keep[evaluated[decision.flagged | fog]] = False
+    report.statistics.update(photo_figures)
+    report.stages += [(DETACHED, int(detached.sum())), (OVERSIZED, int(oversized.sum())), (FOG, int(fog.sum()))]
+    keep[evaluated[detached | oversized | fog]] = False
     t3 = time.perf_counter()
     out = cloud.select(keep) if not keep.all() else cloud
     report.timings["select"] = time.perf_counter() - t3
     report.kept_count = len(out)
     report.timings["total"] = time.perf_counter() - t0
     return PruneResult(out, keep, report)
+
+
+def _photo_supported(cloud: GaussianCloud, flagged: np.ndarray, photos: "Photos", renderer: Any,
+                     progress: ProgressFactory, report: "PruneReport") -> tuple[np.ndarray, dict[str, float]]:
+    """Return which flagged Gaussians the photos support (they stay) and the check's figures for the report's
+    statistics; the check's time and description go into ``report``."""
+    from .photos import photo_support
+
+    t0 = time.perf_counter()
+    check = photo_support(cloud, flagged, photos, renderer=renderer, progress=progress)
+    supported = flagged & (check.support > 0)
+    report.timings["photo_check"] = time.perf_counter() - t0
+    figures = {"photo_views": check.views, "photo_flagged": int(flagged.sum()), "photo_supported": int(supported.sum()),
+               "photo_psnr": round(check.psnr, 3), "photo_psnr_empty": round(check.psnr_empty, 3)}
+    report.mode_reason += (f"; photo check on {photos.source}: {int(supported.sum()):,} of the {int(flagged.sum()):,} "
+                           f"flagged Gaussians stay, the photos show them (renders {check.psnr:.1f} dB)")
+    return supported, figures
