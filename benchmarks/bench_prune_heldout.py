@@ -25,7 +25,7 @@ def main(argv: list[str]) -> int:
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.io.model import find_model
     from roodi_toolkit.io.ply import read_ply
-    from roodi_toolkit.pipeline.train import split_views
+    from roodi_toolkit.io.dataset import split_views
     from roodi_toolkit.render.renderer import render_cloud
 
     torch.set_num_threads(1)

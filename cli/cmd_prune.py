@@ -61,7 +61,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
 
     from roodi_toolkit.io.files import check_outputs, write_json
     from roodi_toolkit.io.splat import read_cloud, write_cloud
-    from roodi_toolkit.prune.photos import find_photos
+    from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos
     from roodi_toolkit.prune.scene import prune_cloud
 
     start = time.perf_counter()
@@ -94,7 +94,10 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
     photos = None
     if mode != "statistical":
-        photos = find_photos(input_ply, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
+        try:
+            photos = find_photos(input_ply, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
+        except PhotosUnavailable as exc:  # only --photos auto: the cloud alone still decides, as without a model
+            click.echo(f"note: no photo check ({exc}); judging from the cloud alone", err=True)
     pruned, keep, report = prune_cloud(cloud, config, photos=photos,
                                        progress=progress_factory(quiet) if photos else progress)
 

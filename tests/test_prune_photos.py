@@ -18,7 +18,7 @@ from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.io.blender import write_blender_transforms
 from roodi_toolkit.io.files import write_image
 from roodi_toolkit.io.ply import read_ply, write_ply
-from roodi_toolkit.prune.photos import Photos, find_photos, photo_support
+from roodi_toolkit.prune.photos import Photos, PhotosUnavailable, find_photos, photo_support
 from roodi_toolkit.prune.scene import prune_cloud
 from roodi_toolkit.render.renderer import render_cloud
 
@@ -152,6 +152,20 @@ def test_find_photos_reads_the_model_record_and_dataset_folders(tmp_path, scene)
         find_photos(ply, str(tmp_path / "missing"))
     with pytest.raises(ConfigError, match="not a model folder, and not readable as a dataset"):
         find_photos(ply, str(tmp_path / "model" / "point_cloud"))
+    (model / "cfg.json").write_text(json.dumps({"data_dir": str(tmp_path / "gone"), "downscale": 1}))
+    with pytest.raises(PhotosUnavailable, match="gone that .*cfg.json names is not here"):
+        find_photos(ply)
+    with pytest.raises(ConfigError, match="--photos .*model: the data folder"):
+        find_photos(ply, str(model))
+
+
+def test_prune_command_goes_on_without_photos_that_are_not_here(tmp_path, scene, run_cli):
+    model, ply, data = _model_folder(tmp_path, scene)
+    (model / "cfg.json").write_text(json.dumps({"data_dir": str(tmp_path / "gone"), "downscale": 1}))
+    result = run_cli("prune", str(ply), str(tmp_path / "out.ply"), "-q")
+    assert result.exit_code == 0
+    assert "note: no photo check" in result.stderr and "is not here" in result.stderr
+    assert "photo check on" not in result.stdout
 
 
 def test_prune_command_checks_a_model_cloud_against_its_photos(tmp_path, scene, run_cli):

@@ -529,3 +529,17 @@ def estimate_bounds(cameras: Sequence[Camera], points: np.ndarray | None = None)
     half = 0.5 * float(np.median(np.linalg.norm(centres - focus, axis=1)))
     half = half if half > 0 else 1.0
     return np.stack([focus - half, focus + half])
+
+
+def split_views(dataset: Dataset, holdout_every: int = 8) -> tuple[list[int], list[int]]:
+    """Return (train, eval) view indices: the test split if the dataset has one, else every n-th train view held out.
+
+    With ``holdout_every`` 0 and no test split, nothing is held out and evaluation is on no views.
+    """
+    train = dataset.train_indices
+    if dataset.test_indices:
+        return train, dataset.test_indices
+    if holdout_every and len(train) > 1:
+        held = train[::holdout_every]
+        return [i for i in train if i not in set(held)], held
+    return train, []

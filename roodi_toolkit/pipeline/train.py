@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..io.dataset import Dataset
+from ..io.dataset import Dataset, split_views  # split_views: importable from here as before
 from .init_points import depth_points, projected_colors, rgb_to_sh0, sfm_initial_points
 from ..errors import ConfigError, DatasetError, InputError
 from ..gaussians import GaussianCloud
@@ -313,20 +313,6 @@ class Trainer:
             self.history = list(state.get("history", []))
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise InputError(f"checkpoint does not match this training run ({type(exc).__name__}: {exc})") from None
-
-
-def split_views(dataset: Dataset, holdout_every: int = 8) -> tuple[list[int], list[int]]:
-    """Return (train, eval) view indices: the test split if the dataset has one, else every n-th train view held out.
-
-    With ``holdout_every`` 0 and no test split, nothing is held out and evaluation is on no views.
-    """
-    train = dataset.train_indices
-    if dataset.test_indices:
-        return train, dataset.test_indices
-    if holdout_every and len(train) > 1:
-        held = train[::holdout_every]
-        return [i for i in train if i not in set(held)], held
-    return train, []
 
 
 # ---------------------------------------------------------------------------------------------------- full runs

@@ -43,7 +43,7 @@ training views) 32 views keep the same held-out figure as all 87 (-0.001 dB agai
 74 s."""
 
 DATASET_DOWNSCALE = 4.0
-"""Resolution divisor for a dataset folder given directly (a model folder's own record wins)."""
+"""Resolution divisor for a dataset folder given directly (a model folder's record gives its own)."""
 
 MATCH_RATIO = 0.5
 """The cloud must explain its photos: its squared error on them must be below this fraction of an empty
@@ -51,6 +51,10 @@ rendering's (3 dB better than the background alone), or the photos belong to ano
 
 MODEL_SEARCH_DEPTH = 3
 """``auto`` looks for a model folder this many levels above the cloud (``MODEL/point_cloud/iteration_N/x.ply``)."""
+
+
+class PhotosUnavailable(ConfigError):
+    """A model folder's photos cannot be had here (the message says why)."""
 
 
 @dataclass(frozen=True)
@@ -81,8 +85,7 @@ def _spread(indices: Sequence[int], count: int) -> list[int]:
 
 def _from_dataset(path: Path, downscale: float, holdout_every: int, max_views: int, origin: str,
                   progress: ProgressFactory) -> Photos:
-    from ..io.dataset import load_dataset
-    from ..pipeline.train import split_views
+    from ..io.dataset import load_dataset, split_views
 
     dataset = load_dataset(path, downscale, progress=progress)
     train, _ = split_views(dataset, holdout_every)
@@ -93,22 +96,30 @@ def _from_dataset(path: Path, downscale: float, holdout_every: int, max_views: i
     return Photos(images, alphas, [dataset.cameras[i] for i in views], tuple(dataset.background), source)
 
 
-def _model_photos(root: Path, max_views: int, progress: ProgressFactory) -> Photos | None:
-    """Return the training photos named by the model folder's record, or None when it names none that exist."""
+def _model_photos(root: Path, max_views: int, progress: ProgressFactory) -> Photos:
+    """Return the training photos named by the model folder's record.
+
+    Raises:
+        PhotosUnavailable: the record names no data folder, it is not on this machine, or it does not load.
+    """
     from ..io.model import find_model
 
+    record = root / "cfg.json"
     model = find_model(root)
     data_dir = model.config.get("data_dir")
     if not data_dir:
-        return None
+        raise PhotosUnavailable(f"{record} names no data folder")
     data = Path(str(data_dir))
-    if not data.is_absolute():
-        data = (root / data).resolve() if (root / data).exists() else data.resolve()
+    if not data.is_absolute() and (root / data).exists():
+        data = root / data
     if not data.exists():
-        return None
+        raise PhotosUnavailable(f"the data folder {data} that {record} names is not here")
     downscale = float(model.config.get("downscale") or 1)
     holdout = int(model.config.get("holdout_every", 8))
-    return _from_dataset(data, downscale, holdout, max_views, f", from {root / 'cfg.json'}", progress)
+    try:
+        return _from_dataset(data, downscale, holdout, max_views, f", from {record}", progress)
+    except RoodiError as exc:
+        raise PhotosUnavailable(f"the data folder {data} that {record} names does not load: {exc}") from None
 
 
 def _enclosing_model(cloud_path: Path) -> Path | None:
@@ -122,42 +133,38 @@ def _enclosing_model(cloud_path: Path) -> Path | None:
 
 
 def find_photos(cloud_path: str | Path, spec: str = "auto", *, max_views: int = PHOTO_VIEWS,
-                downscale: float | None = None, progress: ProgressFactory = null_progress) -> Photos | None:
+                downscale: float = DATASET_DOWNSCALE, progress: ProgressFactory = null_progress) -> Photos | None:
     """Return the photos to check a prune of ``cloud_path`` against, or None.
 
     Args:
         cloud_path: the cloud file being pruned.
-        spec: ``auto`` (the training photos of the model folder the file sits in, when its record names a data
-            folder that exists; else none), ``none``, or a folder: a model folder (its training photos) or a
-            dataset folder (all its training views).
+        spec: ``auto`` (the training photos of the model folder the file sits in, if it sits in one), ``none``, or
+            a folder: a model folder (its training photos, at its resolution) or a dataset folder (all its training
+            views, at 1/``downscale`` size).
         max_views: render at most this many views (evenly spaced).
-        downscale: resolution divisor for a dataset folder (default :data:`DATASET_DOWNSCALE`); a model folder
-            uses its own unless this is given.
+        downscale: resolution divisor for a dataset folder (a model folder's record gives its own).
         progress: progress factory for loading.
 
     Raises:
-        ConfigError: ``spec`` is a path that is neither a model nor a dataset folder (the message names it).
+        PhotosUnavailable: ``auto`` found a model folder whose photos cannot be had (not on this machine, not
+            loadable); the caller may go on without them.
+        ConfigError: ``spec`` is a path that is neither a model folder with its photos nor a dataset folder.
     """
     if spec == "none":
         return None
     if spec == "auto":
         root = _enclosing_model(Path(cloud_path))
-        if root is None:
-            return None
-        try:
-            return _model_photos(root, max_views, progress) if downscale is None else None
-        except RoodiError:
-            return None  # a model folder with unreadable photos: judge from the cloud alone, as without one
+        return None if root is None else _model_photos(root, max_views, progress)
     path = Path(spec)
     if not path.exists():
         raise ConfigError(f"--photos {spec}: no such folder (give a model folder, a dataset folder, auto or none)")
-    if (path / "cfg.json").is_file() and (path / "point_cloud").is_dir() and downscale is None:
-        photos = _model_photos(path, max_views, progress)
-        if photos is None:
-            raise ConfigError(f"--photos {spec}: its cfg.json names no data folder that exists")
-        return photos
+    if (path / "cfg.json").is_file() and (path / "point_cloud").is_dir():
+        try:
+            return _model_photos(path, max_views, progress)
+        except PhotosUnavailable as exc:
+            raise ConfigError(f"--photos {spec}: {exc}") from None
     try:
-        return _from_dataset(path, DATASET_DOWNSCALE if downscale is None else downscale, 0, max_views, "", progress)
+        return _from_dataset(path, downscale, 0, max_views, "", progress)
     except RoodiError as exc:
         raise ConfigError(f"--photos {spec}: not a model folder, and not readable as a dataset ({exc})") from None
 
