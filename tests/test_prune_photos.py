@@ -192,3 +192,18 @@ def test_prune_command_refuses_photos_with_the_statistical_rule(tmp_path, scene,
     assert not (tmp_path / "out.ply").exists()
     result = run_cli("prune", str(ply), str(tmp_path / "out.ply"), "--mode", "statistical", "-q")
     assert result.exit_code == 0 and "photo" not in result.stdout
+
+
+def test_prune_of_a_lone_ply_does_not_load_torch(tmp_path, scene):
+    """Importing PyTorch takes longer than the whole prune of a 150k splat (benchmarks/RESULTS.md, speed): only the
+    photo check may load it."""
+    import subprocess
+    import sys
+
+    cloud, _, _, _ = scene
+    write_ply(cloud, tmp_path / "in.ply")
+    code = ("import sys; from roodi_toolkit.cli.main import main; "
+            f"code = main(['prune', {str(tmp_path / 'in.ply')!r}, {str(tmp_path / 'out.ply')!r}, '-q']); "
+            "print(code, 'torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split()[-2:] == ["0", "False"], out

@@ -27,15 +27,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
-import torch
 
-from ..cameras import Camera
 from ..errors import ConfigError, RoodiError
-from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
+
+if TYPE_CHECKING:  # torch and the renderer load only when there are photos: `prune` on a lone PLY never needs them
+    import torch
+
+    from ..cameras import Camera
+    from ..gaussians import GaussianCloud
 
 PHOTO_VIEWS = 32
 """Views the check renders at most (evenly spaced over the training views): on the default-trained lego (87
@@ -69,9 +72,9 @@ class Photos:
         source: what they are, for messages (``"20 training views of DIR (downscale 4, from MODEL/cfg.json)"``).
     """
 
-    images: torch.Tensor
-    alphas: torch.Tensor | None
-    cameras: Sequence[Camera]
+    images: "torch.Tensor"
+    alphas: "torch.Tensor | None"
+    cameras: Sequence["Camera"]
     background: tuple[float, float, float]
     source: str
 
@@ -211,6 +214,8 @@ def photo_support(cloud: GaussianCloud, flagged: np.ndarray, photos: Photos, *, 
     Raises:
         ConfigError: the cloud does not explain the photos (:data:`MATCH_RATIO`): another scene or another frame.
     """
+    import torch
+
     from ..params import GaussianParams
     from ..render.renderer import resolve_renderer
 
