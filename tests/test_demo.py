@@ -40,6 +40,22 @@ def test_extraction_demo_writes_object_pictures_scores_and_says_where(tmp_path, 
     assert again.exit_code == 1 and "--overwrite" in again.stderr
 
 
+def test_occluded_demo_scores_the_target_it_names(tmp_path, run_cli):
+    """The occluded variant's wraps are objects of the scene too: the demo must choose and name its target in the
+    scene make-scene wrote (it once chose in the plain scene: report "pot_1", scores of "globe_1", 100% hidden)."""
+    out = tmp_path / "demo"
+    tiny = ("--preset", "picnic", "--seed", "0", "--size", "32", "--train-views", "10", "--test-views", "2",
+            "--iterations", "100", "--max-gaussians", "1600", "--distill-iterations", "30", "--finetune-iterations",
+            "4", "--view-size", "32")
+    res = run_cli("demo", out, *tiny, "--occluded", "-q")
+    assert res.exit_code == 0, res.stderr
+    report = json.loads((out / "report.json").read_text())
+    record = json.loads((out / "data" / "scene.json").read_text())
+    names = {o["id"]: o["name"] for o in record["objects"]}
+    assert report["object_name"] == names[report["object_id"]] == report["metrics"]["object_name"]
+    assert 0 < report["hidden_fraction"] < 0.99
+
+
 def test_demo_bad_input_is_one_line(tmp_path, run_cli):
     res = run_cli("demo", tmp_path / "a", "--object", "9", "-q")
     assert res.exit_code == 1 and "not a target" in res.stderr and "1 (pot_1)" in res.stderr

@@ -303,7 +303,9 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     t0 = time.perf_counter()
     clock = _Clock()
     settings = config.scene
-    scene = build_scene(config.preset, config.seed, n_objects=settings.n_objects, n_targets=settings.n_targets)
+    # the scene make_scene writes below (occluded variants included: their wraps are objects too, and the ids follow)
+    scene = build_scene(config.preset, config.seed, n_objects=settings.n_objects, n_targets=settings.n_targets,
+                        occluded=settings.occluded)
     target_ids = [o.id for o in scene.targets]
     if config.object_id is not None and config.object_id not in target_ids:
         listed = ", ".join(f"{o.id} ({o.name})" for o in scene.targets)
