@@ -49,7 +49,8 @@ Examples:
 def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
           filter_nan: bool, min_opacity: float | None, filter_box: str | None, filter_sphere: str | None,
           mode: str, reach: float, min_cluster: float, blob_score: float, background: str, filter_values: tuple[str, ...],
-          photos_spec: str, photo_views: int, dry_run: bool, floaters_out: str | None, report_path: str | None, overwrite: bool, quiet: bool) -> None:
+          photos_spec: str, photo_views: int, dry_run: bool, floaters_out: str | None, report_path: str | None,
+          overwrite: bool, quiet: bool) -> None:
     """Remove floaters from IN (any readable splat format) and write the kept Gaussians to OUT (.ply,
     .compressed.ply or .spz, from its extension).
 
@@ -61,7 +62,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
 
     from roodi_toolkit.io.files import check_outputs, write_json
     from roodi_toolkit.io.splat import read_cloud, write_cloud
-    from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos
+    from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos, photo_folders
     from roodi_toolkit.prune.scene import prune_cloud
 
     start = time.perf_counter()
@@ -86,7 +87,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
                                      param_hint="--floaters-out")
     check_outputs([("OUT", None if dry_run else output_ply), ("--floaters-out", floaters_out),
                    ("--report", report_path), ("the dry run's picture", picture)], overwrite=overwrite,
-                  inputs=[input_ply])
+                  inputs=[input_ply, *(photo_folders(input_ply, photos_spec) if mode != "statistical" else [])])
 
     t_read = time.perf_counter()
     cloud = read_cloud(input_ply)

@@ -185,6 +185,17 @@ def test_prune_command_checks_a_model_cloud_against_its_photos(tmp_path, scene, 
     assert ply.read_bytes() == before
 
 
+def test_prune_command_writes_nothing_into_the_photos_folders(tmp_path, scene, run_cli):
+    """The model folder and the dataset it names are read: they are inputs, whatever the spelling of the path."""
+    model, ply, data = _model_folder(tmp_path, scene)
+    for out in (model / "clean.ply", data / "train" / ".." / "clean.ply"):
+        result = run_cli("prune", str(ply), str(out), "-q")
+        assert result.exit_code == 1 and "inside the input folder" in result.stderr
+        assert not out.exists()
+    result = run_cli("prune", str(ply), str(data / "clean.ply"), "-q", "--photos", "none")
+    assert result.exit_code == 0  # without photos the dataset is not read
+
+
 def test_prune_command_refuses_photos_with_the_statistical_rule(tmp_path, scene, run_cli):
     model, ply, _ = _model_folder(tmp_path, scene)
     result = run_cli("prune", str(ply), str(tmp_path / "out.ply"), "--mode", "statistical", "--photos", str(model))

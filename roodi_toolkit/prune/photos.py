@@ -135,6 +135,30 @@ def _enclosing_model(cloud_path: Path) -> Path | None:
     return None
 
 
+def photo_folders(cloud_path: str | Path, spec: str = "auto") -> list[Path]:
+    """Return the folders :func:`find_photos` would read for ``spec`` (the model folder and its data folder, or the
+    folder given), without loading anything: inputs that no output may be written into."""
+    if spec == "none":
+        return []
+    root = _enclosing_model(Path(cloud_path)) if spec == "auto" else Path(spec)
+    if root is None or not root.is_dir():
+        return []
+    folders = [root]
+    if (root / "cfg.json").is_file():
+        from ..io.files import read_json
+
+        try:
+            record = read_json(root / "cfg.json", "training record")
+        except RoodiError:
+            return folders
+        data_dir = record.get("data_dir") if isinstance(record, dict) else None
+        if data_dir:
+            data = Path(str(data_dir))
+            data = root / data if not data.is_absolute() and (root / data).exists() else data
+            folders += [data] if data.is_dir() else []
+    return folders
+
+
 def find_photos(cloud_path: str | Path, spec: str = "auto", *, max_views: int = PHOTO_VIEWS,
                 downscale: float = DATASET_DOWNSCALE, progress: ProgressFactory = null_progress) -> Photos | None:
     """Return the photos to check a prune of ``cloud_path`` against, or None.
