@@ -16,7 +16,8 @@ from roodi_toolkit.params import GaussianParams
 from roodi_toolkit.pipeline.exemplar import ExemplarInpainter, exemplar_fill
 from roodi_toolkit.pipeline.inpaint import FillContext, OpenCVInpainter, get_inpainter, inpaint_views
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, fill_picture, object_cameras, seen_empty
-from roodi_toolkit.pipeline.symmetry import SymmetryInpainter, find_mirror, mirror_cloud
+from roodi_toolkit.pipeline.symmetry import (SymmetryInpainter, extrude_to_support, find_mirror, mirror_cloud,
+                                             support_height)
 from roodi_toolkit.plugins import discover
 from roodi_toolkit.render.renderer import TorchRenderer
 
@@ -135,6 +136,69 @@ def test_symmetry_restores_the_removed_half_of_a_symmetric_object():
     context = FillContext(cut, cams, r, up=(0, 0, 1), seen_empty=lambda pts: np.broadcast_to(everything[:1], len(pts)))
     inpaint_views(SymmetryInpainter(), before, mask, context=context)
     assert context.proposed is None
+
+
+def _bottle(n: int = 3000, seed: int = 0):
+    """A vertical cylinder's surface (radius 0.2, z 0 to 1, a colour band) standing on z = 0; its part under z = 0.5
+    is the one a sleeve hid."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0, 2 * np.pi, n)
+    z = rng.uniform(0, 1, n)
+    p = np.c_[0.2 * np.cos(a), 0.2 * np.sin(a), z]
+    rgb = np.c_[np.full(n, 0.2), 0.5 + 0.3 * np.sin(a), np.full(n, 0.3)]
+    cloud = GaussianCloud.from_activated(p, scales=np.full((n, 3), 0.02), opacities=np.full(n, 0.9), rgb=rgb)
+    return cloud, z < 0.5
+
+
+def test_support_height_and_extrusion_complete_what_a_sleeve_hid():
+    cloud, hidden = _bottle()
+    seen = cloud.select(~hidden)
+    rng = np.random.default_rng(1)
+    floor = GaussianCloud.from_activated(np.c_[rng.uniform(-1.5, 1.5, (4000, 2)), np.zeros(4000)],
+                                         scales=np.full((4000, 3), 0.03), opacities=np.full(4000, 0.9),
+                                         rgb=np.full((4000, 3), 0.8))
+    sleeve_floor = floor.select(np.linalg.norm(floor.means[:, :2], axis=1) > 0.35)  # no floor seen inside the sleeve
+    support = support_height(seen, GaussianCloud.concatenate([sleeve_floor, seen]), (0, 0, 1))
+    assert support is not None and abs(support) < 0.03
+    out = extrude_to_support(seen, (0, 0, 1), support)
+    assert out.means[:, 2].min() >= support - 1e-6 and out.means[:, 2].max() < 0.5 + 0.1 * 0.5
+    assert 0.8 * hidden.sum() < len(out) < 1.5 * hidden.sum()  # the object's own density, not a pile-up
+    # the copies lie on the hidden part's surface, with the colours of the band above it
+    r = np.linalg.norm(out.means[:, :2], axis=1)
+    assert np.abs(r - 0.2).max() < 1e-5
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(out.means).query(cloud.means[hidden])
+    assert np.quantile(d, 0.95) < 0.08  # every hidden point has a copy near it
+    assert support_height(seen, seen, (0, 0, 1)) is None  # nothing under the object: no support
+    assert len(extrude_to_support(seen, (0, 0, 1), 0.7)) == 0  # a support above the lowest point: nothing to do
+
+
+def test_symmetry_inpainter_proposes_the_extrusion_and_respects_what_views_see_through():
+    cloud, hidden = _bottle(1500)
+    seen = cloud.select(~hidden)
+    cams = object_cameras([0, 0, 0.5], 0.6, OcclusionConfig(size=24, seed=2))
+    r = TorchRenderer()
+    p = GaussianParams.from_cloud(seen)
+    with torch.no_grad():
+        outs = [r.render(p, cam, background=torch.ones(3)) for cam in cams]
+    before = torch.stack([o.rgb.clamp(0, 1) for o in outs])
+    mask = torch.stack([o.alpha[..., 0] for o in outs]) < 0.5
+    inp = SymmetryInpainter(mirror=False)  # the extrusion alone
+    context = FillContext(seen, cams, r, up=(0, 0, 1), support=0.0)
+    inpaint_views(inp, before, mask, context=context)
+    assert inp.last_extruded > 0 and context.proposed is not None
+    assert context.proposed.means[:, 2].max() < 0.52 and len(context.proposed) > 0.5 * hidden.sum()
+    # a view that saw empty space under z = 0.25 keeps the copies out of it
+    context = FillContext(seen, cams, r, up=(0, 0, 1), support=0.0, seen_empty=lambda pts: pts[:, 2] < 0.25)
+    inpaint_views(inp, before, mask, context=context)
+    assert context.proposed is not None and context.proposed.means[:, 2].min() >= 0.25
+    # without a known support (or with extrude=False) nothing is proposed
+    for inpainter, ctx in ((inp, FillContext(seen, cams, r, up=(0, 0, 1))),
+                           (SymmetryInpainter(mirror=False, extrude=False),
+                            FillContext(seen, cams, r, up=(0, 0, 1), support=0.0))):
+        inpaint_views(inpainter, before, mask, context=ctx)
+        assert ctx.proposed is None
 
 
 def test_seen_empty_and_fill_picture():

@@ -457,8 +457,11 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     def empty(points: np.ndarray) -> np.ndarray:
         return seen_empty(points, cameras, masks_np, depths_np, occlusion.depth_tolerance * occ.radius)
 
+    from .symmetry import support_height
+
     context = FillContext(object_cloud, occ.cameras, renderer, bg, occ, up=tuple(float(u) for u in up),
-                          seen_empty=empty)
+                          seen_empty=empty,
+                          support=support_height(object_cloud, scene_cloud, up) if len(object_cloud) >= 4 else None)
     inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt, context=context)
     filled = occ.mask & ((inpainted - occ.object_rgb).abs().amax(dim=-1) > FILL_CHANGE)
     proposed = 0
@@ -501,7 +504,8 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                     "finetune": asdict(finetune), "object_centre": occ.centre.tolist(), "object_radius": occ.radius,
                     "seeded_gaussians": seeded, "proposed_gaussians": proposed,
                     "filled_fraction": [float(m.float().mean()) for m in filled],
-                    "mirror": _mirror_record(inpainter),
+                    "mirror": _mirror_record(inpainter), "support": context.support,
+                    "extruded_gaussians": int(getattr(inpainter, "last_extruded", 0)),
                     "occluded_fraction": [float(m.float().mean()) for m in occ.occluded],
                     "mask_fraction": [float(m.float().mean()) for m in occ.mask],
                     "seconds_finetune": result.seconds, "history": result.history}, out_dir / "refine.json")

@@ -57,6 +57,8 @@ class FillContext:
         seen_empty: a function of world points ``[N, 3]`` returning which of them (bool ``[N]``) a training view sees
             as empty space, if known (:func:`roodi_toolkit.pipeline.occlusion.seen_empty`); a 3D completion drops
             what it would put there.
+        support: the height along ``up`` of the surface the object stands on, if known
+            (:func:`roodi_toolkit.pipeline.symmetry.support_height`).
         rows: grid rows the views are tiled in.
         cols: grid columns.
         proposed: set by the inpainter: Gaussians it proposes to add to the object (same columns), or None.
@@ -69,6 +71,7 @@ class FillContext:
     occlusion: "Optional[OcclusionResult]" = field(default=None, repr=False)
     up: Optional[Sequence[float]] = None
     seen_empty: Optional[Callable[[np.ndarray], np.ndarray]] = field(default=None, repr=False)
+    support: Optional[float] = None
     rows: int = 2
     cols: int = 2
     proposed: "Optional[GaussianCloud]" = field(default=None, repr=False)

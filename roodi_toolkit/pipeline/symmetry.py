@@ -188,6 +188,88 @@ def new_gaussians(cloud: GaussianCloud, mirrored: GaussianCloud, distance: float
     return ~np.isfinite(d)
 
 
+SUPPORT_RADIUS = 3.0
+"""support_height looks for the support among the scene's Gaussians within this many object radii (horizontally)."""
+
+
+def support_height(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, up: Sequence[float], *,
+                   bins: int = 64) -> Optional[float]:
+    """Return the height (along ``up``) of the surface the object stands on, or None when there is none below it.
+
+    The scene's Gaussians within :data:`SUPPORT_RADIUS` object radii of the object's vertical axis and below its
+    lowest point are binned by height; a support (floor, table top) is a dense, level layer, so it is the fullest
+    bin's centre. Where the object stands in a wrap, the support right under it was never seen, but the floor around
+    the wrap was, at the same height.
+
+    Example:
+        >>> rng = np.random.default_rng(0)
+        >>> floor = np.c_[rng.uniform(-2, 2, (2000, 2)), rng.normal(0, 0.005, 2000)]
+        >>> obj = np.c_[rng.normal(0, 0.1, (300, 2)), rng.uniform(0.6, 1.0, 300)]
+        >>> make = lambda p: GaussianCloud.from_activated(p, scales=np.full((len(p), 3), 0.02),
+        ...                                             opacities=np.full(len(p), 0.9), rgb=np.full((len(p), 3), 0.5))
+        >>> abs(support_height(make(obj), make(np.r_[floor, obj]), [0, 0, 1])) < 0.01
+        True
+    """
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    obj = object_cloud.means.astype(np.float64)
+    scene = scene_cloud.means.astype(np.float64)
+    h_obj, h_scene = obj @ u, scene @ u
+    lowest = float(np.quantile(h_obj, 0.02))
+    centre = obj.mean(axis=0)
+    flat = lambda p: (p - centre) - np.outer((p - centre) @ u, u)  # noqa: E731
+    radius = float(np.quantile(np.linalg.norm(flat(obj), axis=1), 0.9))
+    height = float(h_obj.max() - lowest)
+    # under the object's lowest point by more than 5% of its height: not the object's own lowest Gaussians
+    near = ((np.linalg.norm(flat(scene), axis=1) <= SUPPORT_RADIUS * max(radius, 1e-9))
+            & (h_scene < lowest - 0.05 * height))
+    if near.sum() < 8:
+        return None
+    below = h_scene[near]
+    below = below[below > lowest - 2.0 * max(height, radius)]  # a support, not the bottom of the world
+    if len(below) < 8:
+        return None
+    counts, edges = np.histogram(below, bins=bins)
+    k = int(np.argmax(counts))
+    return float(0.5 * (edges[k] + edges[k + 1]))
+
+
+def extrude_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, *, band: float = 0.1,
+                       step: Optional[float] = None) -> GaussianCloud:
+    """Return copies of the object's lowest band carried straight down to the support (an empty cloud if none).
+
+    A part that every training view had hidden (a bottle in a sleeve, a pot in a box) most often continues the
+    lowest part that was seen: the Gaussians within ``band`` of the object's height above its lowest point (a slab)
+    are copied downwards every ``step`` (default: the slab's thickness, so that the copies tile the gap at the
+    object's own density) until they reach ``support``. Callers drop the
+    copies a training view sees through (``FillContext.seen_empty``): where a view saw empty space under the
+    object, the object does not go on.
+    """
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    means = cloud.means.astype(np.float64)
+    h = means @ u
+    lowest = float(np.quantile(h, 0.02))
+    height = float(h.max() - lowest)
+    gap = lowest - float(support)
+    layer = np.flatnonzero(h <= lowest + band * height)
+    if gap <= 0 or height <= 0 or len(layer) == 0:
+        return cloud.select(np.zeros(len(cloud), dtype=bool))
+    step = max(band * height, _spacing(means)) if step is None else float(step)
+    count = int(np.ceil(gap / max(step, 1e-9)))
+    if count > 200:  # a support far below (or a tiny spacing): step so that at most 200 copies are made
+        step, count = gap / 200.0, 200
+    source = cloud.select(layer)
+    copies = []
+    for k in range(1, count + 1):
+        c = source.copy()
+        c.means = (c.means.astype(np.float64) - k * step * u).astype(c.means.dtype)
+        copies.append(c)
+    out = GaussianCloud.concatenate(copies)
+    keep = out.means.astype(np.float64) @ u >= float(support)
+    return out.select(keep)
+
+
 class SymmetryInpainter(Inpainter):
     """Mirror-symmetry completion rendered into the views, the rest by a 2D inpainter (module docstring).
 
@@ -204,6 +286,9 @@ class SymmetryInpainter(Inpainter):
         propose: propose the mirrored Gaussians farther than ``new_distance`` (times the median spacing of the
             Gaussians) from every original one.
         new_distance: see ``propose``.
+        mirror: complete by mirror symmetry (off: the extrusion alone).
+        extrude: also carry the object's lowest band down to the surface it stands on
+            (:func:`extrude_to_support`, when the context knows ``support``), after the mirror if one agrees.
         fallback_options: options of the fallback inpainter.
     """
 
@@ -211,7 +296,8 @@ class SymmetryInpainter(Inpainter):
     uses_context = True
 
     def __init__(self, *, fallback: str = "exemplar", min_agreement: float = 0.35, alpha_threshold: float = 0.5,
-                 propose: bool = True, new_distance: float = 2.0, fallback_options: Optional[dict] = None) -> None:
+                 propose: bool = True, new_distance: float = 2.0, mirror: bool = True, extrude: bool = True,
+                 fallback_options: Optional[dict] = None) -> None:
         if fallback == self.name:
             raise ConfigError("symmetry inpainter: the fallback must be another inpainter")
         if not 0 <= min_agreement <= 1 or not 0 < alpha_threshold < 1 or new_distance <= 0:
@@ -222,21 +308,34 @@ class SymmetryInpainter(Inpainter):
         self.alpha_threshold = float(alpha_threshold)
         self.propose = bool(propose)
         self.new_distance = float(new_distance)
+        self.mirror, self.extrude = bool(mirror), bool(extrude)
         self.last_mirror: Optional[Mirror] = None
+        self.last_extruded = 0
 
     def mirror_views(self, context: FillContext) -> Optional[tuple[Tensor, Tensor, GaussianCloud]]:
-        """Return the object with its mirror image rendered in the context's views (rgb ``[V, H, W, 3]``, alpha
-        ``[V, H, W]``) and the mirrored Gaussians, or None when no plane agrees well enough."""
+        """Return the object with its completion (mirror image, then extrusion to the support) rendered in the
+        context's views (rgb ``[V, H, W, 3]``, alpha ``[V, H, W]``) and the completion's Gaussians, or None when
+        neither applies (no plane agrees well enough and no support is known)."""
         from ..params import GaussianParams
 
         cloud = context.object_cloud
         if len(cloud) < 4:
             return None
-        mirror = find_mirror(cloud, up=context.up)
-        self.last_mirror = mirror
-        if mirror.agreement < self.min_agreement:
+        parts = []
+        if self.mirror:
+            plane = find_mirror(cloud, up=context.up)
+            self.last_mirror = plane
+            if plane.agreement >= self.min_agreement:
+                parts.append(mirror_cloud(cloud, plane.normal, plane.offset))
+        self.last_extruded = 0
+        if self.extrude and context.up is not None and context.support is not None:
+            extruded = extrude_to_support(GaussianCloud.concatenate([cloud, *parts]), context.up, context.support)
+            self.last_extruded = len(extruded)
+            parts.append(extruded)
+        parts = [p for p in parts if len(p)]
+        if not parts:
             return None
-        mirrored = mirror_cloud(cloud, mirror.normal, mirror.offset)
+        mirrored = GaussianCloud.concatenate(parts)
         if context.seen_empty is not None:
             # what a training view sees through is not part of the object, whatever the mirror says
             keep = ~np.asarray(context.seen_empty(mirrored.means.astype(np.float64)), dtype=bool)
