@@ -24,7 +24,7 @@ EXAMPLE = """Example:
 EXTRACT_ONLY = {"preset": "--preset", "object_id": "--object", "size_text": "--size", "train_views": "--train-views",
                 "test_views": "--test-views", "iterations": "--iterations", "max_gaussians": "--max-gaussians",
                 "distill_iterations": "--distill-iterations", "finetune_iterations": "--finetune-iterations",
-                "view_size": "--view-size", "inpainter": "--inpainter", "occluded": "--occluded"}
+                "view_size": "--view-size", "inpainter": "--inpainter", "occluded": "--occluded/--no-occluded"}
 
 
 def _duration(seconds: float) -> str:
@@ -55,10 +55,10 @@ def _scores(ev) -> str:
 @click.option("--view-size", type=click.IntRange(8, 4096), default=None,
               help="Side in pixels of the four object-centred views that are inpainted [256].")
 @click.option("--inpainter", default=None,
-              help="Inpainter plugin: opencv, exemplar, symmetry, sdxl, ... (roodi-toolkit plugins) [opencv].")
-@click.option("--occluded", is_flag=True, default=None,
+              help="Inpainter plugin: opencv, exemplar, symmetry, sdxl, ... (roodi-toolkit plugins) [symmetry].")
+@click.option("--occluded/--no-occluded", default=None,
               help="The preset's occluded variant (make-scene --occluded): the target stands in a wrap that hides "
-                   "part of it from every training view.")
+                   "part of it from every training view [occluded]; --no-occluded: the plain preset.")
 @click.option("--prune-only", is_flag=True, help="Run the planted-floater pruning demo instead (seconds).")
 @click.option("--surface", type=click.Choice(SURFACES), default=None,
               help="With --prune-only: the generated object's surface [ant].")
