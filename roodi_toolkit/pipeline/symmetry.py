@@ -1,4 +1,5 @@
-"""3D completion from the object itself: mirror symmetry about one of its principal planes.
+"""3D completion from the object itself: mirror symmetry about one of its principal planes, and extrusion of its
+lowest seen part down to the surface it stands on.
 
 Many objects people extract (bottles, mugs, bowls, chairs, balls, baskets) are mirror-symmetric, and the part that no
 training view saw is often the mirror image of a part that one did. :func:`find_mirror` tries the planes
@@ -17,7 +18,14 @@ base colour (higher SH bands are dropped: their mirror image is not a rotation o
 the masked pixels the copy covers; the rest goes to a 2D inpainter (``exemplar`` by default). It also proposes the
 mirrored Gaussians that land where the object has none (:attr:`~roodi_toolkit.pipeline.inpaint.FillContext.proposed`):
 mirrored Gaussians that a training view sees through (empty space there: ``FillContext.seen_empty``) are dropped
-first, and the refinement adds the proposed ones before fine-tuning, which the training views then correct. Without a context, or when no plane agrees well enough
+first, and the refinement adds the proposed ones before fine-tuning, which the training views then correct.
+
+A part hidden on every side (a bottle's lower half in a sleeve, a pot in a box) has no seen mirror image. Objects
+stand on something, so :func:`support_height` finds the floor or table top under the object among the scene's
+Gaussians around it, and :func:`extrude_to_support` carries the lowest seen band of the object (after the mirror)
+straight down to it; these copies go through the same see-through test and proposal. Measured on the occluded
+presets (``benchmarks/RESULTS.md``, "Occluded scenes"): inside the never-seen region +0.52 IoU and +4.4 dB over no
+fill, where the mirror alone gave +0.02 IoU and +0.1 dB. Without a context, or when no plane agrees well enough
 (``min_agreement``), it is the 2D fallback alone.
 """
 
