@@ -127,7 +127,10 @@ def _model_photos(root: Path, max_views: int, progress: ProgressFactory) -> Phot
 
 def _enclosing_model(cloud_path: Path) -> Path | None:
     """Return the roodi-toolkit model folder the cloud file sits in, if any (``cfg.json`` beside ``point_cloud/``)."""
-    folder = cloud_path.resolve().parent
+    try:
+        folder = cloud_path.resolve().parent
+    except (OSError, RuntimeError):  # a symbolic link loop: no model folder; reading the file says what is wrong
+        return None
     for _ in range(MODEL_SEARCH_DEPTH):
         if (folder / "cfg.json").is_file() and (folder / "point_cloud").is_dir():
             return folder
