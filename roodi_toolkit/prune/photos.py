@@ -99,40 +99,61 @@ def _from_dataset(path: Path, downscale: float, holdout_every: int, max_views: i
     return Photos(images, alphas, [dataset.cameras[i] for i in views], tuple(dataset.background), source)
 
 
+def _is_model(folder: Path) -> bool:
+    """Whether ``folder`` is a roodi-toolkit model folder (its record ``cfg.json`` beside ``point_cloud/``)."""
+    return (folder / "cfg.json").is_file() and (folder / "point_cloud").is_dir()
+
+
+def _record(root: Path) -> tuple[dict, Path | None]:
+    """Return a model folder's record and the data folder it names (relative names taken from the model folder
+    when they exist there), or None for the data folder when it names none.
+
+    Raises:
+        InputError: ``cfg.json`` is not readable JSON.
+    """
+    from ..io.files import read_json
+
+    record = read_json(root / "cfg.json", "training record")
+    record = record if isinstance(record, dict) else {}
+    data_dir = record.get("data_dir")
+    if not data_dir:
+        return record, None
+    data = Path(str(data_dir))
+    return record, root / data if not data.is_absolute() and (root / data).exists() else data
+
+
 def _model_photos(root: Path, max_views: int, progress: ProgressFactory) -> Photos:
     """Return the training photos named by the model folder's record.
 
     Raises:
-        PhotosUnavailable: the record names no data folder, it is not on this machine, or it does not load.
+        PhotosUnavailable: the record is unreadable or names no data folder, it is not on this machine, or it does
+            not load.
     """
-    from ..io.model import find_model
-
-    record = root / "cfg.json"
-    model = find_model(root)
-    data_dir = model.config.get("data_dir")
-    if not data_dir:
-        raise PhotosUnavailable(f"{record} names no data folder")
-    data = Path(str(data_dir))
-    if not data.is_absolute() and (root / data).exists():
-        data = root / data
-    if not data.exists():
-        raise PhotosUnavailable(f"the data folder {data} that {record} names is not here")
-    downscale = float(model.config.get("downscale") or 1)
-    holdout = int(model.config.get("holdout_every", 8))
+    where = root / "cfg.json"
     try:
-        return _from_dataset(data, downscale, holdout, max_views, f", from {record}", progress)
+        record, data = _record(root)
     except RoodiError as exc:
-        raise PhotosUnavailable(f"the data folder {data} that {record} names does not load: {exc}") from None
+        raise PhotosUnavailable(str(exc)) from None
+    if data is None:
+        raise PhotosUnavailable(f"{where} names no data folder")
+    if not data.exists():
+        raise PhotosUnavailable(f"the data folder {data} that {where} names is not here")
+    downscale = float(record.get("downscale") or 1)
+    holdout = int(record.get("holdout_every", 8))
+    try:
+        return _from_dataset(data, downscale, holdout, max_views, f", from {where}", progress)
+    except RoodiError as exc:
+        raise PhotosUnavailable(f"the data folder {data} that {where} names does not load: {exc}") from None
 
 
 def _enclosing_model(cloud_path: Path) -> Path | None:
-    """Return the roodi-toolkit model folder the cloud file sits in, if any (``cfg.json`` beside ``point_cloud/``)."""
+    """Return the roodi-toolkit model folder the cloud file sits in, if any."""
     try:
         folder = cloud_path.resolve().parent
     except (OSError, RuntimeError):  # a symbolic link loop: no model folder; reading the file says what is wrong
         return None
     for _ in range(MODEL_SEARCH_DEPTH):
-        if (folder / "cfg.json").is_file() and (folder / "point_cloud").is_dir():
+        if _is_model(folder):
             return folder
         folder = folder.parent
     return None
@@ -146,20 +167,13 @@ def photo_folders(cloud_path: str | Path, spec: str = "auto") -> list[Path]:
     root = _enclosing_model(Path(cloud_path)) if spec == "auto" else Path(spec)
     if root is None or not root.is_dir():
         return []
-    folders = [root]
-    if (root / "cfg.json").is_file():
-        from ..io.files import read_json
-
-        try:
-            record = read_json(root / "cfg.json", "training record")
-        except RoodiError:
-            return folders
-        data_dir = record.get("data_dir") if isinstance(record, dict) else None
-        if data_dir:
-            data = Path(str(data_dir))
-            data = root / data if not data.is_absolute() and (root / data).exists() else data
-            folders += [data] if data.is_dir() else []
-    return folders
+    if not (root / "cfg.json").is_file():
+        return [root]
+    try:
+        _, data = _record(root)
+    except RoodiError:
+        return [root]
+    return [root] + ([data] if data is not None and data.is_dir() else [])
 
 
 def find_photos(cloud_path: str | Path, spec: str = "auto", *, max_views: int = PHOTO_VIEWS,
@@ -188,7 +202,7 @@ def find_photos(cloud_path: str | Path, spec: str = "auto", *, max_views: int = 
     path = Path(spec)
     if not path.exists():
         raise ConfigError(f"--photos {spec}: no such folder (give a model folder, a dataset folder, auto or none)")
-    if (path / "cfg.json").is_file() and (path / "point_cloud").is_dir():
+    if _is_model(path):
         try:
             return _model_photos(path, max_views, progress)
         except PhotosUnavailable as exc:
