@@ -459,9 +459,10 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
 
     from .symmetry import support_height
 
+    # only a 3D-aware inpainter reads the context: the support is looked for only for one
+    wants = getattr(inpainter, "uses_context", False) and len(object_cloud) >= 4
     context = FillContext(object_cloud, occ.cameras, renderer, bg, occ, up=tuple(float(u) for u in up),
-                          seen_empty=empty,
-                          support=support_height(object_cloud, scene_cloud, up) if len(object_cloud) >= 4 else None)
+                          seen_empty=empty, support=support_height(object_cloud, scene_cloud, up) if wants else None)
     inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt, context=context)
     filled = occ.mask & ((inpainted - occ.object_rgb).abs().amax(dim=-1) > FILL_CHANGE)
     proposed = 0
