@@ -17,7 +17,7 @@ Examples:
   roodi-toolkit prune scene.ply clean.ply
   roodi-toolkit prune scene.ply clean.ply --floaters-out floaters.ply --report prune.json
   roodi-toolkit prune scene.ply clean.ply --dry-run                  # clean.prune.json + clean.prune.png only
-  roodi-toolkit prune scene.ply clean.ply --mode object              # one object: everything detached goes
+  roodi-toolkit prune scene.ply clean.ply --mode object              # one object: what is detached goes
   roodi-toolkit prune models/room/point_cloud/iteration_7000/point_cloud.ply clean.ply   # checked against its photos
   roodi-toolkit prune other_tool.ply clean.ply --photos ../captures/room   # a dataset folder: its photos
   roodi-toolkit prune scene.ply clean.ply --mode statistical --rule paper --alpha 2 --k 16   # the paper's rule
@@ -48,7 +48,8 @@ Examples:
 @quiet_option
 def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
           filter_nan: bool, min_opacity: float | None, filter_box: str | None, filter_sphere: str | None,
-          mode: str, reach: float, min_cluster: float, blob_score: float, background: str, filter_values: tuple[str, ...],
+          mode: str, reach: float, min_cluster: float, max_piece: int, blob_score: float, background: str,
+          filter_values: tuple[str, ...],
           photos_spec: str, photo_views: int, dry_run: bool, floaters_out: str | None, report_path: str | None,
           overwrite: bool, quiet: bool) -> None:
     """Remove floaters from IN (any readable splat format) and write the kept Gaussians to OUT (.ply,
@@ -71,8 +72,8 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     config = prune_config_from_options(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors,
                                        filter_nan=filter_nan, min_opacity=min_opacity, filter_box=filter_box,
                                        filter_sphere=filter_sphere, mode=mode, reach=reach,
-                                       min_cluster=min_cluster, blob_score=blob_score, background=background,
-                                       filter_values=filter_values)
+                                       min_cluster=min_cluster, max_piece=max_piece, blob_score=blob_score,
+                                       background=background, filter_values=filter_values)
     if mode == "statistical" and photos_spec not in ("auto", "none"):
         raise click.BadParameter("the photo check belongs to the local tests (--mode auto, scene or object); the "
                                  "statistical rule runs as published", param_hint="--photos")

@@ -46,14 +46,18 @@ _MODE_OPTIONS = [
     click.option("--mode", type=click.Choice(["auto", "scene", "object", "statistical"]), default="auto",
                  show_default=True,
                  help="scene: remove pieces detached from the content and oversized blobs, judged locally (safe on "
-                      "real scenes); object: one object, everything detached from it goes; statistical: the "
-                      "global rule of --rule (paper: ROODI 3.2 as published); auto: object or scene, the choice is "
-                      "printed and reported. Giving --rule or --alpha alone implies statistical."),
+                      "real scenes); object: one object, what is detached from it goes (see --max-piece); "
+                      "statistical: the global rule of --rule (paper: ROODI 3.2 as published); auto: object or "
+                      "scene, the choice is printed and reported. Giving --rule or --alpha alone implies statistical."),
     click.option("--reach", type=click.FloatRange(min=0, min_open=True), default=1.5, show_default=True,
                  help="scene/object: two Gaussians are connected when their centres are closer than this many sums "
                       "of their largest scales."),
     click.option("--min-cluster", type=click.FloatRange(0, 1, max_open=True), default=0.001, show_default=True,
                  help="scene: remove connected pieces with fewer than this fraction of the Gaussians."),
+    click.option("--max-piece", type=click.IntRange(min=0), default=3, show_default=True,
+                 help="scene/object without photos: a detached piece goes only when it holds at most this many "
+                      "Gaussians (larger ones are often real content split off); 0: any size. With photos every "
+                      "detached piece is put to them."),
     click.option("--blob-score", type=float, default=0.5, show_default=True,
                  help="scene/object: remove Gaussians whose smallest axis exceeds the local spacing and size by "
                       "more than this (log units; higher keeps more)."),
@@ -66,7 +70,7 @@ _MODE_OPTIONS = [
                       "(largest axis) or min_scale. Repeatable."),
 ]
 
-MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "blob_score", "background", "filter_values")
+MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "max_piece", "blob_score", "background", "filter_values")
 """Keyword names of the mode options (``prune`` only)."""
 
 
@@ -108,8 +112,8 @@ def prune_options(func: F) -> F:
 def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
                               filter_nan: bool, min_opacity: float | None, filter_box: str | None,
                               filter_sphere: str | None, mode: str = "auto", reach: float = 1.5,
-                              min_cluster: float = 0.001, blob_score: float = 0.5, background: str = "auto",
-                              filter_values: tuple[str, ...] = ()) -> Any:
+                              min_cluster: float = 0.001, max_piece: int = 3, blob_score: float = 0.5,
+                              background: str = "auto", filter_values: tuple[str, ...] = ()) -> Any:
     """Return the ``PruneConfig`` the pruning options describe.
 
     Raises:
@@ -122,7 +126,7 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
     sphere = parse_floats(filter_sphere, 4, "--filter-sphere") if filter_sphere is not None else None
     return PruneConfig(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors, filter_nan=filter_nan,
                        min_opacity=min_opacity, box=box, sphere=sphere, mode=mode, reach=reach,
-                       min_cluster=min_cluster, blob_score=blob_score, background=background,
+                       min_cluster=min_cluster, max_piece=max_piece, blob_score=blob_score, background=background,
                        value_ranges=parse_value_ranges(filter_values))
 
 

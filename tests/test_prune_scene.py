@@ -42,6 +42,16 @@ def test_planted_floaters_in_the_real_donut_are_removed_and_its_content_kept(don
     assert (~keep[labels == OBJECT]).mean() < 0.005
 
 
+def test_the_real_donuts_inner_pieces_stay_without_photos(donut):
+    # five detached pieces of 6-56 Gaussians lie inside the ring (0.4-0.7 of its 90% radius from the centre):
+    # real content the link rule splits off; only the lone specks and pairs go without photos
+    _, keep, report = prune_cloud(donut)
+    _, keep_all, _ = prune_cloud(donut, max_piece=0)
+    spared = keep & ~keep_all
+    assert spared.sum() >= 100 and "109 Gaussians in 5 detached pieces of more than 3 stay" in report.mode_reason
+    assert (~keep).mean() < 0.002
+
+
 def test_plant_floaters_follows_the_recipe(donut):
     centre, r90, size = scene_extent(donut)
     planted, labels = plant_floaters(donut, seed=3, n_specks=50, n_blobs=40)
@@ -64,14 +74,30 @@ def test_default_prune_on_synthetic_mixes(surface):
     assert dict(report.stages)["fog"] == 0  # no white or black fog in these clouds
 
 
-def test_object_mode_drops_a_second_piece_scene_mode_keeps_it():
+def test_object_mode_drops_a_second_piece_only_without_a_size_limit():
     a = planted_floater_cloud(FloaterMix("sphere", n_object=3000, far_fraction=0, near_fraction=0), 0).cloud
     b = planted_floater_cloud(FloaterMix("torus", n_object=600, far_fraction=0, near_fraction=0), 1).cloud
     both = type(a).concatenate([a, b.with_fields(means=b.means + np.float32(5.0))])  # a second, detached object
     _, keep, report = prune_cloud(both)
     assert report.mode == "scene" and keep.mean() > 0.99
+    # without photos a detached piece of more than max_piece Gaussians has structure: it stays, and the report says so
     _, keep, report = prune_cloud(both, mode="object")
+    assert report.mode == "object" and keep.mean() > 0.99
+    assert "600 Gaussians in 1 detached pieces of more than 3 stay" in report.mode_reason
+    _, keep, report = prune_cloud(both, mode="object", max_piece=0)
     assert report.mode == "object" and not keep[3000:].any() and keep[:3000].mean() > 0.99
+
+
+def test_without_photos_lone_specks_go_and_small_clumps_stay():
+    a = planted_floater_cloud(FloaterMix("sphere", n_object=3000, far_fraction=0, near_fraction=0), 0).cloud
+    far = a.select(np.arange(40))
+    clump = far.with_fields(means=far.means * np.float32(0.02) + np.float32(3.0))  # 40 Gaussians in one piece
+    lone = a.select(np.arange(3)).with_fields(means=np.array([[4, 0, 0], [0, 4, 0], [0, 0, -4]], np.float32))
+    cloud = type(a).concatenate([a, clump, lone])
+    _, keep, _ = prune_cloud(cloud, mode="object")
+    assert keep[3000:3040].all() and not keep[3040:].any()
+    _, keep, _ = prune_cloud(cloud, mode="object", max_piece=40)
+    assert not keep[3000:].any()
 
 
 def test_statistical_mode_is_the_unchanged_rule():

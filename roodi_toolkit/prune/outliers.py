@@ -70,12 +70,16 @@ class PruneConfig:
         sphere: keep only centres inside (x, y, z, r), before the statistics.
         compute_dtype: float type of the W2 evaluation; float32 is within 1e-6 relative (wasserstein.py) and faster.
         mode: what :func:`roodi_toolkit.prune.scene.prune_cloud` runs: ``scene`` (local tests: detached pieces and
-            oversized blobs, safe on real scenes), ``object`` (one object: everything detached from the largest
+            oversized blobs, safe on real scenes), ``object`` (one object: what is detached from the largest
             piece goes, plus oversized blobs), ``statistical`` (the rule above: robust, paper or clip) or ``auto``
             (object when the largest piece holds ``object_fraction`` of the Gaussians, scene otherwise).
             :func:`remove_statistical_outliers` always runs the statistical rule.
         reach: link distance of the local tests, in sums of the two Gaussians' largest scales.
         min_cluster: scene mode removes pieces with fewer than this fraction of the Gaussians.
+        max_piece: without photos, a detached piece goes only when it holds at most this many Gaussians (0: any
+            size). Larger detached pieces have structure: real content that the linking rule split off (the real
+            donut's inner pieces of 6-56 Gaussians, a cropped capture's chunks of 73-379), which only the photos
+            can tell from a floater; with photos every detached piece is put to them.
         blob_score: oversized limit of the local tests (log units, see scene.py).
         object_fraction: auto picks object mode when the largest piece holds at least this fraction.
         background: the colour the scene was trained on, whose fog the local modes remove: ``auto`` (detected,
@@ -99,6 +103,7 @@ class PruneConfig:
     mode: str = "auto"
     reach: float = 1.5
     min_cluster: float = 0.001
+    max_piece: int = 3
     blob_score: float = 0.5
     object_fraction: float = 0.98
     value_ranges: tuple[tuple[str, float, float], ...] = ()
@@ -112,6 +117,8 @@ class PruneConfig:
             if not np.isfinite(value) or (name == "reach" and value <= 0):
                 raise ConfigError(f"{name} must be a {'positive' if name == 'reach' else 'finite'} number, "
                                   f"got {value}")
+        if isinstance(self.max_piece, bool) or not isinstance(self.max_piece, (int, np.integer)) or self.max_piece < 0:
+            raise ConfigError(f"max_piece must be a whole number >= 0 (0: no limit), got {self.max_piece!r}")
         if not 0 <= self.min_cluster < 1 or not 0 < self.object_fraction <= 1:
             raise ConfigError(f"min_cluster must be in [0, 1) and object_fraction in (0, 1], got {self.min_cluster} "
                               f"and {self.object_fraction}")
