@@ -163,9 +163,17 @@ def test_support_height_and_extrusion_complete_what_a_sleeve_hid():
     out = extrude_to_support(seen, (0, 0, 1), support)
     assert out.means[:, 2].min() >= support - 1e-6 and out.means[:, 2].max() < 0.5 + 0.1 * 0.5
     assert 0.8 * hidden.sum() < len(out) < 1.5 * hidden.sum()  # the object's own density, not a pile-up
-    # the copies lie on the hidden part's surface, with the colours of the band above it
+    # the copies lie on the hidden part's surface, end where the support begins and take the band's mean colour
     r = np.linalg.norm(out.means[:, :2], axis=1)
     assert np.abs(r - 0.2).max() < 1e-5
+    spread = np.sqrt(out.covariances()[:, 2, 2])
+    assert (out.means[:, 2] - 2 * spread >= support - 1e-6).all()
+    z = seen.means[:, 2]
+    lowest = np.quantile(z, 0.02)
+    band = seen.select(z <= lowest + 0.1 * (z.max() - lowest))  # the slab extrude_to_support copies
+    np.testing.assert_allclose(out.rgb, np.broadcast_to(band.rgb.mean(axis=0), out.rgb.shape), atol=1e-5)
+    as_is = extrude_to_support(seen, (0, 0, 1), support, mean_colour=False, reach=0.0)
+    assert len(as_is) > len(out) and np.ptp(as_is.rgb, axis=0).max() > 0.1  # the band repeated, colours and all
     from scipy.spatial import cKDTree
 
     d, _ = cKDTree(out.means).query(cloud.means[hidden])

@@ -24,8 +24,9 @@ A part hidden on every side (a bottle's lower half in a sleeve, a pot in a box) 
 stand on something, so :func:`support_height` finds the floor or table top under the object among the scene's
 Gaussians around it, and :func:`extrude_to_support` carries the lowest seen band of the object (after the mirror)
 straight down to it; these copies go through the same see-through test and proposal. Measured on the occluded
-presets (``benchmarks/RESULTS.md``, "Occluded scenes"): inside the never-seen region +0.52 IoU and +4.4 dB over no
-fill, where the mirror alone gave +0.02 IoU and +0.1 dB. Without a context, or when no plane agrees well enough
+presets (``benchmarks/RESULTS.md``, "Occluded scenes"): inside the never-seen region +0.44 IoU and +4.0 dB over no
+fill, where the mirror alone gave +0.02 IoU and +0.1 dB, and +1.4 dB on the whole object's box over the Gaussian
+Grouping-style baseline. Without a context, or when no plane agrees well enough
 (``min_agreement``), it is the 2D fallback alone.
 """
 
@@ -243,7 +244,8 @@ def support_height(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, up: 
 
 
 def extrude_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, *, band: float = 0.1,
-                       step: Optional[float] = None) -> GaussianCloud:
+                       step: Optional[float] = None, reach: float = 2.0, mean_colour: bool = True,
+                       cap_scales: bool = True) -> GaussianCloud:
     """Return copies of the object's lowest band carried straight down to the support (an empty cloud if none).
 
     A part that every training view had hidden (a bottle in a sleeve, a pot in a box) most often continues the
@@ -252,6 +254,20 @@ def extrude_to_support(cloud: GaussianCloud, up: Sequence[float], support: float
     object's own density) until they reach ``support``. Callers drop the
     copies a training view sees through (``FillContext.seen_empty``): where a view saw empty space under the
     object, the object does not go on.
+
+    What is below the band was never seen, so the copies are the safest guess rather than the band repeated:
+
+    - the object ends at the surface it stands on: a copy whose Gaussian reaches through it (``reach`` standard
+      deviations along ``up``) is dropped;
+    - ``mean_colour``: the copies take the band's opacity-weighted mean base colour (no view-dependent bands).
+      Under squared error the mean is the best single guess of a colour that was never seen; repeating each band
+      Gaussian repeats its blotches and highlights down the whole hidden part;
+    - ``cap_scales``: no axis of a copy is longer than the median of the object's Gaussians' largest axes, so that
+      one large band Gaussian does not spread its copies beyond the band's outline.
+
+    Measured on the occluded presets before fine-tuning (the object with its copies against the true object-alone
+    test views, box PSNR, 16 targets per seed): seeds 0 / 1, the band repeated as it is 14.75 / 14.19 dB, with the
+    three rules 15.24 / 14.69 dB (``benchmarks/RESULTS.md``, "Occluded scenes").
     """
     u = np.asarray(up, np.float64)
     u = u / np.linalg.norm(u)
@@ -268,13 +284,24 @@ def extrude_to_support(cloud: GaussianCloud, up: Sequence[float], support: float
     if count > 200:  # a support far below (or a tiny spacing): step so that at most 200 copies are made
         step, count = gap / 200.0, 200
     source = cloud.select(layer)
+    if cap_scales:
+        cap = np.median(np.asarray(cloud.log_scales, np.float64).max(axis=1))
+        source = source.with_fields(log_scales=np.minimum(source.log_scales, cap).astype(source.log_scales.dtype))
+    if mean_colour:
+        w = source.opacities.astype(np.float64)
+        w = w / w.sum() if w.sum() > 0 else np.full(len(source), 1.0 / len(source))
+        dc = np.tensordot(w, source.sh_dc.astype(np.float64), axes=1)
+        source = source.with_fields(sh_dc=np.broadcast_to(dc, source.sh_dc.shape).astype(source.sh_dc.dtype).copy(),
+                                    sh_rest=np.zeros_like(source.sh_rest))
     copies = []
     for k in range(1, count + 1):
         c = source.copy()
         c.means = (c.means.astype(np.float64) - k * step * u).astype(c.means.dtype)
         copies.append(c)
     out = GaussianCloud.concatenate(copies)
-    keep = out.means.astype(np.float64) @ u >= float(support)
+    # the standard deviation of each copy along up: sqrt(u^T Sigma u)
+    spread = np.sqrt(np.maximum(np.einsum("i,nij,j->n", u, out.covariances().astype(np.float64), u), 0.0))
+    keep = out.means.astype(np.float64) @ u - reach * spread >= float(support)
     return out.select(keep)
 
 
