@@ -57,9 +57,11 @@ CAMERA_HELP = ("View direction: iso, xy (from +z), xz (from -y), yz (from +x), o
 def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: str, camera: str, window_size: str,
             screenshot: str | None, html_path: str | None, histogram: str | None, window: bool | None,
             overwrite: bool, quiet: bool, **prune_kwargs: object) -> None:
-    """Show IN.ply in PyVista with the Gaussians that `prune` (same options) would remove highlighted.
+    """Show IN.ply in PyVista with the Gaussians that the statistical rule (`prune --mode statistical`, same
+    options) would remove highlighted.
 
-    Each Gaussian is drawn with its footprint: oriented, scaled ellipsoids for small clouds, Gaussian splats sized by
+    For what `prune`'s default (the local tests and the photo check) would remove, run `prune IN OUT --dry-run`:
+    it writes that picture and the report without writing a cloud. Each Gaussian is drawn with its footprint: oriented, scaled ellipsoids for small clouds, Gaussian splats sized by
     scale for large ones. Without a display, ask for --screenshot, --html or --histogram.
     """
     from roodi_toolkit.viz import inspect as insp
