@@ -142,6 +142,14 @@ def test_cli_dry_run_writes_report_and_picture_only(run_cli, tmp_path):
     res = run_cli("prune", src, out, "--overwrite", "--filter-value", "scale,0,0.5", "--mode", "scene")
     assert res.exit_code == 0, res.stderr
     assert (read_ply(out).scales.max(axis=1) <= 0.5).all()
+    res = run_cli("prune", src, out, "--overwrite", "--max-piece", "-1")
+    assert res.exit_code == 2 and "--max-piece" in res.stderr
+    res = run_cli("prune", src, out, "--overwrite", "--max-piece", "0", "--report", tmp_path / "m.json")
+    assert res.exit_code == 0, res.stderr
+    assert json.loads((tmp_path / "m.json").read_text())["config"]["max_piece"] == 0
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ConfigError, match="max_piece"):
+            PruneConfig(max_piece=bad)
 
 
 def test_white_background_fog_is_detected_and_removed():
