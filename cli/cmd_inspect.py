@@ -61,8 +61,9 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     options) would remove highlighted.
 
     For what `prune`'s default (the local tests and the photo check) would remove, run `prune IN OUT --dry-run`:
-    it writes that picture and the report without writing a cloud. Each Gaussian is drawn with its footprint: oriented, scaled ellipsoids for small clouds, Gaussian splats sized by
-    scale for large ones. Without a display, ask for --screenshot, --html or --histogram.
+    it writes that picture and the report without writing a cloud. Each Gaussian is drawn with its footprint:
+    oriented, scaled ellipsoids for small clouds, Gaussian splats sized by scale for large ones. Without a display,
+    ask for --screenshot, --html or --histogram.
     """
     from roodi_toolkit.viz import inspect as insp
     from roodi_toolkit.errors import ConfigError, EnvironmentProblemError

@@ -94,6 +94,7 @@ class LocalDecision:
         blob_score: ``[M]`` the oversized score.
         largest_fraction: fraction of the Gaussians in the largest piece.
         mode: ``scene`` or ``object``, and ``reason`` why.
+        spared: detached pieces kept for holding more than ``max_piece`` Gaussians, and the Gaussians in them.
     """
 
     detached: np.ndarray
@@ -104,6 +105,7 @@ class LocalDecision:
     largest_fraction: float
     mode: str
     reason: str
+    spared: tuple[int, int] = (0, 0)
 
     @property
     def flagged(self) -> np.ndarray:
@@ -279,29 +281,19 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
     label, sizes = renumber[label], sizes[np.argsort(first)]
     largest_fraction = float(sizes.max() / n)
     mode, reason = choose_mode(config, largest_fraction)
+    # per piece: detached from the content (object: not the largest; scene: under min_cluster), and going
     if mode == "object":
-        detached = label != int(np.argmax(sizes))
-    else:
-        detached = sizes[label] < max(1.0, config.min_cluster * n)
-    if max_piece is not None:
-        detached &= sizes[label] <= max_piece
-    scores = np.empty(n, dtype=np.float32)
-    scores[order] = blob_scores(ls, neighbors, dist)
-    oversized = (scores > config.blob_score) & ~detached
-    return LocalDecision(detached, oversized, label, sizes, scores, largest_fraction, mode, reason)
-
-
-def _spared_pieces(decision: LocalDecision, config: "PruneConfig", max_piece: int) -> tuple[int, int]:
-    """Return how many pieces, and Gaussians in them, the detached test spared for being larger than
-    ``max_piece``."""
-    sizes = decision.component_sizes
-    n = int(sizes.sum())
-    if decision.mode == "object":
         candidate = np.arange(len(sizes)) != int(np.argmax(sizes))
     else:
         candidate = sizes < max(1.0, config.min_cluster * n)
-    spared = candidate & (sizes > max_piece)
-    return int(spared.sum()), int(sizes[spared].sum())
+    goes = candidate if max_piece is None else candidate & (sizes <= max_piece)
+    detached = goes[label]
+    spared = candidate & ~goes
+    scores = np.empty(n, dtype=np.float32)
+    scores[order] = blob_scores(ls, neighbors, dist)
+    oversized = (scores > config.blob_score) & ~detached
+    return LocalDecision(detached, oversized, label, sizes, scores, largest_fraction, mode, reason,
+                         (int(spared.sum()), int(sizes[spared].sum())))
 
 
 def choose_mode(config: "PruneConfig", largest_fraction: float) -> tuple[str, str]:
@@ -367,11 +359,9 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     fog, background = background_fog(sub, config.background, config.fog_tolerance)
     fog &= ~decision.flagged
     report.mode, report.mode_reason = decision.mode, decision.reason
-    if max_piece is not None:
-        spared = _spared_pieces(decision, config, max_piece)
-        if spared[0]:
-            report.mode_reason += (f"; {spared[1]:,} Gaussians in {spared[0]:,} detached pieces of more than "
-                                   f"{max_piece} stay (no photos to judge them; --max-piece 0 removes them)")
+    if decision.spared[0]:
+        report.mode_reason += (f"; {decision.spared[1]:,} Gaussians in {decision.spared[0]:,} detached pieces of "
+                               f"more than {max_piece} stay (no photos to judge them; --max-piece 0 removes them)")
     if background != "none":
         report.mode_reason += f"; {background}-background fog removed ({config.background} background)"
     report.timings["rule"] = time.perf_counter() - t2
