@@ -219,16 +219,13 @@ def support_height(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, up: 
         >>> abs(support_height(make(obj), make(np.r_[floor, obj]), [0, 0, 1])) < 0.01
         True
     """
-    u = np.asarray(up, np.float64)
-    u = u / np.linalg.norm(u)
+    u, h_obj, lowest, height = _vertical_extent(object_cloud, up)
     obj = object_cloud.means.astype(np.float64)
     scene = scene_cloud.means.astype(np.float64)
-    h_obj, h_scene = obj @ u, scene @ u
-    lowest = float(np.quantile(h_obj, 0.02))
+    h_scene = scene @ u
     centre = obj.mean(axis=0)
     flat = lambda p: (p - centre) - np.outer((p - centre) @ u, u)  # noqa: E731
     radius = float(np.quantile(np.linalg.norm(flat(obj), axis=1), 0.9))
-    height = float(h_obj.max() - lowest)
     # under the object's lowest point by more than 5% of its height: not the object's own lowest Gaussians
     near = ((np.linalg.norm(flat(scene), axis=1) <= SUPPORT_RADIUS * max(radius, 1e-9))
             & (h_scene < lowest - 0.05 * height))
@@ -270,12 +267,8 @@ def extrude_to_support(cloud: GaussianCloud, up: Sequence[float], support: float
     band repeated as it is 14.75 / 14.19 dB, with the three rules 15.35 / 14.67 dB; full ROODI after fine-tuning
     14.76 / 14.25 -> 15.48 / 14.71 dB (``benchmarks/RESULTS.md``, "Occluded scenes").
     """
-    u = np.asarray(up, np.float64)
-    u = u / np.linalg.norm(u)
+    u, h, lowest, height = _vertical_extent(cloud, up)
     means = cloud.means.astype(np.float64)
-    h = means @ u
-    lowest = float(np.quantile(h, 0.02))
-    height = float(h.max() - lowest)
     gap = lowest - float(support)
     layer = np.flatnonzero(h <= lowest + band * height)
     if gap <= 0 or height <= 0 or len(layer) == 0:
@@ -294,16 +287,25 @@ def extrude_to_support(cloud: GaussianCloud, up: Sequence[float], support: float
         dc = np.tensordot(w, source.sh_dc.astype(np.float64), axes=1)
         source = source.with_fields(sh_dc=np.broadcast_to(dc, source.sh_dc.shape).astype(source.sh_dc.dtype).copy(),
                                     sh_rest=np.zeros_like(source.sh_rest))
+    # every copy of a band Gaussian has its standard deviation along up, sqrt(u^T Sigma u): computed once
+    spread = np.sqrt(np.maximum(np.einsum("i,nij,j->n", u, source.covariances().astype(np.float64), u), 0.0))
     copies = []
     for k in range(1, count + 1):
         c = source.copy()
         c.means = (c.means.astype(np.float64) - k * step * u).astype(c.means.dtype)
-        copies.append(c)
-    out = GaussianCloud.concatenate(copies)
-    # the standard deviation of each copy along up: sqrt(u^T Sigma u)
-    spread = np.sqrt(np.maximum(np.einsum("i,nij,j->n", u, out.covariances().astype(np.float64), u), 0.0))
-    keep = out.means.astype(np.float64) @ u - reach * spread >= float(support)
-    return out.select(keep)
+        copies.append(c.select(c.means.astype(np.float64) @ u - reach * spread >= float(support)))
+    return GaussianCloud.concatenate(copies)
+
+
+def _vertical_extent(cloud: GaussianCloud, up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Return the unit up axis, the heights of the cloud's centres along it, its lowest point (the 2% quantile:
+    a stray Gaussian is not the bottom) and its height above that point; :func:`support_height` and
+    :func:`extrude_to_support` measure the object alike."""
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    h = cloud.means.astype(np.float64) @ u
+    lowest = float(np.quantile(h, 0.02))
+    return u, h, lowest, float(h.max() - lowest)
 
 
 class SymmetryInpainter(Inpainter):
