@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import click
 
-from roodi_toolkit.cli.common import overwrite_option, progress_factory, quiet_option
-from roodi_toolkit.cli.prune_options import (effective_mode, prune_config_from_options, prune_mode_options,
-                                             prune_options)
+from roodi_toolkit.cli.common import overwrite_option, quiet_option
+from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options, prune_config_from_options,
+                                             prune_mode_options, prune_options, prune_read_cloud)
 
 PROGRESS_MIN_GAUSSIANS = 200_000
 """Clouds at least this large get progress bars (smaller ones finish in about a second)."""
@@ -31,12 +31,7 @@ Examples:
 @click.argument("output_ply", metavar="OUT", type=click.Path(path_type=str))
 @prune_options
 @prune_mode_options
-@click.option("--photos", "photos_spec", default="auto", show_default=True, metavar="auto|none|FOLDER",
-              help="scene/object: keep what the posed photos show. auto: the training photos of the model folder "
-                   "IN sits in (its cfg.json), if any; FOLDER: a model folder or a dataset folder (COLMAP, "
-                   "NeRF-synthetic; decoded at 1/4 size); none: judge from the cloud alone.")
-@click.option("--photo-views", type=click.IntRange(min=1), default=32, show_default=True,
-              help="Render at most this many of the photos' views (evenly spaced).")
+@photo_options
 @click.option("--dry-run", is_flag=True,
               help="Write no cloud: only the report (--report, default OUT's name + .prune.json) and a picture of "
                    "what would go (OUT's name + .prune.png, removed Gaussians in red).")
@@ -63,8 +58,6 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
 
     from roodi_toolkit.io.files import check_outputs, write_json
     from roodi_toolkit.io.splat import read_cloud, write_cloud
-    from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos, photo_folders
-    from roodi_toolkit.prune.scene import prune_cloud
 
     start = time.perf_counter()
     _skip_hugepage_advice()
@@ -74,9 +67,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
                                        filter_sphere=filter_sphere, mode=mode, reach=reach,
                                        min_cluster=min_cluster, max_piece=max_piece, blob_score=blob_score,
                                        background=background, filter_values=filter_values)
-    if mode == "statistical" and photos_spec not in ("auto", "none"):
-        raise click.BadParameter("the photo check belongs to the local tests (--mode auto, scene or object); the "
-                                 "statistical rule runs as published", param_hint="--photos")
+    photo_folders = photo_inputs(input_ply, mode, photos_spec)
     picture = None
     if dry_run:
         stem = Path(output_ply)
@@ -88,20 +79,13 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
                                      param_hint="--floaters-out")
     check_outputs([("OUT", None if dry_run else output_ply), ("--floaters-out", floaters_out),
                    ("--report", report_path), ("the dry run's picture", picture)], overwrite=overwrite,
-                  inputs=[input_ply, *(photo_folders(input_ply, photos_spec) if mode != "statistical" else [])])
+                  inputs=[input_ply, *photo_folders])
 
     t_read = time.perf_counter()
     cloud = read_cloud(input_ply)
     read_s = time.perf_counter() - t_read
-    progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
-    photos = None
-    if mode != "statistical":
-        try:
-            photos = find_photos(input_ply, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
-        except PhotosUnavailable as exc:  # only --photos auto: the cloud alone still decides, as without a model
-            click.echo(f"note: no photo check ({exc}); judging from the cloud alone", err=True)
-    pruned, keep, report = prune_cloud(cloud, config, photos=photos,
-                                       progress=progress_factory(quiet) if photos else progress)
+    pruned, keep, report = prune_read_cloud(input_ply, cloud, config, photos_spec, photo_views, quiet,
+                                            PROGRESS_MIN_GAUSSIANS)
 
     t_write = time.perf_counter()
     if dry_run:

@@ -81,6 +81,58 @@ def prune_mode_options(func: F) -> F:
     return func
 
 
+_PHOTO_OPTIONS = [
+    click.option("--photos", "photos_spec", default="auto", show_default=True, metavar="auto|none|FOLDER",
+                 help="scene/object: keep what the posed photos show. auto: the training photos of the model folder "
+                      "IN sits in (its cfg.json), if any; FOLDER: a model folder or a dataset folder (COLMAP, "
+                      "NeRF-synthetic; decoded at 1/4 size); none: judge from the cloud alone."),
+    click.option("--photo-views", type=click.IntRange(min=1), default=32, show_default=True,
+                 help="Render at most this many of the photos' views (evenly spaced)."),
+]
+
+
+def photo_options(func: F) -> F:
+    """Return ``func`` decorated with the photo check's options (``photos_spec``, ``photo_views``)."""
+    for option in reversed(_PHOTO_OPTIONS):
+        func = option(func)
+    return func
+
+
+def photo_inputs(input_path: str, mode: str, photos_spec: str) -> list[str]:
+    """Return the folders the photo check would read for ``input_path`` (inputs no output may land in).
+
+    Raises:
+        click.BadParameter: a photo folder given with the statistical rule (it runs as published, without them).
+    """
+    from roodi_toolkit.prune.photos import photo_folders
+
+    if mode == "statistical":
+        if photos_spec not in ("auto", "none"):
+            raise click.BadParameter("the photo check belongs to the local tests (--mode auto, scene or object); "
+                                     "the statistical rule runs as published", param_hint="--photos")
+        return []
+    return list(photo_folders(input_path, photos_spec))
+
+
+def prune_read_cloud(input_path: str, cloud: Any, config: Any, photos_spec: str, photo_views: int, quiet: bool,
+                     progress_min: int) -> Any:
+    """Return :func:`~roodi_toolkit.prune.scene.prune_cloud`'s result for ``cloud`` read from ``input_path``, with
+    the photo check of ``--photos`` in the local modes (a note on stderr when ``auto`` finds none). Progress bars
+    show for clouds of at least ``progress_min`` Gaussians, and always for the photo check."""
+    from roodi_toolkit.cli.common import progress_factory
+    from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos
+    from roodi_toolkit.prune.scene import prune_cloud
+
+    progress = progress_factory(quiet or len(cloud) < progress_min)
+    photos = None
+    if config.mode != "statistical":
+        try:
+            photos = find_photos(input_path, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
+        except PhotosUnavailable as exc:  # only --photos auto: the cloud alone still decides, as without a model
+            click.echo(f"note: no photo check ({exc}); judging from the cloud alone", err=True)
+    return prune_cloud(cloud, config, photos=photos, progress=progress_factory(quiet) if photos else progress)
+
+
 def parse_value_ranges(values: tuple[str, ...]) -> tuple[tuple[str, float, float], ...]:
     """Return ``((name, low, high), ...)`` from ``--filter-value NAME,MIN,MAX`` options.
 

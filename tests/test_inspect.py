@@ -325,12 +325,16 @@ def test_inspect_and_prune_share_the_pruning_options():
     from roodi_toolkit.cli.prune_options import PRUNE_OPTION_NAMES, prune_config_from_options
     from roodi_toolkit.prune.outliers import PruneConfig
 
+    from roodi_toolkit.cli.prune_options import MODE_OPTION_NAMES
+
+    shared = (*PRUNE_OPTION_NAMES, *MODE_OPTION_NAMES, "photos_spec", "photo_views")
+
     def describe(command):
         return {p.name: (tuple(p.opts), repr(p.type), p.default, p.help, p.is_flag, p.show_default)
-                for p in command.params if p.name in PRUNE_OPTION_NAMES}
+                for p in command.params if p.name in shared}
 
     ours, theirs = describe(inspect_cmd), describe(prune)
-    assert set(ours) == set(PRUNE_OPTION_NAMES)
+    assert set(ours) == set(shared)
     assert ours == theirs
     config = prune_config_from_options(k=8, alpha=2.5, distance="w2", rule="paper", neighbors="centre",
                                        filter_nan=True, min_opacity=0.1, filter_box="0,0,0,1,2,3",
@@ -340,3 +344,52 @@ def test_inspect_and_prune_share_the_pruning_options():
     with pytest.raises(click.BadParameter, match="4 comma-separated"):
         prune_config_from_options(k=8, alpha=None, distance="w2", rule="robust", neighbors="centre",
                                   filter_nan=False, min_opacity=None, filter_box=None, filter_sphere="1,2,3")
+
+
+def test_cli_default_shows_what_the_default_prune_removes(run_cli, planted_ply, tmp_path):
+    """Without options ``inspect`` runs ``prune``'s default (the local tests), not the statistical rule: the same
+    mode, the same counts, and a histogram of the blob scores (linear axis) whose removed share is the prune's."""
+    from PIL import Image
+
+    res = run_cli("prune", planted_ply, tmp_path / "out.ply", "--report", tmp_path / "r.json")
+    assert res.exit_code == 0, res.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["mode"] in ("scene", "object") and report["removed_count"] > 0
+    res = run_cli("inspect", planted_ply, "--histogram", tmp_path / "h.png", "--screenshot", tmp_path / "s.png",
+                  "--window-size", "300x200", "--camera", "+z")
+    assert res.exit_code == 0, res.stderr
+    assert f"mode {report['mode']}: " in res.stdout
+    assert f"kept {report['kept_count']:,} of {report['input_count']:,}" in res.stdout
+    with Image.open(tmp_path / "h.png") as img:
+        assert float(img.text["roodi:threshold"]) == report["threshold"] == 0.5
+        # no filter ran, so every Gaussian was evaluated
+        assert float(img.text["roodi:removed_share"]) == pytest.approx(report["removed_count"] / report["input_count"])
+    from roodi_toolkit.io.files import read_image
+
+    assert colour_mask(read_image(tmp_path / "s.png")).sum() >= 10
+    # asking for an option of the statistical rule asks for that rule, as in prune
+    res = run_cli("inspect", planted_ply, "--histogram", tmp_path / "h2.png", "--rule", "paper")
+    assert res.exit_code == 0, res.stderr
+    assert "mode statistical: " in res.stdout
+
+
+def test_histogram_of_blob_scores_is_linear_and_shades_every_removed(planted):
+    from roodi_toolkit.prune.scene import prune_cloud
+
+    result = prune_cloud(planted.cloud)
+    report = result.report
+    fig = insp.histogram_figure(report, keep=result.keep_mask)
+    ax = fig.axes[0]
+    assert ax.get_xscale() == "linear" and "blob score" in ax.get_xlabel()
+    removed = ~result.keep_mask[report.evaluated]
+    assert removed.any() and fig._roodi_removed_share == pytest.approx(removed.mean())
+    # without the keep mask, only the oversized limit is known
+    fig = insp.histogram_figure(report)
+    assert fig._roodi_removed_share == pytest.approx(np.mean(report.mean_distances > report.threshold))
+    # the colour bar of --color-by distance is linear for blob scores (negative values are real scores)
+    d = insp.distances_per_gaussian(report, len(planted.cloud))
+    assert (d < 0).any()
+    plotter = insp.plot_cloud(planted.cloud, result.keep_mask, color_by="distance", distances=d,
+                              distance_label=insp.distance_label(report), distance_log=insp.distance_is_log(report),
+                              off_screen=True, window_size=SIZE, glyphs="splats")
+    plotter.close()

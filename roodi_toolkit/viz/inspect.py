@@ -246,7 +246,8 @@ def _colors_rgba(cloud: GaussianCloud) -> np.ndarray:
     return (rgba * 255.0 + 0.5).astype(np.uint8)
 
 
-def _scalar(cloud: GaussianCloud, color_by: str, distances: np.ndarray | None) -> tuple[np.ndarray, str, bool]:
+def _scalar(cloud: GaussianCloud, color_by: str, distances: np.ndarray | None,
+            distance_log: bool = True) -> tuple[np.ndarray, str, bool]:
     """Return per-Gaussian scalars, the colour bar title and whether the bar is logarithmic."""
     if color_by == "opacity":
         return cloud.opacities.astype(np.float64), "opacity", False
@@ -258,6 +259,8 @@ def _scalar(cloud: GaussianCloud, color_by: str, distances: np.ndarray | None) -
     d = np.asarray(distances, dtype=np.float64)
     if d.shape != (len(cloud),):
         raise ConfigError(f"distances must be [N] = [{len(cloud)}], got {d.shape}")
+    if not distance_log:  # the local tests' blob score: a log ratio already, negative for most Gaussians
+        return d, "blob score", False
     # log colour scale: d = 0 (duplicate centres) has no logarithm, show it as "no value"
     return np.where(d > 0, d, np.nan), "mean distance to neighbours", True
 
@@ -266,7 +269,8 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
                color_by: str = "rgb", distances: np.ndarray | None = None, highlight: Any = "red",
                glyphs: str = "auto", camera: str = "iso", off_screen: bool | None = None,
                window_size: Sequence[int] = DEFAULT_WINDOW_SIZE, background: Any = DEFAULT_BACKGROUND,
-               sigmas: float = ELLIPSOID_SIGMAS, distance_label: str | None = None) -> "pv.Plotter":
+               sigmas: float = ELLIPSOID_SIGMAS, distance_label: str | None = None,
+               distance_log: bool = True) -> "pv.Plotter":
     """Return a configured ``pyvista.Plotter`` showing the cloud, the Gaussians pruning removes highlighted.
 
     Call ``.show()`` for a window, or ``.screenshot(None, return_img=True)`` off screen.
@@ -289,6 +293,8 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
         background: background colour.
         sigmas: standard deviations at which ellipsoids are drawn.
         distance_label: colour bar title for ``color_by='distance'`` (e.g. "mean W2^2 to 16 neighbours").
+        distance_log: a logarithmic colour bar for ``distances`` (False for the local tests' blob scores,
+            :func:`distance_is_log`).
 
     Raises:
         ConfigError: an unknown option, a mask or distances of the wrong shape, or nothing to draw.
@@ -339,7 +345,7 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
     scalars = colormap = None
     bar_title, log_bar = "", False
     if color_by != "rgb":
-        scalars, bar_title, log_bar = _scalar(cloud, color_by, distances)
+        scalars, bar_title, log_bar = _scalar(cloud, color_by, distances, distance_log)
         if color_by == "distance" and distance_label:
             bar_title = distance_label
         colormap = "viridis"
@@ -457,8 +463,21 @@ def export_html(plotter: "pv.Plotter", path: str | os.PathLike) -> None:
 
 
 # ------------------------------------------------------------------------------------------------------ histogram
+LOCAL_MODES = ("scene", "object")
+"""Prune modes whose report carries the local tests' blob scores (:func:`roodi_toolkit.prune.scene.blob_scores`, a
+log ratio) in ``mean_distances`` instead of the statistical rule's neighbour distances."""
+
+
+def distance_is_log(report: "PruneReport") -> bool:
+    """Return whether the report's per-Gaussian values are distances (shown on a log scale) rather than the local
+    tests' blob scores (already logarithmic, shown on a linear scale)."""
+    return report.mode not in LOCAL_MODES
+
+
 def distance_label(report: "PruneReport") -> str:
     """Return what the report's distances are, e.g. ``"mean W2² to the 16 nearest"``, for axis and bar titles."""
+    if not distance_is_log(report):
+        return "blob score (smallest axis over spacing and neighbours' size, log units)"
     cfg = report.config
     k = cfg.get("k", "K")
     if cfg.get("distance", "w2") == "w2":
@@ -467,18 +486,23 @@ def distance_label(report: "PruneReport") -> str:
 
 
 def histogram_figure(report: "PruneReport", *, bins: int = 80, figsize: tuple[float, float] = (7.5, 4.2),
-                     title: str | None = None) -> "Figure":
-    """Return a matplotlib figure of the per-Gaussian mean distances (log x axis) with the rule's threshold marked.
+                     title: str | None = None, keep: np.ndarray | None = None) -> "Figure":
+    """Return a matplotlib figure of the per-Gaussian values the prune judged, with its threshold marked.
 
-    The Gaussians past the threshold (the statistical stage's removals) are shaded and their share annotated;
-    for iterative rules the first-round threshold is drawn dashed. The threshold drawn is ``report.threshold``,
-    the one ``prune --report`` writes.
+    For the statistical rule these are the mean neighbour distances (log x axis); the Gaussians past the threshold
+    (the statistical stage's removals) are shaded and their share annotated, and for iterative rules the
+    first-round threshold is drawn dashed. For the local tests (scene and object modes) they are the blob scores
+    (a log ratio, linear x axis) with the oversized limit; there the Gaussians shaded as removed are those any test
+    removed (detached, oversized, fog, after the photo check) when ``keep`` is given, else those over the limit.
+    The threshold drawn is ``report.threshold``, the one ``prune --report`` writes.
 
     Args:
-        report: the report of :func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers`.
-        bins: histogram bins (log-spaced).
+        report: the report of :func:`~roodi_toolkit.prune.scene.prune_cloud` or
+            :func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers`.
+        bins: histogram bins (log-spaced for distances).
         figsize: figure size in inches.
-        title: figure title (defaults to the rule and its alpha).
+        title: figure title (defaults to the rule and its alpha, or the mode and its limit).
+        keep: ``[N]`` the prune's keep mask (local modes: which evaluated Gaussians count as removed).
 
     Example:
         >>> from roodi_toolkit.prune.outliers import remove_statistical_outliers
@@ -494,41 +518,48 @@ def histogram_figure(report: "PruneReport", *, bins: int = 80, figsize: tuple[fl
     if d.size == 0:
         raise ConfigError("the report has no per-Gaussian distances (nothing reached the statistics)")
     threshold = float(report.threshold)
+    log_x = distance_is_log(report)
     flagged = d > threshold
-    positive = d[d > 0]
-    zeros = int((d <= 0).sum())
+    if not log_x and keep is not None:
+        flagged = ~np.asarray(keep, dtype=bool)[np.asarray(report.evaluated, dtype=np.int64)]
+    shown = (d > 0) if log_x else np.isfinite(d)
+    hidden = int((~shown).sum())
     cfg = report.config
-    rule, alpha = cfg.get("rule", "?"), cfg.get("alpha", float("nan"))
 
     fig = Figure(figsize=figsize)
     ax = fig.add_subplot(1, 1, 1)
-    if positive.size:
-        lo, hi = float(positive.min()), float(positive.max())
-        if np.isfinite(threshold) and threshold > 0:
+    if shown.any():
+        lo, hi = float(d[shown].min()), float(d[shown].max())
+        if np.isfinite(threshold) and (threshold > 0 or not log_x):
             lo, hi = min(lo, threshold), max(hi, threshold)
         if hi <= lo:
-            hi = lo * 1.01 + 1e-30
-        edges = np.geomspace(lo, hi, bins + 1)
-        ax.hist(positive[positive <= threshold], bins=edges, color="#4c78a8", label="kept")
-        if flagged.any():
-            ax.hist(positive[positive > threshold], bins=edges, color="#e45756", label="removed")
-    ax.set_xscale("log")
+            hi = lo * 1.01 + 1e-30 if log_x else lo + 1.0
+        edges = np.geomspace(lo, hi, bins + 1) if log_x else np.linspace(lo, hi, bins + 1)
+        ax.hist(d[shown & ~flagged], bins=edges, color="#4c78a8", label="kept")
+        if (shown & flagged).any():
+            ax.hist(d[shown & flagged], bins=edges, color="#e45756", label="removed")
+    if log_x:
+        ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel(distance_label(report) + " (log scale)")
+    ax.set_xlabel(distance_label(report) + (" (log scale)" if log_x else ""))
     ax.set_ylabel("Gaussians")
-    if np.isfinite(threshold) and threshold > 0:
-        ax.axvline(threshold, color="black", linewidth=1.5, label=f"threshold {threshold:.4g}")
+    if np.isfinite(threshold) and (threshold > 0 or not log_x):
+        name = "threshold" if log_x else "oversized limit"
+        ax.axvline(threshold, color="black", linewidth=1.5, label=f"{name} {threshold:.4g}")
     first = report.thresholds[0] if report.thresholds else float("nan")
     if len(report.thresholds) > 1 and np.isfinite(first) and first > 0 and not np.isclose(first, threshold):
         ax.axvline(first, color="grey", linestyle="--", linewidth=1, label=f"first round {first:.4g}")
     share = float(flagged.mean())
     note = f"removed {share:.2%} ({int(flagged.sum()):,} of {d.size:,} evaluated)"
-    if zeros:
-        note += f"\n{zeros:,} at distance 0 not shown"
+    if hidden:
+        note += f"\n{hidden:,} at distance 0 not shown" if log_x else f"\n{hidden:,} without a score not shown"
     ax.text(0.98, 0.95, note, transform=ax.transAxes, ha="right", va="top", fontsize=9,
             bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "none"})
     ax.legend(loc="best", fontsize=8, frameon=False)
-    ax.set_title(title if title is not None else f"rule {rule}, alpha {alpha:g}, K {cfg.get('k', '?')}")
+    if title is None:
+        title = (f"rule {cfg.get('rule', '?')}, alpha {cfg.get('alpha', float('nan')):g}, K {cfg.get('k', '?')}"
+                 if log_x else f"{report.mode} mode, K {cfg.get('k', '?')}")
+    ax.set_title(title)
     fig.tight_layout()
     # what the picture shows, for save_histogram's PNG metadata and for tests
     fig._roodi_threshold = threshold  # type: ignore[attr-defined]
