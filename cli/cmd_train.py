@@ -31,8 +31,9 @@ EXAMPLE = """Example:
 @click.option("--init-points", type=click.IntRange(4), default=None,
               help="Random initialisation size; sparse SfM points fewer than this are topped up to it [20000].")
 @click.option("--random-background/--fixed-background", default=None,
-              help="Composite images with alpha on a random colour each step, or on the dataset's background "
-              "[default: random when the images have alpha, as 3DGS trainers do; cfg.json records the choice].")
+              help="Render on a random colour each step (images with alpha are composited on it; opaque photos "
+              "then teach every pixel to be covered), or on the dataset's background [default: random when the "
+              "images have alpha, as 3DGS trainers do; cfg.json records the choice].")
 @click.option("--eval-every", type=click.IntRange(0), default=None, help="Evaluate on held-out views this often.")
 @click.option("--checkpoint-every", type=click.IntRange(1), default=None, help="Checkpoint this often [250].")
 @click.option("--seed", type=int, default=None, help="Random seed [0].")

@@ -58,3 +58,30 @@ def test_cli_train_background_flags(tmp_path: Path, run_cli) -> None:
                   "--sh-degree", "0", "--fixed-background", "-q")
     assert res.exit_code == 0, res.stderr
     assert json.loads((tmp_path / "m" / "cfg.json").read_text())["random_background"] is False
+
+
+def test_random_background_on_opaque_photos_is_drawn_and_rendered(tmp_path: Path) -> None:
+    """Asked for on images without alpha, the random colour is still drawn and rendered behind the Gaussians (an
+    uncovered pixel then costs loss whatever its colour); the photos themselves are left as they are."""
+    ds = load_dataset(_scene(tmp_path, False))
+    seen = []
+
+    class Recording:
+        def __init__(self, inner):
+            self.inner = inner
+
+        def render(self, params, camera, **kw):
+            seen.append(np.asarray(kw["background"], dtype=np.float64).copy())
+            return self.inner.render(params, camera, **kw)
+
+        def __getattr__(self, name):
+            return getattr(self.inner, name)
+
+    trainer = Trainer(ds, TrainConfig(**TINY, random_background=True))
+    gt_before = ds.images[0].clone()
+    trainer.renderer = Recording(trainer.renderer)
+    trainer.train_step()
+    trainer.train_step()
+    assert len(seen) == 2 and not np.allclose(seen[0], seen[1])
+    assert not np.allclose(seen[0], ds.background)
+    assert np.array_equal(ds.images[0].numpy(), gt_before.numpy())

@@ -55,9 +55,10 @@ class TrainConfig:
             points fewer than this are topped up to it (:func:`~roodi_toolkit.pipeline.init_points.sfm_initial_points`).
         init_opacity: initial opacity (3DGS-MCMC: 0.5).
         init_scale: initial scale as a fraction of the mean distance to the 3 nearest points (3DGS-MCMC: 0.1).
-        random_background: composite images with alpha on a random colour each step, so that transparent pixels
-            teach transparency rather than one colour (a fixed colour grows floaters of that colour, visible on any
-            other background); None (the default): on exactly when the dataset's images have alpha. The
+        random_background: render on a random colour each step and composite images with alpha on it, so that
+            transparent pixels teach transparency rather than one colour (a fixed colour grows floaters of that
+            colour, visible on any other background); on opaque photos it teaches every pixel to be covered (no
+            see-through to the background); None (the default): on exactly when the dataset's images have alpha. The
             :class:`Trainer` resolves None to the value used, which ``cfg.json`` and checkpoints record.
         holdout_every: when the dataset has no test split, hold out every n-th training view for evaluation.
         seed: seeds every random choice.
@@ -227,11 +228,11 @@ class Trainer:
         gt = self.dataset.images[view]
         background = torch.tensor(self.dataset.background, dtype=torch.float32)
         alpha = None if self.dataset.alphas is None else self.dataset.alphas[view][..., None]
-        if cfg.random_background and alpha is not None:
-            # the images were composited on the dataset background: swap it for a random one
+        if cfg.random_background:
             old_background = background
             background = torch.rand(3, generator=self.generator)
-            gt = (gt + (1 - alpha) * (background - old_background)).clamp(0, 1)
+            if alpha is not None:  # the images were composited on the dataset background: swap it for the new one
+                gt = (gt + (1 - alpha) * (background - old_background)).clamp(0, 1)
         out = self.renderer.render(self.params, camera, sh_degree=self.sh_degree, background=background)
         l1 = torch.abs(out.rgb - gt).mean()
         ssim = ssim_value(out.rgb, gt, cfg.ssim_window)
