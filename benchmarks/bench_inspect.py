@@ -4,8 +4,8 @@ Builds a planted-floater cloud (torus, 1% far + 1% near floaters, as ``bench_pru
 writes it as a PLY (or reuses ``--ply``), then
 
 1. times the whole command in a subprocess (``--repeats`` times; median wall time), and
-2. times its steps in process with the same library calls the command makes: read, prune (the default rule, W2,
-   K=16), build the plotter (splats above 20,000 Gaussians), render and write the PNG.
+2. times its steps in process with the same library calls the command makes: read, prune (``prune``'s default,
+   the local tests; no photos), build the plotter (splats above 20,000 Gaussians), render and write the PNG.
 
     .venv/bin/python benchmarks/bench_inspect.py                        # 1,000,000 Gaussians, 1024x768
     .venv/bin/python benchmarks/bench_inspect.py --size 20000 --glyphs ellipsoids
@@ -42,17 +42,17 @@ def steps(ply: Path, out: Path, glyphs: str, window: tuple[int, int]) -> dict[st
 
     from roodi_toolkit.viz import inspect as insp
     from roodi_toolkit.io.files import write_image
-    from roodi_toolkit.prune.outliers import remove_statistical_outliers
-    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.prune.scene import prune_cloud
+    from roodi_toolkit.io.splat import read_cloud
 
     pv.OFF_SCREEN = True
     t = {}
     cpu0 = time.process_time()
     t0 = time.perf_counter()
-    cloud = read_ply(ply)
+    cloud = read_cloud(ply)
     t["read"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    _, keep, report = remove_statistical_outliers(cloud)
+    _, keep, report = prune_cloud(cloud)
     t["prune"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     plotter = insp.plot_cloud(cloud, keep, glyphs=glyphs, window_size=window, off_screen=True)
