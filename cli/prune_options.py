@@ -114,7 +114,7 @@ def photo_inputs(input_path: str, mode: str, photos_spec: str) -> list[str]:
     return list(photo_folders(input_path, photos_spec))
 
 
-def prune_read_cloud(input_path: str, cloud: Any, config: Any, photos_spec: str, photo_views: int, quiet: bool,
+def prune_with_photos(input_path: str, cloud: Any, config: Any, photos_spec: str, photo_views: int, quiet: bool,
                      progress_min: int) -> Any:
     """Return :func:`~roodi_toolkit.prune.scene.prune_cloud`'s result for ``cloud`` read from ``input_path``, with
     the photo check of ``--photos`` in the local modes (a note on stderr when ``auto`` finds none). Progress bars

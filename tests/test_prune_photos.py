@@ -218,3 +218,17 @@ def test_prune_of_a_lone_ply_does_not_load_torch(tmp_path, scene):
             "print(code, 'torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split()[-2:] == ["0", "False"], out
+
+
+def test_inspect_command_shows_the_photo_check_and_writes_nothing_into_its_folders(tmp_path, scene, run_cli):
+    """``inspect`` prunes as ``prune`` does: on a model's cloud the photo check runs, and its folders are inputs."""
+    model, ply, data = _model_folder(tmp_path, scene)
+    result = run_cli("prune", str(ply), str(tmp_path / "out.ply"), "-q")
+    assert result.exit_code == 0, result.stderr
+    kept = len(read_ply(tmp_path / "out.ply"))
+    result = run_cli("inspect", str(ply), "--histogram", str(tmp_path / "h.png"), "-q")
+    assert result.exit_code == 0, result.stderr
+    assert "photo check on 8 of the 8 training views" in result.stdout and f"kept {kept:,} of" in result.stdout
+    result = run_cli("inspect", str(ply), "--histogram", str(data / "h.png"), "-q")
+    assert result.exit_code == 1 and "inside the input folder" in result.stderr
+    assert not (data / "h.png").exists()
