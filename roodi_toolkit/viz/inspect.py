@@ -463,15 +463,11 @@ def export_html(plotter: "pv.Plotter", path: str | os.PathLike) -> None:
 
 
 # ------------------------------------------------------------------------------------------------------ histogram
-LOCAL_MODES = ("scene", "object")
-"""Prune modes whose report carries the local tests' blob scores (:func:`roodi_toolkit.prune.scene.blob_scores`, a
-log ratio) in ``mean_distances`` instead of the statistical rule's neighbour distances."""
-
-
 def distance_is_log(report: "PruneReport") -> bool:
-    """Return whether the report's per-Gaussian values are distances (shown on a log scale) rather than the local
-    tests' blob scores (already logarithmic, shown on a linear scale)."""
-    return report.mode not in LOCAL_MODES
+    """Return whether the report's per-Gaussian values are the statistical rule's distances (shown on a log scale)
+    rather than the local tests' blob scores (:func:`roodi_toolkit.prune.scene.blob_scores`, already a log ratio,
+    shown on a linear scale), which the scene and object modes report in ``mean_distances``."""
+    return report.mode == "statistical"
 
 
 def distance_label(report: "PruneReport") -> str:
