@@ -2,7 +2,7 @@
 
 Usage:
     .venv/bin/python benchmarks/bench_formats.py speed [--count 1000000] [--repeats 3]
-    .venv/bin/python benchmarks/bench_formats.py oracle [--splat-transform PATH]
+    .venv/bin/python benchmarks/bench_formats.py oracle [--splat-transform PATH] [MORE_SPLAT_FILES ...]
 
 ``speed`` builds a cloud of ``--count`` Gaussians from the real files in ../shared/data (the biker and the donut,
 copied with a small jitter until the count is reached), writes it as plain PLY and as compressed PLY, and prints the
@@ -11,7 +11,8 @@ best-of-N read times of :func:`read_cloud` side by side with their ratio (goal: 
 ``oracle`` needs splat-transform 2.7.1 (``npm install @playcanvas/splat-transform@2.7.1``): for every real file and
 for the SOG / meta.json files splat-transform makes from them, it compares our read with splat-transform's own decode
 to PLY, row for row; then for compressed PLY and SPZ it compares the error of our writer (read back by
-splat-transform) with the error of splat-transform's own write-and-read of the same cloud. Prints JSON lines.
+splat-transform) with the error of splat-transform's own write-and-read of the same cloud. Files given after
+``oracle`` (any format, splats from elsewhere) join the decode check. Prints JSON lines.
 """
 
 from __future__ import annotations
@@ -82,7 +83,7 @@ def _round(d: dict) -> dict:
     return {k: (int(v) if k == "count" else float(f"{v:.3g}")) for k, v in d.items()}
 
 
-def oracle(tool: str) -> None:
+def oracle(tool: str, extra: list[str]) -> None:
     from roodi_toolkit import read_cloud, write_cloud
     from roodi_toolkit.io.compare import cloud_differences
     from roodi_toolkit.io.compressed_ply import morton_order
@@ -105,6 +106,8 @@ def oracle(tool: str) -> None:
         (t / "biker.splat").write_bytes(encode_splat(biker))
         (t / "biker.ksplat").write_bytes(encode_ksplat(biker, 1))
         inputs += [t / "biker.splat", t / "biker.ksplat"]
+        writer_inputs = inputs[:2]
+        inputs += [Path(f) for f in extra]
         # decode agreement: our read (raw, +-inf kept) against splat-transform's decode to PLY, row for row
         for src in inputs:
             ours, report = read_cloud_report(src, raw=True)
@@ -112,7 +115,7 @@ def oracle(tool: str) -> None:
             print(json.dumps({"check": "decode", "file": src.name, "format": report.format, "count": len(ours),
                               "count_splat_transform": len(theirs), **_round(cloud_differences(theirs, ours))}))
         # writers: our write read back by splat-transform against splat-transform's own write-and-read
-        for src in inputs[:2]:
+        for src in writer_inputs:
             cloud = read_cloud(src)
             for suffix in (".compressed.ply", ".spz"):
                 ours = write_cloud(cloud, t / f"ours{suffix}")
@@ -143,13 +146,14 @@ def main() -> int:
     oracle_bin = Path(__file__).resolve().parents[1] / ".oracle" / "node_modules" / ".bin" / "splat-transform"
     op.add_argument("--splat-transform", default=os.environ.get("ROODI_SPLAT_TRANSFORM")
                     or shutil.which("splat-transform") or str(oracle_bin))
+    op.add_argument("files", nargs="*", help="more splat files (any format) for the decode check")
     args = ap.parse_args()
     if args.what == "speed":
         speed(args.count, args.repeats)
     else:
         if not Path(args.splat_transform).exists():
             sys.exit(f"splat-transform not found at {args.splat_transform}")
-        oracle(args.splat_transform)
+        oracle(args.splat_transform, args.files)
     return 0
 
 

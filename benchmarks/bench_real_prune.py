@@ -1,9 +1,8 @@
 """The default ``prune`` on real splats: render safety, planted floaters, lego's fog, and speed against Open3D SOR.
 
 Real files come from other tools (``../shared/data``, see its README) or from ``roodi-toolkit train`` on the posed
-datasets there. Decode ``.compressed.ply`` / ``.spz`` to PLY first (``roodi-toolkit convert
-../shared/data/biker/biker.compressed.ply /tmp/biker.ply``); opacity logits of +-inf in such a decode are mapped
-to +-20 here (fully opaque / transparent), which is what the reader-side rule is for.
+datasets there, in any format the toolkit reads; opacity logits of +-inf are mapped to +-20 here (fully opaque /
+transparent; the figures below were measured so, on PLY decodes made with ``roodi-toolkit convert``).
 
     # safety (8 fixed views, same cameras for both clouds) and 300 + 300 planted floaters, per file
     .venv/bin/python benchmarks/bench_real_prune.py safety ../shared/data/donut/point_cloud.ply /tmp/biker.ply
@@ -43,10 +42,10 @@ PlyData([PlyElement.describe(v[np.asarray(kept, dtype=np.int64)], "vertex")]).wr
 
 
 def load_real(path: str):
-    """Read a PLY and map +-inf opacity logits to +-20 (see the module docstring)."""
-    from roodi_toolkit.io.ply import read_ply
+    """Read a splat in any format and map +-inf opacity logits to +-20 (see the module docstring)."""
+    from roodi_toolkit.io.splat import read_cloud_report
 
-    cloud = read_ply(path)
+    cloud, _ = read_cloud_report(path, raw=True)
     logits = np.clip(cloud.opacity_logits, -20, 20)
     return cloud.with_fields(opacity_logits=logits.astype(np.float32))
 
