@@ -29,10 +29,10 @@ def convert(input_path: str, output_path: str, filter_nan: bool, filter_absurd_s
     OUT's extension picks the format: .ply, .compressed.ply or .spz. OUT is written atomically, never over IN.
     """
     from roodi_toolkit.io.files import check_output
-    from roodi_toolkit.io.splat import output_format, read_cloud_report, write_cloud
+    from roodi_toolkit.io.splat import input_paths, output_format, read_cloud_report, write_cloud
 
     fmt = output_format(output_path)  # refuse an unknown extension before reading
-    check_output(output_path, overwrite=overwrite, inputs=[input_path])
+    check_output(output_path, overwrite=overwrite, inputs=input_paths(input_path))
     cloud, report = read_cloud_report(input_path)
     dropped = 0
     if filter_nan:

@@ -74,7 +74,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     from roodi_toolkit.viz import inspect as insp
     from roodi_toolkit.errors import ConfigError, EnvironmentProblemError
     from roodi_toolkit.io.files import check_outputs, write_image
-    from roodi_toolkit.io.splat import read_cloud
+    from roodi_toolkit.io.splat import input_paths, read_cloud
 
     mode = effective_mode(mode)
     config = prune_config_from_options(mode=mode, **prune_kwargs)
@@ -84,7 +84,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
                                  param_hint="--window-size")
     outputs = [p for p in (screenshot, html_path, histogram) if p is not None]
     check_outputs([("--screenshot", screenshot), ("--html", html_path), ("--histogram", histogram)],
-                  overwrite=overwrite, inputs=[input_ply, *photo_inputs(input_ply, mode, photos_spec)])
+                  overwrite=overwrite, inputs=[*input_paths(input_ply), *photo_inputs(input_ply, mode, photos_spec)])
     has_display = insp.display_available()
     if window is None:
         window = has_display and not outputs

@@ -57,7 +57,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     from pathlib import Path
 
     from roodi_toolkit.io.files import check_outputs, write_json
-    from roodi_toolkit.io.splat import read_cloud, write_cloud
+    from roodi_toolkit.io.splat import input_paths, read_cloud, write_cloud
 
     start = time.perf_counter()
     _skip_hugepage_advice()
@@ -79,7 +79,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
                                      param_hint="--floaters-out")
     check_outputs([("OUT", None if dry_run else output_ply), ("--floaters-out", floaters_out),
                    ("--report", report_path), ("the dry run's picture", picture)], overwrite=overwrite,
-                  inputs=[input_ply, *photo_folders])
+                  inputs=[*input_paths(input_ply), *photo_folders])
 
     t_read = time.perf_counter()
     cloud = read_cloud(input_ply)

@@ -21,7 +21,7 @@ EPILOG = """Examples:
 
 
 @click.command(epilog=EPILOG)
-@click.argument("ply", type=click.Path(dir_okay=False, path_type=str))
+@click.argument("ply", metavar="IN", type=click.Path(path_type=str))
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=str))
 @click.option("--cameras", "cameras_path", type=click.Path(path_type=str),
               help="Render a dataset's cameras: a Blender transforms_*.json, a Blender folder or a COLMAP folder.")
@@ -36,7 +36,7 @@ EPILOG = """Examples:
               help="Orbit up axis: X,Y,Z; a dataset or camera file (its cameras' mean up); or 'auto' (the mean up "
               "of the training cameras of the model PLY belongs to; refused for a bare cloud, whose up cannot be told "
               "reliably). Default: those cameras' up when there are, else 0,0,1.")
-@click.option("--frame-like", "frame_like", type=click.Path(dir_okay=False, path_type=str), default=None,
+@click.option("--frame-like", "frame_like", type=click.Path(path_type=str), default=None,
               help="Frame the orbit on this other cloud (centre, radius, up) so that several clouds, e.g. before "
               "and after pruning, are rendered from the same views.")
 @click.option("--size", "size_text", default=None,
@@ -53,9 +53,9 @@ EPILOG = """Examples:
 def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, elevation: float,
            radius: float | None, fov: float, up: str | None, frame_like: str | None, size_text: str | None,
            what: str, background: str, renderer: Any, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
-    """Render PLY into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
+    """Render IN (any splat format) into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
     from roodi_toolkit.io.files import prepare_output_dir
-    from roodi_toolkit.io.splat import read_cloud
+    from roodi_toolkit.io.splat import input_paths, read_cloud
     from roodi_toolkit.render.views import framing_orbit, render_views, resolve_up
 
     bg = parse_floats(background, 3, "--background")
@@ -98,7 +98,8 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
     from pathlib import Path
 
     camera_folder = str(Path(cameras_path).parent) if cameras_path and Path(cameras_path).is_file() else None
-    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[ply, cameras_path, camera_folder, frame_like])
+    out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[*input_paths(ply), cameras_path, camera_folder,
+                                                                 *(input_paths(frame_like) if frame_like else [])])
     record = render_views(cloud, cams, out, what=what, renderer=renderer, background=bg,
                           progress=progress_factory(quiet), extra=extra)
     if not quiet:

@@ -204,6 +204,25 @@ def read_cloud_report(path: str | os.PathLike, *, raw: bool = False) -> tuple[Ga
     return cloud, ReadReport(str(p), fmt, n_pos, n_neg)
 
 
+def input_paths(path: str | os.PathLike) -> list[str]:
+    """Return what a splat input occupies, for the output guards: the path and, for a SOG ``meta.json``, its folder.
+
+    A ``meta.json`` names textures beside it (``means_l.webp`` ...): the folder is the input, so nothing may be
+    written into it, as into any input folder (:func:`~roodi_toolkit.io.files.refuse_inside_inputs`). A folder given
+    as the input is guarded as a folder already; any other file stands alone.
+    """
+    p = Path(path)
+    if p.is_file() and not zipfile.is_zipfile(p):
+        try:
+            with open(p, "rb") as f:
+                head = f.read(64)
+        except OSError:  # the reader says what is wrong with it
+            return [str(p)]
+        if head.lstrip()[:1] == b"{":
+            return [str(p), str(p.parent)]
+    return [str(p)]
+
+
 def read_cloud(path: str | os.PathLike) -> GaussianCloud:
     """Return the Gaussians of a splat file in any readable format (detected by content).
 

@@ -143,3 +143,42 @@ def test_batch_bad_options(args, needle: str, world, run_cli, tmp_path: Path) ->
     res = run_cli("batch", args[0], world.ply.parent, tmp_path / "o", *args[1:])
     expect_failure(res, 2, needle)
     assert not (tmp_path / "o").exists()
+
+
+@pytest.fixture
+def sog_folder(tmp_path: Path) -> Path:
+    """A SOG meta.json with its textures, as PlayCanvas and splat-transform write it."""
+    from ..test_formats import encode_sog, make_cloud
+
+    folder = tmp_path / "scene_sog"
+    folder.mkdir()
+    for name, data in encode_sog(make_cloud(300)).items():
+        (folder / name).write_bytes(data)
+    return folder
+
+
+SOG_OUTPUTS = {"prune": "prune {meta} {sog}/clean.ply -q", "convert": "convert {meta} {sog}/sub/clean.spz",
+               "inspect": "inspect {meta} --histogram {sog}/h.png -q",
+               "render": "render {meta} {sog} --orbit 1 --size 16x16 --overwrite -q",
+               "render frame-like": "render {tmp}/c.ply {sog}/v --frame-like {meta} --orbit 1 --size 16x16 -q"}
+
+
+@pytest.mark.parametrize("command", list(SOG_OUTPUTS))
+def test_a_sog_meta_json_guards_its_folder(command: str, sog_folder: Path, run_cli, tmp_path: Path) -> None:
+    # meta.json names the textures beside it: its folder is the input, so nothing is written into it
+    from roodi_toolkit import read_cloud, write_cloud
+
+    write_cloud(read_cloud(sog_folder), tmp_path / "c.ply")
+    before = {p.name: p.read_bytes() for p in sog_folder.iterdir()}
+    res = run_cli(*SOG_OUTPUTS[command].format(meta=sog_folder / "meta.json", sog=sog_folder, tmp=tmp_path).split())
+    expect_failure(res, 1, "inside the input folder", str(sog_folder))
+    assert {p.name: p.read_bytes() for p in sog_folder.iterdir()} == before
+
+
+def test_render_reads_a_sog_folder_and_frames_on_one(sog_folder: Path, run_cli, tmp_path: Path) -> None:
+    res = run_cli("render", sog_folder, tmp_path / "v", "--orbit", "1", "--size", "16x16", "-q")
+    assert res.exit_code == 0, res.stderr
+    res = run_cli("render", sog_folder / "meta.json", tmp_path / "w", "--frame-like", sog_folder, "--orbit", "1",
+                  "--size", "16x16", "-q")
+    assert res.exit_code == 0, res.stderr
+    assert (tmp_path / "v" / "orbit_000.png").read_bytes() == (tmp_path / "w" / "orbit_000.png").read_bytes()
