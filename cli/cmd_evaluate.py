@@ -47,7 +47,8 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
     from roodi_toolkit.io.splat import input_paths, read_cloud
 
-    inputs = [*input_paths(object_ply), data_dir, lpips_weights]  # --json over scene.json, --renders in DATA_DIR: refused
+    # --json over scene.json or --renders into DATA_DIR is refused
+    inputs = [*input_paths(object_ply), data_dir, lpips_weights]
     files.check_outputs([("--json", json_path)], overwrite=overwrite, inputs=inputs)
     if renders_dir is not None:
         if json_path is not None and files.same_file(json_path, renders_dir):
