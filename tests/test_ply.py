@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
 from roodi_toolkit import PlyError, ply_info, read_ply, write_ply
-from roodi_toolkit.io.ply import detect_variant
+from roodi_toolkit.io.ply import CHUNK_ROWS, detect_variant
 
 from .conftest import make_cloud
 
@@ -65,9 +65,10 @@ def test_roundtrip_is_bit_exact(tmp_path, degree):
     assert a.read_bytes() == b.read_bytes()
 
 
+@pytest.mark.parametrize("count", [25, 2 * CHUNK_ROWS + 7])  # one chunk; several and a partial one
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
-def test_reads_inria_file_written_by_plyfile(tmp_path, degree):
-    cols = reference_columns(25, degree)
+def test_reads_inria_file_written_by_plyfile(tmp_path, degree, count):
+    cols = reference_columns(count, degree)
     path = tmp_path / "inria.ply"
     write_with_plyfile(path, cols)
     c = read_ply(path)

@@ -17,7 +17,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import BinaryIO, Callable
 
 import numpy as np
 
@@ -28,8 +28,12 @@ from ..gaussians import GaussianCloud
 MAX_HEADER_BYTES = 1 << 20
 """A header longer than this is refused (real 3DGS headers are about 2 KiB)."""
 
-CHUNK_ROWS = 1 << 19
-"""Rows read or written per chunk, so memory stays at the size of the cloud plus one chunk."""
+CHUNK_ROWS = 1 << 13
+"""Rows read or written per chunk, through one reused buffer: memory stays at the size of the cloud plus one chunk,
+and a chunk (about 0.5-2 MB of records) stays in the CPU cache while its properties are copied one by one into the
+columns (or out of them). Measured on a real 2M-Gaussian SH-2 cloud (41 properties, 164-byte records; 2-core
+machine): filling the records of the whole cloud took 1.05 s in chunks of 2^19 rows, 0.50 s at 2^15, 0.19 s at 2^13,
+0.16 s at 2^11 (more Python calls below that)."""
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -259,20 +263,31 @@ def _read_columns(p: Path, header: PlyHeader, file_size: int,
     dtype = np.dtype([(n, endian + t) for n, t in vertex.properties])
     given = into(vertex.count) if into is not None else {}
     columns = {n: given[n] if n in given else np.empty(vertex.count, dtype=np.dtype(t)) for n, t in vertex.properties}
+    buffer = np.empty(min(vertex.count, CHUNK_ROWS), dtype=dtype)  # reused: it stays in the cache (CHUNK_ROWS)
     try:
-        with open(p, "rb") as f:
+        with open(p, "rb", buffering=0) as f:
             f.seek(offset)
             for start in range(0, vertex.count, CHUNK_ROWS):
                 rows = min(CHUNK_ROWS, vertex.count - start)
-                buf = f.read(rows * dtype.itemsize)
-                if len(buf) != rows * dtype.itemsize:
+                chunk = buffer[:rows]
+                if _read_fully(f, memoryview(chunk.view(np.uint8))) != rows * dtype.itemsize:
                     raise _fail(p, "file ended before all vertices were read: truncated")
-                chunk = np.frombuffer(buf, dtype=dtype)
                 for name in columns:
                     columns[name][start:start + rows] = chunk[name]
     except OSError as exc:
         raise _fail(p, f"cannot read file ({exc.strerror})") from None
     return columns
+
+
+def _read_fully(f: BinaryIO, view: memoryview) -> int:
+    """Fill ``view`` from the unbuffered file ``f`` (one read may return less); return the bytes read."""
+    got = 0
+    while got < len(view):
+        n = f.readinto(view[got:])
+        if not n:
+            break
+        got += n
+    return got
 
 
 def _read_ascii(p: Path, header: PlyHeader, file_size: int) -> dict[str, np.ndarray]:
@@ -427,9 +442,8 @@ def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[s
     normals = cloud.normals if cloud.normals is not None else np.zeros((n, 3), dtype=np.float32)
     for names, arr in ((["x", "y", "z"], cloud.means), (_NORMALS, normals), (_DC, cloud.sh_dc)):
         fields.extend((name, arr[:, i]) for i, name in enumerate(names))
-    if per_channel:
-        flat = rest.transpose(0, 2, 1).reshape(n, 3 * per_channel)  # channel-major on disk
-        fields.extend((f"f_rest_{i}", flat[:, i]) for i in range(3 * per_channel))
+    # channel-major on disk: f_rest_i is coefficient i % per_channel of channel i // per_channel (views, no copy)
+    fields.extend((f"f_rest_{i}", rest[:, i % per_channel, i // per_channel]) for i in range(3 * per_channel))
     fields.append(("opacity", cloud.opacity_logits))
     fields.extend((name, cloud.log_scales[:, i]) for i, name in enumerate(_SCALE))
     fields.extend((name, cloud.quats_wxyz[:, i]) for i, name in enumerate(_ROT))
@@ -457,7 +471,7 @@ def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[s
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(header)
-            buffer = np.empty(min(n, CHUNK_ROWS), dtype=dtype)  # one buffer for every chunk: fresh memory is slow
+            buffer = np.empty(min(n, CHUNK_ROWS), dtype=dtype)  # reused: it stays in the cache (CHUNK_ROWS)
             for start in range(0, n, CHUNK_ROWS):
                 stop = min(n, start + CHUNK_ROWS)
                 chunk = buffer[:stop - start]
