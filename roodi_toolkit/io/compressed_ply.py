@@ -154,6 +154,7 @@ def decode_threads() -> int:
         limit = cores
     return max(1, min(4, cores, limit))
 
+
 with np.errstate(divide="ignore"):
     _LOGIT = (-np.log(1.0 / (np.arange(256) / 255.0) - 1.0)).astype(np.float32)
 """The opacity logit of each alpha byte, as the reference computes it (float64, then stored as float32)."""
