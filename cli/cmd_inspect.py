@@ -9,8 +9,6 @@ from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo
                                              prune_config_from_options, prune_mode_options, prune_options,
                                              prune_with_photos)
 
-PROGRESS_MIN_GAUSSIANS = 200_000
-"""Clouds at least this large get progress bars while pruning (as ``prune``)."""
 
 EPILOG = """\b
 Examples:
@@ -109,8 +107,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
                                      param_hint="--highlight") from None
 
     cloud = read_cloud(input_ply)
-    _, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet,
-                                        PROGRESS_MIN_GAUSSIANS)
+    _, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet)
     removed = ", ".join(f"{name} {n:,}" for name, n in report.stages if n) or "none"
     click.echo(f"mode {report.mode}: {report.mode_reason}")
     click.echo(f"kept {report.kept_count:,} of {report.input_count:,} Gaussians (removed: {removed}; "

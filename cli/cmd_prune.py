@@ -9,8 +9,6 @@ from roodi_toolkit.cli.common import overwrite_option, quiet_option
 from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options, prune_config_from_options,
                                              prune_mode_options, prune_options, prune_with_photos)
 
-PROGRESS_MIN_GAUSSIANS = 200_000
-"""Clouds at least this large get progress bars (smaller ones finish in about a second)."""
 
 EPILOG = """\b
 Examples:
@@ -84,8 +82,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     t_read = time.perf_counter()
     cloud = read_cloud(input_ply)
     read_s = time.perf_counter() - t_read
-    pruned, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet,
-                                             PROGRESS_MIN_GAUSSIANS)
+    pruned, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet)
 
     t_write = time.perf_counter()
     if dry_run:

@@ -114,16 +114,20 @@ def photo_inputs(input_path: str, mode: str, photos_spec: str) -> list[str]:
     return list(photo_folders(input_path, photos_spec))
 
 
-def prune_with_photos(input_path: str, cloud: Any, config: Any, photos_spec: str, photo_views: int, quiet: bool,
-                     progress_min: int) -> Any:
+PROGRESS_MIN_GAUSSIANS = 200_000
+"""Clouds at least this large get progress bars while pruning (smaller ones finish in about a second)."""
+
+
+def prune_with_photos(input_path: str, cloud: Any, config: Any, photos_spec: str, photo_views: int,
+                      quiet: bool) -> Any:
     """Return :func:`~roodi_toolkit.prune.scene.prune_cloud`'s result for ``cloud`` read from ``input_path``, with
     the photo check of ``--photos`` in the local modes (a note on stderr when ``auto`` finds none). Progress bars
-    show for clouds of at least ``progress_min`` Gaussians, and always for the photo check."""
+    show for clouds of at least :data:`PROGRESS_MIN_GAUSSIANS`, and always for the photo check."""
     from roodi_toolkit.cli.common import progress_factory
     from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos
     from roodi_toolkit.prune.scene import prune_cloud
 
-    progress = progress_factory(quiet or len(cloud) < progress_min)
+    progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
     photos = None
     if config.mode != "statistical":
         try:

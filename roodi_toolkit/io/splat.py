@@ -103,7 +103,7 @@ def detect_format(path: str | os.PathLike) -> str:
         raise _fail(p, "gzip file that is not SPZ (no NGSP magic inside)")
     if head[:4] == b"PK\x03\x04" or zipfile.is_zipfile(p):
         return "sog"
-    if head.lstrip()[:1] == b"{":
+    if _is_sog_meta(head):
         return "sog"
     from .splat_files import looks_like_ksplat
 
@@ -204,6 +204,11 @@ def read_cloud_report(path: str | os.PathLike, *, raw: bool = False) -> tuple[Ga
     return cloud, ReadReport(str(p), fmt, n_pos, n_neg)
 
 
+def _is_sog_meta(head: bytes) -> bool:
+    """Return whether a file's first bytes are a JSON object: a SOG ``meta.json`` (:func:`detect_format`)."""
+    return head.lstrip()[:1] == b"{"
+
+
 def input_paths(path: str | os.PathLike) -> list[str]:
     """Return what a splat input occupies, for the output guards: the path and, for a SOG ``meta.json``, its folder.
 
@@ -218,7 +223,7 @@ def input_paths(path: str | os.PathLike) -> list[str]:
                 head = f.read(64)
         except OSError:  # the reader says what is wrong with it
             return [str(p)]
-        if head.lstrip()[:1] == b"{":
+        if _is_sog_meta(head):
             return [str(p), str(p.parent)]
     return [str(p)]
 
