@@ -61,6 +61,12 @@ _MODE_OPTIONS = [
     click.option("--blob-score", type=float, default=0.5, show_default=True,
                  help="scene/object: remove Gaussians whose smallest axis exceeds the local spacing and size by "
                       "more than this (log units; higher keeps more)."),
+    click.option("--blob-colour", type=click.FloatRange(min=0), default=0.12, show_default=True,
+                 help="scene/object without photos: an oversized Gaussian stays when one of its neighbours has "
+                      "its base colour within this RGB distance (0-1 units) and it scores at most --blob-sure; 0: "
+                      "colour is not asked. With photos every oversized Gaussian is put to them."),
+    click.option("--blob-sure", type=float, default=2.0, show_default=True,
+                 help="scene/object: oversized Gaussians scoring above this go whatever their colour."),
     click.option("--background", type=click.Choice(["auto", "white", "black", "none"]), default="auto",
                  show_default=True,
                  help="scene/object: the solid background the scene was trained on; its colour's faint fog goes. "
@@ -70,7 +76,8 @@ _MODE_OPTIONS = [
                       "(largest axis) or min_scale. Repeatable."),
 ]
 
-MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "max_piece", "blob_score", "background", "filter_values")
+MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "max_piece", "blob_score", "blob_colour", "blob_sure",
+                     "background", "filter_values")
 """Keyword names of the mode options (``prune`` only)."""
 
 
@@ -169,7 +176,8 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
                               filter_nan: bool, min_opacity: float | None, filter_box: str | None,
                               filter_sphere: str | None, mode: str = "auto", reach: float = 1.5,
                               min_cluster: float = 0.001, max_piece: int = 3, blob_score: float = 0.5,
-                              background: str = "auto", filter_values: tuple[str, ...] = ()) -> Any:
+                              blob_colour: float = 0.12, blob_sure: float = 2.0, background: str = "auto",
+                              filter_values: tuple[str, ...] = ()) -> Any:
     """Return the ``PruneConfig`` the pruning options describe.
 
     Raises:
@@ -182,7 +190,8 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
     sphere = parse_floats(filter_sphere, 4, "--filter-sphere") if filter_sphere is not None else None
     return PruneConfig(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors, filter_nan=filter_nan,
                        min_opacity=min_opacity, box=box, sphere=sphere, mode=mode, reach=reach,
-                       min_cluster=min_cluster, max_piece=max_piece, blob_score=blob_score, background=background,
+                       min_cluster=min_cluster, max_piece=max_piece, blob_score=blob_score,
+                       blob_colour=blob_colour, blob_sure=blob_sure, background=background,
                        value_ranges=parse_value_ranges(filter_values))
 
 

@@ -100,6 +100,34 @@ def test_without_photos_lone_specks_go_and_small_clumps_stay():
     assert not keep[3000:].any()
 
 
+def test_oversized_blobs_the_colour_of_their_neighbours_stay_below_blob_sure():
+    from roodi_toolkit.gaussians import GaussianCloud
+
+    a = planted_floater_cloud(FloaterMix("sphere", n_object=3000, far_fraction=0, near_fraction=0), 0).cloud
+    size = float(np.exp(np.median(a.log_scales.astype(np.float64).mean(axis=1))))
+    host = np.array([10, 500, 1000, 1500])  # blobs centred on these surface Gaussians
+
+    def blobs(multiple: float, rgb: np.ndarray) -> GaussianCloud:
+        return GaussianCloud.from_activated(a.means[host].astype(np.float64), scales=np.full((4, 3), size * multiple),
+                                            opacities=np.full(4, 0.7), rgb=rgb, sh_degree=a.sh_degree)
+
+    own = np.clip(a.rgb[host].astype(np.float64), 0, 1)
+    black = np.zeros((4, 3))  # the surface's colours lie in 0.1-0.9 per channel: >= 0.17 from black
+    cloud = GaussianCloud.concatenate([a, blobs(4, own), blobs(4, black), blobs(8, own)])
+    _, keep, report = prune_cloud(cloud)
+    scores = report.mean_distances[3000:]
+    assert (scores[:8] > 0.5).all() and (scores[:8] < 2.0).all() and (scores[8:] > 2.0).all()
+    assert keep[:3000].all()
+    assert keep[3000:3004].all()  # oversized, but the colour of a neighbour and under --blob-sure
+    assert not keep[3004:].any()  # foreign colour, or above --blob-sure whatever the colour
+    _, keep, _ = prune_cloud(cloud, blob_colour=0.0)
+    assert not keep[3000:].any() and keep[:3000].all()
+    _, keep, _ = prune_cloud(cloud, blob_sure=1e9)
+    assert keep[3000:3004].all() and keep[3008:].all() and not keep[3004:3008].any()
+    with pytest.raises(ConfigError, match="blob_colour"):
+        PruneConfig(blob_colour=-0.1)
+
+
 def test_statistical_mode_is_the_unchanged_rule():
     planted = planted_floater_cloud(FloaterMix("torus", n_object=3000), seed=0)
     for rule in ("paper", "robust"):

@@ -81,6 +81,10 @@ class PruneConfig:
             donut's inner pieces of 6-56 Gaussians, a cropped capture's chunks of 73-379), which only the photos
             can tell from a floater; with photos every detached piece is put to them.
         blob_score: oversized limit of the local tests (log units, see scene.py).
+        blob_colour: without photos, an oversized candidate with a score up to ``blob_sure`` stays when one of its
+            K neighbours has its base colour within this RGB distance (0-1 units; 0: colour is not asked); with
+            photos every candidate is put to them. 0.12: measured on real splats (scene.py, docs/pruning.md).
+        blob_sure: oversized candidates scoring above this go whatever their colour (log units).
         object_fraction: auto picks object mode when the largest piece holds at least this fraction.
         background: the colour the scene was trained on, whose fog the local modes remove: ``auto`` (detected,
             see scene.py), ``white``, ``black`` or ``none``.
@@ -105,6 +109,8 @@ class PruneConfig:
     min_cluster: float = 0.001
     max_piece: int = 3
     blob_score: float = 0.5
+    blob_colour: float = 0.12
+    blob_sure: float = 2.0
     object_fraction: float = 0.98
     value_ranges: tuple[tuple[str, float, float], ...] = ()
     background: str = "auto"
@@ -113,6 +119,9 @@ class PruneConfig:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if not (np.isfinite(self.blob_colour) and self.blob_colour >= 0) or np.isnan(self.blob_sure):
+            raise ConfigError(f"blob_colour must be a finite number >= 0 and blob_sure a number, got "
+                              f"{self.blob_colour} and {self.blob_sure}")
         for name, value in (("reach", self.reach), ("blob_score", self.blob_score)):
             if not np.isfinite(value) or (name == "reach" and value <= 0):
                 raise ConfigError(f"{name} must be a {'positive' if name == 'reach' else 'finite'} number, "
