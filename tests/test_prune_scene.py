@@ -52,6 +52,15 @@ def test_the_real_donuts_inner_pieces_stay_without_photos(donut):
     assert (~keep).mean() < 0.002
 
 
+def test_the_real_donuts_oversized_gaussians_of_their_neighbours_colour_stay(donut):
+    # 53 real candidates: 43 carry the colour of a neighbour (the optimiser's large patches) and stay without photos
+    _, keep, report = prune_cloud(donut)
+    _, keep_all, report_all = prune_cloud(donut, blob_colour=0.0)
+    assert dict(report_all.stages)["oversized"] - dict(report.stages)["oversized"] == \
+        report.statistics["oversized_colour_spared"] >= 30
+    assert (keep >= keep_all).all() and "oversized Gaussians stay, each the colour of a neighbour" in report.mode_reason
+
+
 def test_plant_floaters_follows_the_recipe(donut):
     centre, r90, size = scene_extent(donut)
     planted, labels = plant_floaters(donut, seed=3, n_specks=50, n_blobs=40)
