@@ -135,6 +135,10 @@ def test_oversized_blobs_the_colour_of_their_neighbours_stay_below_blob_sure():
     assert keep[3000:3004].all() and keep[3008:].all() and not keep[3004:3008].any()
     with pytest.raises(ConfigError, match="blob_colour"):
         PruneConfig(blob_colour=-0.1)
+    # a one-colour cloud gives the colour nothing to go on: every candidate goes, and the report says why
+    grey = cloud.with_fields(sh_dc=np.zeros_like(cloud.sh_dc))
+    _, keep, report = prune_cloud(grey)
+    assert keep[:3000].all() and not keep[3000:].any() and "nearly one colour" in report.mode_reason
 
 
 def test_statistical_mode_is_the_unchanged_rule():

@@ -263,6 +263,21 @@ def colour_gaps(rgb: np.ndarray, rows: np.ndarray, neighbors: np.ndarray) -> np.
     return np.sqrt(((around - own[:, None, :]) ** 2).sum(axis=2).min(axis=1, initial=np.inf))
 
 
+COLOUR_SAMPLE = 65536
+"""colours_vary: at most this many Gaussians (evenly strided) are looked at."""
+
+
+def colours_vary(rgb: np.ndarray, tolerance: float) -> bool:
+    """Return whether the cloud has colours to tell apart: a tenth of its Gaussians (of an even sample) lie more than
+    ``tolerance`` from its median colour. A one-colour cloud (a grey scan, a mask) gives the colour test of the
+    oversized Gaussians nothing to go on: every blob has its neighbours' colour."""
+    sample = np.clip(rgb[::max(1, len(rgb) // COLOUR_SAMPLE)], 0.0, 1.0, dtype=np.float32)
+    if len(sample) == 0:
+        return False
+    distance = np.linalg.norm(sample - np.median(sample, axis=0), axis=1)
+    return bool(np.quantile(distance, 0.9) > tolerance)
+
+
 def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
            max_piece: int | None = None, rgb: np.ndarray | None = None) -> LocalDecision:
     """Run the detached and oversized tests (module docstring) on the K-nearest-centre graph of finite Gaussians.
@@ -381,13 +396,17 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     # without photos only the pieces too small to have structure go (PruneConfig.max_piece) and only the oversized
     # Gaussians of a colour foreign to their neighbours (PruneConfig.blob_colour); photos judge them all
     max_piece = None if photos is not None or config.max_piece == 0 else int(config.max_piece)
-    decision = decide(sub.log_scales, graph, config, max_piece, sub.rgb if photos is None else None)
+    rgb = sub.rgb if photos is None and config.blob_colour > 0 else None
+    one_colour = rgb is not None and not colours_vary(rgb, config.blob_colour)
+    decision = decide(sub.log_scales, graph, config, max_piece, None if one_colour else rgb)
     fog, background = background_fog(sub, config.background, config.fog_tolerance)
     fog &= ~decision.flagged
     report.mode, report.mode_reason = decision.mode, decision.reason
     if decision.spared[0]:
         report.mode_reason += (f"; {decision.spared[1]:,} Gaussians in {decision.spared[0]:,} detached pieces of "
                                f"more than {max_piece} stay (no photos to judge them; --max-piece 0 removes them)")
+    if one_colour:
+        report.mode_reason += "; no colour test of the oversized Gaussians (the cloud is nearly one colour)"
     if decision.colour_spared:
         report.mode_reason += (f"; {decision.colour_spared:,} oversized Gaussians stay, each the colour of a "
                                f"neighbour (--blob-colour 0 removes them)")
