@@ -66,7 +66,8 @@ _MODE_OPTIONS = [
                       "its base colour within this RGB distance (0-1 units) and it scores at most --blob-sure; 0: "
                       "colour is not asked. With photos every oversized Gaussian is put to them."),
     click.option("--blob-sure", type=float, default=2.0, show_default=True,
-                 help="scene/object: oversized Gaussians scoring above this go whatever their colour."),
+                 help="scene/object without photos: oversized Gaussians scoring above this go whatever their "
+                      "colour."),
     click.option("--background", type=click.Choice(["auto", "white", "black", "none"]), default="auto",
                  show_default=True,
                  help="scene/object: the solid background the scene was trained on; its colour's faint fog goes. "

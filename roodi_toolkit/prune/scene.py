@@ -23,7 +23,7 @@ search, as Euclidean statistical outlier removal) and work in any units:
   goes only when none of its neighbours has its base colour (the nearest of their SH-DC colours is more than
   ``blob_colour`` away in RGB) or when its score is above ``blob_sure``: a blob of foreign colour occludes the
   surface, while a large Gaussian the colour of a neighbour is most often the optimiser covering an even patch
-  with few Gaussians. Measured on six real splats from five tools: the real candidates' nearest neighbour colour
+  with few Gaussians. Measured on six real splats in four formats: the real candidates' nearest neighbour colour
   is 0.03-0.11 away at the median, the planted blobs' 0.10-0.19 at their 5th percentile; ``docs/pruning.md``.
 
 ``docs/pruning.md`` has the measurements behind the constants.
