@@ -96,6 +96,28 @@ def test_support_is_positive_for_shown_negative_for_visible_specks_zero_for_unfl
     assert check.views == 8
 
 
+def test_a_veil_in_front_of_shown_background_is_judged_before_it(scene):
+    from roodi_toolkit.progress import null_progress
+    from roodi_toolkit.prune.outliers import PruneReport
+    from roodi_toolkit.prune.scene import _photo_supported
+
+    cloud, labels, _, photos = scene
+    wall = cloud.means[labels == 1].astype(np.float64)  # the three red Gaussians the photos show
+    veil = GaussianCloud.from_activated(wall * (3.3 / 2.6), scales=np.full((3, 3), 0.3), opacities=np.full(3, 0.5),
+                                        rgb=np.ones((3, 3)), sh_degree=cloud.sh_degree)  # white, between wall and cameras
+    both = GaussianCloud.concatenate([cloud, veil])
+    front = np.arange(len(both)) >= len(cloud)
+    behind = np.concatenate([labels == 1, np.zeros(3, dtype=bool)])
+    # judged together, each pixel's change is shared: the veil takes a share of the wall's support and would stay
+    together = photo_support(both, front | behind, photos).support
+    assert (together[front] > 0).all() and (together[behind] > 0).all()
+    # judged first, the veil goes; the wall, judged without it, stays
+    supported, figures = _photo_supported(both, front, behind, photos, None, null_progress,
+                                          PruneReport(input_count=len(both)))
+    assert not supported[front].any() and supported[behind].all()
+    assert figures["photo_flagged"] == 6 and figures["photo_supported"] == 3
+
+
 def test_rgba_photos_count_a_white_fog_that_a_white_background_hides(scene):
     """On RGBA photos the error is taken on black and white: a white Gaussian over white is still wrong."""
     import torch

@@ -16,6 +16,12 @@ A flagged Gaussian whose removal makes the photos worse (``support_i > 0``) is k
 On datasets with alpha (RGBA renders such as NeRF-synthetic) the error is taken on both a black and a white
 background, so the faint fog of a white training background counts against itself.
 
+Sharing a pixel's change among all the flagged Gaussians there mixes what lies in front with what lies behind it: a
+veil over a wall the photos show takes a share of the wall's support and stays, and the wall behind a floater takes
+a share of the floater's harm and goes. The prune therefore calls this in two passes
+(:func:`roodi_toolkit.prune.scene.prune_cloud`): the oversized blobs and fog first, then the detached pieces with
+the blobs and fog that went left out.
+
 Measured (``benchmarks/RESULTS.md``, "Prune on real splats"): the statue's held-out photos -2.89 dB without the
 check, +0.00 dB with it; the default-trained lego -0.22 dB without, +0.00 dB with.
 

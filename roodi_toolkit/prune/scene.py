@@ -415,7 +415,7 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     report.timings["rule"] = time.perf_counter() - t2
     detached, oversized, photo_figures = decision.detached, decision.oversized, {}
     if photos is not None and (decision.flagged | fog).any():
-        supported, photo_figures = _photo_supported(sub, decision.flagged | fog, photos, renderer, progress, report)
+        supported, photo_figures = _photo_supported(sub, oversized | fog, detached, photos, renderer, progress, report)
         detached, oversized, fog = detached & ~supported, oversized & ~supported, fog & ~supported
     report.evaluated = evaluated
     report.mean_distances = decision.blob_score
@@ -437,15 +437,35 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     return PruneResult(out, keep, report)
 
 
-def _photo_supported(cloud: GaussianCloud, flagged: np.ndarray, photos: "Photos", renderer: Any,
+def _photo_supported(cloud: GaussianCloud, front: np.ndarray, behind: np.ndarray, photos: "Photos", renderer: Any,
                      progress: ProgressFactory, report: "PruneReport") -> tuple[np.ndarray, dict[str, float]]:
     """Return which flagged Gaussians the photos support (they stay) and the check's figures for the report's
-    statistics; the check's time and description go into ``report``."""
+    statistics; the check's time and description go into ``report``.
+
+    Two passes: the check shares each pixel's change of error among all the flagged Gaussians there, so what lies
+    behind a floater would share the floater's harm. The Gaussians that lie over the content (``front``: oversized
+    blobs and fog) are judged first; those that go are left out when the rest (``behind``: detached pieces, a
+    capture's sparse background among them) are judged.
+    """
     from .photos import photo_support
 
     t0 = time.perf_counter()
-    check = photo_support(cloud, flagged, photos, renderer=renderer, progress=progress)
-    supported = flagged & (check.support > 0)
+    n = len(cloud)
+    supported = np.zeros(n, dtype=bool)
+    gone = np.zeros(n, dtype=bool)
+    first = None  # the first pass sees the whole cloud: its fit to the photos is the one reported
+    if front.any():
+        first = photo_support(cloud, front, photos, renderer=renderer, progress=progress)
+        supported |= front & (first.support > 0)
+        gone = front & ~supported
+    if behind.any():
+        rest = np.flatnonzero(~gone)
+        part = cloud.select(rest) if gone.any() else cloud
+        check = photo_support(part, behind[rest], photos, renderer=renderer, progress=progress)
+        supported[rest] |= behind[rest] & (check.support > 0)
+        first = check if first is None else first
+    check = first
+    flagged = front | behind
     report.timings["photo_check"] = time.perf_counter() - t0
     figures = {"photo_views": check.views, "photo_flagged": int(flagged.sum()), "photo_supported": int(supported.sum()),
                "photo_psnr": round(check.psnr, 3), "photo_psnr_empty": round(check.psnr_empty, 3)}
