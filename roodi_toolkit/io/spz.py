@@ -241,7 +241,8 @@ def encode_spz(cloud: GaussianCloud) -> bytes:
         qv = (qv + bucket // 2) // bucket * bucket
         parts.append(np.clip(qv, 0, 255).astype(np.uint8))
     header = struct.pack("<IIIBBBB", MAGIC, 3, n, degree, frac, 0, 0)
-    return gzip.compress(header + b"".join(a.tobytes() for a in parts), compresslevel=6)
+    # mtime=0: the same splat gives the same bytes (reproducible outputs, diffable caches)
+    return gzip.compress(header + b"".join(a.tobytes() for a in parts), compresslevel=6, mtime=0)
 
 
 def write_spz(cloud: GaussianCloud, path: str | os.PathLike) -> Path:
