@@ -42,7 +42,7 @@ Examples:
 def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
           filter_nan: bool, min_opacity: float | None, filter_box: str | None, filter_sphere: str | None,
           mode: str, reach: float, min_cluster: float, max_piece: int, blob_score: float, blob_colour: float,
-          blob_sure: float, background: str,
+          blob_sure: float, foreign_size: float, background: str,
           filter_values: tuple[str, ...],
           photos_spec: str, photo_views: int, dry_run: bool, floaters_out: str | None, report_path: str | None,
           overwrite: bool, quiet: bool) -> None:
@@ -66,7 +66,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
                                        filter_sphere=filter_sphere, mode=mode, reach=reach,
                                        min_cluster=min_cluster, max_piece=max_piece, blob_score=blob_score,
                                        blob_colour=blob_colour, blob_sure=blob_sure,
-                                       background=background, filter_values=filter_values)
+                                       foreign_size=foreign_size, background=background, filter_values=filter_values)
     photo_folders = photo_inputs(input_ply, mode, photos_spec)
     picture = None
     if dry_run:

@@ -68,6 +68,11 @@ _MODE_OPTIONS = [
     click.option("--blob-sure", type=float, default=2.0, show_default=True,
                  help="scene/object without photos: oversized Gaussians scoring above this go whatever their "
                       "colour."),
+    click.option("--foreign-size", type=click.FloatRange(min=0), default=6.0, show_default=True,
+                 help="scene/object: a round Gaussian whose smallest axis is over this many times the scene's "
+                      "median Gaussian size and its neighbours' median size, with a colour none of its neighbours "
+                      "has, is oversized whatever its score (a blob among large Gaussians); 0: off. With photos it "
+                      "is put to them."),
     click.option("--background", type=click.Choice(["auto", "white", "black", "none"]), default="auto",
                  show_default=True,
                  help="scene/object: the solid background the scene was trained on; its colour's faint fog goes. "
@@ -78,7 +83,7 @@ _MODE_OPTIONS = [
 ]
 
 MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "max_piece", "blob_score", "blob_colour", "blob_sure",
-                     "background", "filter_values")
+                     "foreign_size", "background", "filter_values")
 """Keyword names of the mode options (``prune`` only)."""
 
 
@@ -177,8 +182,8 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
                               filter_nan: bool, min_opacity: float | None, filter_box: str | None,
                               filter_sphere: str | None, mode: str = "auto", reach: float = 1.5,
                               min_cluster: float = 0.001, max_piece: int = 3, blob_score: float = 0.5,
-                              blob_colour: float = 0.12, blob_sure: float = 2.0, background: str = "auto",
-                              filter_values: tuple[str, ...] = ()) -> Any:
+                              blob_colour: float = 0.12, blob_sure: float = 2.0, foreign_size: float = 6.0,
+                              background: str = "auto", filter_values: tuple[str, ...] = ()) -> Any:
     """Return the ``PruneConfig`` the pruning options describe.
 
     Raises:
@@ -192,8 +197,8 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
     return PruneConfig(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors, filter_nan=filter_nan,
                        min_opacity=min_opacity, box=box, sphere=sphere, mode=mode, reach=reach,
                        min_cluster=min_cluster, max_piece=max_piece, blob_score=blob_score,
-                       blob_colour=blob_colour, blob_sure=blob_sure, background=background,
-                       value_ranges=parse_value_ranges(filter_values))
+                       blob_colour=blob_colour, blob_sure=blob_sure, foreign_size=foreign_size,
+                       background=background, value_ranges=parse_value_ranges(filter_values))
 
 
 def effective_mode(mode: str) -> str:

@@ -61,6 +61,10 @@ def test_prune_options_and_overwrite(run_cli, scene, tmp_path):
     assert res.exit_code == 2 and "--filter-box" in res.stderr
     res = run_cli("prune", path, path, "--overwrite")
     assert res.exit_code == 1 and "same file" in res.stderr
+    res = run_cli("prune", path, out, "--overwrite", "--foreign-size", "0.5")
+    assert res.exit_code == 1 and "foreign_size" in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    res = run_cli("prune", path, out, "--overwrite", "--foreign-size", "0", "--report", tmp_path / "r.json")
+    assert res.exit_code == 0 and json.loads((tmp_path / "r.json").read_text())["statistics"]["oversized_foreign"] == 0
 
 
 def test_nan_rows_error_without_filter_and_dropped_with_it(run_cli, scene, tmp_path):

@@ -30,8 +30,9 @@ def donut():
     return read_ply(DONUT)
 
 
-def test_planted_floaters_in_the_real_donut_are_removed_and_its_content_kept(donut):
-    planted, labels = plant_floaters(donut, seed=0)
+@pytest.mark.parametrize("seed", [0, 3])
+def test_planted_floaters_in_the_real_donut_are_removed_and_its_content_kept(donut, seed):
+    planted, labels = plant_floaters(donut, seed=seed)
     assert (labels == SPECK).sum() == 300 and (labels == BLOB).sum() == 300
     np.testing.assert_array_equal(planted.means[:len(donut)], donut.means)
     _, keep, report = prune_cloud(planted)
@@ -139,6 +140,44 @@ def test_oversized_blobs_the_colour_of_their_neighbours_stay_below_blob_sure():
     grey = cloud.with_fields(sh_dc=np.zeros_like(cloud.sh_dc))
     _, keep, report = prune_cloud(grey)
     assert keep[:3000].all() and not keep[3000:].any() and "nearly one colour" in report.mode_reason
+
+
+def test_a_round_blob_of_foreign_colour_among_large_gaussians_goes_whatever_its_score():
+    """In a coarse region (sparse, large Gaussians) a blob 10x the scene's median size scores low; the foreign-blob
+    test takes it when it is round and of a colour none of its neighbours has."""
+    from roodi_toolkit.gaussians import SH_C0, GaussianCloud
+
+    def sphere(n: int, seed: int) -> GaussianCloud:
+        return planted_floater_cloud(FloaterMix("sphere", n_object=n, far_fraction=0, near_fraction=0), seed).cloud
+
+    fine, coarse = sphere(3000, 0), sphere(1000, 1)
+    grey = np.full((1000, 3), 0.5)
+    coarse = coarse.with_fields(means=coarse.means * np.float32(3) + np.float32([0, 0, 3.5]),
+                                log_scales=coarse.log_scales + np.float32(np.log(3)),
+                                sh_dc=((grey - 0.5) / SH_C0).astype(np.float32))  # touches the fine sphere
+    size = float(np.exp(np.median(fine.log_scales.astype(np.float64).mean(axis=1))))
+
+    def blobs(first: int, rgb: np.ndarray, flat: float = 1.0) -> GaussianCloud:
+        scales = np.full((4, 3), size * 10)
+        scales[:, 2] *= flat
+        return GaussianCloud.from_activated(coarse.means[first::250].astype(np.float64), scales=scales,
+                                            opacities=np.full(4, 0.7), rgb=np.broadcast_to(rgb, (4, 3)),
+                                            sh_degree=fine.sh_degree)
+
+    red = np.array([1.0, 0.0, 0.0])
+    cloud = GaussianCloud.concatenate([fine, coarse, blobs(0, red), blobs(80, grey[:4]), blobs(160, red, 0.3)])
+    _, keep, report = prune_cloud(cloud)
+    assert (report.mean_distances[4000:] < 0.5).all()  # under --blob-score: the oversized score misses them all
+    assert keep[:4000].all()
+    assert not keep[4000:4004].any()  # round, foreign colour
+    assert keep[4004:4012].all()  # a neighbour's colour; flat
+    assert report.statistics["oversized_foreign"] == 4 and "4 round Gaussians" in report.mode_reason
+    _, keep, _ = prune_cloud(cloud, foreign_size=0)
+    assert keep.all()
+    _, keep, _ = prune_cloud(cloud, foreign_size=20)
+    assert keep.all()
+    with pytest.raises(ConfigError, match="foreign_size"):
+        PruneConfig(foreign_size=0.5)
 
 
 def test_statistical_mode_is_the_unchanged_rule():

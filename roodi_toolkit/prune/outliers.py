@@ -85,6 +85,10 @@ class PruneConfig:
             K neighbours has its base colour within this RGB distance (0-1 units; 0: colour is not asked); with
             photos every candidate is put to them. 0.12: measured on real splats (scene.py, docs/pruning.md).
         blob_sure: oversized candidates scoring above this go whatever their colour (log units).
+        foreign_size: a round Gaussian whose smallest axis is more than this many times the scene's median
+            Gaussian size (geometric mean of the scales) and than its neighbours' median, with a colour none of its
+            neighbours has, goes as oversized whatever its score (a blob among large Gaussians scores low; 0:
+            off). 6: planted blobs are 10-20x the median size; measured on real splats (scene.py).
         object_fraction: auto picks object mode when the largest piece holds at least this fraction.
         background: the colour the scene was trained on, whose fog the local modes remove: ``auto`` (detected,
             see scene.py), ``white``, ``black`` or ``none``.
@@ -111,6 +115,7 @@ class PruneConfig:
     blob_score: float = 0.5
     blob_colour: float = 0.12
     blob_sure: float = 2.0
+    foreign_size: float = 6.0
     object_fraction: float = 0.98
     value_ranges: tuple[tuple[str, float, float], ...] = ()
     background: str = "auto"
@@ -119,6 +124,8 @@ class PruneConfig:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if not (np.isfinite(self.foreign_size) and (self.foreign_size == 0 or self.foreign_size >= 1)):
+            raise ConfigError(f"foreign_size must be 0 (off) or a finite number >= 1, got {self.foreign_size}")
         if not (np.isfinite(self.blob_colour) and self.blob_colour >= 0) or np.isnan(self.blob_sure):
             raise ConfigError(f"blob_colour must be a finite number >= 0 and blob_sure a number, got "
                               f"{self.blob_colour} and {self.blob_sure}")

@@ -25,6 +25,11 @@ search, as Euclidean statistical outlier removal) and work in any units:
   surface, while a large Gaussian the colour of a neighbour is most often the optimiser covering an even patch
   with few Gaussians. Measured on six real splats in four formats: the real candidates' nearest neighbour colour
   is 0.03-0.11 away at the median, the planted blobs' 0.10-0.19 at their 5th percentile; ``docs/pruning.md``.
+- **foreign blobs** (oversized whatever their score): among large, sparse Gaussians a blob's smallest axis does not
+  clear the spacing and it scores low. A Gaussian goes anyway when it is round (:data:`FOREIGN_ROUND`), its
+  smallest axis is above ``foreign_size`` times the scene's median size and its neighbours' median size, and none
+  of its neighbours has its colour (:data:`FOREIGN_COLOUR`): real Gaussians that large are nearly all flat or share
+  a neighbour's colour (0-32 taken per real file, ``docs/pruning.md``).
 
 ``docs/pruning.md`` has the measurements behind the constants.
 """
@@ -47,6 +52,13 @@ if TYPE_CHECKING:
     from .photos import Photos
 
 DETACHED, OVERSIZED, FOG = "detached", "oversized", "fog"
+FOREIGN_ROUND = 2.0
+"""foreign blobs: the largest axis under this many times the smallest. The planted blobs' axes are jittered by
+exp(N(0, 0.2)), so most are under 2; without the limit the test took 58 real donut Gaussians, with it 32
+(benchmarks/RESULTS.md, "Round blobs of a foreign colour go whatever their score")."""
+FOREIGN_COLOUR = 0.2
+"""foreign blobs: the RGB distance (0-1 units) from the Gaussian's base colour to the nearest of its neighbours'
+above which no neighbour has its colour (stricter than ``blob_colour``: these have not passed the oversized score)."""
 FOG_MIN_FRACTION = 0.05
 FOG_MIN_SPREAD = 1.5
 FOG_MAX_OPACITY_RATIO = 0.5
@@ -101,6 +113,8 @@ class LocalDecision:
         mode: ``scene`` or ``object``, and ``reason`` why.
         spared: detached pieces kept for holding more than ``max_piece`` Gaussians, and the Gaussians in them.
         colour_spared: oversized candidates kept for having the colour of a neighbour (``blob_colour``).
+        foreign: Gaussians found by the foreign-blob test (large, round, of a colour no neighbour has), counted in
+            ``oversized``.
     """
 
     detached: np.ndarray
@@ -113,6 +127,7 @@ class LocalDecision:
     reason: str
     spared: tuple[int, int] = (0, 0)
     colour_spared: int = 0
+    foreign: int = 0
 
     @property
     def flagged(self) -> np.ndarray:
@@ -278,8 +293,21 @@ def colours_vary(rgb: np.ndarray, tolerance: float) -> bool:
     return bool(np.quantile(distance, 0.9) > tolerance)
 
 
+def large_round(ls: np.ndarray, neighbors: np.ndarray, allowed: np.ndarray, foreign_size: float) -> np.ndarray:
+    """Return the rows, among ``allowed`` ``[N]``, of the foreign-blob test's shape (module docstring): round, the
+    smallest axis above ``foreign_size`` times the scene's median Gaussian size and above the neighbours' median
+    size. ``ls [N, 3]`` log scales and ``neighbors [N, K]`` in one (row) order."""
+    log_size = ls.mean(axis=1)
+    log_min = _axis_extreme(ls, np.minimum)
+    large = log_min > np.float32(np.median(log_size) + np.log(foreign_size))
+    large &= allowed
+    rows = np.flatnonzero(large)
+    rows = rows[_axis_extreme(ls[rows], np.maximum) - log_min[rows] < np.log(FOREIGN_ROUND)]
+    return rows[log_min[rows] > np.median(log_size[neighbors[rows]], axis=1)]
+
+
 def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
-           max_piece: int | None = None, rgb: np.ndarray | None = None) -> LocalDecision:
+           max_piece: int | None = None, rgb: np.ndarray | None = None, colour_gate: bool = True) -> LocalDecision:
     """Run the detached and oversized tests (module docstring) on the K-nearest-centre graph of finite Gaussians.
 
     Args:
@@ -287,7 +315,9 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
         graph: the K nearest centres (:func:`neighbour_graph`).
         config: reach, min_cluster, blob_score, object_fraction and the mode (``auto`` is resolved here).
         max_piece: detached pieces of more Gaussians than this stay (None: any size goes).
-        rgb: ``[N, 3]`` base colours, input order, for the oversized test's colour gate (None: no gate).
+        rgb: ``[N, 3]`` base colours, input order, for the foreign-blob test and the oversized test's colour gate
+            (None: neither).
+        colour_gate: spare the oversized candidates of a neighbour's colour (without photos; photos judge them all).
 
     Returns:
         The decision, every field in the input order; pieces are numbered by their first Gaussian in that order
@@ -324,16 +354,21 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
     scores = np.empty(n, dtype=np.float32)
     scores[order] = row_scores
     oversized = (scores > config.blob_score) & ~detached
-    colour_spared = 0
-    if rgb is not None and config.blob_colour > 0:
+    colour_spared = foreign = 0
+    if rgb is not None and colour_gate and config.blob_colour > 0:
         # only the candidates below blob_sure are asked (a few hundred): their colour against their neighbours'
         rows = np.flatnonzero(oversized[order] & (row_scores <= config.blob_sure))
         if rows.size:
             spare = rows[colour_gaps(rgb, order[rows], order[neighbors[rows]]) <= config.blob_colour]
             oversized[order[spare]] = False
             colour_spared = int(spare.size)
+    if rgb is not None and config.foreign_size > 0:
+        rows = large_round(ls, neighbors, ~(oversized | detached)[order], config.foreign_size)
+        found = rows[colour_gaps(rgb, order[rows], order[neighbors[rows]]) > FOREIGN_COLOUR]
+        oversized[order[found]] = True
+        foreign = int(found.size)
     return LocalDecision(detached, oversized, label, sizes, scores, largest_fraction, mode, reason,
-                         (int(spared.sum()), int(sizes[spared].sum())), colour_spared)
+                         (int(spared.sum()), int(sizes[spared].sum())), colour_spared, foreign)
 
 
 def choose_mode(config: "PruneConfig", largest_fraction: float) -> tuple[str, str]:
@@ -396,9 +431,10 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     # without photos only the pieces too small to have structure go (PruneConfig.max_piece) and only the oversized
     # Gaussians of a colour foreign to their neighbours (PruneConfig.blob_colour); photos judge them all
     max_piece = None if photos is not None or config.max_piece == 0 else int(config.max_piece)
-    rgb = sub.rgb if photos is None and config.blob_colour > 0 else None
-    one_colour = rgb is not None and not colours_vary(rgb, config.blob_colour)
-    decision = decide(sub.log_scales, graph, config, max_piece, None if one_colour else rgb)
+    asks_colour = (photos is None and config.blob_colour > 0) or config.foreign_size > 0
+    rgb = sub.rgb if asks_colour else None
+    one_colour = rgb is not None and not colours_vary(rgb, config.blob_colour or FOREIGN_COLOUR)
+    decision = decide(sub.log_scales, graph, config, max_piece, None if one_colour else rgb, photos is None)
     fog, background = background_fog(sub, config.background, config.fog_tolerance)
     fog &= ~decision.flagged
     report.mode, report.mode_reason = decision.mode, decision.reason
@@ -410,6 +446,12 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     if decision.colour_spared:
         report.mode_reason += (f"; {decision.colour_spared:,} oversized Gaussians stay, each the colour of a "
                                f"neighbour (--blob-colour 0 removes them)")
+    if decision.foreign:
+        one = decision.foreign == 1
+        report.mode_reason += (f"; {decision.foreign:,} round Gaussian{'' if one else 's'} over "
+                               f"{config.foreign_size:g}x the median size, of a colour no neighbour has, "
+                               f"{'put to the photos' if photos is not None else 'goes' if one else 'go'} "
+                               f"(--foreign-size 0 keeps {'it' if one else 'them'})")
     if background != "none":
         report.mode_reason += f"; {background}-background fog removed ({config.background} background)"
     report.timings["rule"] = time.perf_counter() - t2
@@ -425,7 +467,7 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     report.iterations, report.converged = 1, True
     report.statistics = {"pieces": int(len(decision.component_sizes)), "largest_fraction": decision.largest_fraction,
                          "blob_score_median": float(np.median(decision.blob_score)),
-                         "oversized_colour_spared": decision.colour_spared}
+                         "oversized_colour_spared": decision.colour_spared, "oversized_foreign": decision.foreign}
     report.statistics.update(photo_figures)
     report.stages += [(DETACHED, int(detached.sum())), (OVERSIZED, int(oversized.sum())), (FOG, int(fog.sum()))]
     keep[evaluated[detached | oversized | fog]] = False
