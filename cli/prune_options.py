@@ -70,9 +70,9 @@ _MODE_OPTIONS = [
                       "colour."),
     click.option("--foreign-size", type=click.FloatRange(min=0), default=6.0, show_default=True,
                  help="scene/object: a round Gaussian whose smallest axis is over this many times the scene's "
-                      "median Gaussian size and its neighbours' median size, with a colour none of its neighbours "
-                      "has, is oversized whatever its score (a blob among large Gaussians); 0: off. With photos it "
-                      "is put to them."),
+                      "median Gaussian size (and over its neighbours' median size), with a colour none of its "
+                      "neighbours has, is oversized whatever its score (a blob among large Gaussians); 0: off. "
+                      "With photos it is put to them."),
     click.option("--background", type=click.Choice(["auto", "white", "black", "none"]), default="auto",
                  show_default=True,
                  help="scene/object: the solid background the scene was trained on; its colour's faint fog goes. "

@@ -86,9 +86,9 @@ class PruneConfig:
             photos every candidate is put to them. 0.12: measured on real splats (scene.py, docs/pruning.md).
         blob_sure: oversized candidates scoring above this go whatever their colour (log units).
         foreign_size: a round Gaussian whose smallest axis is more than this many times the scene's median
-            Gaussian size (geometric mean of the scales) and than its neighbours' median, with a colour none of its
-            neighbours has, goes as oversized whatever its score (a blob among large Gaussians scores low; 0:
-            off). 6: planted blobs are 10-20x the median size; measured on real splats (scene.py).
+            Gaussian size (geometric mean of the scales), and more than its neighbours' median size, with a colour
+            none of its neighbours has, goes as oversized whatever its score (a blob among large Gaussians scores
+            low; 0: off). 6: planted blobs are 10-20x the median size; measured on real splats (scene.py).
         object_fraction: auto picks object mode when the largest piece holds at least this fraction.
         background: the colour the scene was trained on, whose fog the local modes remove: ``auto`` (detected,
             see scene.py), ``white``, ``black`` or ``none``.
