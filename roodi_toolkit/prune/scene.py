@@ -441,7 +441,7 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     if decision.spared[0]:
         report.mode_reason += (f"; {decision.spared[1]:,} Gaussians in {decision.spared[0]:,} detached pieces of "
                                f"more than {max_piece} stay (no photos to judge them; --max-piece 0 removes them)")
-    if one_colour:
+    if one_colour and photos is None:
         report.mode_reason += "; no colour test of the oversized Gaussians (the cloud is nearly one colour)"
     if decision.colour_spared:
         report.mode_reason += (f"; {decision.colour_spared:,} oversized Gaussians stay, each the colour of a "
