@@ -257,11 +257,11 @@ def _axis_extreme(ls: np.ndarray, pick: Any) -> np.ndarray:
     return pick(pick(ls[:, 0], ls[:, 1]), ls[:, 2])
 
 
-def blob_scores(log_scales: np.ndarray, neighbors: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Return the oversized score ``[N]`` (module docstring): how far the smallest axis exceeds spacing and size."""
-    ls = log_scales.astype(np.float32)
-    log_min = _axis_extreme(ls, np.minimum)
-    log_size = ls.mean(axis=1)
+def blob_scores(log_min: np.ndarray, log_size: np.ndarray, neighbors: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Return the oversized score ``[N]`` (module docstring): how far the smallest axis exceeds spacing and size.
+
+    ``log_min`` and ``log_size`` ``[N]``: each Gaussian's smallest log scale and mean log scale (log of its size),
+    in the order of ``neighbors`` and ``dist`` ``[N, K]``."""
     spacing = np.log(np.maximum(dist.mean(axis=1), np.finfo(np.float32).tiny))
     # median of the neighbours' sizes (the lower middle value for even K): robust to a few blobs among them
     mid = (neighbors.shape[1] - 1) // 2
@@ -293,12 +293,12 @@ def colours_vary(rgb: np.ndarray, tolerance: float) -> bool:
     return bool(np.quantile(distance, 0.9) > tolerance)
 
 
-def large_round(ls: np.ndarray, neighbors: np.ndarray, allowed: np.ndarray, foreign_size: float) -> np.ndarray:
+def large_round(ls: np.ndarray, log_min: np.ndarray, log_size: np.ndarray, neighbors: np.ndarray,
+                allowed: np.ndarray, foreign_size: float) -> np.ndarray:
     """Return the rows, among ``allowed`` ``[N]``, of the foreign-blob test's shape (module docstring): round, the
     smallest axis above ``foreign_size`` times the scene's median Gaussian size and above the neighbours' median
-    size. ``ls [N, 3]`` log scales and ``neighbors [N, K]`` in one (row) order."""
-    log_size = ls.mean(axis=1)
-    log_min = _axis_extreme(ls, np.minimum)
+    size. ``ls [N, 3]`` log scales, their smallest and mean ``log_min``, ``log_size`` ``[N]`` and ``neighbors
+    [N, K]`` in one (row) order."""
     large = log_min > np.float32(np.median(log_size) + np.log(foreign_size))
     large &= allowed
     rows = np.flatnonzero(large)
@@ -350,7 +350,8 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
     goes = candidate if max_piece is None else candidate & (sizes <= max_piece)
     detached = goes[label]
     spared = candidate & ~goes
-    row_scores = blob_scores(ls, neighbors, dist)
+    log_min, log_size = _axis_extreme(ls, np.minimum), ls.mean(axis=1)  # both tests use them
+    row_scores = blob_scores(log_min, log_size, neighbors, dist)
     scores = np.empty(n, dtype=np.float32)
     scores[order] = row_scores
     oversized = (scores > config.blob_score) & ~detached
@@ -363,7 +364,7 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
             oversized[order[spare]] = False
             colour_spared = int(spare.size)
     if rgb is not None and config.foreign_size > 0:
-        rows = large_round(ls, neighbors, ~(oversized | detached)[order], config.foreign_size)
+        rows = large_round(ls, log_min, log_size, neighbors, ~(oversized | detached)[order], config.foreign_size)
         found = rows[colour_gaps(rgb, order[rows], order[neighbors[rows]]) > FOREIGN_COLOUR]
         oversized[order[found]] = True
         foreign = int(found.size)
