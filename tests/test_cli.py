@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 import subprocess
 import sys
 
@@ -80,11 +81,44 @@ def test_console_script_is_installed(tmp_path):
     assert res.returncode == 0 and "roodi-toolkit" in res.stdout
 
 
-def test_cli_is_not_a_top_level_module():
-    import importlib.util
+def test_the_source_tree_has_no_top_level_cli_module(tmp_path):
+    """From the repository's root (where pytest and a user's `python` put it on sys.path) no top-level module but the
+    package, the tests and conftest can be imported, whatever the clone's folder is called."""
+    root = Path(__file__).resolve().parents[1]
+    importable = sorted(p.stem for p in root.iterdir()
+                        if p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists()))
+    assert importable == ["conftest", "roodi_toolkit", "tests"]
+    # a clone named like the project, with the repository root first on sys.path
+    code = "import importlib.util, sys; sys.path.insert(0, sys.argv[1]); print(importlib.util.find_spec('cli'))"
+    out = subprocess.run([sys.executable, "-c", code, str(root)], capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 0 and out.stdout.strip() == "None", out.stdout + out.stderr
+    assert app.name == "app" and app.callback.__module__ == "roodi_toolkit.cli.main"
 
-    assert importlib.util.find_spec("cli") is None or "roodi" not in str(importlib.util.find_spec("cli").origin)
-    assert app.name == "app"
+
+def test_the_wheel_installs_only_the_package(tmp_path):
+    """The built wheel's top-level entries are the package and its metadata: no `cli`, `tests` or `plugins`."""
+    import shutil
+    import zipfile
+
+    root = Path(__file__).resolve().parents[1]
+    src = tmp_path / "roodi-toolkit"  # built from a copy: the build writes build/ and egg-info beside the sources
+    shutil.copytree(root / "roodi_toolkit", src / "roodi_toolkit", ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("setup.cfg", "pyproject.toml", "README.md"):
+        shutil.copy(root / name, src / name)
+    out = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
+                          "--disable-pip-version-check", "-w", str(tmp_path / "dist"), str(src)],
+                         capture_output=True, text=True)
+    if out.returncode != 0 and "No module named" in out.stderr:
+        pytest.skip(f"cannot build a wheel here: {out.stderr.strip().splitlines()[-1]}")
+    assert out.returncode == 0, out.stderr
+    (wheel,) = (tmp_path / "dist").glob("roodi_toolkit-*.whl")
+    with zipfile.ZipFile(wheel) as zf:
+        top = {name.split("/")[0] for name in zf.namelist()}
+        assert {t for t in top if not t.endswith(".dist-info")} == {"roodi_toolkit"}
+        assert any(n.startswith("roodi_toolkit/cli/main.py") for n in zf.namelist())
+        (top_level,) = [n for n in zf.namelist() if n.endswith("top_level.txt")] or [None]
+        if top_level:
+            assert zf.read(top_level).decode().split() == ["roodi_toolkit"]
 
 
 def test_threads_option_sets_torch_threads(run_cli, monkeypatch, tmp_path):
