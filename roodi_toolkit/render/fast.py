@@ -306,3 +306,14 @@ def compositing_pairs(bins: Bins, proj: Projected, view: View) -> tuple[np.ndarr
     if total:
         kernels.composite_pairs(*args, pixels, ids, weights)
     return pixels, ids, weights
+
+
+def surface_ids(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacity_logits: np.ndarray,
+                view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return each pixel's largest-weight Gaussian ``[H, W]`` (-1 where none), the alpha ``[H, W]`` and every
+    Gaussian's camera-space depth ``[N]``: what a depth that does not blend across object edges is made of (the
+    click segmenter's flood fill). No colours are evaluated."""
+    proj = project(means, quats, log_scales, opacity_logits, np.zeros((len(means), 3), means.dtype), 0, view)
+    _, t_final, _, top = composite(bin_gaussians(proj, view), proj, np.zeros((len(means), 1), means.dtype), view,
+                                   want_top=True)
+    return top, 1.0 - t_final, proj.depths
