@@ -1,6 +1,12 @@
-"""Benchmark: the tiled CPU renderer against the dense reference, forward and forward+backward.
+"""Benchmark: the default compiled renderer against the torch tiled renderer (issue 33), and the torch tiled renderer
+against the dense reference (issue 5), forward and forward+backward.
 
-Prints, for 10k, 100k and 300k Gaussians at 128x128, 256x256 and 512x512, the median times of the tiled renderer
+Default (``compare``): for 100k Gaussians at 256x256 and 500k at 800x800 (``--configs``), with 1 and 2 threads
+(``--threads``), the median wall-clock time of the ``numba`` renderer (``rasterize_fast``) and of the ``torch`` tiled
+renderer (``rasterize``, the path before issue 33) measured alternately in the same process, their ratio, and the
+peak memory of each in a process of its own. Run: ``.venv/bin/python benchmarks/bench_render.py --repeats 5``.
+
+``--dense`` (issue 5's table): prints, for 10k, 100k and 300k Gaussians at 128x128, 256x256 and 512x512, the median times of the tiled renderer
 (``rasterize``), of the dense reference (``rasterize_dense_reference``: every Gaussian at every pixel) and their
 ratios, plus the peak memory of the tiled renderer. Times are wall-clock and process CPU time (user + system, both
 threads): on a machine shared with other jobs wall-clock time mostly measures the others; the CPU time of a process
@@ -17,7 +23,7 @@ Scene: :func:`scene.scene_cloud` (Gaussians on the surfaces of a ground disc, sp
 surfaces about once; median footprint a few pixels at 256x256), camera at (3, -3, 2) looking at (0, 0, 0.3) with a
 50 degree horizontal field of view, SH degree 3, float32, loss = sum of RGB + expected depth.
 
-Run: ``.venv/bin/python benchmarks/bench_render.py`` (``--quick`` for a smoke run).
+Run: ``.venv/bin/python benchmarks/bench_render.py --dense`` (``--quick`` for a smoke run).
 """
 
 from __future__ import annotations
@@ -149,9 +155,83 @@ def run_dense(n: int, size: int, budget: float, pairs_per_piece: int = 1 << 24) 
     return result
 
 
+def run_compare(n: int, size: int, repeats: int, threads: int) -> dict:
+    """Median wall-clock times of numba and torch, alternating within one process (same load for both)."""
+    import torch
+
+    from roodi_toolkit.render.fast import rasterize_fast
+    from roodi_toolkit.render.rasterizer import rasterize
+
+    os.environ["ROODI_THREADS"] = str(threads)  # the compiled kernels' threads
+    torch.set_num_threads(threads)
+    params, w2c, K = _setup(n, size)
+    times: dict[str, list[float]] = {}
+    for rep in range(repeats + 1):  # the first round warms up (and compiles) and is dropped
+        for name, fn in (("numba", rasterize_fast), ("torch", rasterize)):
+            t0 = time.perf_counter()
+            with torch.no_grad():
+                out = fn(*_args(params), w2c, K, size, size)
+            t1 = time.perf_counter()
+            for p in params.values():
+                p.grad = None
+            out = fn(*_args(params), w2c, K, size, size)
+            (out.rgb.sum() + out.depth.sum()).backward()
+            t2 = time.perf_counter()
+            if rep:
+                times.setdefault(name + "_fwd", []).append(t1 - t0)
+                times.setdefault(name + "_both", []).append(t2 - t1)
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
+def run_peak(kind: str, n: int, size: int, threads: int) -> dict:
+    """Peak memory (rise of the peak RSS over the loaded scene) of one renderer, forward + backward."""
+    import torch
+
+    from roodi_toolkit.render.fast import rasterize_fast
+    from roodi_toolkit.render.rasterizer import rasterize
+
+    os.environ["ROODI_THREADS"] = str(threads)
+    torch.set_num_threads(threads)
+    params, w2c, K = _setup(n, size)
+    fn = rasterize_fast if kind == "numba" else rasterize
+    fn(*_args(params), w2c, K, 32, 32)  # compile / warm up small
+    base = _peak_mb()
+    out = fn(*_args(params), w2c, K, size, size)
+    (out.rgb.sum() + out.depth.sum()).backward()
+    return {"peak_mb": _peak_mb() - base}
+
+
+def compare(args) -> None:
+    configs = [tuple(int(v) for v in c.split("/")) for c in args.configs.split(",")]
+    print(f"numba renderer (default) against the torch tiled renderer, forward and forward+backward (loss = sum RGB "
+          f"+ sum depth), median of {args.repeats} alternating rounds after one warm-up; load average at start "
+          f"{' '.join(f'{v:.1f}' for v in os.getloadavg())}")
+    header = (f"{'N':>7} {'size':>9} {'thr':>3} | {'numba fwd':>9} {'torch fwd':>9} {'x fwd':>6} | {'numba f+b':>9} "
+              f"{'torch f+b':>9} {'x f+b':>6} | {'numba MB':>8} {'torch MB':>8}")
+    print(header)
+    print("-" * len(header))
+    for n, size in configs:
+        for threads in [int(t) for t in args.threads_list.split(",")]:
+            def sub(*extra):
+                cmd = [sys.executable, __file__, "--one", *extra, str(n), str(size), "--repeats", str(args.repeats),
+                       "--threads", str(threads)]
+                return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
+
+            t = sub("compare")
+            mem = {k: sub("peak-" + k)["peak_mb"] for k in ("numba", "torch")}
+            print(f"{n:>7} {size:>4}x{size:<4} {threads:>3} | {t['numba_fwd']:9.3f} {t['torch_fwd']:9.3f} "
+                  f"{t['torch_fwd'] / t['numba_fwd']:6.1f} | {t['numba_both']:9.3f} {t['torch_both']:9.3f} "
+                  f"{t['torch_both'] / t['numba_both']:6.1f} | {mem['numba']:8.0f} {mem['torch']:8.0f}", flush=True)
+    print(f"seconds per frame, wall clock; x = torch / numba in the same process; load average at end "
+          f"{' '.join(f'{v:.1f}' for v in os.getloadavg())}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--one", nargs=3, metavar=("KIND", "N", "SIZE"), help=argparse.SUPPRESS)
+    ap.add_argument("--dense", action="store_true", help="issue 5's table: torch tiled against the dense reference")
+    ap.add_argument("--configs", default="100000/256,500000/800", help="N/SIZE pairs (default 100000/256,500000/800)")
+    ap.add_argument("--threads-list", default="1,2", help="thread counts of the comparison (default 1,2)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--dense-budget", type=float, default=8.0,
                     help="seconds of measured dense time per configuration before extrapolating (default 8)")
@@ -166,9 +246,17 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     if args.one:
         kind, n, size = args.one[0], int(args.one[1]), int(args.one[2])
-        res = run_fast(n, size, args.repeats, args.tile_size) if kind == "fast" else run_dense(n, size,
-                                                                                                args.dense_budget)
+        if kind == "compare":
+            res = run_compare(n, size, args.repeats, args.threads)
+        elif kind.startswith("peak-"):
+            res = run_peak(kind[5:], n, size, args.threads)
+        else:
+            res = run_fast(n, size, args.repeats, args.tile_size) if kind == "fast" else run_dense(n, size,
+                                                                                                    args.dense_budget)
         print(json.dumps(res))
+        return
+    if not args.dense:
+        compare(args)
         return
 
     ns = [10_000] if args.quick else [10_000, 100_000, 300_000]

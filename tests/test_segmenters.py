@@ -171,15 +171,16 @@ def test_click_propagates_to_the_other_views(scene, obj):
 
 def test_click_renders_with_its_renderer_and_any_renderer_gives_the_same_masks(scene):
     """The renderer argument is real: every view is rendered with it (one rendering per view and vote round, plus the
-    clicked view's weights); a renderer without the optional capabilities (only ``render``) gives the same masks."""
+    clicked view's weights, through its features-only capability); a renderer with ``render`` alone gives the same
+    masks."""
     from roodi_toolkit.render.renderer import NumbaRenderer, Renderer, TorchRenderer
 
     class Counting(NumbaRenderer):
         calls = 0
 
-        def render(self, params, camera, *, background=None, sh_degree=None):
+        def render_features(self, params, features, camera):
             Counting.calls += 1
-            return super().render(params, camera, background=background, sh_degree=sh_degree)
+            return super().render_features(params, features, camera)
 
     class DenseOnly(Renderer):
         def render(self, params, camera, *, background=None, sh_degree=None):

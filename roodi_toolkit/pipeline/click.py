@@ -12,14 +12,13 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import torch
 
-from ..cameras import Camera
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
 from ..io.dataset import Dataset
 from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
 from ..render import fast
-from ..render.renderer import Renderer, resolve_renderer
+from ..render.renderer import Renderer, render_features, resolve_renderer
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
@@ -150,27 +149,6 @@ class ClickSettings:
     vote_rounds: int = 2
 
 
-def _weight_sums(renderer: Renderer, params: GaussianParams, camera: Camera,
-                 images: np.ndarray) -> tuple[np.ndarray, Any]:
-    """Return, per Gaussian, the sum over the view's pixels of its compositing weight times each image ``[N, K]``,
-    and the rendering.
-
-    This is the gradient of ``sum(features_image * images)`` with respect to per-Gaussian features, so any
-    differentiable renderer gives it, at the cost of one rendering and one backward pass, without listing the
-    (pixel, Gaussian) weights (gigabytes for a real scene at 1000 px).
-
-    Args:
-        renderer: draws the features.
-        params: the scene's Gaussians (no gradients).
-        camera: the view.
-        images: the per-pixel factors. [H, W, K]
-    """
-    feats = torch.zeros(len(params), images.shape[-1], dtype=params.dtype, requires_grad=True)
-    out = renderer.render(params.with_features(feats), camera)
-    (out.features * torch.as_tensor(images, dtype=params.dtype)).sum().backward()
-    return feats.grad.numpy(), out
-
-
 class ClickSegmenter(Segmenter):
     """Clicks in one view, grown into a set of the scene's Gaussians and rendered into every view.
 
@@ -251,13 +229,23 @@ class ClickSegmenter(Segmenter):
         seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if c.positive]
         not_seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if not c.positive]
         mask0, band0 = self._clicked_region(dataset, v0, scene, seeds, not_seeds)
-        sums, out0 = _weight_sums(self.renderer, params, cam0,
-                                  np.stack([mask0, band0, np.ones_like(mask0)], -1).astype(np.float32))
-        inside, around, total = sums.T
+        # per Gaussian, the sum over the pixels of its compositing weight times the region, the band and 1 is the
+        # gradient of the rendered feature image times those pixel factors: one rendering and its backward, for any
+        # differentiable renderer, without listing (pixel, Gaussian) weights (gigabytes at 1000 px). The last
+        # feature, each Gaussian's camera-space depth, composites the expected depth.
+        z = scene.means @ cam0.world_to_camera[2, :3] + cam0.world_to_camera[2, 3]
+        feats = torch.zeros(len(scene), 4, dtype=params.dtype)
+        feats[:, 3] = torch.as_tensor(z, dtype=params.dtype)
+        feats.requires_grad_()
+        rendered, alpha = render_features(self.renderer, params, feats, cam0)
+        pixel_factors = np.stack([mask0, band0, np.ones_like(mask0), np.zeros_like(mask0)], -1)
+        (rendered * torch.as_tensor(pixel_factors, dtype=params.dtype)).sum().backward()
+        inside, around, total, _ = feats.grad.numpy().T
         seen = total >= s.min_weight
         fg = seen & (inside >= s.seed_fraction * total)
         bg = seen & (around >= s.seed_fraction * total)
-        depth0 = out0.depth[..., 0].detach().numpy()
+        a0 = alpha[..., 0].detach().numpy()
+        depth0 = np.where(a0 > 1e-10, rendered[..., 3].detach().numpy() / np.maximum(a0, 1e-10), 0.0)
         rc = np.argwhere(mask0 & (depth0 > 0))
         points = cam0.backproject(rc, depth0[mask0 & (depth0 > 0)])
         centre = points.mean(axis=0)
@@ -280,14 +268,14 @@ class ClickSegmenter(Segmenter):
                     feats[:, 0] = torch.from_numpy(sel)
                     feats.requires_grad_(vote)
                     with torch.set_grad_enabled(vote):
-                        out = self.renderer.render(params.with_features(feats), dataset.cameras[v])
-                    alpha = out.alpha[..., 0].detach().numpy()
-                    share = out.features[..., 0].detach().numpy()
+                        rendered, alpha_t = render_features(self.renderer, params, feats, dataset.cameras[v])
+                    alpha = alpha_t[..., 0].detach().numpy()
+                    share = rendered[..., 0].detach().numpy()
                     m = (share > s.threshold * np.maximum(alpha, 1e-12)) & (alpha >= 1.0 / 255.0)
                     masks[v] = m
                     if vote:  # per Gaussian: its weight inside the mask (channel 0) and in all (channel 1)
                         grads = torch.from_numpy(np.stack([m, np.ones_like(m)], -1).astype(np.float32))
-                        (out.features * grads.to(params.dtype)).sum().backward()
+                        (rendered * grads.to(params.dtype)).sum().backward()
                         inw += feats.grad[:, 0].numpy()
                         tot += feats.grad[:, 1].numpy()
                     bar.update(1)

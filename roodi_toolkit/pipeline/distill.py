@@ -33,6 +33,7 @@ from ..io.model import Distillation
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer, to_csr
+from ..render.renderer import render_features as composite_features
 from ..progress import ProgressFactory, null_progress
 from ..imaging import class_map_ious
 from .resolution import working_dataset
@@ -177,11 +178,11 @@ def render_features(params: GaussianParams, features: Tensor, camera: Camera, *,
     n = features.shape[0]
     if len(params) != n:
         raise ConfigError(f"features must be [N, F] with N = {len(params)}, got {list(features.shape)}")
-    # the colours are not needed: zero degree-0 SH skips the higher bands' evaluation
+    # the colours are not needed: zero degree-0 SH skips the higher bands' evaluation where the renderer has no
+    # features-only path
     geometry = GaussianParams(params.means, params.quats_wxyz, params.log_scales, params.opacity_logits,
-                              torch.zeros(n, 3, dtype=features.dtype), torch.zeros(n, 0, 3, dtype=features.dtype),
-                              features)
-    return resolve_renderer(renderer).render(geometry, camera).features
+                              torch.zeros(n, 3, dtype=features.dtype), torch.zeros(n, 0, 3, dtype=features.dtype))
+    return composite_features(resolve_renderer(renderer), geometry, features, camera)[0]
 
 
 def compositing_weights(params: GaussianParams, camera: Camera, *, renderer: Renderer | None = None,

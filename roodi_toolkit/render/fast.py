@@ -163,29 +163,35 @@ def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, 
     return out, t_final, last, (top if want_top else None)
 
 
-def channels_of(proj: Projected, features: Optional[np.ndarray]) -> np.ndarray:
-    """Return the per-Gaussian channels composited: ``[rgb | depth | features]`` [N, 4 + F]."""
-    parts = [proj.rgb, proj.depths[:, None]] + ([] if features is None else [features.astype(proj.rgb.dtype)])
+def channels_of(proj: Projected, features: Optional[np.ndarray], colours: bool = True) -> np.ndarray:
+    """Return the per-Gaussian channels composited: ``[rgb | depth | features]`` [N, 4 + F], or the features alone
+    ``[N, F]`` without ``colours``."""
+    parts = ([proj.rgb, proj.depths[:, None]] if colours else []) + \
+        ([] if features is None else [features.astype(proj.rgb.dtype)])
     return np.ascontiguousarray(np.concatenate(parts, axis=1))
 
 
 class _Render(torch.autograd.Function):
-    """Projection, colours and compositing of one view, with the compiled backward."""
+    """Projection, colours and compositing of one view, with the compiled backward. ``colors`` of shape [N, 0]
+    composite the features alone (no colours, no depth, no background)."""
 
     @staticmethod
     def forward(ctx, means, quats, log_scales, opacity_logits, colors, features, background, probe, view,
                 n_bases):  # type: ignore[override]
+        colours = colors.shape[-1] > 0
         arrays = [_numpy(t) for t in (means, quats, log_scales, opacity_logits, colors)]
-        proj = project(*arrays, n_bases, view)
+        proj = project(*arrays[:4], arrays[4] if colours else np.zeros((len(arrays[0]), 3), arrays[0].dtype),
+                       n_bases, view)
         feats = _numpy(features) if features.shape[1] else None
-        channels = channels_of(proj, feats)
+        channels = channels_of(proj, feats, colours)
         bins = bin_gaussians(proj, view)
         out, t_final, last, _ = composite(bins, proj, channels, view)
         ctx.save_for_backward(background)
-        ctx.state = (arrays, proj, channels, bins, t_final, last, view, n_bases, features.shape[1])
+        ctx.state = (arrays, proj, channels, bins, t_final, last, view, n_bases, features.shape[1], colours)
         t_t = torch.from_numpy(t_final)
-        bg = torch.cat([background, background.new_zeros(channels.shape[1] - 3)])
-        render = torch.from_numpy(out) + t_t[..., None] * bg
+        render = torch.from_numpy(out)
+        if colours:
+            render = render + t_t[..., None] * torch.cat([background, background.new_zeros(channels.shape[1] - 3)])
         drawn = proj.ntiles > 0
         means2d, depths = torch.from_numpy(proj.means2d), torch.from_numpy(proj.depths)
         radii = torch.from_numpy(np.where(drawn[:, None], proj.half, 0).astype(np.int32))
@@ -195,7 +201,7 @@ class _Render(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_render, g_alpha, *_unused):  # type: ignore[override]
         (background,) = ctx.saved_tensors
-        arrays, proj, channels, bins, t_final, last, view, n_bases, n_feat = ctx.state
+        arrays, proj, channels, bins, t_final, last, view, n_bases, n_feat, colours = ctx.state
         means, quats, log_scales, opacity_logits, colors = arrays
         n, C = channels.shape
         dtype = channels.dtype
@@ -204,16 +210,19 @@ class _Render(torch.autograd.Function):
         m = len(bins.lists)
         pair_geom = np.zeros((m if geometry else 0, 6), dtype)
         pair_chan = np.zeros((m, C), dtype)
-        bg = np.concatenate([_numpy(background).astype(np.float64), np.zeros(C - 3)])
+        bg = np.concatenate([_numpy(background).astype(np.float64), np.zeros(C - 3)]) if colours else np.zeros(C)
         g_render = g_render.contiguous()
         kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d,
                                    proj.conics, proj.opacities, channels, view.width, view.height, view.tile,
                                    n_workers, t_final, last, _numpy(g_render),
                                    np.ascontiguousarray(_numpy(g_alpha)[..., 0]), bg, pair_geom, pair_chan, geometry)
         g_chan = kernels.reduce_pairs(bins.lists, pair_chan, n, n_workers)
-        g_background = (g_render[..., :3] * torch.from_numpy(t_final)[..., None]).sum((0, 1))
+        if not colours:  # the features alone: no colour, depth or background channels
+            g_chan = np.concatenate([np.zeros((n, 4), dtype), g_chan], axis=1)
+        g_background = (g_render[..., :3] * torch.from_numpy(t_final)[..., None]).sum((0, 1)) if colours \
+            else torch.zeros_like(background)
         g_features = torch.from_numpy(np.ascontiguousarray(g_chan[:, 4:])) if n_feat else None
-        need_colors = ctx.needs_input_grad[4]
+        need_colors = ctx.needs_input_grad[4] and colours
         if not (geometry or need_colors):
             return None, None, None, None, None, g_features, g_background, None, None, None
         g = kernels.reduce_pairs(bins.lists, pair_geom, n, n_workers) if geometry else np.zeros((n, 6), dtype)
@@ -270,8 +279,8 @@ def rasterize_fast(
         ([0.99, 0.495, 0.0], 2.0)
     """
     check_inputs(means, quats_wxyz, log_scales, opacity_logits, colors, features, width, height, near, far)
-    if tile_size < 1:
-        raise ConfigError(f"tile_size must be positive, got {tile_size}")
+    if not 1 <= tile_size <= 64:
+        raise ConfigError(f"tile_size must be 1 to 64 pixels, got {tile_size}")
     dtype = means.dtype
     n = means.shape[0]
     view = make_view(world_to_camera, K, width, height, near=near, far=far, eps2d=eps2d, tile=tile_size)
@@ -317,3 +326,37 @@ def surface_ids(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, op
     _, t_final, _, top = composite(bin_gaussians(proj, view), proj, np.zeros((len(means), 1), means.dtype), view,
                                    want_top=True)
     return top, 1.0 - t_final, proj.depths
+
+
+def rasterize_features(
+    means: Tensor,  # [N, 3]
+    quats_wxyz: Tensor,  # [N, 4]
+    log_scales: Tensor,  # [N, 3]
+    opacity_logits: Tensor,  # [N]
+    features: Tensor,  # [N, F]
+    world_to_camera: Tensor,  # [4, 4]
+    K: Tensor,  # [3, 3]
+    width: int,
+    height: int,
+    *,
+    near: float = 0.01,
+    far: float = 1e10,
+    eps2d: float = EPS2D,
+    tile_size: int = TILE_SIZE,
+) -> tuple[Tensor, Tensor]:
+    """Return the composited features ``[H, W, F]`` and alpha ``[H, W, 1]`` of one view, differentiable: what
+    :func:`rasterize_fast` returns as ``features`` and ``alpha``, without evaluating colours or depth (object
+    features are distilled and clicks propagated with thousands of these)."""
+    n = means.shape[0]
+    check_inputs(means, quats_wxyz, log_scales, opacity_logits, torch.zeros(n, 3, dtype=means.dtype), features, width,
+                 height, near, far)
+    if not 1 <= tile_size <= 64:
+        raise ConfigError(f"tile_size must be 1 to 64 pixels, got {tile_size}")
+    dtype = means.dtype
+    view = make_view(world_to_camera, K, width, height, near=near, far=far, eps2d=eps2d, tile=tile_size)
+    geometry = any(t.requires_grad for t in (means, quats_wxyz, log_scales, opacity_logits)) and \
+        torch.is_grad_enabled()
+    probe = torch.zeros(n if geometry else 0, 2, dtype=dtype, requires_grad=geometry)
+    render, alpha, *_ = _Render.apply(means, quats_wxyz, log_scales, opacity_logits, torch.zeros(n, 0, dtype=dtype),
+                                      features.to(dtype), torch.zeros(3, dtype=dtype), probe, view, 0)
+    return render, alpha

@@ -6,7 +6,7 @@ once. The arithmetic is that of :mod:`roodi_toolkit.render.rasterizer` (3DGS "cl
 depth order, alpha clamp and cut-offs); :mod:`roodi_toolkit.render.fast` wraps these kernels as a differentiable
 torch function and the tests compare both with the dense reference.
 
-Layout: the image is cut into square tiles; each tile holds the depth-ordered run of the Gaussians whose footprint
+Layout: the image is cut into square tiles (at most 64 pixels wide: a tile row's stopped pixels are bits of an int64); each tile holds the depth-ordered run of the Gaussians whose footprint
 touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every ``workers``-th busy tile (interleaved,
 so the busy parts of an image are shared out evenly) and walks the tile's run front to back (forward) or back to
 front (backward), visiting only the pixels of each Gaussian's footprint box inside the tile. Results do not depend on
@@ -134,6 +134,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
         best_id = np.empty(P, np.int32)
         col = np.empty(C)
         row_alpha = np.empty(tile)
+        done_rows = np.empty(tile, np.int64)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo = (t % tiles_x) * tile
@@ -144,6 +145,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
             acc[:] = 0.0
             lst[:] = 0
             done[:] = False
+            done_rows[:] = 0
             best[:] = 0.0
             best_id[:] = -1
             remaining = (x_hi - x_lo + 1) * (y_hi - y_lo + 1)
@@ -161,7 +163,10 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                 x0 = max(bounds[g, 0], x_lo)
                 nx = min(bounds[g, 1], x_hi) - x0 + 1
                 dx0 = x0 + 0.5 - mx
+                cols = ((1 << nx) - 1) << (x0 - x_lo)  # the box's columns as bits of a tile row
                 for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
+                    if done_rows[py - y_lo] & cols == cols:  # every pixel of the box in this row has stopped
+                        continue
                     dy = py + 0.5 - my
                     cdy = 0.5 * c * dy * dy
                     bdy = b * dy
@@ -183,6 +188,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         t_next = T[p] * (1.0 - alpha)
                         if t_next < TRANSMITTANCE_MIN:
                             done[p] = True
+                            done_rows[py - y_lo] |= 1 << (x0 - x_lo + q)
                             remaining -= 1
                             continue
                         weight = alpha * T[p]
@@ -240,6 +246,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         gcol = np.empty(C)
         col = np.empty(C)
         row_gauss = np.empty(tile)
+        row_last = np.empty(tile, np.int32)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo = (t % tiles_x) * tile
@@ -248,6 +255,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
             y_hi = min(y_lo + tile, height) - 1
             deepest = 0
             lst[:] = 0
+            row_last[:] = 0
             for py in range(y_lo, y_hi + 1):
                 for px in range(x_lo, x_hi + 1):
                     p = (py - y_lo) * tile + px - x_lo
@@ -260,6 +268,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                         bg_dot += background[ch] * gpix[p, ch]
                     tail[p] = tf * (bg_dot - grad_alpha[py, px])
                     lst[p] = last[py, px]
+                    row_last[py - y_lo] = max(row_last[py - y_lo], lst[p])
                     deepest = max(deepest, lst[p])
             s = starts[t]
             for j in range(s + deepest - 1, s - 1, -1):
@@ -285,6 +294,8 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                 nx = min(bounds[g, 1], x_hi) - x0 + 1
                 dx0 = x0 + 0.5 - mx
                 for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
+                    if jj >= row_last[py - y_lo]:  # no pixel of this row walked this far in the forward
+                        continue
                     dy = py + 0.5 - my
                     cdy = 0.5 * c * dy * dy
                     bdy = b * dy
@@ -373,6 +384,7 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
         T = np.empty(P)
         done = np.empty(P, np.bool_)
         row_alpha = np.empty(tile)
+        done_rows = np.empty(tile, np.int64)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo = (t % tiles_x) * tile
@@ -381,6 +393,7 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
             y_hi = min(y_lo + tile, height) - 1
             T[:] = 1.0
             done[:] = False
+            done_rows[:] = 0
             remaining = (x_hi - x_lo + 1) * (y_hi - y_lo + 1)
             n_pairs = 0
             s = starts[t]
@@ -395,7 +408,10 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                 x0 = max(bounds[g, 0], x_lo)
                 nx = min(bounds[g, 1], x_hi) - x0 + 1
                 dx0 = x0 + 0.5 - mx
+                cols = ((1 << nx) - 1) << (x0 - x_lo)
                 for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
+                    if done_rows[py - y_lo] & cols == cols:
+                        continue
                     dy = py + 0.5 - my
                     cdy = 0.5 * c * dy * dy
                     bdy = b * dy
@@ -417,6 +433,7 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                         t_next = T[p] * (1.0 - alpha)
                         if t_next < TRANSMITTANCE_MIN:
                             done[p] = True
+                            done_rows[py - y_lo] |= 1 << (x0 - x_lo + q)
                             remaining -= 1
                             continue
                         if fill:

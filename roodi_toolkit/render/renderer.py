@@ -17,9 +17,11 @@ A renderer class subclasses :class:`Renderer`: ``available()`` says whether it c
 ``render(params, camera, ...)`` returns a :class:`RenderOutput` (channels-last images, differentiable w.r.t. every
 tensor in ``params``; ``params.features`` are rendered when set).
 
-Optional capability: a renderer that can list the alpha-compositing weights of a view as a sparse matrix implements
-``compositing_weights(params, camera)`` (:class:`CompositingWeights`; the built-in one does). Distillation and the
-click segmenter use it as a fast path when the renderer has it, and the dense ``render`` of features otherwise.
+Optional capabilities: a renderer that can list the alpha-compositing weights of a view as a sparse matrix implements
+``compositing_weights(params, camera)`` (:class:`CompositingWeights`; both built-in ones do), which distillation
+caches when the weights fit its memory bound; one that can composite features alone implements
+``render_features(params, features, camera)`` (:class:`FeatureRenderer`; the ``numba`` one does), which
+distillation and the click segmenter use through :func:`render_features`, and the full ``render`` otherwise.
 
 Every pipeline stage that renders takes ``renderer: Renderer | None = None``; :func:`resolve_renderer` turns that
 (or a registered name) into an instance, None meaning the default :class:`NumbaRenderer`.
@@ -110,6 +112,14 @@ class NumbaRenderer(Renderer):
             camera.world_to_camera, camera.K, camera.width, camera.height, near=camera.near, far=camera.far,
             features=params.features, background=bg, sh_degree=sh_degree, tile_size=self.tile_size)
 
+    def render_features(self, params: GaussianParams, features: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
+        """Return the composited ``features`` ``[N, F]`` ``[H, W, F]`` and the alpha ``[H, W, 1]`` of ``params`` in
+        ``camera`` (differentiable), without colours or depth: the optional :class:`FeatureRenderer` capability."""
+        return _fast.rasterize_features(
+            params.means, params.quats_wxyz, params.log_scales, params.opacity_logits, features,
+            camera.world_to_camera, camera.K, camera.width, camera.height, near=camera.near, far=camera.far,
+            tile_size=self.tile_size)
+
     def compositing_weights(self, params: GaussianParams, camera: Camera, *,
                             max_elements: Optional[int] = None) -> Tensor:
         """Return the sparse CSR ``[H*W, N]`` matrix of the alpha-compositing weights of ``params`` in ``camera``
@@ -127,6 +137,25 @@ class NumbaRenderer(Renderer):
                                       torch.from_numpy(weights), (camera.height * camera.width, len(params)),
                                       check_invariants=False)
         return to_csr(coo)
+
+
+@runtime_checkable
+class FeatureRenderer(Protocol):
+    """The optional capability of a renderer to composite per-Gaussian features alone (no colours, no depth)."""
+
+    def render_features(self, params: GaussianParams, features: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
+        """Return the composited features ``[H, W, F]`` and the alpha ``[H, W, 1]`` (differentiable)."""
+
+
+def render_features(renderer: Renderer, params: GaussianParams, features: Tensor,
+                    camera: Camera) -> tuple[Tensor, Tensor]:
+    """Return the composited ``features`` ``[N, F]`` ``[H, W, F]`` and the alpha ``[H, W, 1]`` of ``params`` in
+    ``camera`` with ``renderer``: through its :class:`FeatureRenderer` capability when it has one, else from a full
+    rendering with the features attached."""
+    if isinstance(renderer, FeatureRenderer):
+        return renderer.render_features(params, features, camera)
+    out = renderer.render(params.with_features(features), camera)
+    return out.features, out.alpha
 
 
 class TorchRenderer(Renderer):

@@ -114,3 +114,26 @@ def test_degenerate_inputs_give_finite_gradients_and_empty_views_the_background(
                            torch.eye(4, dtype=F64), torch.tensor(intrinsics_from_fov(1.0, 8, 6), dtype=F64), 8, 6,
                            background=torch.tensor([1.0, 0.0, 0.0], dtype=F64))
     assert empty.rgb.shape == (6, 8, 3) and (empty.rgb[..., 0] == 1).all() and (empty.alpha == 0).all()
+
+
+def test_features_alone_equal_the_full_rendering_and_its_gradients():
+    from roodi_toolkit.render.fast import rasterize_features
+
+    scene = random_scene(n=300, seed=6, n_features=5)
+    full = call(rasterize_fast, {**scene, "background": None})
+    leaves = {k: scene[k].clone().requires_grad_() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits",
+                                                            "features")}
+    feats, alpha = rasterize_features(leaves["means"], leaves["quats_wxyz"], leaves["log_scales"],
+                                      leaves["opacity_logits"], leaves["features"], scene["world_to_camera"],
+                                      scene["K"], scene["width"], scene["height"], near=scene["near"])
+    torch.testing.assert_close(feats, full.features, atol=1e-12, rtol=0)
+    torch.testing.assert_close(alpha, full.alpha, atol=1e-12, rtol=0)
+    # the same loss on the features and alpha alone: the same gradients as through the full rendering
+    g = torch.Generator().manual_seed(1)
+    wf, wa = torch.randn(feats.shape, generator=g, dtype=F64), torch.randn(alpha.shape, generator=g, dtype=F64)
+    (feats * wf + alpha * wa).sum().backward()
+    s = {k: (v.clone().requires_grad_() if k in leaves else v) for k, v in scene.items()}
+    out = call(rasterize_fast, {**s, "background": None})
+    (out.features * wf + out.alpha * wa).sum().backward()
+    for k in leaves:
+        torch.testing.assert_close(leaves[k].grad, s[k].grad, atol=1e-10, rtol=1e-10, msg=k)
