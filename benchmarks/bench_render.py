@@ -39,6 +39,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 HERE = Path(__file__).resolve().parent
 
 
@@ -59,9 +61,22 @@ def _setup(n: int, size: int):
 
     from roodi_toolkit.cameras import intrinsics_from_fov, look_at
 
-    scene = scene_cloud(n)
-    w2c = torch.tensor(look_at([3.0, -3.0, 2.0], [0.0, 0.0, 0.3]), dtype=torch.float32)
-    K = torch.tensor(intrinsics_from_fov(math.radians(50.0), size, size), dtype=torch.float32)
+    splat = os.environ.get("BENCH_SPLAT")
+    if splat:  # a real splat (the --splat option), seen from its own scale's orbit
+        from roodi_toolkit.io.splat import read_cloud
+        from roodi_toolkit.render.views import framing_orbit
+
+        cloud = read_cloud(splat)
+        cam = framing_orbit(cloud, 1, width=size, height=size, up=[float(v) for v in
+                                                                   os.environ["BENCH_UP"].split(",")])[0]
+        t = lambda a: torch.tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+        scene = {"means": t(cloud.means), "quats_wxyz": t(cloud.quats_wxyz), "log_scales": t(cloud.log_scales),
+                 "opacity_logits": t(cloud.opacity_logits), "sh": t(cloud.sh)}
+        w2c, K = t(cam.world_to_camera), t(cam.K)
+    else:
+        scene = scene_cloud(n)
+        w2c = torch.tensor(look_at([3.0, -3.0, 2.0], [0.0, 0.0, 0.3]), dtype=torch.float32)
+        K = torch.tensor(intrinsics_from_fov(math.radians(50.0), size, size), dtype=torch.float32)
     params = {k: v.clone().requires_grad_() for k, v in scene.items()}
     return params, w2c, K
 
@@ -232,6 +247,9 @@ def main() -> None:
     ap.add_argument("--dense", action="store_true", help="issue 5's table: torch tiled against the dense reference")
     ap.add_argument("--configs", default="100000/256,500000/800", help="N/SIZE pairs (default 100000/256,500000/800)")
     ap.add_argument("--threads-list", default="1,2", help="thread counts of the comparison (default 1,2)")
+    ap.add_argument("--splat", default=None, help="render this real splat (any format) instead of the generated "
+                    "scene; N in --configs is then ignored")
+    ap.add_argument("--up", default="0,0,1", help="the splat's up axis for its orbit camera (default 0,0,1)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--dense-budget", type=float, default=8.0,
                     help="seconds of measured dense time per configuration before extrapolating (default 8)")
@@ -241,6 +259,8 @@ def main() -> None:
                          "the wall-clock time of an idle 2-core run from above)")
     ap.add_argument("--quick", action="store_true", help="10k Gaussians at 128x128 only")
     args = ap.parse_args()
+    if args.splat:
+        os.environ["BENCH_SPLAT"], os.environ["BENCH_UP"] = str(Path(args.splat).resolve()), args.up
     import torch
 
     torch.set_num_threads(args.threads)

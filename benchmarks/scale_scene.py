@@ -69,6 +69,8 @@ def main() -> None:
     ap.add_argument("splat")
     ap.add_argument("out", type=Path)
     ap.add_argument("--copies", type=int, default=1)
+    ap.add_argument("--gaussians", type=int, default=None,
+                    help="instead of --copies: this many Gaussians (copies side by side, or a random subset)")
     ap.add_argument("--views", type=int, default=90)
     ap.add_argument("--test-views", type=int, default=12)
     ap.add_argument("--size", type=int, default=800, help="photo width and height in pixels")
@@ -94,6 +96,10 @@ def main() -> None:
         raise SystemExit(f"--object {args.object}: only above:Y is known")
     up = np.array([float(v) for v in args.up.split(",")])
     up /= np.linalg.norm(up)
+    if args.gaussians is not None and args.gaussians < len(one):
+        one = one.select(np.sort(np.random.default_rng(0).choice(len(one), args.gaussians, replace=False)))
+    elif args.gaussians is not None:
+        args.copies = max(1, round(args.gaussians / len(one)))
     marked = (one.means @ up) > float(value)
     cloud, start = tile(one, args.copies)
     truth = np.zeros(len(cloud), bool)

@@ -1,0 +1,230 @@
+"""Benchmark: extraction at the size people bring, stage by stage: time and peak memory, and the object's accuracy.
+
+``run SCENE`` takes a capture built by ``benchmarks/scale_scene.py`` (photos rendered from a real splat, the splat as
+the trained model, the object's true Gaussians) and runs the extraction the way a user does
+(``extract DATA OUT --model MODEL --click X,Y --view NAME``, in this process, default settings), timing each stage
+and sampling the process's resident memory every 20 ms, then scores the object against the truth on the held-out
+cameras (alpha > 0.5 IoU of the object alone, before inpainting and fine-tuning (``selected.ply``) and after). The
+click is the visible pixel of the object nearest its centre in the view, or ``--click``.
+
+``grid`` builds the scenes of a sweep (``--gaussians`` in thousands: copies of the splat side by side, or a random
+subset of it below its size; ``--views``; ``--size``) and runs each, printing one table: how each stage's time and
+memory grow with Gaussians N, photos V and pixels P. Scenes are built under ``--work`` and reused.
+
+Run:
+    .venv/bin/python benchmarks/bench_scale.py run /tmp/scale/p500 --view r_10
+    .venv/bin/python benchmarks/bench_scale.py grid /tmp/splats/playbot0/meta.json --work /tmp/scale \\
+        --gaussians 150,500,1500 --views 30 --size 800
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+
+class MemorySampler:
+    """Samples the resident set size of this process in a thread; ``window()`` gives the peak of a span."""
+
+    def __init__(self, every: float = 0.02) -> None:
+        self.every = every
+        self.current = self.peak_all = self._rss()
+        self._peak = self.current
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def _rss() -> float:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.current = self._rss()
+            self._peak = max(self._peak, self.current)
+            self.peak_all = max(self.peak_all, self.current)
+            time.sleep(self.every)
+
+    @contextmanager
+    def window(self, record: dict, name: str):
+        outer = self._peak
+        self._peak = self.current
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            entry = record.setdefault(name, {"s": 0.0, "peak_mb": 0.0})
+            entry["s"] += time.perf_counter() - t0
+            entry["peak_mb"] = max(entry["peak_mb"], self._peak)
+            self._peak = max(outer, self._peak)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+STAGES = [  # (module, class or "", function, stage name): what the extraction calls, looked up at call time
+    ("roodi_toolkit.io.dataset", "", "load_dataset", "load photos"),
+    ("roodi_toolkit.io.ply", "", "read_ply", "read model"),
+    ("roodi_toolkit.pipeline.click", "ClickSegmenter", "segment", "click segment"),
+    ("roodi_toolkit.pipeline.distill", "", "distill_object_features", "distill"),
+    ("roodi_toolkit.pipeline.distill", "", "finish_distillation", "score distillation"),
+    ("roodi_toolkit.pipeline.select", "", "select_object", "select"),
+    ("roodi_toolkit.pipeline.select", "", "prune_selection", "prune"),
+    ("roodi_toolkit.pipeline.finetune", "", "refine_object", "occlusion+inpaint+fine-tune"),
+]
+
+
+def instrument(sampler: MemorySampler, record: dict) -> None:
+    import importlib
+
+    for module, cls, attr, name in STAGES:
+        owner = importlib.import_module(module)
+        owner = getattr(owner, cls) if cls else owner
+        original = getattr(owner, attr)
+
+        def wrapped(*a, __f=original, __n=name, **k):
+            with sampler.window(record, __n):
+                return __f(*a, **k)
+
+        setattr(owner, attr, wrapped)
+
+
+def default_click(scene: Path, view: str) -> tuple[int, int]:
+    """Return the visible pixel of the true object nearest its centre in ``view``."""
+    from roodi_toolkit.io.dataset import load_cameras
+    from roodi_toolkit.io.model import find_model
+    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.render import fast
+
+    truth = np.load(scene / "truth.npz")["object"]
+    cloud = read_ply(find_model(scene / "model").ply_path)
+    cam = next(c for c in load_cameras(scene / "data") if c.name == view)
+    f = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
+    top, alpha, _ = fast.surface_ids(f(cloud.means), f(cloud.quats_wxyz), f(cloud.log_scales),
+                                     f(cloud.opacity_logits),
+                                     fast.make_view(cam.world_to_camera, cam.K, cam.width, cam.height))
+    on = (top >= 0) & truth[np.maximum(top, 0)] & (alpha > 0.9)
+    ys, xs = np.nonzero(on)
+    k = int(np.argmin((xs - xs.mean()) ** 2 + (ys - ys.mean()) ** 2))
+    return int(xs[k]), int(ys[k])
+
+
+def object_iou(cloud, truth_cloud, cameras) -> float:
+    """Return the mean over ``cameras`` of the IoU of alpha > 0.5 of ``cloud`` and of ``truth_cloud``."""
+    from roodi_toolkit.imaging import mask_iou
+    from roodi_toolkit.render.renderer import render_cloud
+
+    ious = []
+    for cam in cameras:
+        a = render_cloud(cloud, cam).alpha[..., 0].numpy() > 0.5
+        b = render_cloud(truth_cloud, cam).alpha[..., 0].numpy() > 0.5
+        ious.append(mask_iou(a, b))
+    return float(np.mean(ious))
+
+
+def run(scene: Path, view: str, click: tuple[int, int] | None, out: Path) -> dict:
+    """Run the extraction on one built scene; return times, peaks and IoUs."""
+    sys.path.insert(0, str(ROOT))
+    from roodi_toolkit.io.dataset import load_cameras
+    from roodi_toolkit.io.model import find_model
+    from roodi_toolkit.io.ply import read_ply
+    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
+
+    sampler = MemorySampler()
+    baseline = sampler.current
+    record: dict = {}
+    x, y = click if click is not None else default_click(scene, view)
+    instrument(sampler, record)
+    config = ExtractConfig(segmenter="click", prompt=SegmentPrompt((Click(view, x + 0.5, y + 0.5),)))
+    t0 = time.perf_counter()
+    with sampler.window(record, "total"):
+        extract_objects(scene / "data", out, [1], model_dir=scene / "model", config=config, overwrite=True)
+    total = time.perf_counter() - t0
+    sampler.stop()
+    truth = np.load(scene / "truth.npz")["object"]
+    model = read_ply(find_model(scene / "model").ply_path)
+    test = load_cameras(scene / "data", splits=["test"])
+    result = {"scene": str(scene), "gaussians": len(model), "click": [view, x, y], "seconds": total,
+              "peak_mb": sampler.peak_all, "baseline_mb": baseline,
+              "stages": {k: {"s": round(v["s"], 1), "peak_mb": round(v["peak_mb"])} for k, v in record.items()},
+              "iou_selected": object_iou(read_ply(out / "object_1" / "selected.ply"), model.select(truth), test),
+              "iou_object": object_iou(read_ply(out / "object_1" / "object.ply"), model.select(truth), test)}
+    report = json.loads((out / "report.json").read_text())
+    result["views"] = len(load_cameras(scene / "data", splits=["train"]))
+    result["size"] = [test[0].width, test[0].height]
+    result["working"] = report.get("distill", {}).get("working_size")
+    return result
+
+
+def grid(args) -> None:
+    rows = []
+    for n in [int(v) for v in args.gaussians.split(",")]:
+        for v in [int(x) for x in args.views.split(",")]:
+            for size in [int(x) for x in args.size.split(",")]:
+                scene = args.work / f"n{n}k_v{v}_s{size}"
+                if not (scene / "truth.npz").is_file():
+                    cmd = [sys.executable, str(HERE / "scale_scene.py"), args.splat, str(scene), "--views", str(v),
+                           "--size", str(size), "--gaussians", str(n * 1000)]
+                    subprocess.run(cmd, check=True)
+                cmd = [sys.executable, __file__, "run", str(scene), "--view", "r_1", "--json"]
+                res = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
+                rows.append(res)
+                print(json.dumps(res), flush=True)
+    print(table(rows))
+
+
+def table(rows: list[dict]) -> str:
+    stages = [s for *_, s in STAGES]
+    head = ["N", "V", "px", "total s", "peak MB"] + [f"{s} s/MB" for s in stages] + ["IoU sel", "IoU obj"]
+    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for r in rows:
+        cells = [f"{r['gaussians']:,}", str(r["views"]), "x".join(map(str, r.get("size", []))) or "",
+                 f"{r['seconds']:.0f}", f"{r['peak_mb']:.0f}"]
+        cells += [f"{r['stages'][s]['s']:.0f} / {r['stages'][s]['peak_mb']:.0f}" if s in r["stages"] else "-"
+                  for s in stages]
+        cells += [f"{r['iou_selected']:.3f}", f"{r['iou_object']:.3f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("scene", type=Path)
+    r.add_argument("--view", default="r_10")
+    r.add_argument("--click", default=None, help="X,Y in the view's pixels (default: the object's centre)")
+    r.add_argument("--out", type=Path, default=None)
+    r.add_argument("--json", action="store_true")
+    g = sub.add_parser("grid")
+    g.add_argument("splat")
+    g.add_argument("--work", type=Path, default=Path("/tmp/scale"))
+    g.add_argument("--gaussians", default="150,500,1500", help="thousands of Gaussians")
+    g.add_argument("--views", default="30")
+    g.add_argument("--size", default="800")
+    args = ap.parse_args()
+    if args.cmd == "run":
+        click = tuple(int(v) for v in args.click.split(",")) if args.click else None
+        out = args.out or args.scene / "out"
+        res = run(args.scene, args.view, click, out)
+        print(json.dumps(res) if args.json else json.dumps(res, indent=1))
+    else:
+        grid(args)
+
+
+if __name__ == "__main__":
+    main()
