@@ -209,3 +209,30 @@ def effective_mode(mode: str) -> str:
     explicit = {name for name in ("rule", "alpha", "distance", "neighbors")
                 if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
     return "statistical" if mode == "auto" and explicit else mode
+
+
+def picture_title(path: str, limit: int = 60) -> str:
+    """Return how the floater picture names its input: the path as given, its tail when long; a SOG given as its
+    ``meta.json`` or folder is named by the folder."""
+    from pathlib import Path
+
+    p = Path(path)
+    text = str(p.parent) if p.name == "meta.json" else str(p)
+    return text if len(text) <= limit else "..." + text[-(limit - 3):]
+
+
+def write_floater_picture(input_path: str, cloud: Any, keep: Any, report: Any, path: str, quiet: bool, *,
+                          up: str | None = None, dry_run: bool = True) -> Any:
+    """Write the floater picture (:func:`roodi_toolkit.viz.floaters.floater_picture`) of a prune of ``cloud``, read
+    from ``input_path``, upright on the cloud's up (``up``: ``--up``; :func:`roodi_toolkit.render.upright.resolve_up`);
+    return that up axis (the caller says where it came from)."""
+    from roodi_toolkit.cli.common import progress_factory
+    from roodi_toolkit.io.files import write_image
+    from roodi_toolkit.render.upright import resolve_up
+    from roodi_toolkit.viz.floaters import floater_picture
+
+    axis = resolve_up(up, input_path, cloud.means)
+    picture = floater_picture(cloud, keep, report, axis, title=picture_title(input_path), dry_run=dry_run,
+                              progress=progress_factory(quiet))
+    write_image(picture.image, path)
+    return axis
