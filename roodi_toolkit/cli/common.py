@@ -23,7 +23,13 @@ def progress_factory(quiet: bool = False) -> Callable[..., Any]:
     return functools.partial(tqdm, file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5)
 
 
-quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bars.")
+def _quiet(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
+    """``-q`` given to the command, or anywhere else on the line (``main`` takes it out and puts it in ``ctx.obj``)."""
+    return bool(value) or bool(isinstance(ctx.obj, dict) and ctx.obj.get("quiet"))
+
+
+quiet_option = click.option("-q", "--quiet", is_flag=True, callback=_quiet,
+                            help="No progress bars (also before the command: roodi-toolkit -q COMMAND ...).")
 
 
 def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:

@@ -147,6 +147,10 @@ def prune_with_photos(input_path: str, cloud: Any, config: Any, photos_spec: str
             photos = find_photos(input_path, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
         except PhotosUnavailable as exc:  # only --photos auto: the cloud alone still decides, as without a model
             click.echo(f"note: no photo check ({exc}); judging from the cloud alone", err=True)
+    if photos is not None:
+        from roodi_toolkit.cli.main import set_torch_threads
+
+        set_torch_threads()  # the photo check renders
     return prune_cloud(cloud, config, photos=photos, progress=progress_factory(quiet) if photos else progress)
 
 
@@ -231,6 +235,9 @@ def write_floater_picture(input_path: str, cloud: Any, keep: Any, report: Any, p
     from roodi_toolkit.render.upright import resolve_up
     from roodi_toolkit.viz.floaters import floater_picture
 
+    from roodi_toolkit.cli.main import set_torch_threads
+
+    set_torch_threads()  # the before/after renders
     axis = resolve_up(up, input_path, cloud.means)
     picture = floater_picture(cloud, keep, report, axis, title=picture_title(input_path), dry_run=dry_run,
                               progress=progress_factory(quiet))
