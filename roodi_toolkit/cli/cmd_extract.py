@@ -116,8 +116,9 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     cfg.json records.
 
     Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object) that were made
-    with the same settings, and says which it reused and which it made again; --overwrite makes every stage again.
-    DATA_DIR, --model and --distill are only read.
+    with the same settings and says which it reused; a stage made with other settings (another --inpainter, say) is
+    not replaced without --overwrite, which makes every stage again (or write to another OUT_DIR, with --model
+    OUT_DIR/scene --distill OUT_DIR/distill to reuse the scene). DATA_DIR, --model and --distill are only read.
     """
     from dataclasses import replace
     from pathlib import Path
@@ -152,7 +153,8 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
 
         load_plugin("inpainters", config.inpainter)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
-                             config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
+                             config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer,
+                             replace_changed=False)
     if report["reused"]:
         click.echo(f"reused finished stages: {', '.join(report['reused'])}")
     if report["recomputed"]:

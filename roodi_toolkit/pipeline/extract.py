@@ -97,14 +97,24 @@ def _settings(config: Any) -> Any:
 
 
 class _Stages:
-    """Which finished stages a run reused and which it made again, and why (into the report)."""
+    """Which finished stages a run reused and which it made again, and why (into the report).
 
-    def __init__(self, report: dict[str, Any]) -> None:
+    ``replace_changed``: a finished stage made with other settings is made again (the benchmark and batch re-runs);
+    False (the ``extract`` command): it is refused, since that would replace an output without ``--overwrite``.
+    """
+
+    def __init__(self, report: dict[str, Any], replace_changed: bool = True) -> None:
         self.reused: list[str] = report.setdefault("reused", [])
         self.remade: list[str] = report.setdefault("recomputed", [])
+        self.replace_changed = replace_changed
 
-    def fresh(self, name: str, record: dict[str, Any] | None, wanted: dict[str, Any], overwrite: bool) -> bool:
-        """Return True if the stage's earlier result can be reused (same settings, no ``overwrite``)."""
+    def fresh(self, name: str, record: dict[str, Any] | None, wanted: dict[str, Any], overwrite: bool,
+              where: Path | None = None) -> bool:
+        """Return True if the stage's earlier result can be reused (same settings, no ``overwrite``).
+
+        Raises:
+            OutputError: other settings, neither ``overwrite`` nor ``replace_changed`` (``where``: the stage's folder).
+        """
         if record is None:
             return False
         if overwrite:
@@ -112,10 +122,22 @@ class _Stages:
             return False
         changed = sorted(k for k in set(wanted) | set(record) if k in wanted and record.get(k) != wanted[k])
         if changed:
+            if not self.replace_changed:
+                raise _changed_error(where, name, changed)
             self.remade.append(f"{name} ({', '.join(changed)} changed)")
             return False
         self.reused.append(name)
         return True
+
+
+def _changed_error(where: Path | None, name: str, changed: Sequence[str]) -> Exception:
+    """The refusal to replace a finished stage made with other settings (it says how to go on)."""
+    from ..errors import OutputError
+
+    out = where.parent if where is not None else Path("OUT_DIR")
+    return OutputError(f"{where or name}: the {name} there was made with other settings ({', '.join(changed)} "
+                       f"changed) and would be replaced; give --overwrite to make every stage again, or another "
+                       f"OUT_DIR (with --model {out / 'scene'} --distill {out / 'distill'} it reuses this run's scene)")
 
 
 def _train_record(model_root: Path) -> dict[str, Any] | None:
@@ -218,7 +240,7 @@ class PreparedScene:
 def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir: str | Path | None = None,
                   distill_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
                   overwrite: bool = False, progress: ProgressFactory = null_progress,
-                  renderer: Any = None) -> PreparedScene:
+                  renderer: Any = None, replace_changed: bool = True) -> PreparedScene:
     """Return the stages the objects of a scene share: the decoded dataset, the trained scene (trained into
     ``out_dir/scene`` unless ``model_dir`` is given) and its distillation (into ``out_dir/distill`` unless
     ``distill_dir`` is given), each reused when a previous run made it with the same settings.
@@ -250,8 +272,8 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
                                    inputs=[data_dir, model_dir, distill_dir])
     renderer = resolve_renderer(renderer)
-    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}}
-    stages = _Stages(report)
+    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}, "replace_changed": replace_changed}
+    stages = _Stages(report, replace_changed)
     timings = report["stages"]
     downscale = config.downscale
     if downscale is None:
@@ -276,13 +298,17 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
         old = _train_record(model_root)
         if config.single_stage and old is not None and not _Stages({}).fresh("", distill_old, distill_wanted, False):
             old = None  # the features are learned with the scene: a changed distillation means training again
-        if stages.fresh("train", old, train_wanted, overwrite):
+        if stages.fresh("train", old, train_wanted, overwrite, model_root):
             model = find_model(model_root)
             scene = read_ply(model.ply_path)
         else:
             record = files.read_json(model_root / "cfg.json", "training record") \
                 if (model_root / "cfg.json").is_file() else None
             same = isinstance(record, dict) and all(record.get(k) == v for k, v in train_wanted.items())
+            if isinstance(record, dict) and not same and not overwrite and not replace_changed:
+                # an unfinished run of other settings: starting afresh would replace what it wrote
+                raise _changed_error(model_root, "train", sorted(k for k, v in train_wanted.items()
+                                                                 if record.get(k) != v))
             resume = same and checkpoint_file(model_root).is_file() and not overwrite
             if config.single_stage:
                 from .joint import train_joint
@@ -311,7 +337,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
         distill_out = Path(distill_dir)
     else:
         wanted = {**distill_wanted, "model_ply": str(model.ply_path.resolve())}
-        if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite):
+        if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite, distill_out):
             _, cloud, classifier = load_distillation(distill_out, scene)
         else:
             if distilled is None:
@@ -346,7 +372,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
     from .finetune import refine_object
     from .select import prune_selection, select_object
 
-    stages = _Stages(prepared.report)
+    stages = _Stages(prepared.report, bool(prepared.report.get("replace_changed", True)))
     odir = prepared.out / f"object_{object_id}"
     odir.mkdir(exist_ok=True)
     record = prepared.distill_record
@@ -358,7 +384,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
               "distillation": {k: record.get(k) for k in ("config", "segmenter", "prompt", "data_dir")}}
     stage_file = odir / "stage.json"
     old = files.read_json(stage_file, "object record") if stage_file.is_file() else None
-    if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite):
+    if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite, odir):
         return old["entry"]
     entry: dict[str, Any] = {}
     t = time.perf_counter()
@@ -404,7 +430,8 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
 def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids: Sequence[int | str], *,
                     model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
                     config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
-                    progress: ProgressFactory = null_progress, renderer: Any = None) -> dict[str, Any]:
+                    progress: ProgressFactory = null_progress, renderer: Any = None,
+                    replace_changed: bool = True) -> dict[str, Any]:
     """Return a report of every stage after writing each object's clean model into ``out_dir``.
 
     Args:
@@ -422,6 +449,12 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
         progress: progress factory.
         renderer: a :class:`~roodi_toolkit.render.renderer.Renderer` (or registered name) every stage renders with;
             default the built-in CPU renderer.
+        replace_changed: make a finished stage of other settings again (True), or refuse to replace it without
+            ``overwrite`` (False: the ``extract`` command, whose outputs are replaced only with ``--overwrite``).
+
+    Raises:
+        OutputError: with ``replace_changed=False``, a finished (or started) stage in ``out_dir`` made with other
+            settings; the message names it, what changed and how to go on.
     """
     from ..io import files
 
@@ -431,7 +464,8 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
     created = not out.exists()
     try:
         prepared = prepare_scene(data_dir, out_dir, model_dir=model_dir, distill_dir=distill_dir, config=config,
-                                 overwrite=overwrite, progress=progress, renderer=renderer)
+                                 overwrite=overwrite, progress=progress, renderer=renderer,
+                                 replace_changed=replace_changed)
     except BaseException:
         # a refused input (a bad click, say) leaves nothing behind; a partly trained scene stays, to resume from
         if created and out.is_dir() and not any(p.is_file() for p in out.rglob("*")):
