@@ -73,14 +73,26 @@ def parse_size(text: str, name: str = "--size") -> tuple[int, int]:
 
 
 def _load_renderer(ctx: click.Context, param: click.Parameter, value: str) -> Any:
-    """Return the renderer registered as ``value``: a missing or unavailable plugin fails before any work."""
+    """Return the renderer registered as ``value``, built with the ``--renderer-option`` values: a missing or
+    unavailable plugin, or an option it does not take, fails before any work."""
     from roodi_toolkit.render.renderer import get_renderer
 
-    return get_renderer(value)
+    return get_renderer(value, **ctx.meta.get("renderer_options", {}))
 
 
-renderer_option = click.option(
-    "--renderer", default="torch", show_default=True, metavar="NAME", callback=_load_renderer,
-    help="Renderer plugin for every rendering of the command: torch (built-in, CPU) or an installed one such as "
-         "gsplat (CUDA); see roodi-toolkit plugins.")
-"""``--renderer NAME``: the command receives the :class:`~roodi_toolkit.render.renderer.Renderer` instance."""
+def _keep_renderer_options(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> None:
+    ctx.meta["renderer_options"] = parse_key_values(value, "--renderer-option")
+
+
+def renderer_option(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``--renderer NAME`` (the command receives the :class:`~roodi_toolkit.render.renderer.Renderer` instance) and
+    ``--renderer-option KEY=VALUE`` (repeatable; the renderer's keyword arguments, read first)."""
+    func = click.option(
+        "--renderer", default="torch", show_default=True, metavar="NAME", callback=_load_renderer,
+        help="Renderer plugin for every rendering of the command: torch (built-in, CPU) or an installed one such as "
+             "gsplat (CUDA); see roodi-toolkit plugins.")(func)
+    return click.option(
+        "--renderer-option", multiple=True, metavar="KEY=VALUE", expose_value=False, is_eager=True,
+        callback=_keep_renderer_options,
+        help="Renderer option (repeatable), e.g. device=cuda:1 or tile_size=8 for gsplat: the keyword arguments of "
+             "the plugin's class.")(func)

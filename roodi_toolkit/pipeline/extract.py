@@ -65,6 +65,8 @@ class ExtractConfig:
         prompt: the segmenter's clicks or mask folder. Clicks are in the original photo's pixels (what an image
             viewer shows), whatever ``downscale``; a click whose view is ``""`` is in the first training view.
         segmenter_options: keyword options of the segmenter.
+        inpainter_options: keyword options of the inpainter (``--inpainter-option KEY=VALUE``; text values take the
+            type of the plugin's default).
     """
 
     train: TrainConfig = field(default_factory=lambda: TrainConfig(init="auto"))
@@ -81,6 +83,7 @@ class ExtractConfig:
     segmenter: str = "files"
     prompt: SegmentPrompt = SegmentPrompt()
     segmenter_options: dict = field(default_factory=dict)
+    inpainter_options: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not 0 < self.threshold < 1:
@@ -382,6 +385,8 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
               "finetune": _settings(config.finetune), "downscale": prepared.downscale,
               "features_of": record.get("model_ply_sha256"),
               "distillation": {k: record.get(k) for k in ("config", "segmenter", "prompt", "data_dir")}}
+    if config.inpainter_options:  # only when given: records of runs without them stay the same
+        wanted["inpainter_options"] = _settings(config.inpainter_options)
     stage_file = odir / "stage.json"
     old = files.read_json(stage_file, "object record") if stage_file.is_file() else None
     if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite, odir):
@@ -408,6 +413,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
         views = ds.train_indices
         res = refine_object(selected, prepared.scene, ds.images[views], [ds.cameras[v] for v in views],
                             _object_masks(prepared.masks, int(object_id), views), inpainter=config.inpainter,
+                            inpainter_options=config.inpainter_options,
                             occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
                             progress=progress, renderer=prepared.renderer)
         final = res.cloud

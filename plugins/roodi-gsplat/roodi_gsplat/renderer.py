@@ -41,6 +41,17 @@ class GsplatRenderer(Renderer):
         self.tile_size = tile_size
 
     @classmethod
+    def status(cls) -> tuple[str, str]:
+        """Return ``("installed", "")`` or ``("needs CUDA", what to do)``: gsplat builds and rasterizes only with
+        CUDA, so a missing gsplat package is a missing CUDA set-up as much as a missing package."""
+        import importlib.util
+
+        if importlib.util.find_spec("gsplat") is None:
+            return "needs CUDA", f"the gsplat package is not installed; {INSTALL_HINT}"
+        ok, why = cls.available()
+        return ("installed", "") if ok else ("needs CUDA", why)
+
+    @classmethod
     def available(cls) -> tuple[bool, str]:
         try:
             _import_gsplat()
