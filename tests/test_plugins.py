@@ -149,6 +149,12 @@ def test_the_bundled_plugins_say_what_they_need(plugin, state):
         pytest.skip(f"{dependency} is installed here")
     got, detail = reg.plugin_state(cls)
     assert got == state and "pip install" in detail
+    if module == "roodi_gsplat":  # with a CUDA GPU, only the package is missing
+        import torch
+
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(torch.cuda, "is_available", lambda: True)
+            assert reg.plugin_state(cls)[0] == "needs a package"
 
 
 def test_sdxl_without_weights_needs_weights(monkeypatch, tmp_path):

@@ -42,12 +42,15 @@ class GsplatRenderer(Renderer):
 
     @classmethod
     def status(cls) -> tuple[str, str]:
-        """Return ``("installed", "")`` or ``("needs CUDA", what to do)``: gsplat builds and rasterizes only with
-        CUDA, so a missing gsplat package is a missing CUDA set-up as much as a missing package."""
+        """Return ``("installed", "")``, ``("needs CUDA", ...)`` (torch sees no CUDA GPU: gsplat builds and
+        rasterizes only there) or ``("needs a package", ...)`` (a CUDA GPU without the gsplat package)."""
         import importlib.util
 
+        cuda = torch.cuda.is_available()
         if importlib.util.find_spec("gsplat") is None:
-            return "needs CUDA", f"the gsplat package is not installed; {INSTALL_HINT}"
+            if cuda:
+                return "needs a package", f"the gsplat package is not installed; {INSTALL_HINT}"
+            return "needs CUDA", f"torch sees no CUDA GPU here, and the gsplat package is not installed; {INSTALL_HINT}"
         ok, why = cls.available()
         return ("installed", "") if ok else ("needs CUDA", why)
 
