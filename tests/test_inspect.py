@@ -348,8 +348,8 @@ def test_cli_default_shows_what_the_default_prune_removes(run_cli, planted_ply, 
                   "--window-size", "300x200", "--camera", "+z")
     assert res.exit_code == 0, res.stderr
     assert res.stdout.startswith(f"{report['mode']} mode (auto): ")
-    assert (f"judged {report['input_count']:,} Gaussians: {report['removed_count']:,} go, "
-            f"{report['kept_count']:,} stay") in res.stdout
+    assert (f"judged {report['input_count']:,} Gaussians: {report['removed_count']:,} would go, "
+            f"{report['kept_count']:,} would stay") in res.stdout
     with Image.open(tmp_path / "h.png") as img:
         assert float(img.text["roodi:threshold"]) == report["threshold"] == 0.5
         # no filter ran, so every Gaussian was evaluated

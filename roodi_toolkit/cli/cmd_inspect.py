@@ -116,7 +116,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
 
     cloud = read_cloud(input_ply)
     _, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet)
-    for line in summary_lines(report):
+    for line in summary_lines(report, dry_run=True):  # inspect prunes nothing: what would go
         click.echo(line)
 
     if histogram is not None:
