@@ -138,3 +138,23 @@ def test_no_orbit_view_starts_inside_the_content():
     r0 = np.linalg.norm(framing_orbit(alone, 4, width=64, height=64)[0].center - np.median(ball, axis=0))
     assert r0 == pytest.approx(1.1 * np.percentile(np.linalg.norm(ball - np.median(ball, axis=0), axis=1), 95)
                                / np.sin(np.radians(25)))
+
+
+def test_extracts_object_picture_stands_on_the_training_cameras_up(tmp_path):
+    """object.png of an extraction from a y-down capture came out sideways (the orbit assumed z up)."""
+    from roodi_toolkit.io.files import read_image
+    from roodi_toolkit.pipeline.extract import _picture
+
+    rng = np.random.default_rng(5)
+    n = 1500
+    column = np.stack([0.1 * rng.normal(size=n), -rng.uniform(0, 2.0, n), 0.1 * rng.normal(size=n)], axis=1)
+    cloud = GaussianCloud.from_activated(column, scales=np.full((n, 3), 0.05), opacities=np.full(n, 0.9),
+                                         rgb=np.full((n, 3), 0.2))
+    capture = orbit_cameras([0, -1, 0], 5.0, 6, elevation_deg=10.0, width=16, height=16, up=(0.0, -1.0, 0.0))
+    for cameras, upright in ((capture, True), ((), False)):
+        _picture(cloud, tmp_path / "o.png", size=48, cameras=cameras)
+        img = read_image(tmp_path / "o.png")[..., :3].astype(int)
+        dark = img.sum(axis=-1) < 300  # the column on white
+        tiles = [dark[:, i * 48:(i + 1) * 48] for i in range(4)]
+        tall = [np.any(t, axis=1).sum() > 1.5 * np.any(t, axis=0).sum() for t in tiles]
+        assert all(tall) == upright, (cameras and "capture", tall)

@@ -169,13 +169,20 @@ def _object_masks(masks: torch.Tensor, object_id: int, views: Sequence[int]) -> 
     return masks[list(views)] == object_id
 
 
-def _picture(cloud: GaussianCloud, path: Path, size: int = 192, renderer: Any = None) -> None:
-    """Write the object from four directions on white."""
+def _picture(cloud: GaussianCloud, path: Path, size: int = 192, renderer: Any = None,
+             cameras: Sequence[Any] = ()) -> None:
+    """Write the object from four directions on white, standing on the training cameras' mean up (z without them)."""
+    from ..errors import ConfigError
     from ..io.files import write_image
     from ..render.renderer import render_cloud
+    from ..render.upright import cameras_up
     from ..render.views import framing_orbit
 
-    cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size)
+    try:
+        up = cameras_up(cameras) if len(cameras) else np.array([0.0, 0.0, 1.0])
+    except ConfigError:  # cameras whose ups cancel out (a capture all around, upside down half the time)
+        up = np.array([0.0, 0.0, 1.0])
+    cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size, up=up)
     row = [render_cloud(cloud, c, renderer=renderer, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy()
            for c in cams]
     write_image(np.concatenate(row, axis=1), path)
@@ -426,7 +433,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
         entry["inpainter"] = res.inpainter
     entry["refine_s"] = time.perf_counter() - t
     write_ply(final, odir / "object.ply")
-    _picture(final, odir / "object.png", renderer=prepared.renderer)
+    _picture(final, odir / "object.png", renderer=prepared.renderer, cameras=prepared.dataset.cameras)
     entry["object_ply"] = str(odir / "object.ply")
     entry["gaussians"] = len(final)
     files.write_json({**wanted, "entry": entry}, stage_file)  # last: marks the object as finished
