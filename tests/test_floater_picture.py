@@ -155,6 +155,15 @@ def test_prune_dry_run_and_inspect_screenshot_write_the_same_picture(run_cli, pl
     res = run_cli("inspect", src, "--screenshot", tmp_path / "s.png", "-q")
     assert res.exit_code == 0, res.stderr
     assert picture.read_bytes() == (tmp_path / "s.png").read_bytes()
+    # a bad --up is refused before the prune; --up without a picture to set is a usage error
+    for command in (("prune", src, tmp_path / "c2.spz", "--dry-run"),
+                    ("inspect", src, "--screenshot", tmp_path / "x.png")):
+        res = run_cli(*command, "--up", "0,0,0", "-q")
+        assert res.exit_code == 1 and "--up" in res.stderr and "judged" not in res.stdout
+    res = run_cli("prune", src, tmp_path / "c3.spz", "--up", "0,1,0", "-q")
+    assert res.exit_code == 2 and "--up" in res.stderr and not (tmp_path / "c3.spz").exists()
+    res = run_cli("prune", src, tmp_path / "c4.spz", "--dry-run", "--up", "0,1,0", "-q")
+    assert res.exit_code == 0 and "picture up 0, 1, 0: given" in res.stdout
 
 
 def test_inspect_html_page_holds_the_counts_and_stands_on_the_up(run_cli, planted, tmp_path):

@@ -85,7 +85,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     from roodi_toolkit.io.files import check_outputs, write_image
     from roodi_toolkit.io.splat import input_paths, read_cloud
     from roodi_toolkit.prune.summary import summary_lines
-    from roodi_toolkit.render.upright import resolve_up
+    from roodi_toolkit.render.upright import check_up, resolve_up
 
     mode = effective_mode(mode)
     config = prune_config_from_options(mode=mode, **prune_kwargs)
@@ -114,6 +114,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
             raise click.BadParameter(f"not a colour: {highlight!r} (use a name such as red or #ff00ff)",
                                      param_hint="--highlight")
 
+    check_up(up)
     cloud = read_cloud(input_ply)
     _, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet)
     for line in summary_lines(report, dry_run=True):  # inspect prunes nothing: what would go

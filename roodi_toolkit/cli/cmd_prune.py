@@ -75,6 +75,12 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
                                        blob_colour=blob_colour, blob_sure=blob_sure,
                                        foreign_size=foreign_size, background=background, filter_values=filter_values)
     photo_folders = photo_inputs(input_ply, mode, photos_spec)
+    if up is not None and not dry_run:
+        raise click.BadParameter("--up sets the --dry-run picture's up; the pruned cloud keeps its axes",
+                                 param_hint="--up")
+    from roodi_toolkit.render.upright import check_up
+
+    check_up(up)
     picture = None
     if dry_run:
         from roodi_toolkit.io.splat import WRITE_SUFFIXES

@@ -282,7 +282,8 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
                                    inputs=[data_dir, model_dir, distill_dir])
     renderer = resolve_renderer(renderer)
-    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}, "replace_changed": replace_changed}
+    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {},
+                              "replace_changed": replace_changed}
     stages = _Stages(report, replace_changed)
     timings = report["stages"]
     downscale = config.downscale

@@ -589,7 +589,8 @@ def remove_statistical_outliers(cloud: GaussianCloud, config: PruneConfig | None
     report.evaluated = evaluated
     removed = np.zeros(n, dtype=bool)
     removed[evaluated[flagged]] = True
-    what = f"mean {'W2²' if config.distance == 'w2' else 'distance'} to {config.k} neighbours above {report.threshold:.4g}"
+    measure = "W2²" if config.distance == "w2" else "distance"
+    what = f"mean {measure} to {config.k} neighbours above {report.threshold:.4g}"
     report.remove("statistical", removed, f"{what} (rule {config.rule}, alpha {config.effective_alpha:g})")
     keep[evaluated[flagged]] = False
     t3 = time.perf_counter()

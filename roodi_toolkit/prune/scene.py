@@ -463,8 +463,8 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     report.timings["rule"] = time.perf_counter() - t2
     detached, oversized, photo_figures = decision.detached, decision.oversized, {}
     if decision.spared[0]:
-        report.stayed.append((DETACHED, decision.spared[1], f"in {decision.spared[0]:,} pieces of more than {max_piece} "
-                              "(no photos to judge them; --max-piece 0: they go)"))
+        report.stayed.append((DETACHED, decision.spared[1], f"in {decision.spared[0]:,} pieces of more than "
+                              f"{max_piece} (no photos to judge them; --max-piece 0: they go)"))
     if decision.colour_spared:
         report.stayed.append((OVERSIZED, decision.colour_spared,
                               "of a neighbour's colour (--blob-colour 0: they go)"))

@@ -263,6 +263,17 @@ def parse_up(spec: str) -> np.ndarray:
     return vec / np.linalg.norm(vec)
 
 
+def check_up(spec: str | None) -> None:
+    """Refuse a malformed ``--up`` before any work (``X,Y,Z``, ``auto``, or an existing dataset or camera file).
+
+    Raises:
+        ConfigError: not three finite numbers, not all zero, and not an existing path.
+    """
+    text = "" if spec is None else spec.strip()
+    if text and text.lower() != "auto" and not Path(text).exists():
+        parse_up(text)
+
+
 def resolve_up(spec: str | None, path: str | os.PathLike, means: np.ndarray | None = None) -> UpAxis:
     """Return the up axis of the cloud in ``path`` (module docstring for the order).
 
