@@ -185,3 +185,21 @@ def test_inspect_html_page_holds_the_counts_and_stands_on_the_up(run_cli, plante
             assert f"goes, {name}: {count:,}" in page or f"goes, {name}, beyond" in page
     assert f"stays: {report.kept_count:,}" in page
     assert '"up":{"x":0.0,"y":-1.0,"z":0.0}' in page.replace(" ", "")
+
+
+def test_a_report_without_per_gaussian_stages_still_marks_what_goes(planted, pruned):
+    """A report made elsewhere (no ``removed_by``): what goes is one group, still marked."""
+    from dataclasses import replace
+
+    _, keep, report = pruned
+    bare = replace(report, removed_by=np.zeros(0, dtype=np.int16))
+    pic = floater_picture(planted.cloud, keep, bare, (0.0, 0.0, 1.0), panel=PANEL)
+    assert list(pic.colours) == ["removed"]
+    cam, (x0, y0) = pic.cameras["front"], pic.panels["front"]
+    px, z = cam.project(planted.cloud.means[~keep])
+    inside = (z > 0) & (px[:, 0] > 3) & (px[:, 0] < PANEL[0] - 3) & (px[:, 1] > 3) & (px[:, 1] < PANEL[1] - 3)
+    colour = hex_rgb(reason_colour("removed"))
+    img = pic.image.astype(int)
+    hits = [(np.abs(img[y0 + v - 2:y0 + v + 3, x0 + u - 2:x0 + u + 3] - colour).max(axis=-1) <= 40).any()
+            for u, v in px[inside].astype(int)]
+    assert inside.any() and all(hits)

@@ -146,8 +146,10 @@ def floater_picture(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport
     if keep.shape != (n,) or keep.dtype != np.bool_:
         raise ConfigError(f"keep must be a bool array [N] = [{n}], got {keep.dtype} {keep.shape}")
     removed_by = np.asarray(report.removed_by)
-    if removed_by.shape != (n,):
-        removed_by = np.where(keep, -1, 0).astype(np.int16)  # a report without per-Gaussian stages: one reason
+    stage_counts = list(report.stages)
+    if removed_by.shape != (n,):  # a report without per-Gaussian stages: what goes is one group
+        removed_by = np.where(keep, -1, 0).astype(np.int16)
+        stage_counts = [("removed", int((~keep).sum()))]
     vector = np.asarray(getattr(up, "vector", up), dtype=np.float64)
     up_source = getattr(up, "source", "given")
     finite = ~cloud.nonfinite_rows()
@@ -175,7 +177,7 @@ def floater_picture(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport
         ax._roodi_label = fig.text(x0 / width, 1.0 - (y0 - 6) / height, label, fontsize=13, ha="left", va="bottom")
         return ax
 
-    stages = [(i, name, count) for i, (name, count) in enumerate(report.stages) if count]
+    stages = [(i, name, count) for i, (name, count) in enumerate(stage_counts) if count]
     colours = {name: reason_colour(name) for _, name, _ in stages}
     kept_points = shown.means[keep_f]
     kept_weights = shown.opacities[keep_f]
