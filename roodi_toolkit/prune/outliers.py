@@ -587,12 +587,10 @@ def remove_statistical_outliers(cloud: GaussianCloud, config: PruneConfig | None
     flagged = outlier_mask(dist, config, report)
     report.timings["rule"] = time.perf_counter() - t2
     report.evaluated = evaluated
-    removed = np.zeros(n, dtype=bool)
-    removed[evaluated[flagged]] = True
-    measure = "W2²" if config.distance == "w2" else "distance"
-    what = f"mean {measure} to {config.k} neighbours above {report.threshold:.4g}"
-    report.remove("statistical", removed, f"{what} (rule {config.rule}, alpha {config.effective_alpha:g})")
     keep[evaluated[flagged]] = False
+    measure = "W2²" if config.distance == "w2" else "distance"
+    report.remove("statistical", ~keep & (report.removed_by < 0), f"mean {measure} to {config.k} neighbours above "
+                  f"{report.threshold:.4g} (rule {config.rule}, alpha {config.effective_alpha:g})")
     t3 = time.perf_counter()
     out = cloud.select(keep)
     report.timings["select"] = time.perf_counter() - t3
