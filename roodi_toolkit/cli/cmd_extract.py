@@ -49,6 +49,9 @@ _OPTIONS = [
     click.option("--inpainter", default="opencv", show_default=True,
                  help="Inpainter plugin: opencv, exemplar, symmetry (objects with never-seen parts), sdxl, ... "
                       "(see roodi-toolkit plugins)."),
+    click.option("--inpainter-option", "inpainter_options", multiple=True, metavar="KEY=VALUE",
+                 help="Inpainter option (repeatable), e.g. model=PATH steps=30 for sdxl, method=ns for opencv; the "
+                      "keyword arguments of the plugin's class (docs/plugins.md)."),
 ]
 
 
@@ -61,7 +64,8 @@ def extract_options(func: Any) -> Any:
 
 def extract_config_from_options(*, downscale: float | None, iterations: int | None, init: str,
                                 distill_iterations: int, threshold: float, no_prune: bool, no_inpaint: bool,
-                                distance: str, rule: str, single_stage: bool, inpainter: str, **_: Any) -> Any:
+                                distance: str, rule: str, single_stage: bool, inpainter: str,
+                                inpainter_options: tuple[str, ...] = (), **_: Any) -> Any:
     """Return the ExtractConfig the stage options describe."""
     from dataclasses import replace
 
@@ -74,7 +78,8 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
     return replace(base, downscale=downscale, train=config_with(base.train, iterations=iterations, init=init),
                    distill=DistillConfig(iterations=distill_iterations), threshold=threshold, prune=not no_prune,
                    prune_config=PruneConfig(distance=distance, rule=rule), inpaint=not no_inpaint,
-                   inpainter=inpainter, single_stage=single_stage)
+                   inpainter=inpainter, single_stage=single_stage,
+                   inpainter_options=parse_key_values(inpainter_options, "--inpainter-option"))
 
 
 @click.command(epilog=EXAMPLE)
@@ -116,8 +121,9 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     cfg.json records.
 
     Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object) that were made
-    with the same settings, and says which it reused and which it made again; --overwrite makes every stage again.
-    DATA_DIR, --model and --distill are only read.
+    with the same settings and says which it reused; a stage made with other settings (another --inpainter, say) is
+    not replaced without --overwrite, which makes every stage again (or write to another OUT_DIR, with --model
+    OUT_DIR/scene --distill OUT_DIR/distill to reuse the scene). DATA_DIR, --model and --distill are only read.
     """
     from dataclasses import replace
     from pathlib import Path
@@ -147,12 +153,13 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     opts = parse_key_values(segmenter_options, "--segmenter-option")
     config = replace(config, segmenter=segmenter, segmenter_options=opts,
                      prompt=SegmentPrompt(clicks=parsed, mask_dir=Path(mask_dir) if mask_dir else None))
-    if config.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
-        from roodi_toolkit.plugins import load_plugin
+    if config.inpaint:  # an unknown or broken --inpainter, or options it does not take, fail now, not after training
+        from roodi_toolkit.pipeline.inpaint import get_inpainter
 
-        load_plugin("inpainters", config.inpainter)
+        get_inpainter(config.inpainter, **config.inpainter_options)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
-                             config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
+                             config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer,
+                             replace_changed=False)
     if report["reused"]:
         click.echo(f"reused finished stages: {', '.join(report['reused'])}")
     if report["recomputed"]:

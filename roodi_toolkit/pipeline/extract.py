@@ -65,6 +65,8 @@ class ExtractConfig:
         prompt: the segmenter's clicks or mask folder. Clicks are in the original photo's pixels (what an image
             viewer shows), whatever ``downscale``; a click whose view is ``""`` is in the first training view.
         segmenter_options: keyword options of the segmenter.
+        inpainter_options: keyword options of the inpainter (``--inpainter-option KEY=VALUE``; text values take the
+            type of the plugin's default).
     """
 
     train: TrainConfig = field(default_factory=lambda: TrainConfig(init="auto"))
@@ -81,6 +83,7 @@ class ExtractConfig:
     segmenter: str = "files"
     prompt: SegmentPrompt = SegmentPrompt()
     segmenter_options: dict = field(default_factory=dict)
+    inpainter_options: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not 0 < self.threshold < 1:
@@ -97,14 +100,24 @@ def _settings(config: Any) -> Any:
 
 
 class _Stages:
-    """Which finished stages a run reused and which it made again, and why (into the report)."""
+    """Which finished stages a run reused and which it made again, and why (into the report).
 
-    def __init__(self, report: dict[str, Any]) -> None:
+    ``replace_changed``: a finished stage made with other settings is made again (the benchmark and batch re-runs);
+    False (the ``extract`` command): it is refused, since that would replace an output without ``--overwrite``.
+    """
+
+    def __init__(self, report: dict[str, Any], replace_changed: bool = True) -> None:
         self.reused: list[str] = report.setdefault("reused", [])
         self.remade: list[str] = report.setdefault("recomputed", [])
+        self.replace_changed = replace_changed
 
-    def fresh(self, name: str, record: dict[str, Any] | None, wanted: dict[str, Any], overwrite: bool) -> bool:
-        """Return True if the stage's earlier result can be reused (same settings, no ``overwrite``)."""
+    def fresh(self, name: str, record: dict[str, Any] | None, wanted: dict[str, Any], overwrite: bool,
+              where: Path | None = None) -> bool:
+        """Return True if the stage's earlier result can be reused (same settings, no ``overwrite``).
+
+        Raises:
+            OutputError: other settings, neither ``overwrite`` nor ``replace_changed`` (``where``: the stage's folder).
+        """
         if record is None:
             return False
         if overwrite:
@@ -112,10 +125,22 @@ class _Stages:
             return False
         changed = sorted(k for k in set(wanted) | set(record) if k in wanted and record.get(k) != wanted[k])
         if changed:
+            if not self.replace_changed:
+                raise _changed_error(where, name, changed)
             self.remade.append(f"{name} ({', '.join(changed)} changed)")
             return False
         self.reused.append(name)
         return True
+
+
+def _changed_error(where: Path | None, name: str, changed: Sequence[str]) -> Exception:
+    """The refusal to replace a finished stage made with other settings (it says how to go on)."""
+    from ..errors import OutputError
+
+    out = where.parent if where is not None else Path("OUT_DIR")
+    return OutputError(f"{where or name}: the {name} there was made with other settings ({', '.join(changed)} "
+                       f"changed) and would be replaced; give --overwrite to make every stage again, or another "
+                       f"OUT_DIR (with --model {out / 'scene'} --distill {out / 'distill'} it reuses this run's scene)")
 
 
 def _train_record(model_root: Path) -> dict[str, Any] | None:
@@ -144,13 +169,20 @@ def _object_masks(masks: torch.Tensor, object_id: int, views: Sequence[int]) -> 
     return masks[list(views)] == object_id
 
 
-def _picture(cloud: GaussianCloud, path: Path, size: int = 192, renderer: Any = None) -> None:
-    """Write the object from four directions on white."""
+def _picture(cloud: GaussianCloud, path: Path, size: int = 192, renderer: Any = None,
+             cameras: Sequence[Any] = ()) -> None:
+    """Write the object from four directions on white, standing on the training cameras' mean up (z without them)."""
+    from ..errors import ConfigError
     from ..io.files import write_image
     from ..render.renderer import render_cloud
+    from ..render.upright import cameras_up
     from ..render.views import framing_orbit
 
-    cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size)
+    try:
+        up = cameras_up(cameras) if len(cameras) else np.array([0.0, 0.0, 1.0])
+    except ConfigError:  # cameras whose ups cancel out (a capture all around, upside down half the time)
+        up = np.array([0.0, 0.0, 1.0])
+    cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size, up=up)
     row = [render_cloud(cloud, c, renderer=renderer, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy()
            for c in cams]
     write_image(np.concatenate(row, axis=1), path)
@@ -218,7 +250,7 @@ class PreparedScene:
 def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir: str | Path | None = None,
                   distill_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
                   overwrite: bool = False, progress: ProgressFactory = null_progress,
-                  renderer: Any = None) -> PreparedScene:
+                  renderer: Any = None, replace_changed: bool = True) -> PreparedScene:
     """Return the stages the objects of a scene share: the decoded dataset, the trained scene (trained into
     ``out_dir/scene`` unless ``model_dir`` is given) and its distillation (into ``out_dir/distill`` unless
     ``distill_dir`` is given), each reused when a previous run made it with the same settings.
@@ -250,8 +282,9 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
                                    inputs=[data_dir, model_dir, distill_dir])
     renderer = resolve_renderer(renderer)
-    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}}
-    stages = _Stages(report)
+    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {},
+                              "replace_changed": replace_changed}
+    stages = _Stages(report, replace_changed)
     timings = report["stages"]
     downscale = config.downscale
     if downscale is None:
@@ -276,13 +309,17 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
         old = _train_record(model_root)
         if config.single_stage and old is not None and not _Stages({}).fresh("", distill_old, distill_wanted, False):
             old = None  # the features are learned with the scene: a changed distillation means training again
-        if stages.fresh("train", old, train_wanted, overwrite):
+        if stages.fresh("train", old, train_wanted, overwrite, model_root):
             model = find_model(model_root)
             scene = read_ply(model.ply_path)
         else:
             record = files.read_json(model_root / "cfg.json", "training record") \
                 if (model_root / "cfg.json").is_file() else None
             same = isinstance(record, dict) and all(record.get(k) == v for k, v in train_wanted.items())
+            if isinstance(record, dict) and not same and not overwrite and not replace_changed:
+                # an unfinished run of other settings: starting afresh would replace what it wrote
+                raise _changed_error(model_root, "train", sorted(k for k, v in train_wanted.items()
+                                                                 if record.get(k) != v))
             resume = same and checkpoint_file(model_root).is_file() and not overwrite
             if config.single_stage:
                 from .joint import train_joint
@@ -311,7 +348,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
         distill_out = Path(distill_dir)
     else:
         wanted = {**distill_wanted, "model_ply": str(model.ply_path.resolve())}
-        if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite):
+        if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite, distill_out):
             _, cloud, classifier = load_distillation(distill_out, scene)
         else:
             if distilled is None:
@@ -346,7 +383,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
     from .finetune import refine_object
     from .select import prune_selection, select_object
 
-    stages = _Stages(prepared.report)
+    stages = _Stages(prepared.report, bool(prepared.report.get("replace_changed", True)))
     odir = prepared.out / f"object_{object_id}"
     odir.mkdir(exist_ok=True)
     record = prepared.distill_record
@@ -356,9 +393,11 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
               "finetune": _settings(config.finetune), "downscale": prepared.downscale,
               "features_of": record.get("model_ply_sha256"),
               "distillation": {k: record.get(k) for k in ("config", "segmenter", "prompt", "data_dir")}}
+    if config.inpainter_options:  # only when given: records of runs without them stay the same
+        wanted["inpainter_options"] = _settings(config.inpainter_options)
     stage_file = odir / "stage.json"
     old = files.read_json(stage_file, "object record") if stage_file.is_file() else None
-    if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite):
+    if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite, odir):
         return old["entry"]
     entry: dict[str, Any] = {}
     t = time.perf_counter()
@@ -382,6 +421,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
         views = ds.train_indices
         res = refine_object(selected, prepared.scene, ds.images[views], [ds.cameras[v] for v in views],
                             _object_masks(prepared.masks, int(object_id), views), inpainter=config.inpainter,
+                            inpainter_options=config.inpainter_options,
                             occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
                             progress=progress, renderer=prepared.renderer)
         final = res.cloud
@@ -394,7 +434,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
         entry["inpainter"] = res.inpainter
     entry["refine_s"] = time.perf_counter() - t
     write_ply(final, odir / "object.ply")
-    _picture(final, odir / "object.png", renderer=prepared.renderer)
+    _picture(final, odir / "object.png", renderer=prepared.renderer, cameras=prepared.dataset.cameras)
     entry["object_ply"] = str(odir / "object.ply")
     entry["gaussians"] = len(final)
     files.write_json({**wanted, "entry": entry}, stage_file)  # last: marks the object as finished
@@ -404,7 +444,8 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
 def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids: Sequence[int | str], *,
                     model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
                     config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
-                    progress: ProgressFactory = null_progress, renderer: Any = None) -> dict[str, Any]:
+                    progress: ProgressFactory = null_progress, renderer: Any = None,
+                    replace_changed: bool = True) -> dict[str, Any]:
     """Return a report of every stage after writing each object's clean model into ``out_dir``.
 
     Args:
@@ -422,6 +463,12 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
         progress: progress factory.
         renderer: a :class:`~roodi_toolkit.render.renderer.Renderer` (or registered name) every stage renders with;
             default the built-in CPU renderer.
+        replace_changed: make a finished stage of other settings again (True), or refuse to replace it without
+            ``overwrite`` (False: the ``extract`` command, whose outputs are replaced only with ``--overwrite``).
+
+    Raises:
+        OutputError: with ``replace_changed=False``, a finished (or started) stage in ``out_dir`` made with other
+            settings; the message names it, what changed and how to go on.
     """
     from ..io import files
 
@@ -431,7 +478,8 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
     created = not out.exists()
     try:
         prepared = prepare_scene(data_dir, out_dir, model_dir=model_dir, distill_dir=distill_dir, config=config,
-                                 overwrite=overwrite, progress=progress, renderer=renderer)
+                                 overwrite=overwrite, progress=progress, renderer=renderer,
+                                 replace_changed=replace_changed)
     except BaseException:
         # a refused input (a bad click, say) leaves nothing behind; a partly trained scene stays, to resume from
         if created and out.is_dir() and not any(p.is_file() for p in out.rglob("*")):
