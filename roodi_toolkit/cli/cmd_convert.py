@@ -18,6 +18,9 @@ EPILOG = """Examples:
   roodi-toolkit convert scene.ply turned.ply -r 0,0,90 -t 0,1,0 -s 2     # as splat-transform scene.ply -r ... out
   roodi-toolkit convert biker.spz upright.ply --up 0,-1,0                 # its up (-y) becomes +z
   roodi-toolkit convert splat.ply scene.ply --up ../captures/room         # the capture's camera up becomes +z
+  roodi-toolkit convert exports/splat.ply scene.ply --data captures/room \
+      --dataparser-transforms outputs/room/splatfacto/RUN/dataparser_transforms.json   # back in the capture's frame
+  roodi-toolkit convert results/garden/ckpts/ckpt_29999_rank0.pt garden.ply  # gsplat's world undone (data: cfg.yml)
 """
 
 TRANSFORM_OPTIONS = {"translate": "--translate", "rotate": "--rotate", "scale": "--scale"}
@@ -52,33 +55,57 @@ class _OrderedActions(click.Command):
 @click.option("-s", "--scale", multiple=True, metavar="S",
               help="Scale the Gaussians (positions and sizes) by S > 0 about the origin (repeatable; "
                    "splat-transform's -s).")
+@click.option("--data", "data_dir", type=click.Path(path_type=str), default=None,
+              help="IN is a trained model in another frame than its data (a gsplat checkpoint or result folder, a "
+                   "nerfstudio export with --dataparser-transforms, an Inria folder): move it into this data "
+                   "folder's frame [the data its record names].")
+@click.option("--dataparser-transforms", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="IN is a nerfstudio export: its training run's dataparser_transforms.json (needs --data).")
 @click.option("--up", "up_spec", default=None, metavar="X,Y,Z|DATASET",
               help="Turn the splat so that this direction, in the file's own axes, becomes +z (the toolkit's up), "
                    "before the other moves: X,Y,Z, or a dataset or camera file whose cameras' mean up is taken.")
 @overwrite_option
 def convert(input_path: str, output_path: str, filter_nan: bool, filter_absurd_scales: bool,
-            translate: tuple[str, ...], rotate: tuple[str, ...], scale: tuple[str, ...], up_spec: str | None,
-            overwrite: bool) -> None:
+            translate: tuple[str, ...], rotate: tuple[str, ...], scale: tuple[str, ...], data_dir: str | None,
+            dataparser_transforms: str | None, up_spec: str | None, overwrite: bool) -> None:
     """Convert IN (PLY, compressed PLY, SPZ, SOG .sog/meta.json, .splat, .ksplat; detected by content) to OUT.
 
     OUT's extension picks the format: .ply, .compressed.ply or .spz. OUT is written atomically, never over IN.
     -t, -r and -s move the splat exactly as splat-transform 2.7.1 does with the same numbers, in the order given
     (positions, rotations, sizes and every SH band; checked against its output).
+
+    IN may also be a model another tool trained (a gsplat checkpoint or result folder, an Inria output folder, a
+    nerfstudio export with --dataparser-transforms and --data): OUT is then its scene in the data's frame, where the
+    other commands expect it.
     """
     from roodi_toolkit.io.files import check_output
     from roodi_toolkit.io.splat import input_paths, output_format, read_cloud_report, write_cloud
 
     fmt = output_format(output_path)  # refuse an unknown extension before reading
     move = _moves(click.get_current_context().meta.get("convert_actions", []), up_spec)
-    check_output(output_path, overwrite=overwrite, inputs=[*input_paths(input_path),
+    check_output(output_path, overwrite=overwrite, inputs=[*input_paths(input_path), data_dir, dataparser_transforms,
                                                            *([up_spec] if up_spec and _is_path(up_spec) else [])])
-    cloud, report = read_cloud_report(input_path)
+    model_note = ""
+    if data_dir is not None or dataparser_transforms is not None or _is_model(input_path):
+        from roodi_toolkit.io.model import open_model
+
+        model = open_model(input_path, data_dir, dataparser_transforms=dataparser_transforms)
+        if model.frames:
+            raise click.UsageError(f"{input_path}: two gsplat versions normalise this data differently and only the "
+                                   "photos can tell which one trained it; give it to extract or distill (which "
+                                   "check the photos) instead of convert")
+        cloud = model.read_cloud()
+        report = _ModelReport(model.kind)
+        model_note = f"; {model.kind} model moved into {model.config.get('data_dir')}'s frame" \
+            if model.to_data is not None else ""
+    else:
+        cloud, report = read_cloud_report(input_path)
     dropped = 0
     if filter_nan:
         bad = cloud.nonfinite_rows()
         dropped = int(bad.sum())
         cloud = cloud.select(~bad)
-    extra = f"; dropped {dropped:,} NaN/Inf rows" if dropped else ""
+    extra = (f"; dropped {dropped:,} NaN/Inf rows" if dropped else "") + model_note
     if filter_absurd_scales:
         from roodi_toolkit.stats import absurd_scale_rows
 
@@ -94,6 +121,24 @@ def convert(input_path: str, output_path: str, filter_nan: bool, filter_absurd_s
     inf = report.opacity_pos_inf + report.opacity_neg_inf
     extra += f"; {inf:,} +-inf opacities read as fully opaque/transparent" if inf else ""
     click.echo(f"converted {len(cloud):,} Gaussians from {report.format} to {fmt}: wrote {output_path}{extra}")
+
+
+class _ModelReport:
+    """What :func:`~roodi_toolkit.io.splat.read_cloud_report` says of a file, for a model read through its folder."""
+
+    def __init__(self, kind: str) -> None:
+        self.format = f"a {kind} model"
+        self.opacity_pos_inf = self.opacity_neg_inf = 0
+
+
+def _is_model(path: str) -> bool:
+    """Whether IN is a model folder or a gsplat checkpoint rather than a splat file."""
+    from pathlib import Path
+
+    from roodi_toolkit.io.other_models import GSPLAT_CKPT
+
+    p = Path(path)
+    return (p.is_dir() and not (p / "meta.json").is_file()) or GSPLAT_CKPT.fullmatch(p.name) is not None
 
 
 def _is_path(spec: str) -> bool:

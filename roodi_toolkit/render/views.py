@@ -75,13 +75,22 @@ def model_cameras(ply: str | os.PathLike) -> list[Camera] | None:
     """Return the training cameras of the model a PLY belongs to, or None.
 
     A ``roodi-toolkit train`` output keeps its scene at ``MODEL/point_cloud/iteration_N/point_cloud.ply`` beside
-    ``MODEL/cfg.json``, whose ``data_dir`` names the dataset; None when there is no such record or the dataset is gone.
+    ``MODEL/cfg.json``, whose ``data_dir`` names the dataset; an Inria output keeps its cameras in ``cameras.json``;
+    None when there is no such record or the dataset is gone.
     """
     from ..errors import RoodiError
     from ..io.dataset import load_cameras
     from ..io.files import read_json
 
     root = Path(ply).resolve().parent.parent.parent
+    inria = (root / "cfg_args").is_file() and (root / "cameras.json").is_file()
+    if inria and Path(ply).resolve().parent.parent.name == "point_cloud":  # an Inria model: its own cameras
+        from ..io.other_models import load_inria_cameras
+
+        try:
+            return load_inria_cameras(root / "cameras.json")
+        except RoodiError:
+            return None
     record = root / "cfg.json"
     if Path(ply).resolve().parent.parent.name != "point_cloud" or not record.is_file():
         return None
