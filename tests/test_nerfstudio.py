@@ -378,3 +378,73 @@ def test_cli_warns_in_one_line_about_missing_images(tmp_path: Path, run_cli) -> 
     lines = res.stderr.strip().splitlines()
     assert lines == [f"warning: {tmp_path / 'cap' / 'transforms.json'}: 1 of the 5 listed images are missing "
                      f"(images/{cams[2].name}.png); using the other 4 frames"], lines
+
+
+# ------------------------------------------------------------------------------------------------------ instant-ngp
+def instant_ngp_capture(root: Path, listed: int = 12, missing: int = 3) -> tuple[dict, list[str]]:
+    """Write an instant-ngp capture as its ``colmap2nerf.py`` writes one: global ``fl_x fl_y cx cy w h k1 k2 p1 p2``,
+    ``camera_angle_x/y``, ``aabb_scale``, per-frame ``sharpness``, ``./images/NNNN.jpg`` paths; portrait photos
+    (36x64, a 1080x1920 phone's shape) of the object scene seen through a distorting lens; ``missing`` of the
+    ``listed`` photos absent. Return the meta and the names of the photos present."""
+    import cv2
+
+    from roodi_toolkit.render.renderer import render_cloud
+    from tests.object_scene import object_cloud
+
+    w, h = 36, 64
+    fx = fy = 48.0
+    cx, cy = 18.4, 31.6
+    k = [-0.12, 0.03, 0.001, -0.002]
+    cloud, _ = object_cloud()
+    cams = orbit_cameras((0, 0, -0.1), 3.0, listed, elevation_deg=35, width=w, height=h, fov_x_deg=60)
+    (root / "images").mkdir(parents=True)
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    rx, ry = _undistort((u - cx) / fx, (v - cy) / fy, "OPENCV", k)
+    frames, present = [], []
+    for i, cam in enumerate(cams):
+        name = f"{i + 1:04d}"
+        pin = Camera(cam.world_to_camera, np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), w, h)
+        sharp = render_cloud(cloud, pin, background=(0.0, 0.0, 0.0)).rgb.clamp(0, 1).numpy()
+        # the photo through the lens: each photo pixel shows the pinhole image at its ray
+        photo = cv2.remap(sharp, (rx * fx + cx - 0.5).astype(np.float32), (ry * fy + cy - 0.5).astype(np.float32),
+                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if i % (listed // missing) != 1:
+            write_image(photo, root / "images" / f"{name}.jpg")
+            present.append(name)
+        frames.append({"file_path": f"./images/{name}.jpg", "sharpness": 50.0 + i,
+                       "transform_matrix": w2c_to_opengl_c2w(cam.world_to_camera).tolist()})
+    meta = {"camera_angle_x": 2 * math.atan(w / (2 * fx)), "camera_angle_y": 2 * math.atan(h / (2 * fy)),
+            "fl_x": fx, "fl_y": fy, "k1": k[0], "k2": k[1], "p1": k[2], "p2": k[3], "cx": cx, "cy": cy, "w": w, "h": h,
+            "aabb_scale": 4, "frames": frames}
+    (root / "transforms.json").write_text(json.dumps(meta, indent=2))
+    return meta, present
+
+
+def test_instant_ngp_capture_trains_distils_and_extracts(tmp_path: Path, run_cli) -> None:
+    cap = tmp_path / "capture"
+    _, present = instant_ngp_capture(cap)
+    res = run_cli("train", cap, tmp_path / "model", "--iterations", "150", "--init-points", "800", "--eval-every",
+                  "0", "-q")
+    assert res.exit_code == 0, res.stderr
+    warned = [line for line in res.stderr.splitlines() if line.startswith("warning:")]
+    assert any("3 of the 12 listed images are missing" in line for line in warned), res.stderr
+    cfg = json.loads((tmp_path / "model" / "cfg.json").read_text())
+    assert Path(cfg["data_dir"]) == cap.resolve()
+    view = present[1]  # 0003: the red ball around x 23, y 34 of the photo
+    res = run_cli("distill", tmp_path / "model", cap, tmp_path / "dist", "--segmenter", "click", "--click",
+                  f"{view}:23,34", "--iterations", "15", "-q")
+    assert res.exit_code == 0, res.stderr
+    res = run_cli("extract", tmp_path / "out", "--model", tmp_path / "model", "--click", "23,34", "--view", view,
+                  "--no-inpaint", "--distill-iterations", "15", "-q")
+    assert res.exit_code == 0, res.stderr
+    assert (tmp_path / "out" / "object_1" / "object.ply").is_file()
+
+
+def test_instant_ngp_photos_are_undistorted_portrait(tmp_path: Path) -> None:
+    cap = tmp_path / "capture"
+    _, present = instant_ngp_capture(cap)
+    with pytest.warns(InputWarning):
+        ds = load_dataset(cap, test_every=0)
+    assert ds.names == present and ds.images.shape[1:3] == (64, 36)
+    assert ds.metadata["camera_models"] == ["OPENCV"] and ds.metadata["aabb_scale"] == 4
+    assert ds.metadata["frames_listed"] == 12 and ds.metadata["frames_missing"] == 3
