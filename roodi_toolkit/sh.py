@@ -11,11 +11,8 @@ import torch
 from torch import Tensor
 
 from .errors import ConfigError
-from .gaussians import SH_C0  # defined with the cloud, whose colour needs it without importing torch
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
-         1.445305721320277, -0.5900435899266435)
+# defined with the cloud, whose colour needs them without importing torch (and moving a cloud turns its SH bands)
+from .gaussians import SH_C0, SH_C1, SH_C2, SH_C3
 
 
 def num_sh_bases(degree: int) -> int:
@@ -86,45 +83,3 @@ def eval_sh_colors(sh: Tensor, dirs: Tensor, degree: int | None = None) -> Tenso
     bases = sh_bases(degree, unit)  # [N, n]
     return torch.clamp_min(torch.einsum("nk,nkc->nc", bases, sh[:, :n]) + 0.5, 0.0)
 
-
-def sh_rotation(rotation, degree: int):
-    """Return the ``[K-1, K-1]`` float64 matrix (K = (degree+1)^2) that rotates the higher SH coefficients of a
-    Gaussian whose world is rotated by ``rotation``: ``rest_new = M @ rest`` (coefficient-major, as ``sh_rest``).
-
-    The rotated colour must be the old colour seen from the old direction, ``f_new(R d) = f(d)``. Each band is an
-    invariant subspace of the rotations, so the band's block is solved exactly (to float64 rounding) by least squares
-    over directions spread on the sphere: ``Y(D R) = Y(D) M^T`` for directions ``D`` as rows. Bands are never mixed,
-    and the DC term is unchanged.
-
-    Args:
-        rotation: a proper rotation. [3, 3]
-        degree: the SH degree, 0..3 (0 gives a ``[0, 0]`` matrix).
-
-    Example:
-        >>> import numpy as np
-        >>> M = sh_rotation(np.diag([-1.0, -1.0, 1.0]), 1)  # half a turn about z: the x and y bases change sign
-        >>> (np.round(M, 12) + 0.0).tolist()
-        [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]
-    """
-    import numpy as np
-
-    R = np.asarray(rotation, dtype=np.float64)
-    if R.shape != (3, 3):
-        raise ConfigError(f"an SH rotation needs a [3, 3] rotation matrix, got {list(R.shape)}")
-    k = num_sh_bases(degree)
-    out = np.zeros((k - 1, k - 1))
-    if k == 1:
-        return out
-    # a fixed, well spread set of directions: a Fibonacci sphere of 64 points (far more than the 7 of band 3)
-    i = np.arange(64) + 0.5
-    z = 1.0 - 2.0 * i / 64
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * i
-    dirs = np.stack([np.sqrt(1.0 - z * z) * np.cos(phi), np.sqrt(1.0 - z * z) * np.sin(phi), z], axis=1)  # [64, 3]
-    Y = sh_bases(degree, torch.from_numpy(dirs)).numpy()  # [64, K]
-    Y_rot = sh_bases(degree, torch.from_numpy(dirs @ R)).numpy()  # rows R^T d: the old direction of each new one
-    for band in range(1, degree + 1):
-        sl = slice(band * band, (band + 1) * (band + 1))
-        # f_new(d) = f(R^T d): Y(d) . c_new = Y(R^T d) . c for every d, so c_new = pinv(Y) Y_rot c
-        block, *_ = np.linalg.lstsq(Y[:, sl], Y_rot[:, sl], rcond=None)
-        out[sl.start - 1:sl.stop - 1, sl.start - 1:sl.stop - 1] = block
-    return out

@@ -2,7 +2,7 @@
 
 A similarity ``p -> s R p + t`` moves every part of a Gaussian: its mean, its rotation (``q_R * q``), its scales
 (``+ log s``) and its view-dependent colour: every SH band is rotated by its exact Wigner block
-(:func:`roodi_toolkit.sh.sh_rotation`), so a rotated cloud looks from the rotated cameras exactly as the original did
+(:func:`sh_rotation`), so a rotated cloud looks from the rotated cameras exactly as the original did
 from the original ones. Mirror images are refused: a Gaussian's rotation cannot hold one.
 
 The same type says how a file's frame relates to a dataset's (a nerfstudio export and its
@@ -19,10 +19,10 @@ from typing import Sequence
 import numpy as np
 
 from .errors import ConfigError
-from .gaussians import GaussianCloud
+from .gaussians import SH_C0, SH_C1, SH_C2, SH_C3, GaussianCloud
 
-__all__ = ["Similarity", "euler_rotation", "rotation_between", "splat_transform_actions", "transform_cloud",
-           "SPLAT_TRANSFORM_FRAME"]
+__all__ = ["Similarity", "euler_rotation", "rotation_between", "sh_rotation", "splat_transform_actions",
+           "transform_cloud", "SPLAT_TRANSFORM_FRAME"]
 
 ROTATION_TOLERANCE = 1e-4
 """Largest deviation from orthonormal accepted in a rotation read from a file (float32 files round to ~1e-7)."""
@@ -202,6 +202,65 @@ def splat_transform_actions(actions: Sequence[tuple[str, Sequence[float] | float
     return total.conjugated(SPLAT_TRANSFORM_FRAME)
 
 
+def _sh_basis_values(degree: int, dirs: np.ndarray) -> np.ndarray:
+    """Return the real SH basis ``[N, (degree+1)^2]`` at unit directions ``[N, 3]``: :func:`roodi_toolkit.sh.sh_bases`
+    in NumPy (a moved cloud needs no PyTorch; the tests keep the two equal)."""
+    x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    out = [np.full_like(x, SH_C0)]
+    if degree >= 1:
+        out += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
+    if degree >= 2:
+        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+        out += [SH_C2[0] * xy, SH_C2[1] * yz, SH_C2[2] * (2.0 * zz - xx - yy), SH_C2[3] * xz, SH_C2[4] * (xx - yy)]
+    if degree >= 3:
+        out += [SH_C3[0] * y * (3.0 * xx - yy), SH_C3[1] * xy * z, SH_C3[2] * y * (4.0 * zz - xx - yy),
+                SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy), SH_C3[4] * x * (4.0 * zz - xx - yy),
+                SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3.0 * yy)]
+    return np.stack(out, axis=-1)
+
+
+def sh_rotation(rotation: np.ndarray, degree: int) -> np.ndarray:
+    """Return the ``[K-1, K-1]`` float64 matrix (K = (degree+1)^2) that rotates the higher SH coefficients of a
+    Gaussian whose world is rotated by ``rotation``: ``rest_new = M @ rest`` (coefficient-major, as ``sh_rest``).
+
+    The rotated colour must be the old colour seen from the old direction, ``f_new(R d) = f(d)``. Each band is an
+    invariant subspace of the rotations, so the band's block is solved exactly (to float64 rounding) by least squares
+    over directions spread on the sphere: ``Y(D R) = Y(D) M^T`` for directions ``D`` as rows. Bands are never mixed,
+    and the DC term is unchanged.
+
+    Args:
+        rotation: a proper rotation. [3, 3]
+        degree: the SH degree, 0..3 (0 gives a ``[0, 0]`` matrix).
+
+    Example:
+        >>> M = sh_rotation(np.diag([-1.0, -1.0, 1.0]), 1)  # half a turn about z: the x and y bases change sign
+        >>> (np.round(M, 12) + 0.0).tolist()
+        [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]
+    """
+    R = np.asarray(rotation, dtype=np.float64)
+    if R.shape != (3, 3):
+        raise ConfigError(f"an SH rotation needs a [3, 3] rotation matrix, got {list(R.shape)}")
+    if degree not in (0, 1, 2, 3):
+        raise ConfigError(f"SH degree must be 0, 1, 2 or 3, got {degree}")
+    k = (degree + 1) ** 2
+    out = np.zeros((k - 1, k - 1))
+    if k == 1:
+        return out
+    # a fixed, well spread set of directions: a Fibonacci sphere of 64 points (far more than the 7 of band 3)
+    i = np.arange(64) + 0.5
+    z = 1.0 - 2.0 * i / 64
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * i
+    dirs = np.stack([np.sqrt(1.0 - z * z) * np.cos(phi), np.sqrt(1.0 - z * z) * np.sin(phi), z], axis=1)  # [64, 3]
+    Y = _sh_basis_values(degree, dirs)  # [64, K]
+    Y_rot = _sh_basis_values(degree, dirs @ R)  # rows R^T d: the old direction of each new one
+    for band in range(1, degree + 1):
+        sl = slice(band * band, (band + 1) * (band + 1))
+        # f_new(d) = f(R^T d): Y(d) . c_new = Y(R^T d) . c for every d, so c_new = pinv(Y) Y_rot c
+        block, *_ = np.linalg.lstsq(Y[:, sl], Y_rot[:, sl], rcond=None)
+        out[sl.start - 1:sl.stop - 1, sl.start - 1:sl.stop - 1] = block
+    return out
+
+
 def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Return the Hamilton products ``a * b`` of w,x,y,z quaternions (``a`` [4] or [N, 4], ``b`` [N, 4])."""
     aw, ax, ay, az = np.moveaxis(np.broadcast_to(a, b.shape), -1, 0)
@@ -226,7 +285,6 @@ def transform_cloud(cloud: GaussianCloud, similarity: Similarity) -> GaussianClo
         ([[0.0, 2.0, 0.0]], [[0.2, 0.2, 0.2]])
     """
     from .cameras import rotmat_to_qvec
-    from .sh import sh_rotation
 
     if similarity.is_identity():
         return cloud.copy()

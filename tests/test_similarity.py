@@ -12,9 +12,9 @@ import pytest
 import torch
 
 from roodi_toolkit.errors import ConfigError
-from roodi_toolkit.similarity import (Similarity, euler_rotation, rotation_between, splat_transform_actions,
-                                      transform_cloud)
-from roodi_toolkit.sh import eval_sh_colors, sh_rotation
+from roodi_toolkit.similarity import (Similarity, _sh_basis_values, euler_rotation, rotation_between, sh_rotation,
+                                      splat_transform_actions, transform_cloud)
+from roodi_toolkit.sh import eval_sh_colors, sh_bases
 from tests.test_formats import _splat_transform, make_cloud
 
 REAL_SH = Path(__file__).parent / "data" / "real_sh" / "playbot_lod3_1000.ply"
@@ -39,6 +39,12 @@ def test_rotated_sh_gives_the_old_colour_from_the_turned_direction(degree: int) 
     before = eval_sh_colors(sh + 5.0 * (torch.arange(k) == 0)[None, :, None], dirs)  # +5 DC: nothing clamps at 0
     after = eval_sh_colors(turned + 5.0 * (torch.arange(k) == 0)[None, :, None], dirs @ torch.from_numpy(R).T)
     torch.testing.assert_close(after, before, atol=1e-12, rtol=0)
+
+
+def test_numpy_sh_basis_is_the_renderers() -> None:
+    dirs = np.random.default_rng(0).normal(size=(50, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    np.testing.assert_array_equal(_sh_basis_values(3, dirs), sh_bases(3, torch.from_numpy(dirs)).numpy())
 
 
 def test_sh_rotations_compose_and_are_orthogonal() -> None:
