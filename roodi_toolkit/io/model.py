@@ -331,17 +331,24 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
     data = _recorded_data(root, cfg.get("data_dir"), record, data_dir) if data_dir is not None or cfg else None
     if data is None:
         raise ModelError(f"{files[0]}: no {om.GSPLAT_CONFIG} beside its ckpts folder names the data; give DATA_DIR")
-    factor = cfg.get("data_factor", 1)
-    try:
-        downscale = max(1.0, float(factor))
-    except (TypeError, ValueError):
-        raise ModelError(f"{record}: 'data_factor' must be a number, got {factor!r}") from None
-    config = {"data_dir": str(data), "downscale": downscale, "holdout_every": int(cfg.get("test_every", 8) or 0),
-              "sh_degree": cfg.get("sh_degree")}
-    normalize = bool(cfg.get("normalize_world_space", True))
+    numbers = {}
+    for key, default in (("data_factor", 1), ("test_every", 8)):
+        value = cfg.get(key, default)
+        try:
+            numbers[key] = float(value)
+        except (TypeError, ValueError, OverflowError):
+            raise ModelError(f"{record}: '{key}' must be a number, got {value!r}") from None
+        if not (0 <= numbers[key] < 1e6) or numbers[key] != int(numbers[key]):
+            raise ModelError(f"{record}: '{key}' must be a whole number >= 0, got {value!r}")
+    config = {"data_dir": str(data), "downscale": max(1.0, numbers["data_factor"]),
+              "holdout_every": int(numbers["test_every"]), "sh_degree": cfg.get("sh_degree")}
+    normalize = cfg.get("normalize_world_space", True)
+    if not isinstance(normalize, bool):
+        raise ModelError(f"{record}: 'normalize_world_space' must be true or false, got {normalize!r}")
     notes = [f"gsplat checkpoint, step {step}" + ("" if cfg else f" (no {om.GSPLAT_CONFIG}: gsplat's defaults "
                                                                   "taken, normalize_world_space on)")]
     model = ModelFolder(root, files[0], step, config, kind="gsplat", notes=notes)
+    cloud = model.read_cloud()  # a broken checkpoint is named before anything else is looked at
     cams = list(data_cameras) if data_cameras is not None else _quiet_cameras(data)
     if normalize:
         sparse = _find_colmap_sparse(data) if data.is_dir() else None
@@ -349,7 +356,6 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
             raise ModelError(f"{files[0]}: gsplat normalised its world from a COLMAP capture, but {data} has no "
                              "sparse/0; give the COLMAP data folder it was trained on")
         frames = [f.inverse() for f in om.gsplat_frames(sparse)]
-        cloud = model.read_cloud()
         seen = [om.seen_fraction(transform_cloud(cloud, f), cams) for f in frames]
         keep = [f for f, s in zip(frames, seen) if s >= SEEN_MIN]
         if not keep:
