@@ -331,20 +331,9 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
     data = _recorded_data(root, cfg.get("data_dir"), record, data_dir) if data_dir is not None or cfg else None
     if data is None:
         raise ModelError(f"{files[0]}: no {om.GSPLAT_CONFIG} beside its ckpts folder names the data; give DATA_DIR")
-    numbers = {}
-    for key, default in (("data_factor", 1), ("test_every", 8)):
-        value = cfg.get(key, default)
-        try:
-            numbers[key] = float(value)
-        except (TypeError, ValueError, OverflowError):
-            raise ModelError(f"{record}: '{key}' must be a number, got {value!r}") from None
-        if not (0 <= numbers[key] < 1e6) or numbers[key] != int(numbers[key]):
-            raise ModelError(f"{record}: '{key}' must be a whole number >= 0, got {value!r}")
-    config = {"data_dir": str(data), "downscale": max(1.0, numbers["data_factor"]),
-              "holdout_every": int(numbers["test_every"]), "sh_degree": cfg.get("sh_degree")}
-    normalize = cfg.get("normalize_world_space", True)
-    if not isinstance(normalize, bool):
-        raise ModelError(f"{record}: 'normalize_world_space' must be true or false, got {normalize!r}")
+    settings = om.gsplat_settings(cfg, record)
+    normalize = settings.pop("normalize")
+    config = {"data_dir": str(data), **settings}
     notes = [f"gsplat checkpoint, step {step}" + ("" if cfg else f" (no {om.GSPLAT_CONFIG}: gsplat's defaults "
                                                                   "taken, normalize_world_space on)")]
     model = ModelFolder(root, files[0], step, config, kind="gsplat", notes=notes)

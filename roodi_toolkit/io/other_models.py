@@ -349,6 +349,29 @@ def read_gsplat_config(root: Path) -> dict[str, Any]:
     return data
 
 
+def gsplat_settings(cfg: dict[str, Any], record: Path) -> dict[str, Any]:
+    """Return this toolkit's record keys (``downscale``, ``holdout_every``, ``sh_degree``) and ``normalize`` from a
+    gsplat ``cfg.yml`` (gsplat's defaults for the keys it lacks: factor 1 here, every 8th held out, normalised).
+
+    Raises:
+        ModelError: a value of the wrong kind (named).
+    """
+    numbers = {}
+    for key, default in (("data_factor", 1), ("test_every", 8)):
+        value = cfg.get(key, default)
+        try:
+            numbers[key] = float(value)
+        except (TypeError, ValueError, OverflowError):
+            raise _model_error(f"{record}: '{key}' must be a number, got {value!r}") from None
+        if not (0 <= numbers[key] < 1e6) or numbers[key] != int(numbers[key]):
+            raise _model_error(f"{record}: '{key}' must be a whole number >= 0, got {value!r}")
+    normalize = cfg.get("normalize_world_space", True)
+    if not isinstance(normalize, bool):
+        raise _model_error(f"{record}: 'normalize_world_space' must be true or false, got {normalize!r}")
+    return {"downscale": max(1.0, numbers["data_factor"]), "holdout_every": int(numbers["test_every"]),
+            "sh_degree": cfg.get("sh_degree"), "normalize": normalize}
+
+
 def _similarity_from_cameras(c2w: np.ndarray) -> np.ndarray:
     """gsplat's ``similarity_from_cameras`` (centre ``focus``, median scaling): the ``[4, 4]`` normalising matrix."""
     t = c2w[:, :3, 3]

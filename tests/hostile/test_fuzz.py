@@ -338,7 +338,7 @@ def _run_cases(reader: str, n: int, tmp: Path, seed: int = 0) -> Counter:
                 if reader == "gsplat_ckpt":
                     return om.read_gsplat_checkpoint([path])
                 if reader == "gsplat_cfg":
-                    return om.read_gsplat_config(folder)
+                    return om.gsplat_settings(om.read_gsplat_config(folder), path)
                 return om.read_dataparser_transforms(path)
             return what, read, path
     else:
