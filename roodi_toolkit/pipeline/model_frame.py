@@ -65,8 +65,9 @@ def settle_model_frame(model: Any, dataset: Dataset, renderer: Any = None) -> di
     was measured (for the report). A model this toolkit trained is not checked.
 
     Raises:
-        ConfigError: rendered from the training cameras, the scene explains the photos no better than
-            :data:`MATCH_RATIO` of an empty picture: it lies in another frame than the data, or shows other photos.
+        ConfigError: rendered from the training cameras, the scene's error on the photos is not below
+            :data:`MATCH_RATIO` of an empty picture's error: it lies in another frame than the data, or shows other
+            photos.
     """
     from ..io.model import read_scene
     from ..similarity import transform_cloud
@@ -89,8 +90,9 @@ def settle_model_frame(model: Any, dataset: Dataset, renderer: Any = None) -> di
                            f"(squared error {err:.4g} against {max(e for e, _ in results):.4g})")
     if not err < MATCH_RATIO * empty:
         raise ConfigError(f"{model.ply_path}: rendered from {len(views)} training cameras of the data it explains "
-                          f"their photos no better than an empty picture (squared error {err:.4g}, empty "
-                          f"{empty:.4g}): the model lies in another frame than the data, or shows other photos")
+                          f"their photos less than {-10 * np.log10(MATCH_RATIO):.0f} dB better than an empty picture "
+                          f"(squared error {err:.4g}, empty {empty:.4g}): the model lies in another frame than the "
+                          "data, or shows other photos")
     model.notes.append(f"its renders explain the photos (squared error {err:.4g}, an empty picture's {empty:.4g})")
     return {"model_check_error": err, "model_check_empty": empty}
 
