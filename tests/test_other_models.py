@@ -108,6 +108,9 @@ def test_inria_ply_prunes_with_its_photos_and_renders_upright(scene, tmp_path, r
     res = run_cli("render", ply, tmp_path / "r", "--up", "auto", "--orbit", "1", "--size", "8x8")
     assert res.exit_code == 0, res.stderr
     assert "the mean up of the model's training cameras" in res.stderr
+    res = run_cli("render", ply, tmp_path / "views", "--cameras", inria / "cameras.json", "-q")  # its own cameras
+    assert res.exit_code == 0, res.stderr
+    assert len(list((tmp_path / "views").glob("r_*.png"))) == 8
 
 
 # ----------------------------------------------------------------------------------------------------------- gsplat

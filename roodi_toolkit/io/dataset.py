@@ -241,7 +241,7 @@ def load_cameras(path: str | os.PathLike, *, splits: Sequence[str] | None = None
     if p.is_dir() and _is_colmap_model_dir(p):
         return load_colmap_cameras(p)
     if p.is_file() and p.name == "cameras.json":
-        from .model import is_inria_cameras_file, load_inria_cameras
+        from .other_models import is_inria_cameras_file, load_inria_cameras
 
         if is_inria_cameras_file(p):
             return load_inria_cameras(p)
