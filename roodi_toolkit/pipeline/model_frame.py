@@ -24,9 +24,9 @@ CHECK_WIDTH = 160
 MATCH_RATIO = 0.5
 """The scene's squared error on its training photos must be below this share of an empty rendering's (3 dB better
 than the background alone, as the prune's photo check asks). Measured (``benchmarks/RESULTS.md``, "Captures and models
-as people bring them"): a weak model of the real statue (300 steps at 1/8) scores 0.17 in its own frame and 0.33-0.54
-turned or scaled about its centre; the tests' object scene 6e-6 in its frame and 0.69 scaled by 0.37 (a nerfstudio
-export without its transform). So this refuses a scene of other photos or far off, not a subtly turned one: the
+as people bring them"): a weak model of the real statue (300 steps at 1/8) scores 0.14 in its own frame and 0.28-0.38
+turned or scaled about its centre (0.15 moved by 0.3, a tenth of its size); the tests' object scene 6e-6 in its frame
+and 0.69 scaled by 0.37 (a nerfstudio export without its transform). So this refuses a scene of other photos or far off, not a subtly turned one: the
 cameras (``cameras.json``) and the share of Gaussians in view (:data:`roodi_toolkit.io.model.SEEN_MIN`) judge frames;
 the photos choose between two candidate frames by the lower ratio, which needs no threshold."""
 
