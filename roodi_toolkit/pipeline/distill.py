@@ -569,10 +569,9 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
     """Segment and distil a trained model folder into a distillation folder ``out_dir``; return its record
     (``renderer``: draws every view, the click segmenter's included; default the built-in CPU renderer).
 
-    Reads ``MODEL_DIR/point_cloud/iteration_N/point_cloud.ply`` (highest N) and ``cfg.json`` (downscale and the
-    held-out views of training, which are scored here too), or a model another tool trained
-    (:func:`~roodi_toolkit.io.model.open_model`; ``dataparser_transforms`` with a nerfstudio export), checked against
-    the photos first (:func:`~roodi_toolkit.pipeline.model_frame.settle_model_frame`). Writes into ``out_dir`` only (see
+    Reads ``MODEL_DIR`` as :func:`~roodi_toolkit.io.model.open_model` does (``point_cloud/iteration_N``, ``cfg.json``
+    with the downscale and held-out views, also scored here; or another tool's model, checked against the photos
+    by :func:`~roodi_toolkit.pipeline.model_frame.settle_model_frame`). Writes into ``out_dir`` only (see
     :mod:`roodi_toolkit.io.model`): ``features.npy``, ``object_classifier.pt``, ``object_masks/<view>.png``,
     ``distill.png`` (per view: image, masks, rendered classes, rendered probability of the predicted class) and
     ``distill.json``. The model folder and the data folder are inputs and are never written.
