@@ -20,12 +20,17 @@ EXAMPLE = """Example:
   roodi-toolkit train captures/statue models/statue --downscale 4
   roodi-toolkit extract statue_out/ --model models/statue --click 520,300 --view DSC_5283
       # data folder and resolution from the model's cfg.json; the click in the photo's own pixels
+  roodi-toolkit extract out/ --model inria_output/ --click 520,300          # an Inria model: data from cfg_args
+  roodi-toolkit extract capture/ out/ --model exports/splat.ply \
+      --dataparser-transforms outputs/capture/splatfacto/RUN/dataparser_transforms.json --click 520,300
 """
 
 
 _OPTIONS = [
     click.option("--model", "model_dir", type=click.Path(path_type=str), default=None,
-                 help="Use this trained scene (roodi-toolkit train output) instead of training one; only read."),
+                 help="Use this trained scene instead of training one; only read: a roodi-toolkit train output, an "
+                      "Inria or gsplat output folder, a gsplat ckpt_N_rank0.pt, or any splat file (with DATA_DIR; a "
+                      "nerfstudio export with --dataparser-transforms)."),
     click.option("--distill", "distill_dir", type=click.Path(path_type=str), default=None,
                  help="Use this distillation of --model (roodi-toolkit distill output) instead of distilling; "
                       "only read."),
@@ -106,19 +111,23 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
 @click.option("--masks", "mask_dir", type=click.Path(file_okay=False, path_type=str), default=None,
               help="files segmenter: a folder of mask PNGs named like the views [the dataset's own masks].")
 @extract_options
+@click.option("--dataparser-transforms", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="With a nerfstudio export (ns-export gaussian-splat's splat.ply) as --model: its training run's "
+                   "dataparser_transforms.json, which moves it back into the data's frame.")
 @overwrite_option
 @renderer_option
 @quiet_option
 def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[str, ...],
             negative_clicks: tuple[str, ...], view: str | None,
             segmenter: str | None, segmenter_options: tuple[str, ...], mask_dir: str | None,
-            model_dir: str | None, distill_dir: str | None,
+            model_dir: str | None, distill_dir: str | None, dataparser_transforms: str | None,
             overwrite: bool, renderer: Any, quiet: bool, **stage_options: Any) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
 
     The object is chosen by instance id (--object, datasets with masks), by clicks (--click X,Y --view IMAGE_NAME)
     or by a segmenter plugin's masks (--segmenter). With --model, DATA_DIR and --downscale default to the ones its
-    cfg.json records.
+    record names (cfg.json; an Inria model's cfg_args, a gsplat run's cfg.yml); a model from another tool is checked
+    against the data's cameras and photos, and refused, with the reason, when they do not fit.
 
     Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object) that were made
     with the same settings and says which it reused; a stage made with other settings (another --inpainter, say) is
@@ -159,7 +168,9 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
         get_inpainter(config.inpainter, **config.inpainter_options)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
                              config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer,
-                             replace_changed=False)
+                             replace_changed=False, dataparser_transforms=dataparser_transforms)
+    for note in report.get("model_notes", []):
+        click.echo(f"model: {note}")
     if report["reused"]:
         click.echo(f"reused finished stages: {', '.join(report['reused'])}")
     if report["recomputed"]:

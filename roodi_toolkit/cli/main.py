@@ -231,6 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     debug = "--debug" in args
     args, quiet = _pop_quiet(_pop_threads([a for a in args if a != "--debug"]))
     previous = _on_sigterm()
+    restore_warnings = _show_input_warnings()
     try:
         _torch_threads(args)
         app.main(args=args, prog_name="roodi-toolkit", standalone_mode=False, obj={"quiet": quiet})
@@ -275,8 +276,34 @@ def main(argv: Sequence[str] | None = None) -> int:
                    "traceback and please report it)", err=True)
         return 1
     finally:
+        restore_warnings()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _show_input_warnings() -> Any:
+    """Show the library's :class:`~roodi_toolkit.errors.InputWarning` (what an input lacked, what was assumed) as one
+    ``warning:`` line on stderr each, every time; return the function that puts the previous display back."""
+    import warnings
+
+    from roodi_toolkit.errors import InputWarning
+
+    shown, filters = warnings.showwarning, list(warnings.filters)
+
+    def show(message: Any, category: type, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+        if issubclass(category, InputWarning):
+            click.echo(f"warning: {_one_line(str(message))}", err=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+    warnings.simplefilter("always", InputWarning)
+
+    def restore() -> None:
+        warnings.showwarning = shown
+        warnings.filters[:] = filters
+
+    return restore
 
 
 def _environment_problem(exc: BaseException) -> str | None:

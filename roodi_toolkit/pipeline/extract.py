@@ -250,7 +250,8 @@ class PreparedScene:
 def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir: str | Path | None = None,
                   distill_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
                   overwrite: bool = False, progress: ProgressFactory = null_progress,
-                  renderer: Any = None, replace_changed: bool = True) -> PreparedScene:
+                  renderer: Any = None, replace_changed: bool = True,
+                  dataparser_transforms: str | Path | None = None) -> PreparedScene:
     """Return the stages the objects of a scene share: the decoded dataset, the trained scene (trained into
     ``out_dir/scene`` unless ``model_dir`` is given) and its distillation (into ``out_dir/distill`` unless
     ``distill_dir`` is given), each reused when a previous run made it with the same settings.
@@ -258,10 +259,11 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     """
     from ..io import files
     from ..io.dataset import load_dataset
-    from ..io.model import DISTILL_RECORD, checkpoint_file, find_model
+    from ..io.model import DISTILL_RECORD, checkpoint_file, find_model, open_model
     from ..io.ply import read_ply
     from ..render.renderer import resolve_renderer
     from .distill import _without_features, distill_scene, load_distillation, save_distilled, scene_labels
+    from .model_frame import settle_model_frame
     from .segment import FilesSegmenter, SegmentPrompt
     from .train import train_scene
 
@@ -270,7 +272,10 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
                           "--model or --distill")
     if distill_dir is not None and model_dir is None:
         raise ConfigError("--distill needs the --model it was distilled from")
-    model = find_model(model_dir) if model_dir is not None else None
+    if dataparser_transforms is not None and model_dir is None:
+        raise ConfigError("--dataparser-transforms goes with the nerfstudio export given as --model")
+    model = open_model(model_dir, data_dir, dataparser_transforms=dataparser_transforms) \
+        if model_dir is not None else None
     if data_dir is None:
         recorded = model.config.get("data_dir") if model is not None else None
         if not recorded:
@@ -280,7 +285,8 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
             raise ConfigError(f"{data_dir}: the data folder named in {model.root / 'cfg.json'} is gone; give DATA_DIR")
     data_dir = Path(data_dir)
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
-                                   inputs=[data_dir, model_dir, distill_dir])
+                                   inputs=[data_dir, model_dir, distill_dir, dataparser_transforms,
+                                           model.root if model is not None else None])
     renderer = resolve_renderer(renderer)
     report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {},
                               "replace_changed": replace_changed}
@@ -291,6 +297,8 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
         downscale = float(model.config.get("downscale", 1) or 1) if model is not None else 1.0
     report["downscale"] = downscale
     dataset = load_dataset(data_dir, downscale, progress=progress)  # decoded once; every stage reads it from memory
+    if model is not None:
+        report.update(settle_model_frame(model, dataset, renderer))  # another tool's scene: does it fit the photos?
     given, prompt = resolve_prompt(config.prompt, dataset)  # checked now, before any training
     distill_out = out / "distill"
     distill_wanted = {"config": _settings(config.distill), "segmenter": config.segmenter,
@@ -334,7 +342,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
             model = find_model(model_root)
             scene = result.cloud
     else:
-        scene = read_ply(model.ply_path)
+        scene = model.read_cloud()
     scene = _without_features(scene)
     timings["train_s"] = time.perf_counter() - t
 
@@ -359,7 +367,8 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
             save_distilled(distill_out, distilled, model.ply_path,
                            {"downscale": downscale, "data_dir": wanted["data_dir"], "prompt": wanted["prompt"],
                             "segmenter_options": wanted["segmenter_options"],
-                            "single_stage": config.single_stage, "model_dir": str(model.root.resolve())})
+                            "single_stage": config.single_stage, "model_dir": str(model.root.resolve()),
+                            **model.record()})
             report["distill"] = {k: v for k, v in distilled.summary.items() if k != "history"}
             cloud, classifier = distilled.cloud, distilled.classifier
     report["distill_dir"] = str(distill_out)
@@ -368,6 +377,8 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     if masks is None and config.inpaint:  # the masks the features were distilled from
         masks = FilesSegmenter(distill_out / "object_masks").segment(dataset, SegmentPrompt()).masks
     report["model"] = str(model.root)
+    if model.notes:
+        report["model_notes"] = list(model.notes)
     return PreparedScene(out, dataset, scene, cloud, classifier, masks, model, distill_out,
                          files.read_json(distill_out / DISTILL_RECORD, "distillation record"), downscale, report,
                          renderer)
@@ -445,7 +456,7 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
                     model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
                     config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
                     progress: ProgressFactory = null_progress, renderer: Any = None,
-                    replace_changed: bool = True) -> dict[str, Any]:
+                    replace_changed: bool = True, dataparser_transforms: str | Path | None = None) -> dict[str, Any]:
     """Return a report of every stage after writing each object's clean model into ``out_dir``.
 
     Args:
@@ -455,7 +466,9 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
             (``overwrite`` makes every stage again).
         object_ids: the instance ids of the objects to extract, or ``"all"`` (they share the scene and the
             distillation); 1 for the object a click segmenter's binary masks hold.
-        model_dir: a trained scene (``roodi-toolkit train`` output) to use instead of training one; only read.
+        model_dir: a trained scene to use instead of training one; only read: a ``roodi-toolkit train`` output, or
+            what :func:`~roodi_toolkit.io.model.open_model` opens (an Inria or gsplat output, a gsplat checkpoint, a
+            splat file with ``data_dir``).
         distill_dir: a distillation of that scene (``roodi-toolkit distill`` output) to use instead of distilling;
             only read.
         config: settings of every stage.
@@ -463,6 +476,7 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
         progress: progress factory.
         renderer: a :class:`~roodi_toolkit.render.renderer.Renderer` (or registered name) every stage renders with;
             default the built-in CPU renderer.
+        dataparser_transforms: with a nerfstudio export as ``model_dir``, its run's ``dataparser_transforms.json``.
         replace_changed: make a finished stage of other settings again (True), or refuse to replace it without
             ``overwrite`` (False: the ``extract`` command, whose outputs are replaced only with ``--overwrite``).
 
@@ -479,7 +493,7 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
     try:
         prepared = prepare_scene(data_dir, out_dir, model_dir=model_dir, distill_dir=distill_dir, config=config,
                                  overwrite=overwrite, progress=progress, renderer=renderer,
-                                 replace_changed=replace_changed)
+                                 replace_changed=replace_changed, dataparser_transforms=dataparser_transforms)
     except BaseException:
         # a refused input (a bad click, say) leaves nothing behind; a partly trained scene stays, to resume from
         if created and out.is_dir() and not any(p.is_file() for p in out.rglob("*")):

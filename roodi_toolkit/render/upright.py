@@ -84,24 +84,39 @@ def _mean_up(ups: np.ndarray) -> np.ndarray:
 
 
 def model_cameras(ply: str | os.PathLike) -> list[Any] | None:
-    """Return the training cameras of the toolkit's model a PLY belongs to, or None.
+    """Return the training cameras of the model a PLY belongs to, or None.
 
     A ``roodi-toolkit train`` output keeps its scene at ``MODEL/point_cloud/iteration_N/point_cloud.ply`` beside
-    ``MODEL/cfg.json``, whose ``data_dir`` names the dataset; None when there is no such record or the dataset is gone.
+    ``MODEL/cfg.json``, whose ``data_dir`` names the dataset; an Inria output keeps its own cameras in
+    ``MODEL/cameras.json`` beside ``cfg_args``; None when there is no such record or the dataset is gone.
     """
     from ..errors import RoodiError
     from ..io.dataset import load_cameras
     from ..io.files import read_json
 
     root = _model_root(ply)
-    record = root / "cfg.json" if root is not None else None
-    if record is None or not record.is_file():
+    if root is None:
+        return None
+    if (root / "cfg_args").is_file() and (root / "cameras.json").is_file():
+        return _inria_cameras(root / "cameras.json")
+    record = root / "cfg.json"
+    if not record.is_file():
         return None
     try:
         cfg = read_json(record, "training record")
         data = Path(str(cfg["data_dir"])) if isinstance(cfg, dict) and "data_dir" in cfg else None
         return load_cameras(data) if data is not None and data.exists() else None
     except (RoodiError, OSError):
+        return None
+
+
+def _inria_cameras(path: Path) -> list[Any] | None:
+    from ..errors import RoodiError
+    from ..io.other_models import load_inria_cameras
+
+    try:
+        return load_inria_cameras(path)
+    except RoodiError:  # not the file we know: no cameras then
         return None
 
 
@@ -114,25 +129,12 @@ def _model_root(ply: str | os.PathLike) -> Path | None:
 
 
 def inria_cameras_up(ply: str | os.PathLike) -> tuple[np.ndarray, Path] | None:
-    """Return the mean camera up ``[3]`` of an Inria model folder's ``cameras.json`` and its path, or None.
-
-    The Inria code writes, for each training camera, ``rotation``: the camera-to-world rotation (columns: the
-    camera's x right, y down, z forward axes in world coordinates), so the camera's up is minus column 1.
-    """
-    import json
-
+    """Return the mean camera up ``[3]`` of an Inria model folder's ``cameras.json`` and its path, or None (read by
+    :func:`roodi_toolkit.io.other_models.load_inria_cameras`, whose ``rotation`` is camera-to-world)."""
     root = _model_root(ply)
     path = root / "cameras.json" if root is not None else None
-    if path is None or not path.is_file():
-        return None
-    try:
-        entries = json.loads(path.read_text())
-        rot = np.array([e["rotation"] for e in entries], dtype=np.float64)  # [C, 3, 3]
-        if rot.ndim != 3 or rot.shape[1:] != (3, 3) or not np.isfinite(rot).all():
-            return None
-        return _mean_up(-rot[:, :, 1]), path
-    except (OSError, ValueError, TypeError, KeyError, ConfigError):  # not the file we know: no cameras then
-        return None
+    cams = _inria_cameras(path) if path is not None and path.is_file() else None
+    return (cameras_up(cams), path) if cams else None
 
 
 def format_up(path: str | os.PathLike) -> UpAxis | None:
