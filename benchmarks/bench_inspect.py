@@ -1,4 +1,6 @@
-"""Time of ``roodi-toolkit inspect IN.ply --screenshot out.png`` on a large cloud, split into pruning and rendering.
+"""Time of ``roodi-toolkit inspect IN.ply --view-png out.png`` (the PyVista view; ``--screenshot`` was this view until
+issue 38 made it the floater picture, timed by ``bench_upright.py picture``) on a large cloud, split into pruning and
+rendering.
 
 Builds a planted-floater cloud (torus, 1% far + 1% near floaters, as ``bench_prune.py``) of ``--size`` Gaussians,
 writes it as a PLY (or reuses ``--ply``), then
@@ -87,7 +89,7 @@ def main() -> None:
             print(f"built {ply} ({args.size:,} Gaussians) in {time.perf_counter() - t0:.1f} s")
         out = Path(tmp) / "view.png"
         cli = Path(sys.executable).with_name("roodi-toolkit")
-        command = [str(cli), "inspect", str(ply), "--screenshot", str(out), "--window-size", args.window_size,
+        command = [str(cli), "inspect", str(ply), "--view-png", str(out), "--window-size", args.window_size,
                    "--glyphs", args.glyphs, "-q", "--overwrite"]
         print("command:", " ".join(command[:1] + ["inspect", "IN.ply"] + command[3:]))
         print(f"load average before: {' '.join(f'{v:.1f}' for v in os.getloadavg())} on {os.cpu_count()} cores")

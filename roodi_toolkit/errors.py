@@ -70,6 +70,11 @@ class EnvironmentProblemError(RoodiError):
     """The machine is at fault, not the input: a missing system library, a read-only folder, a full disk, no display."""
 
 
+class InputWarning(UserWarning):
+    """An input was used with something left out or assumed (frames whose images are missing, a split chosen for the
+    user): issued with :func:`warnings.warn`, shown by the CLI as one ``warning:`` line on stderr."""
+
+
 # errno -> (what is wrong, what to do) for the failures of writing an output that the machine, not the user, causes
 _OS_PROBLEMS: dict[int, tuple[str, str]] = {
     errno.ENOSPC: ("the disk is full", "free some space or write the output to another disk"),

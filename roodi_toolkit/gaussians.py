@@ -16,6 +16,11 @@ from .errors import CloudError
 
 SH_C0 = 0.28209479177387814
 """Degree-0 real spherical harmonic constant: RGB of the DC term = 0.5 + SH_C0 * sh_dc."""
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
+         1.445305721320277, -0.5900435899266435)
+"""The degree 1-3 constants of the reference 3DGS code's real SH (signs included; :mod:`roodi_toolkit.sh`)."""
 
 LOW_OPACITY = 1.0 / 255.0
 """What the ecosystem calls low opacity: sigmoid(opacity_logit) < 1/255."""

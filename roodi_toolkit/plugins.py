@@ -10,11 +10,20 @@ To register a plugin during development without installing it, set ``ROODI_PLUGI
 ``group:name=module:attr`` (the group may be the short form ``renderers``, ``inpainters`` or ``segmenters``)::
 
     ROODI_PLUGINS="inpainters:blur=my_pkg.inpaint:BlurInpainter" roodi-toolkit plugins
+
+The module is looked up on ``sys.path`` and then in the current folder (as ``python`` finds a script's neighbours; a
+console script's ``sys.path`` does not hold it), and ``module`` may also be a ``.py`` file's path
+(``inpainters:blur=plugins/blur.py:BlurInpainter``), so no ``PYTHONPATH`` is needed.
+
+What ``roodi-toolkit plugins`` says of each plugin (:func:`plugin_state`): ``installed`` (it loads and can run here),
+``needs CUDA``, ``needs weights``, ``needs a package`` (its class's ``status()`` says which, and what to do; a class
+without one is ``installed`` or ``unavailable`` as its ``available()`` says), or ``error`` (it does not load).
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import math
 import os
 import threading
@@ -80,11 +89,49 @@ class PluginSpec:
         return outcome["obj"]
 
     def _import(self) -> Any:
-        module_name, _, attr = self.target.partition(":")
-        obj: Any = importlib.import_module(module_name)
+        module_name, _, attr = self.target.rpartition(":")
+        obj: Any = _import_module(module_name, from_env=self.origin == f"${ENV_VAR}")
         for part in filter(None, attr.split(".")):
             obj = getattr(obj, part)
         return obj
+
+
+def _import_module(name: str, *, from_env: bool) -> Any:
+    """Import a plugin's module; a ``$ROODI_PLUGINS`` one may be a ``.py`` file's path or sit in the current folder."""
+    import sys
+    from pathlib import Path
+
+    if from_env and name.endswith(".py"):
+        path = Path(name).expanduser()
+        if not path.is_file():
+            raise ModuleNotFoundError(f"no plugin file {name} (from ${ENV_VAR}; relative to {os.getcwd()})")
+        module_name = f"roodi_plugin_{path.stem}"
+        if module_name in sys.modules:
+            return sys.modules[module_name]
+        spec = importlib.util.spec_from_file_location(module_name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[module_name] = module
+        try:
+            spec.loader.exec_module(module)
+        except BaseException:
+            del sys.modules[module_name]
+            raise
+        return module
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        here = os.getcwd()
+        if not from_env or exc.name != name.split(".")[0] or here in sys.path or "" in sys.path:
+            raise
+        # a console script's sys.path starts at its bin folder, not at the current folder that `python -m` adds
+        sys.path.insert(0, here)
+        try:
+            return importlib.import_module(name)
+        except ModuleNotFoundError as again:
+            if again.name == name.split(".")[0]:
+                raise ModuleNotFoundError(f"No module named {name!r} on sys.path or in the current folder {here}",
+                                          name=again.name) from None
+            raise
 
 
 class PluginExit(BaseException):
@@ -109,11 +156,45 @@ def plugin_timeout() -> float:
 
 @dataclass(frozen=True)
 class PluginStatus:
-    """A plugin after an attempt to load it."""
+    """A plugin after an attempt to load it.
+
+    Attributes:
+        spec: where it comes from.
+        ok: it loads.
+        error: why it does not load.
+        state: ``installed``, ``needs CUDA``, ``needs weights``, ``needs a package``, ``unavailable`` or ``error``
+            (:func:`plugin_state`).
+        detail: what is missing and what to do (empty when installed).
+    """
 
     spec: PluginSpec
     ok: bool
     error: str = ""
+    state: str = "installed"
+    detail: str = ""
+
+
+INSTALLED, NEEDS_CUDA, NEEDS_WEIGHTS, NEEDS_PACKAGE, UNAVAILABLE = (
+    "installed", "needs CUDA", "needs weights", "needs a package", "unavailable")
+STATES = (INSTALLED, NEEDS_CUDA, NEEDS_WEIGHTS, NEEDS_PACKAGE, UNAVAILABLE)
+"""What a plugin class's optional ``status()`` classmethod returns first, with a line saying what to do."""
+
+
+def plugin_state(obj: Any) -> tuple[str, str]:
+    """Return ``(state, detail)`` of a loaded plugin: its class's ``status()`` when it has one (one of
+    :data:`STATES` and what to do), else ``installed`` or ``unavailable`` from its ``available()``."""
+    try:
+        if hasattr(obj, "status"):
+            state, detail = obj.status()
+            if state not in STATES:
+                return UNAVAILABLE, f"status() returned an unknown state {state!r}: {detail}"
+            return state, "" if state == INSTALLED else str(detail)
+        if hasattr(obj, "available"):
+            ok, why = obj.available()
+            return (INSTALLED, "") if ok else (UNAVAILABLE, str(why))
+    except Exception as exc:  # noqa: BLE001 - a plugin's own check must not break the listing
+        return UNAVAILABLE, f"its status check failed: {type(exc).__name__}: {exc}"
+    return INSTALLED, ""
 
 
 def full_group(group: str) -> str:
@@ -202,13 +283,46 @@ def check_all(groups: tuple[str, ...] = GROUPS) -> list[PluginStatus]:
     for group in groups:
         for spec in discover(group):
             try:
-                spec.load()
+                obj = spec.load()
             except PluginError as exc:
                 cause = exc.__cause__
-                statuses.append(PluginStatus(spec, False, f"{type(cause).__name__}: {cause}" if cause else str(exc)))
+                error = f"{type(cause).__name__}: {cause}" if cause else str(exc)
+                statuses.append(PluginStatus(spec, False, error, "error", error))
             else:
-                statuses.append(PluginStatus(spec, True))
+                statuses.append(PluginStatus(spec, True, "", *plugin_state(obj)))
     return statuses
+
+
+def coerce_options(cls: type, options: dict[str, Any], kind: str, name: str) -> dict[str, Any]:
+    """Return ``options`` with text values (``KEY=VALUE`` from the command line) turned into the type of the
+    constructor's default for that keyword (bool, int, float); other values and unknown keywords are left as given.
+
+    Raises:
+        PluginError: a value that is not of its keyword's type.
+    """
+    import inspect
+
+    try:
+        params = inspect.signature(cls).parameters
+    except (TypeError, ValueError):
+        return dict(options)
+    out = dict(options)
+    for key, value in options.items():
+        param = params.get(key)
+        if not isinstance(value, str) or param is None or param.default is inspect.Parameter.empty:
+            continue
+        want = type(param.default)
+        try:
+            if want is bool:
+                lowered = value.strip().lower()
+                if lowered not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+                    raise ValueError(value)
+                out[key] = lowered in ("1", "true", "yes", "on")
+            elif want in (int, float):
+                out[key] = want(value)
+        except ValueError:
+            raise PluginError(f"{kind} {name!r} option {key}={value!r}: expected {want.__name__}") from None
+    return out
 
 
 def instantiate(group: str, name: str, base: type, **options: Any) -> Any:
@@ -228,6 +342,6 @@ def instantiate(group: str, name: str, base: type, **options: Any) -> Any:
     if not ok:
         raise PluginError(f"{kind} {name!r} cannot run here: {why}")
     try:
-        return cls(**options)
+        return cls(**coerce_options(cls, options, kind, name))
     except TypeError as exc:
         raise PluginError(f"{kind} {name!r} does not take these options: {exc}") from None

@@ -11,11 +11,8 @@ import torch
 from torch import Tensor
 
 from .errors import ConfigError
-from .gaussians import SH_C0  # defined with the cloud, whose colour needs it without importing torch
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
-         1.445305721320277, -0.5900435899266435)
+# defined with the cloud, whose colour needs them without importing torch (and moving a cloud turns its SH bands)
+from .gaussians import SH_C0, SH_C1, SH_C2, SH_C3
 
 
 def num_sh_bases(degree: int) -> int:
@@ -85,3 +82,4 @@ def eval_sh_colors(sh: Tensor, dirs: Tensor, degree: int | None = None) -> Tenso
     unit = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     bases = sh_bases(degree, unit)  # [N, n]
     return torch.clamp_min(torch.einsum("nk,nkc->nc", bases, sh[:, :n]) + 0.5, 0.0)
+

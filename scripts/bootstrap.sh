@@ -1,15 +1,17 @@
 #!/usr/bin/env bash
 # Install everything roodi-toolkit needs on a fresh Debian machine; safe to run again (skips what is done).
 #   - Debian libraries that Open3D and VTK load (EGL/OSMesa for off-screen rendering);
-#   - a virtual environment (.venv, or $ROODI_VENV) with the pinned CPU PyTorch installed first, so no
-#     dependency pulls a multi-GB CUDA build;
+#   - a virtual environment (.venv, or $ROODI_VENV) with the pinned PyTorch installed first, so no dependency pulls
+#     another build: on a machine without an NVIDIA GPU the CPU build, from PyTorch's CPU index where it can be
+#     reached ($ROODI_TORCH_INDEX), else from what the machine's pip offers (scripts/torch_source.py decides and
+#     says which; afterwards this script says which build came);
 #   - the package in editable mode with its dev extra, and the bundled plugins.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 VENV="${ROODI_VENV:-.venv}"
 PYTHON="${PYTHON:-python3}"
-TORCH_PIN="torch==2.13.0"
+TORCH_VERSION="2.13.0"
 APT_PACKAGES=(libusb-1.0-0 libgl1 libegl1 libgomp1 libosmesa6)
 
 missing=()
@@ -31,8 +33,21 @@ fi
 PIP=("$VENV/bin/python" -m pip --disable-pip-version-check -q)
 
 if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
-  echo "bootstrap: installing $TORCH_PIN (CPU build)" >&2
-  "${PIP[@]}" install "$TORCH_PIN"
+  mapfile -t torch_source < <("$VENV/bin/python" scripts/torch_source.py "$TORCH_VERSION")
+  echo "bootstrap: ${torch_source[0]}" >&2
+  "${PIP[@]}" install "${torch_source[@]:1}"
+  "$VENV/bin/python" - >&2 <<'PY'
+import warnings
+
+warnings.filterwarnings("ignore")  # torch warns that NumPy is not installed yet
+import torch
+if torch.version.cuda is None:
+    print(f"bootstrap: installed torch {torch.__version__}, the CPU build")
+else:
+    print(f"bootstrap: installed torch {torch.__version__}, the CUDA {torch.version.cuda} build"
+          + ("" if torch.cuda.is_available() else " (no GPU sees it here: the CPU build is smaller, pip install "
+             "torch --index-url https://download.pytorch.org/whl/cpu)"))
+PY
 fi
 
 # Re-install when the packaging files change; otherwise the editable install is already current.

@@ -158,3 +158,32 @@ def test_sigterm_mid_write_leaves_no_partial_file(tmp_path, run_cli, monkeypatch
     assert res.exit_code == 143 and "terminated" in res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply"]  # no output, no hidden temporary file
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_quiet_and_threads_wherever_they_stand(run_cli, monkeypatch, tmp_path):
+    """``-q`` was refused before the command ("No such option '-q'") and on commands without progress bars."""
+    import torch
+
+    from roodi_toolkit.io.ply import write_ply
+    from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
+
+    monkeypatch.setenv("ROODI_THREADS", "1")
+    ply = tmp_path / "in.ply"
+    write_ply(planted_floater_cloud(FloaterMix("sphere", n_object=300), 0).cloud, ply)
+    loud = run_cli("render", ply, tmp_path / "a", "--orbit", "2", "--size", "16x16")
+    assert loud.exit_code == 0 and "orbit up" in loud.stderr
+    before = torch.get_num_threads()
+    try:
+        for n, args in enumerate((("-q", "render", ply, tmp_path / "b"), ("render", "-q", ply, tmp_path / "c"),
+                                  ("--threads", "1", "-q", "render", ply, tmp_path / "d", "--threads", "1"))):
+            res = run_cli(*args, "--orbit", "2", "--size", "16x16")
+            assert res.exit_code == 0, (args, res.stderr)
+            assert "orbit up" not in res.stderr and "rendering" not in res.stderr, args
+        for args in (("-q", "info", ply), ("info", ply, "-q"), ("--quiet", "plugins"), ("convert", ply,
+                     tmp_path / "o.spz", "--quiet"), ("prune", "--threads", "1", ply, tmp_path / "p.ply", "-q")):
+            res = run_cli(*args)
+            assert res.exit_code == 0, (args, res.stderr)
+        res = run_cli("prune", ply, tmp_path / "p2.ply", "--threads", "0")
+        assert res.exit_code == 1 and "--threads" in res.stderr  # checked for prune too, which renders late
+    finally:
+        torch.set_num_threads(before)

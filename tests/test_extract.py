@@ -43,7 +43,18 @@ def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cl
     assert saved["objects"][str(target)]["inpainter"] == "opencv" and saved["reused"] == []
     again = extract_objects(scene, out, [target], config=config)
     assert again["reused"] == ["train", "distill", f"object {target}"] and again["recomputed"] == []
-    # other settings: only the stages they change are made again, and the report says why
+    # other settings: the extract command refuses to replace what a finished stage made (nothing is written) ...
+    from roodi_toolkit.errors import OutputError
+
+    made = {p.name: p.read_bytes() for p in (out / f"object_{target}").iterdir() if p.is_file()}
+    with pytest.raises(OutputError, match=rf"object_{target}: the object {target} there was made with other settings "
+                                          r"\(inpainter changed\) and would be replaced; give --overwrite"):
+        extract_objects(scene, out, [target], config=replace(config, inpainter="exemplar"), replace_changed=False)
+    assert {p.name: p.read_bytes() for p in (out / f"object_{target}").iterdir() if p.is_file()} == made
+    with pytest.raises(OutputError, match=r"the distill there was made with other settings \(config changed\)"):
+        extract_objects(scene, out, [target], config=replace(config, distill=DistillConfig(iterations=41)),
+                        replace_changed=False)
+    # ... while the library's re-runs (the benchmark's) make again only the stages they change, and say why
     changed = extract_objects(scene, out, [target], config=replace(config, threshold=0.4))
     assert changed["reused"] == ["train", "distill"]
     assert changed["recomputed"] == [f"object {target} (threshold changed)"]
@@ -63,10 +74,23 @@ def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cl
                             config=replace(config, inpaint=False))
     assert alone["distill_dir"] == str(tmp_path / "from_model" / "distill")
     assert {d: tree_digest(d) for d in (scene, out / "scene", out / "distill")} == inputs
-    from roodi_toolkit.errors import OutputError
-
     with pytest.raises(OutputError, match="inside the input folder"):
         extract_objects(scene, out / "scene" / "x", [target], model_dir=out / "scene", config=config)
+
+
+def test_extract_command_replaces_an_object_only_with_overwrite(tiny_scene, tmp_path, run_cli):
+    """Re-running extract with other settings replaced object.ply without --overwrite ("made again: object 2
+    (inpainter changed)"); now it says what changed and how to go on, and writes nothing."""
+    scene, target = tiny_scene
+    common = ("--object", str(target), "--iterations", "40", "--init", "depth", "--distill-iterations", "40",
+              "--no-inpaint", "-q")
+    res = run_cli("extract", scene, tmp_path / "o", *common, "--threshold", "0.1")
+    assert res.exit_code == 0, res.stderr
+    ply = tmp_path / "o" / f"object_{target}" / "object.ply"
+    before = ply.read_bytes()
+    res = run_cli("extract", scene, tmp_path / "o", *common, "--threshold", "0.15")
+    assert res.exit_code == 1 and "threshold changed" in res.stderr and "--overwrite" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and ply.read_bytes() == before
 
 
 def test_extract_command_errors(tiny_scene, tmp_path, run_cli):

@@ -250,7 +250,7 @@ def test_inspect_command_shows_the_photo_check_and_writes_nothing_into_its_folde
     kept = len(read_ply(tmp_path / "out.ply"))
     result = run_cli("inspect", str(ply), "--histogram", str(tmp_path / "h.png"), "-q")
     assert result.exit_code == 0, result.stderr
-    assert "photo check on 8 of the 8 training views" in result.stdout and f"kept {kept:,} of" in result.stdout
+    assert "photo check on 8 of the 8 training views" in result.stdout and f"{kept:,} would stay\n" in result.stdout
     result = run_cli("inspect", str(ply), "--histogram", str(data / "h.png"), "-q")
     assert result.exit_code == 1 and "inside the input folder" in result.stderr
     assert not (data / "h.png").exists()

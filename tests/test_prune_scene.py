@@ -209,13 +209,13 @@ def test_cli_dry_run_writes_report_and_picture_only(run_cli, tmp_path):
     out = tmp_path / "clean.ply"
     res = run_cli("prune", src, out, "--dry-run")
     assert res.exit_code == 0, res.stderr
-    assert "would keep" in res.stdout and "mode object" in res.stdout
+    assert "would go" in res.stdout and res.stdout.startswith("object mode (auto)")
     assert not out.exists()
     summary = json.loads((tmp_path / "clean.prune.json").read_text())
     assert summary["dry_run"] and summary["mode"] == "object" and summary["output"] is None
     assert (tmp_path / "clean.prune.png").stat().st_size > 1000
     res = run_cli("prune", src, out, "--rule", "paper", "--report", tmp_path / "r.json")
-    assert res.exit_code == 0 and "mode statistical" in res.stdout
+    assert res.exit_code == 0 and res.stdout.startswith("statistical mode")
     assert json.loads((tmp_path / "r.json").read_text())["config"]["rule"] == "paper"
     res = run_cli("prune", src, out, "--overwrite", "--filter-value", "size,0,1")
     assert res.exit_code == 2 and "--filter-value" in res.stderr

@@ -22,9 +22,13 @@ from roodi_toolkit.render.renderer import Renderer, get_renderer, render_cloud, 
 NAMES = [spec.name for spec in discover("renderers")]
 
 
-def test_builtin_torch_renderer_is_registered():
-    assert "torch" in renderer_names()
-    assert [s.origin for s in discover("renderers") if s.name == "torch"] == ["roodi-toolkit"]
+def test_builtin_renderers_are_registered_and_numba_is_the_default():
+    from roodi_toolkit.render.renderer import NumbaRenderer, resolve_renderer
+
+    for name in ("numba", "torch"):
+        assert name in renderer_names()
+        assert [s.origin for s in discover("renderers") if s.name == name] == ["roodi-toolkit"]
+    assert isinstance(resolve_renderer(None), NumbaRenderer) and get_renderer().name == "numba"
 
 
 @pytest.fixture(params=NAMES)

@@ -100,7 +100,8 @@ def _extract(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
         _PREPARED.clear()  # one scene held per worker
         # the shared stages are made by the batch before its items start: here they are only reused
         _PREPARED[key] = prepare_scene(item.input, settings["out"], model_dir=settings.get("model_dir"),
-                                       distill_dir=settings.get("distill_dir"), config=config)
+                                       distill_dir=settings.get("distill_dir"), config=config,
+                                       replace_changed=settings.get("replace_changed", True))
     entry = extract_object(_PREPARED[key], int(item.options["object"]), config=config)
     return {k: entry[k] for k in ("gaussians", "gaussians_selected_and_pruned", "object_ply") if k in entry}
 

@@ -131,7 +131,8 @@ def batch_info(source: str, out: str, jobs: int, ray_address: str | None, result
 @click.option("--ray", "ray_address", default=None, metavar="ADDRESS",
               help="Run the objects as Ray tasks on this cluster, or 'local' to start Ray here.")
 @click.option("--results", default=None, help="The JSON-lines results file [OUT/results.jsonl].")
-@click.option("--rerun", is_flag=True, help="Extract every object again, even those an earlier run finished.")
+@click.option("--rerun", is_flag=True, help="Extract every object again, even those an earlier run finished; "
+              "without it a scene, distillation or object made with other settings is not replaced.")
 @extract_options
 @quiet_option
 def batch_extract(data_dir: str, out: str, object_ids: tuple[str, ...], jobs: int, ray_address: str | None,
@@ -146,12 +147,13 @@ def batch_extract(data_dir: str, out: str, object_ids: tuple[str, ...], jobs: in
     config = extract_config_from_options(**stage_options)
     progress = progress_factory(quiet)
     prepared = prepare_scene(data_dir, out, model_dir=model_dir, distill_dir=distill_dir, config=config,
-                             progress=progress)
+                             progress=progress, replace_changed=rerun)
     ids = prepared.object_ids(object_ids)
     items = [Item(f"object_{i}", data_dir, str(prepared.out / f"object_{i}" / "object.ply"), {"object": i})
              for i in ids]
     results = results or str(prepared.out / "results.jsonl")
-    settings = {"config": config, "out": str(prepared.out), "model_dir": model_dir, "distill_dir": distill_dir}
+    settings = {"config": config, "out": str(prepared.out), "model_dir": model_dir, "distill_dir": distill_dir,
+                "replace_changed": rerun}
     del prepared  # the workers load the scene themselves
     summary = run_batch("extract", items, results, settings=settings, jobs=jobs, ray=ray_address, rerun=rerun,
                         progress=progress)

@@ -43,15 +43,21 @@ EXAMPLE = """Examples:
 @click.option("--downscale", type=click.FloatRange(1.0), default=None,
               help="Image downscale (default: the training run's, from MODEL_DIR/cfg.json).")
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--dataparser-transforms", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="With a nerfstudio export (splat.ply) as MODEL_DIR: its training run's dataparser_transforms.json, "
+                   "which moves it back into the data's frame.")
 @overwrite_option
 @renderer_option
 @quiet_option
 def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks: tuple[str, ...],
             negative_clicks: tuple[str, ...], mask_dir: str | None,
             options: tuple[str, ...], iterations: int, feature_lr: float | None, classifier_lr: float | None,
-            downscale: float | None, seed: int, overwrite: bool, renderer: Any, quiet: bool) -> None:
+            downscale: float | None, seed: int, dataparser_transforms: str | None, overwrite: bool, renderer: Any,
+            quiet: bool) -> None:
     """Distil object masks of DATA_DIR's views into per-Gaussian features of the scene model in MODEL_DIR (a
-    roodi-toolkit train output), written to the folder OUT_DIR.
+    roodi-toolkit train output; or an Inria or gsplat output folder, a gsplat ckpt_N_rank0.pt, a splat file, a
+    nerfstudio export with --dataparser-transforms: checked against DATA_DIR's cameras and photos), written to the
+    folder OUT_DIR.
 
     OUT_DIR gets features.npy (16 per Gaussian, in the model PLY's order), object_classifier.pt, object_masks/,
     distill.json (which model file, settings, loss, held-out IoU) and distill.png (rendered classes next to the masks).
@@ -76,7 +82,8 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
     config = DistillConfig(iterations=iterations, seed=seed, **changes)
     summary = run_distill(model_dir, data_dir, out_dir, segmenter=segmenter, clicks=parsed, mask_dir=mask_dir,
                           segmenter_options=opts, config=config, downscale=downscale, overwrite=overwrite,
-                          progress=progress_factory(quiet), renderer=renderer)
+                          progress=progress_factory(quiet), renderer=renderer,
+                          dataparser_transforms=dataparser_transforms)
     ev = summary["held_out"]
     iou = f", held-out mean IoU {ev['mean_iou']:.3f} over {len(ev['views'])} views" if ev.get("views") else ""
     click.echo(f"distilled {summary['num_classes']} classes into {summary['num_gaussians']:,} Gaussians in "

@@ -28,11 +28,18 @@ EXAMPLE = """Example:
               help="Local LPIPS weights (default: $ROODI_LPIPS_WEIGHTS or the upstream local caches).")
 @renderer_option
 @click.option("--max-views", type=click.IntRange(1), default=None, help="Score only the first N test views.")
+@click.option("--dataparser-transforms", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="OBJECT is a nerfstudio export: its training run's dataparser_transforms.json (moves it into "
+                   "DATA_DIR's frame).")
 @overwrite_option
 @quiet_option
 def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | None, renders_dir: str | None,
-             lpips_weights: str | None, renderer: Any, max_views: int | None, overwrite: bool, quiet: bool) -> None:
+             lpips_weights: str | None, renderer: Any, max_views: int | None, dataparser_transforms: str | None,
+             overwrite: bool, quiet: bool) -> None:
     """Score OBJECT.ply against the true views of target --object in DATA_DIR (a make-scene folder).
+
+    OBJECT.ply is any splat file, or a model another tool trained (an Inria or gsplat output folder, a gsplat
+    checkpoint; a nerfstudio export with --dataparser-transforms), read in DATA_DIR's frame.
 
     PSNR, SSIM and LPIPS inside 1.2x the true object's tight bounding box, and IoU of the rendered alpha, on a
     white background, averaged over the target's test views. LPIPS is reported as unavailable without local weights.
@@ -48,7 +55,7 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     from roodi_toolkit.io.splat import input_paths, read_cloud
 
     # --json over scene.json or --renders into DATA_DIR is refused
-    inputs = [*input_paths(object_ply), data_dir, lpips_weights]
+    inputs = [*input_paths(object_ply), data_dir, lpips_weights, dataparser_transforms]
     files.check_outputs([("--json", json_path)], overwrite=overwrite, inputs=inputs)
     if renders_dir is not None:
         if json_path is not None and files.same_file(json_path, renders_dir):
@@ -60,7 +67,16 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
 
     if lpips_weights or os.environ.get(ENV_WEIGHTS):  # weights named by the user must load: fail now, naming them
         LPIPS.from_local(lpips_weights)
-    cloud = read_cloud(object_ply)
+    from pathlib import Path
+
+    from roodi_toolkit.io.other_models import GSPLAT_CKPT
+
+    if Path(object_ply).is_dir() or dataparser_transforms or GSPLAT_CKPT.fullmatch(Path(object_ply).name):
+        from roodi_toolkit.io.model import open_model
+
+        cloud = open_model(object_ply, data_dir, dataparser_transforms=dataparser_transforms).read_cloud()
+    else:
+        cloud = read_cloud(object_ply)
     ev, renders = evaluate_object(cloud, data_dir, object_id, renderer=renderer, lpips_weights=lpips_weights,
                                   max_views=max_views, progress=progress_factory(quiet))
     if json_path is not None:

@@ -20,12 +20,17 @@ EXAMPLE = """Example:
   roodi-toolkit train captures/statue models/statue --downscale 4
   roodi-toolkit extract statue_out/ --model models/statue --click 520,300 --view DSC_5283
       # data folder and resolution from the model's cfg.json; the click in the photo's own pixels
+  roodi-toolkit extract out/ --model inria_output/ --click 520,300          # an Inria model: data from cfg_args
+  roodi-toolkit extract capture/ out/ --model exports/splat.ply \
+      --dataparser-transforms outputs/capture/splatfacto/RUN/dataparser_transforms.json --click 520,300
 """
 
 
 _OPTIONS = [
     click.option("--model", "model_dir", type=click.Path(path_type=str), default=None,
-                 help="Use this trained scene (roodi-toolkit train output) instead of training one; only read."),
+                 help="Use this trained scene instead of training one; only read: a roodi-toolkit train output, an "
+                      "Inria or gsplat output folder, a gsplat ckpt_N_rank0.pt, or any splat file (with DATA_DIR; a "
+                      "nerfstudio export with --dataparser-transforms)."),
     click.option("--distill", "distill_dir", type=click.Path(path_type=str), default=None,
                  help="Use this distillation of --model (roodi-toolkit distill output) instead of distilling; "
                       "only read."),
@@ -49,6 +54,9 @@ _OPTIONS = [
     click.option("--inpainter", default="opencv", show_default=True,
                  help="Inpainter plugin: opencv, exemplar, symmetry (objects with never-seen parts), sdxl, ... "
                       "(see roodi-toolkit plugins)."),
+    click.option("--inpainter-option", "inpainter_options", multiple=True, metavar="KEY=VALUE",
+                 help="Inpainter option (repeatable), e.g. model=PATH steps=30 for sdxl, method=ns for opencv; the "
+                      "keyword arguments of the plugin's class (docs/plugins.md)."),
 ]
 
 
@@ -61,7 +69,8 @@ def extract_options(func: Any) -> Any:
 
 def extract_config_from_options(*, downscale: float | None, iterations: int | None, init: str,
                                 distill_iterations: int, threshold: float, no_prune: bool, no_inpaint: bool,
-                                distance: str, rule: str, single_stage: bool, inpainter: str, **_: Any) -> Any:
+                                distance: str, rule: str, single_stage: bool, inpainter: str,
+                                inpainter_options: tuple[str, ...] = (), **_: Any) -> Any:
     """Return the ExtractConfig the stage options describe."""
     from dataclasses import replace
 
@@ -74,7 +83,8 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
     return replace(base, downscale=downscale, train=config_with(base.train, iterations=iterations, init=init),
                    distill=DistillConfig(iterations=distill_iterations), threshold=threshold, prune=not no_prune,
                    prune_config=PruneConfig(distance=distance, rule=rule), inpaint=not no_inpaint,
-                   inpainter=inpainter, single_stage=single_stage)
+                   inpainter=inpainter, single_stage=single_stage,
+                   inpainter_options=parse_key_values(inpainter_options, "--inpainter-option"))
 
 
 @click.command(epilog=EXAMPLE)
@@ -101,23 +111,28 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
 @click.option("--masks", "mask_dir", type=click.Path(file_okay=False, path_type=str), default=None,
               help="files segmenter: a folder of mask PNGs named like the views [the dataset's own masks].")
 @extract_options
+@click.option("--dataparser-transforms", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="With a nerfstudio export (ns-export gaussian-splat's splat.ply) as --model: its training run's "
+                   "dataparser_transforms.json, which moves it back into the data's frame.")
 @overwrite_option
 @renderer_option
 @quiet_option
 def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[str, ...],
             negative_clicks: tuple[str, ...], view: str | None,
             segmenter: str | None, segmenter_options: tuple[str, ...], mask_dir: str | None,
-            model_dir: str | None, distill_dir: str | None,
+            model_dir: str | None, distill_dir: str | None, dataparser_transforms: str | None,
             overwrite: bool, renderer: Any, quiet: bool, **stage_options: Any) -> None:
     """Extract objects of DATA_DIR as clean 3DGS models into OUT_DIR/object_<ID>/object.ply.
 
     The object is chosen by instance id (--object, datasets with masks), by clicks (--click X,Y --view IMAGE_NAME)
     or by a segmenter plugin's masks (--segmenter). With --model, DATA_DIR and --downscale default to the ones its
-    cfg.json records.
+    record names (cfg.json; an Inria model's cfg_args, a gsplat run's cfg.yml); a model from another tool is checked
+    against the data's cameras and photos, and refused, with the reason, when they do not fit.
 
     Re-running with the same OUT_DIR reuses the finished stages (scene, distillation, each object) that were made
-    with the same settings, and says which it reused and which it made again; --overwrite makes every stage again.
-    DATA_DIR, --model and --distill are only read.
+    with the same settings and says which it reused; a stage made with other settings (another --inpainter, say) is
+    not replaced without --overwrite, which makes every stage again (or write to another OUT_DIR, with --model
+    OUT_DIR/scene --distill OUT_DIR/distill to reuse the scene). DATA_DIR, --model and --distill are only read.
     """
     from dataclasses import replace
     from pathlib import Path
@@ -147,12 +162,15 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     opts = parse_key_values(segmenter_options, "--segmenter-option")
     config = replace(config, segmenter=segmenter, segmenter_options=opts,
                      prompt=SegmentPrompt(clicks=parsed, mask_dir=Path(mask_dir) if mask_dir else None))
-    if config.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
-        from roodi_toolkit.plugins import load_plugin
+    if config.inpaint:  # an unknown or broken --inpainter, or options it does not take, fail now, not after training
+        from roodi_toolkit.pipeline.inpaint import get_inpainter
 
-        load_plugin("inpainters", config.inpainter)
+        get_inpainter(config.inpainter, **config.inpainter_options)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
-                             config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
+                             config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer,
+                             replace_changed=False, dataparser_transforms=dataparser_transforms)
+    for note in report.get("model_notes", []):
+        click.echo(f"model: {note}")
     if report["reused"]:
         click.echo(f"reused finished stages: {', '.join(report['reused'])}")
     if report["recomputed"]:

@@ -7,7 +7,8 @@ import click
 
 from roodi_toolkit.cli.common import overwrite_option, quiet_option
 from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options, prune_config_from_options,
-                                             prune_mode_options, prune_options, prune_with_photos)
+                                             prune_mode_options, prune_options, prune_with_photos,
+                                             write_floater_picture)
 
 
 EPILOG = """\b
@@ -31,8 +32,12 @@ Examples:
 @prune_mode_options
 @photo_options
 @click.option("--dry-run", is_flag=True,
-              help="Write no cloud: only the report (--report, default OUT's name + .prune.json) and a picture of "
-                   "what would go (OUT's name + .prune.png, removed Gaussians in red).")
+              help="Write no cloud: only the report (--report, default OUT's name + .prune.json) and the floater "
+                   "picture (OUT's name + .prune.png): three upright views with what stays in grey and what would go "
+                   "in a colour per reason, renders before and after, counts per reason.")
+@click.option("--up", default=None, metavar="X,Y,Z|DATASET|auto",
+              help="The cloud's up for the --dry-run picture (default auto: training cameras, the format's "
+                   "convention, a ground plane, else z up; the one used is printed).")
 @click.option("--floaters-out", type=click.Path(path_type=str), default=None,
               help="Also write the removed Gaussians to this PLY.")
 @click.option("--report", "report_path", type=click.Path(path_type=str), default=None,
@@ -44,7 +49,8 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
           mode: str, reach: float, min_cluster: float, max_piece: int, blob_score: float, blob_colour: float,
           blob_sure: float, foreign_size: float, background: str,
           filter_values: tuple[str, ...],
-          photos_spec: str, photo_views: int, dry_run: bool, floaters_out: str | None, report_path: str | None,
+          photos_spec: str, photo_views: int, dry_run: bool, up: str | None, floaters_out: str | None,
+          report_path: str | None,
           overwrite: bool, quiet: bool) -> None:
     """Remove floaters from IN (any readable splat format) and write the kept Gaussians to OUT (.ply,
     .compressed.ply or .spz, from its extension).
@@ -57,6 +63,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
 
     from roodi_toolkit.io.files import check_outputs, write_json
     from roodi_toolkit.io.splat import input_paths, read_cloud, write_cloud
+    from roodi_toolkit.prune.summary import summary_lines
 
     start = time.perf_counter()
     _skip_hugepage_advice()
@@ -68,10 +75,19 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
                                        blob_colour=blob_colour, blob_sure=blob_sure,
                                        foreign_size=foreign_size, background=background, filter_values=filter_values)
     photo_folders = photo_inputs(input_ply, mode, photos_spec)
+    if up is not None and not dry_run:
+        raise click.BadParameter("--up sets the --dry-run picture's up; the pruned cloud keeps its axes",
+                                 param_hint="--up")
+    from roodi_toolkit.render.upright import check_up
+
+    check_up(up)
     picture = None
     if dry_run:
+        from roodi_toolkit.io.splat import WRITE_SUFFIXES
+
         stem = Path(output_ply)
-        stem = stem.with_name(stem.name[:-len(".ply")] if stem.name.endswith(".ply") else stem.name)
+        suffix = next((s for s in WRITE_SUFFIXES if stem.name.lower().endswith(s)), "")
+        stem = stem.with_name(stem.name[:len(stem.name) - len(suffix)])
         picture = f"{stem}.prune.png"
         report_path = report_path or f"{stem}.prune.json"
         if floaters_out is not None:
@@ -87,8 +103,9 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     pruned, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet)
 
     t_write = time.perf_counter()
+    up_axis = None
     if dry_run:
-        _write_picture(cloud, keep, picture)
+        up_axis = write_floater_picture(input_ply, cloud, keep, report, picture, quiet, up=up)
     else:
         write_cloud(pruned, output_ply)
     floaters_written = floaters_out is not None and not keep.all()
@@ -102,13 +119,16 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
         summary["input"], summary["output"] = input_ply, None if dry_run else output_ply
         summary["dry_run"], summary["picture"] = dry_run, picture
         summary["floaters_output"] = floaters_out if floaters_written else None
+        if up_axis is not None:
+            summary["picture_up"] = {"up": up_axis.vector.tolist(), "from": up_axis.source}
         write_json(summary, report_path)
-    removed = ", ".join(f"{name} {n:,}" for name, n in report.stages if n) or "none"
-    click.echo(f"mode {report.mode}: {report.mode_reason}")
-    verb = "would keep" if dry_run else "kept"
-    wrote = ", ".join(p for p in (picture, report_path) if p) if dry_run else output_ply
-    click.echo(f"{verb} {report.kept_count:,} of {report.input_count:,} Gaussians (removed: {removed}; "
-               f"threshold {report.threshold:.4g}); wrote {wrote}")
+    for line in summary_lines(report, dry_run=dry_run):
+        click.echo(line)
+    if up_axis is not None:
+        click.echo(f"picture {up_axis.describe()}")
+    wrote = [picture, report_path] if dry_run else [output_ply, floaters_out if floaters_written else None,
+                                                    report_path]
+    click.echo(f"wrote {', '.join(p for p in wrote if p)}")
     if floaters_out is not None and not floaters_written:
         click.echo(f"nothing was removed, so no floater PLY was written to {floaters_out}")
 
@@ -132,16 +152,3 @@ def _skip_hugepage_advice() -> None:
     except ImportError:  # another NumPy layout: keep its default
         return
     _set_madvise_hugepage(False)
-
-
-def _write_picture(cloud: object, keep: object, path: str) -> None:
-    """Write the inspect picture (off screen) of the cloud with the Gaussians that would go in red."""
-    from roodi_toolkit.io.files import write_image
-    from roodi_toolkit.viz import inspect as insp
-
-    plotter = insp.plot_cloud(cloud, keep, show="both", highlight="red", glyphs="auto", off_screen=True,
-                              window_size=(1024, 768))
-    try:
-        write_image(insp.screenshot_image(plotter), path)
-    finally:
-        plotter.close()

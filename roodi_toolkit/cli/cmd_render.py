@@ -33,9 +33,10 @@ EPILOG = """Examples:
 @click.option("--fov", type=click.FloatRange(1, 179), default=50.0, show_default=True,
               help="Orbit horizontal field of view in degrees.")
 @click.option("--up", default=None,
-              help="Orbit up axis: X,Y,Z; a dataset or camera file (its cameras' mean up); or 'auto' (the mean up "
-              "of the training cameras of the model PLY belongs to; refused for a bare cloud, whose up cannot be told "
-              "reliably). Default: those cameras' up when there are, else 0,0,1.")
+              help="Orbit up axis: X,Y,Z; a dataset or camera file (its cameras' mean up); or auto (the default): "
+              "the training cameras of the model IN belongs to (this toolkit's or the Inria code's), else the "
+              "format's convention (PlayCanvas and SPZ files are y-down, nerfstudio's z-up), else a ground plane "
+              "found in the cloud, else z up. Which one is used is printed.")
 @click.option("--frame-like", "frame_like", type=click.Path(path_type=str), default=None,
               help="Frame the orbit on this other cloud (centre, radius, up) so that several clouds, e.g. before "
               "and after pruning, are rendered from the same views.")
@@ -87,13 +88,13 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         if frame_like:
             frame_cloud = read_cloud(frame_like)
             frame_cloud = frame_cloud.select(~frame_cloud.nonfinite_rows())
-        up_axis, up_from = resolve_up(up, frame_path)
+        up_axis, up_from = resolve_up(up, frame_path, frame_cloud.means)
         w, h = size or (512, 512)
         cams = framing_orbit(frame_cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
                              fov_x_deg=fov, up=up_axis)
         extra = {"orbit": {"framed_on": str(frame_path), "up": up_axis.tolist(), "up_from": up_from}}
         if not quiet:
-            click.echo(f"orbit up {', '.join(f'{v:.3f}' for v in up_axis)}: {up_from}", err=True)
+            click.echo(f"orbit up {', '.join(f'{v:.3g}' for v in up_axis + 0.0)}: {up_from}", err=True)
     # a transforms_*.json stands for its whole dataset folder: rendering into its images/ would overwrite them
     from pathlib import Path
 

@@ -46,7 +46,8 @@ def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | No
           downscale: float, init: str | None, init_points: int | None, random_background: bool | None,
           eval_every: int | None, checkpoint_every: int | None, seed: int | None, resume: bool, overwrite: bool,
           renderer: Any, quiet: bool) -> None:
-    """Train a 3DGS scene from posed images (Blender or COLMAP) into OUT_DIR.
+    """Train a 3DGS scene from posed images (COLMAP, Blender, or a nerfstudio / instant-ngp transforms.json) into
+    OUT_DIR.
 
     Writes OUT_DIR/point_cloud/iteration_N/point_cloud.ply (Inria PLY), checkpoints/latest.pt, cfg.json,
     metrics.json, training.png and renders/ (held-out views beside the ground truth).

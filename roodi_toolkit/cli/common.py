@@ -23,7 +23,13 @@ def progress_factory(quiet: bool = False) -> Callable[..., Any]:
     return functools.partial(tqdm, file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5)
 
 
-quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bars.")
+def _quiet(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
+    """``-q`` given to the command, or anywhere else on the line (``main`` takes it out and puts it in ``ctx.obj``)."""
+    return bool(value) or bool(isinstance(ctx.obj, dict) and ctx.obj.get("quiet"))
+
+
+quiet_option = click.option("-q", "--quiet", is_flag=True, callback=_quiet,
+                            help="No progress bars (also before the command: roodi-toolkit -q COMMAND ...).")
 
 
 def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:
@@ -67,14 +73,26 @@ def parse_size(text: str, name: str = "--size") -> tuple[int, int]:
 
 
 def _load_renderer(ctx: click.Context, param: click.Parameter, value: str) -> Any:
-    """Return the renderer registered as ``value``: a missing or unavailable plugin fails before any work."""
+    """Return the renderer registered as ``value``, built with the ``--renderer-option`` values: a missing or
+    unavailable plugin, or an option it does not take, fails before any work."""
     from roodi_toolkit.render.renderer import get_renderer
 
-    return get_renderer(value)
+    return get_renderer(value, **ctx.meta.get("renderer_options", {}))
 
 
-renderer_option = click.option(
-    "--renderer", default="numba", show_default=True, metavar="NAME", callback=_load_renderer,
-    help="Renderer plugin for every rendering of the command: numba (built-in, compiled CPU kernels), torch "
-         "(built-in, the slower reference) or an installed one such as gsplat (CUDA); see roodi-toolkit plugins.")
-"""``--renderer NAME``: the command receives the :class:`~roodi_toolkit.render.renderer.Renderer` instance."""
+def _keep_renderer_options(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> None:
+    ctx.meta["renderer_options"] = parse_key_values(value, "--renderer-option")
+
+
+def renderer_option(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``--renderer NAME`` (the command receives the :class:`~roodi_toolkit.render.renderer.Renderer` instance) and
+    ``--renderer-option KEY=VALUE`` (repeatable; the renderer's keyword arguments, read first)."""
+    func = click.option(
+        "--renderer", default="numba", show_default=True, metavar="NAME", callback=_load_renderer,
+        help="Renderer plugin for every rendering of the command: numba (built-in, compiled CPU kernels), torch "
+             "(built-in, the slower reference) or an installed one such as gsplat (CUDA); see roodi-toolkit plugins.")(func)
+    return click.option(
+        "--renderer-option", multiple=True, metavar="KEY=VALUE", expose_value=False, is_eager=True,
+        callback=_keep_renderer_options,
+        help="Renderer option (repeatable), e.g. device=cuda:1 or tile_size=8 for gsplat: the keyword arguments of "
+             "the plugin's class.")(func)

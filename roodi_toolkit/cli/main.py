@@ -54,7 +54,7 @@ COMMANDS: dict[str, str] = {
 }
 
 EPILOG = ("Add --debug anywhere for a full traceback on errors, --threads N for N PyTorch threads (default 1, or "
-          "$ROODI_THREADS). Docs: README.md.")
+          "$ROODI_THREADS), -q for no progress bars. Docs: README.md.")
 
 
 class LazyGroup(click.Group):
@@ -139,12 +139,26 @@ def _torch_threads(args: Sequence[str]) -> None:
 
     The renderer's kernels are many small tensor operations; on a 2-core machine that is also running anything else,
     PyTorch's OpenMP threads spin against each other: a 64x64 training step took 637 ms with 2 threads and 58 ms with
-    1 (benchmarks/RESULTS.md). One thread is the safe default; raise it on an idle many-core machine.
+    1 (benchmarks/RESULTS.md). One thread is the safe default; raise it on an idle many-core machine. ``prune`` and
+    ``inspect`` load PyTorch only to render (the photo check, the floater picture): they call
+    :func:`set_torch_threads` then, and the value is checked here first.
     """
+    if not any(a in TORCH_COMMANDS or a in LAZY_TORCH_COMMANDS for a in args):
+        return
+    n = _threads_setting()
+    if any(a in TORCH_COMMANDS for a in args):
+        import torch
+
+        torch.set_num_threads(n)
+
+
+LAZY_TORCH_COMMANDS = frozenset({"prune", "inspect"})
+
+
+def _threads_setting() -> int:
+    """Return ``$ROODI_THREADS`` (``--threads`` goes there), default 1, checked against the machine's cores."""
     from roodi_toolkit.errors import ConfigError
 
-    if not any(a in TORCH_COMMANDS for a in args):
-        return
     value = os.environ.get("ROODI_THREADS", "1")
     try:
         n = int(value)
@@ -156,9 +170,14 @@ def _torch_threads(args: Sequence[str]) -> None:
     if not 1 <= n <= cores:
         raise ConfigError(f"ROODI_THREADS / --threads must be an integer from 1 to {cores} (this machine's cores), "
                           f"got {value!r}")
+    return n
+
+
+def set_torch_threads() -> None:
+    """Give PyTorch the threads of ``--threads`` / ``$ROODI_THREADS`` (default 1): for commands that load it late."""
     import torch
 
-    torch.set_num_threads(n)
+    torch.set_num_threads(_threads_setting())
 
 
 def _pop_threads(args: list[str]) -> list[str]:
@@ -175,6 +194,13 @@ def _pop_threads(args: list[str]) -> list[str]:
             out.append(args[i])
         i += 1
     return out
+
+
+def _pop_quiet(args: list[str]) -> tuple[list[str], bool]:
+    """Take ``-q`` / ``--quiet`` out of the line wherever it stands (before the command too, and on commands without
+    progress bars); the commands' ``-q`` reads it from the context (:data:`~roodi_toolkit.cli.common.quiet_option`)."""
+    out = [a for a in args if a not in ("-q", "--quiet")]
+    return out, len(out) != len(args)
 
 
 def _one_line(text: str) -> str:
@@ -203,11 +229,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
-    args = _pop_threads([a for a in args if a != "--debug"])
+    args, quiet = _pop_quiet(_pop_threads([a for a in args if a != "--debug"]))
     previous = _on_sigterm()
+    restore_warnings = _show_input_warnings()
     try:
         _torch_threads(args)
-        app.main(args=args, prog_name="roodi-toolkit", standalone_mode=False)
+        app.main(args=args, prog_name="roodi-toolkit", standalone_mode=False, obj={"quiet": quiet})
         return 0
     except click.exceptions.Exit as exc:  # --help / --version
         return int(exc.exit_code or 0)
@@ -249,8 +276,34 @@ def main(argv: Sequence[str] | None = None) -> int:
                    "traceback and please report it)", err=True)
         return 1
     finally:
+        restore_warnings()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _show_input_warnings() -> Any:
+    """Show the library's :class:`~roodi_toolkit.errors.InputWarning` (what an input lacked, what was assumed) as one
+    ``warning:`` line on stderr each, every time; return the function that puts the previous display back."""
+    import warnings
+
+    from roodi_toolkit.errors import InputWarning
+
+    shown, filters = warnings.showwarning, list(warnings.filters)
+
+    def show(message: Any, category: type, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+        if issubclass(category, InputWarning):
+            click.echo(f"warning: {_one_line(str(message))}", err=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+    warnings.simplefilter("always", InputWarning)
+
+    def restore() -> None:
+        warnings.showwarning = shown
+        warnings.filters[:] = filters
+
+    return restore
 
 
 def _environment_problem(exc: BaseException) -> str | None:

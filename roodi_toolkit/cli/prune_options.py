@@ -147,6 +147,10 @@ def prune_with_photos(input_path: str, cloud: Any, config: Any, photos_spec: str
             photos = find_photos(input_path, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
         except PhotosUnavailable as exc:  # only --photos auto: the cloud alone still decides, as without a model
             click.echo(f"note: no photo check ({exc}); judging from the cloud alone", err=True)
+    if photos is not None:
+        from roodi_toolkit.cli.main import set_torch_threads
+
+        set_torch_threads()  # the photo check renders
     return prune_cloud(cloud, config, photos=photos, progress=progress_factory(quiet) if photos else progress)
 
 
@@ -209,3 +213,33 @@ def effective_mode(mode: str) -> str:
     explicit = {name for name in ("rule", "alpha", "distance", "neighbors")
                 if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
     return "statistical" if mode == "auto" and explicit else mode
+
+
+def picture_title(path: str, limit: int = 60) -> str:
+    """Return how the floater picture names its input: the path as given, its tail when long; a SOG given as its
+    ``meta.json`` or folder is named by the folder."""
+    from pathlib import Path
+
+    p = Path(path)
+    text = str(p.parent) if p.name == "meta.json" else str(p)
+    return text if len(text) <= limit else "..." + text[-(limit - 3):]
+
+
+def write_floater_picture(input_path: str, cloud: Any, keep: Any, report: Any, path: str, quiet: bool, *,
+                          up: str | None = None, dry_run: bool = True) -> Any:
+    """Write the floater picture (:func:`roodi_toolkit.viz.floaters.floater_picture`) of a prune of ``cloud``, read
+    from ``input_path``, upright on the cloud's up (``up``: ``--up``; :func:`roodi_toolkit.render.upright.resolve_up`);
+    return that up axis (the caller says where it came from)."""
+    from roodi_toolkit.cli.common import progress_factory
+    from roodi_toolkit.io.files import write_image
+    from roodi_toolkit.render.upright import resolve_up
+    from roodi_toolkit.viz.floaters import floater_picture
+
+    from roodi_toolkit.cli.main import set_torch_threads
+
+    set_torch_threads()  # the before/after renders
+    axis = resolve_up(up, input_path, cloud.means)
+    picture = floater_picture(cloud, keep, report, axis, title=picture_title(input_path), dry_run=dry_run,
+                              progress=progress_factory(quiet))
+    write_image(picture.image, path)
+    return axis

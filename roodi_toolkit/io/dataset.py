@@ -5,8 +5,8 @@ Every loader returns the same type: images as float32 tensors in [0, 1], cameras
 format offers besides (alpha, per-pixel instance ids, depth, sparse points).
 
 The formats live in their own modules: :mod:`roodi_toolkit.io.blender` (Blender / NeRF-synthetic
-``transforms_*.json``, also what :mod:`roodi_toolkit.synth.scene` writes) and :mod:`roodi_toolkit.io.colmap`
-(``sparse/0`` models). :func:`load_dataset` and :func:`load_cameras` detect the format and call the right one.
+``transforms_*.json``, also what :mod:`roodi_toolkit.synth.scene` writes), :mod:`roodi_toolkit.io.nerfstudio`
+(nerfstudio's and instant-ngp's ``transforms.json``) and :mod:`roodi_toolkit.io.colmap` (``sparse/0`` models). :func:`load_dataset` and :func:`load_cameras` detect the format and call the right one.
 
 Example:
     >>> detect_format("no/such/folder")
@@ -62,10 +62,12 @@ class Dataset:
         alphas: ``[N, H, W]`` float32 in [0, 1] when the images had alpha, else None.
         masks: ``[N, H, W]`` int64 instance ids (0 = background) when the dataset has masks, else None.
         depths: ``[N, H, W]`` float32 z-depth along the optical axis (0 = no surface) when present, else None.
+        valid: ``[N, H, W]`` float32 in [0, 1], how much each pixel counts in the photometric loss (0 = ignore it: a
+            nerfstudio ``mask_path``), else None (every pixel counts).
         points: ``[P, 3]`` float64 sparse points for initialisation (COLMAP), else None.
         point_colors: ``[P, 3]`` uint8 colours of ``points``, else None.
         root: the folder the dataset was read from.
-        format: ``"blender"`` or ``"colmap"``.
+        format: ``"blender"``, ``"colmap"`` or ``"nerfstudio"`` (also instant-ngp's ``transforms.json``).
         metadata: format-specific extras (e.g. ``depth_scale``, the COLMAP camera models), and from the loaders
             ``downscale``, ``crop`` (the common size and each cut image's own size and offset, when the images differ
             slightly in size) and ``source_pixels`` (per view name, how the photo's pixels map to the loaded ones; see
@@ -80,6 +82,7 @@ class Dataset:
     alphas: torch.Tensor | None = field(default=None, repr=False)
     masks: torch.Tensor | None = field(default=None, repr=False)
     depths: torch.Tensor | None = field(default=None, repr=False)
+    valid: torch.Tensor | None = field(default=None, repr=False)
     points: np.ndarray | None = field(default=None, repr=False)
     point_colors: np.ndarray | None = field(default=None, repr=False)
     root: Path | None = None
@@ -97,7 +100,8 @@ class Dataset:
         if bad:
             raise DatasetError(f"unknown split labels {bad}; expected {list(SPLITS)}")
         hw = tuple(self.images.shape[1:3])
-        for name, t in (("alphas", self.alphas), ("masks", self.masks), ("depths", self.depths)):
+        for name, t in (("alphas", self.alphas), ("masks", self.masks), ("depths", self.depths),
+                        ("valid", self.valid)):
             if t is not None and (t.ndim != 3 or t.shape[0] != n or tuple(t.shape[1:]) != hw):
                 raise DatasetError(f"dataset {name} must be [{n}, {hw[0]}, {hw[1]}], got {list(t.shape)}")
         self.bounds = np.asarray(self.bounds, dtype=np.float64).reshape(2, 3)
@@ -148,7 +152,7 @@ class Dataset:
 
         return replace(self, images=take(self.images), cameras=[self.cameras[i] for i in idx],
                        splits=[self.splits[i] for i in idx], alphas=take(self.alphas), masks=take(self.masks),
-                       depths=take(self.depths))
+                       depths=take(self.depths), valid=take(self.valid))
 
     def split(self, name: str) -> "Dataset":
         """Return the views of one split (``"train"``, ``"val"`` or ``"test"``)."""
@@ -161,39 +165,48 @@ class Dataset:
 
 
 def detect_format(path: str | os.PathLike) -> str:
-    """Return ``"blender"`` or ``"colmap"`` for a dataset folder (or a ``transforms_*.json`` file).
+    """Return ``"blender"``, ``"nerfstudio"`` or ``"colmap"`` for a dataset folder (or a transforms JSON file).
+
+    A folder with ``transforms_train/val/test.json`` is Blender; one with ``transforms.json`` is nerfstudio (also
+    instant-ngp's captures); one with ``sparse/0`` is COLMAP. A JSON file named ``transforms_<split>.json`` is Blender,
+    any other JSON file nerfstudio.
 
     Raises:
-        DatasetError: the path is missing or holds neither format.
+        DatasetError: the path is missing or holds none of the formats.
     """
+    from .nerfstudio import NERFSTUDIO_FILE, is_nerfstudio_file
+
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"{p}: dataset not found")
     if p.is_file():
         if p.suffix.lower() == ".json":
-            return "blender"
-        raise DatasetError(f"{p}: not a dataset; give a folder with transforms_*.json or sparse/0, or a "
-                           "transforms_*.json file")
+            return "nerfstudio" if is_nerfstudio_file(p) else "blender"
+        raise DatasetError(f"{p}: not a dataset; give a folder with transforms.json, transforms_*.json or sparse/0, "
+                           "or a transforms JSON file")
     if any((p / f"transforms_{s}.json").is_file() for s in SPLITS):
         return "blender"
+    if (p / NERFSTUDIO_FILE).is_file():
+        return "nerfstudio"
     if _find_colmap_sparse(p) is not None:
         return "colmap"
-    raise DatasetError(f"{p}: no dataset found: expected transforms_train/val/test.json (Blender) or "
-                       "sparse/0/cameras.bin|txt (COLMAP)")
+    raise DatasetError(f"{p}: no dataset found: expected transforms.json (nerfstudio, instant-ngp), "
+                       "transforms_train/val/test.json (Blender) or sparse/0/cameras.bin|txt (COLMAP)")
 
 
 def load_dataset(path: str | os.PathLike, downscale: float = 1, *, background: Sequence[float] | None = None,
                  splits: Sequence[str] | None = None, test_every: int = LLFF_HOLD,
                  progress: ProgressFactory = null_progress) -> Dataset:
-    """Return the dataset at ``path``, detecting Blender or COLMAP format.
+    """Return the dataset at ``path``, detecting its format (:func:`detect_format`).
 
     Args:
-        path: a dataset folder or a ``transforms_*.json`` file.
+        path: a dataset folder or a transforms JSON file.
         downscale: divide the image resolution by this factor (>= 1; images area-averaged, masks nearest).
         background: RGB in [0, 1] to composite transparent pixels on; defaults to the dataset's (``background`` key
             of a generated scene), else white for Blender and black for COLMAP.
         splits: Blender only: which of train/val/test to read (default all present).
-        test_every: COLMAP only: every ``test_every``-th image in name order is a test view (0: all train).
+        test_every: COLMAP, and nerfstudio without split lists: every ``test_every``-th image in name order is a test
+            view (0: all train).
         progress: progress factory.
 
     Raises:
@@ -201,10 +214,13 @@ def load_dataset(path: str | os.PathLike, downscale: float = 1, *, background: S
     """
     from .blender import load_blender
     from .colmap import load_colmap
+    from .nerfstudio import load_nerfstudio
 
     fmt = detect_format(path)
     if fmt == "blender":
         return load_blender(path, downscale, background=background, splits=splits, progress=progress)
+    if fmt == "nerfstudio":
+        return load_nerfstudio(path, downscale, background=background, test_every=test_every, progress=progress)
     return load_colmap(path, downscale, background=background, test_every=test_every, progress=progress)
 
 
@@ -212,19 +228,28 @@ def load_cameras(path: str | os.PathLike, *, splits: Sequence[str] | None = None
     """Return the cameras of a dataset without reading its images (sizes come from the files' metadata).
 
     Args:
-        path: a dataset folder, a ``transforms_*.json`` file, or a COLMAP model folder (``sparse/0``).
+        path: a dataset folder, a transforms JSON file, a COLMAP model folder (``sparse/0``), or an Inria model's
+            ``cameras.json``.
         splits: Blender only: which splits to include, in this order (default train, val, test as present).
     """
     # the format modules build on this one, so they are imported here rather than at the top
     from .blender import load_blender_cameras
     from .colmap import load_colmap_cameras
+    from .nerfstudio import load_nerfstudio_cameras
 
     p = Path(path)
     if p.is_dir() and _is_colmap_model_dir(p):
         return load_colmap_cameras(p)
+    if p.is_file() and p.name == "cameras.json":
+        from .other_models import is_inria_cameras_file, load_inria_cameras
+
+        if is_inria_cameras_file(p):
+            return load_inria_cameras(p)
     fmt = detect_format(p)
     if fmt == "blender":
         return load_blender_cameras(p, splits)
+    if fmt == "nerfstudio":
+        return load_nerfstudio_cameras(p)
     return load_colmap_cameras(_find_colmap_sparse(p))
 
 
@@ -350,8 +375,9 @@ def to_loaded_pixel(dataset: "Dataset", view: str, x: float, y: float) -> tuple[
         u = m["undistort"]
         shift = np.diag([1.0, 1.0, 1.0])
         shift[:2, 2] = -0.5  # OpenCV puts pixel centres at integers, we at +0.5
-        pt = cv2.undistortPoints(np.array([[[x - 0.5, y - 0.5]]]), shift @ np.asarray(u["K"]),
-                                 np.asarray(u["dist"]), P=shift @ np.asarray(u["new_K"]))
+        undistort_points = cv2.fisheye.undistortPoints if u.get("fisheye") else cv2.undistortPoints
+        pt = undistort_points(np.array([[[x - 0.5, y - 0.5]]]), shift @ np.asarray(u["K"]),
+                              np.asarray(u["dist"]), P=shift @ np.asarray(u["new_K"]))
         ux, uy = float(pt[0, 0, 0]) + 0.5, float(pt[0, 0, 1]) + 0.5
     lx, ly = ux * ax - bx, uy * ay - by
     if not (0 <= lx < dataset.width and 0 <= ly < dataset.height):

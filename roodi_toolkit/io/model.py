@@ -1,10 +1,16 @@
-"""The on-disk layout of a trained model folder and of a distillation folder, in one place.
+"""The on-disk layout of a trained model folder and of a distillation folder, in one place; and the scenes other
+tools trained, opened as models (:func:`open_model`).
 
 A trained model folder (``roodi-toolkit train`` output, the layout the Inria 3DGS code and its viewers read)::
 
     point_cloud/iteration_N/point_cloud.ply   the scene (Inria PLY); the highest N is the model
     checkpoints/latest.pt                     the resumable training state
     cfg.json                                  the training run's record (data_dir, downscale, holdout_every, ...)
+
+Scenes trained by other tools open as models too (:func:`open_model`; the formats in
+:mod:`roodi_toolkit.io.other_models`): an Inria output folder (``cfg_args`` names the data; ``cameras.json`` is checked
+against it), a gsplat result folder or checkpoint (its normalised world undone from the data), a nerfstudio export with
+its ``dataparser_transforms.json``, or any splat file with the data folder given.
 
 A distillation folder (``roodi-toolkit distill`` output; never inside the model folder, which is an input)::
 
@@ -19,13 +25,19 @@ from __future__ import annotations
 
 import hashlib
 import re
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, RoodiError
+
+if TYPE_CHECKING:
+    from ..cameras import Camera
+    from ..gaussians import GaussianCloud
+    from ..similarity import Similarity
 
 MODEL_PLY = "point_cloud.ply"
 CHECKPOINT = Path("checkpoints") / "latest.pt"
@@ -57,21 +69,65 @@ def checkpoint_file(root: str | Path) -> Path:
     return Path(root) / CHECKPOINT
 
 
+MODEL_KINDS = ("roodi", "inria", "gsplat", "nerfstudio", "splat")
+"""What trained a model: this toolkit, the Inria code, gsplat's trainer, nerfstudio (an export with its data parser's
+transform), or an unknown tool (a splat file given with its data folder)."""
+
+SEEN_MIN = 0.3
+"""A model from another tool must have at least this share of its Gaussians in view of the dataset's cameras, or it
+lies in another frame (measured in tests: its own data's cameras see 0.9-1.0 of a trained scene)."""
+
+
 @dataclass
 class ModelFolder:
-    """A trained model folder.
+    """A trained model.
 
     Attributes:
-        root: the folder.
-        ply_path: ``point_cloud/iteration_N/point_cloud.ply`` with the highest N.
-        iteration: that N.
-        config: ``cfg.json`` (data_dir, downscale, holdout_every ...), empty if absent.
+        root: the folder (the file itself for a splat file given alone).
+        ply_path: the file the scene is read from: ``point_cloud/iteration_N/point_cloud.ply`` with the highest N, a
+            gsplat checkpoint, or the splat file given; distillations record its digest.
+        iteration: that N (the checkpoint's step; 0 for a splat file).
+        config: the record in this toolkit's keys (data_dir, downscale, holdout_every ...): ``cfg.json``, or what the
+            other tool's own record says; empty if nothing says.
+        kind: one of :data:`MODEL_KINDS`.
+        to_data: what moves the file's Gaussians into the data's frame, or None when they are in it.
+        frames: for a gsplat checkpoint whose normalisation differs between gsplat versions, every candidate (the
+            photos pick one: :func:`roodi_toolkit.pipeline.model_frame.settle_model_frame`); else empty.
+        notes: what was read and assumed, for the report.
     """
 
     root: Path
     ply_path: Path
     iteration: int
     config: dict[str, Any]
+    kind: str = "roodi"
+    to_data: "Similarity | None" = None
+    frames: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+
+    def read_cloud(self) -> "GaussianCloud":
+        """Return the scene in the data's frame."""
+        return read_scene(self.ply_path, self.to_data)
+
+    def record(self) -> dict[str, Any]:
+        """Return what a distillation records to read this scene again (:meth:`Distillation.read_scene`)."""
+        return {"model_kind": self.kind,
+                "model_to_data": None if self.to_data is None else self.to_data.matrix().tolist()}
+
+
+def read_scene(path: str | Path, to_data: "Similarity | None" = None) -> "GaussianCloud":
+    """Return the Gaussians of a model's scene file (a splat file of any readable format, or a gsplat checkpoint),
+    moved by ``to_data`` when given."""
+    from .other_models import GSPLAT_CKPT, read_gsplat_checkpoint
+    from .splat import read_cloud
+
+    p = Path(path)
+    cloud = read_gsplat_checkpoint([p]) if GSPLAT_CKPT.fullmatch(p.name) else read_cloud(p)
+    if to_data is not None and not to_data.is_identity():
+        from ..similarity import transform_cloud
+
+        cloud = transform_cloud(cloud, to_data)
+    return cloud
 
 
 def model_iterations(root: str | Path) -> dict[int, Path]:
@@ -105,6 +161,235 @@ def find_model(model_dir: str | Path) -> ModelFolder:
     cfg_path = root / MODEL_RECORD
     config = read_json(cfg_path, "training record") if cfg_path.is_file() else {}
     return ModelFolder(root, found[iteration], iteration, config if isinstance(config, dict) else {})
+
+
+def _quiet_cameras(data_dir: Path) -> "list[Camera]":
+    """Return a dataset's cameras for checking a model against, without repeating the loader's warnings (the dataset
+    itself is loaded and warns later)."""
+    from ..errors import InputWarning
+    from .dataset import load_cameras
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InputWarning)
+        return load_cameras(data_dir)
+
+
+def _recorded_data(root: Path, value: Any, record: Path, data_dir: str | Path | None) -> Path:
+    """Return the data folder: the one given, else the one the record names (relative names tried against the
+    model folder's parent too)."""
+    if data_dir is not None:
+        return Path(data_dir)
+    if not value:
+        raise ModelError(f"{record} names no data folder; give DATA_DIR")
+    p = Path(str(value))
+    for cand in (p, root / p, root.parent / p):
+        if cand.exists():
+            return cand
+    raise ModelError(f"the data folder {p} that {record} names is not here; give DATA_DIR")
+
+
+def open_model(path: str | Path, data_dir: str | Path | None = None, *,
+               dataparser_transforms: str | Path | None = None,
+               data_cameras: "Sequence[Camera] | None" = None) -> ModelFolder:
+    """Return the trained model at ``path``, whatever trained it, with its scene in the data's frame.
+
+    ``path``: a roodi-toolkit train output folder (:func:`find_model`); an Inria output folder (``cfg_args``,
+    ``cameras.json``) or a PLY inside one; a gsplat result folder, its ``ckpts`` folder or one ``ckpt_N_rank0.pt``; or
+    any splat file (with ``data_dir``; with ``dataparser_transforms``, a nerfstudio export). ``data_dir`` defaults to
+    the one the model's record names; ``data_cameras`` spares reading the cameras again.
+
+    Raises:
+        ModelError: nothing readable as a model, a record naming no data folder that is here, a model in another
+            frame than the data (cameras that disagree, Gaussians the cameras do not see), a malformed file.
+    """
+    from . import other_models as om
+
+    p = Path(path)
+    if not p.exists():
+        raise ModelError(f"{p}: model folder not found (give a roodi-toolkit train output folder, an Inria or gsplat "
+                         "output folder, a gsplat checkpoint, or a splat file together with the data folder)")
+    if dataparser_transforms is not None:
+        if p.is_dir():
+            raise ModelError(f"{p}: --dataparser-transforms goes with the exported splat file (ns-export's "
+                             "splat.ply), not a folder")
+        return _nerfstudio_model(p, data_dir, Path(dataparser_transforms), data_cameras)
+    root = _enclosing_folder(p)
+    if root is not None and (root / om.INRIA_ARGS).is_file() and not (root / MODEL_RECORD).is_file():
+        return _inria_model(root, p if p.is_file() else None, data_dir, data_cameras)
+    if root is not None:
+        model = find_model(root)
+        if p.is_file():
+            found = {v.resolve(): k for k, v in model_iterations(root).items()}
+            model = ModelFolder(root, p, found.get(p.resolve(), model.iteration), model.config)
+        if data_dir is not None:
+            model.config = {**model.config, "data_dir": str(data_dir)}
+        return model
+    ckpts = om.find_gsplat_checkpoints(p)
+    if ckpts is not None:
+        return _gsplat_model(*ckpts, data_dir, data_cameras)
+    if p.is_dir():
+        raise ModelError(f"{p}: not a model folder: no point_cloud/iteration_N/point_cloud.ply (roodi-toolkit or "
+                         "Inria) and no ckpts/ckpt_N_rank0.pt (gsplat)")
+    if data_dir is None:
+        raise ModelError(f"{p}: a splat file as the model needs the data folder it was trained on; give DATA_DIR")
+    model = ModelFolder(p, p, 0, {"data_dir": str(data_dir)}, kind="splat",
+                        notes=[f"{p.name}: a splat file, taken to be in {data_dir}'s frame"])
+    _check_seen(model, data_cameras if data_cameras is not None else _quiet_cameras(Path(data_dir)), Path(data_dir))
+    return model
+
+
+def model_record(root: str | Path) -> tuple[dict[str, Any], Path | None]:
+    """Return a model folder's record in this toolkit's keys and the data folder it names (None if it names none),
+    reading only the record: ``cfg.json``, or an Inria folder's ``cfg_args`` (its ``cameras.json`` gives the photos'
+    width for its resolution). Nothing is checked against the data (:func:`open_model` does that).
+
+    Raises:
+        InputError: an unreadable record.
+    """
+    from .files import read_json
+    from .other_models import INRIA_ARGS, INRIA_CAMERAS, inria_settings, load_inria_cameras, read_cfg_args
+
+    root = Path(root)
+    if (root / MODEL_RECORD).is_file() or not (root / INRIA_ARGS).is_file():
+        record = read_json(root / MODEL_RECORD, "training record")
+        record = record if isinstance(record, dict) else {}
+        value = record.get("data_dir")
+    else:
+        args = read_cfg_args(root / INRIA_ARGS)
+        width = None
+        if (root / INRIA_CAMERAS).is_file():
+            width = max(c.width for c in load_inria_cameras(root / INRIA_CAMERAS))
+        value = args.get("source_path")
+        record = inria_settings(root, args, width)
+    if not value:
+        return record, None
+    data = Path(str(value))
+    for cand in (data, root / data):
+        if cand.exists():
+            return record, cand
+    return record, data
+
+
+def _enclosing_folder(p: Path) -> Path | None:
+    """Return the roodi-toolkit or Inria model folder ``p`` is, or whose ``point_cloud/iteration_N/x.ply`` it is."""
+    if p.is_dir():
+        return p if model_iterations(p) or (p / MODEL_RECORD).is_file() and (p / "point_cloud").is_dir() else None
+    folder = p.resolve().parent
+    if re.fullmatch(r"iteration_\d+", folder.name) and folder.parent.name == "point_cloud":
+        return folder.parent.parent
+    return None
+
+
+def _check_seen(model: ModelFolder, cameras: "Sequence[Camera]", data_dir: Path, hint: str = "") -> float:
+    from .other_models import seen_fraction
+
+    seen = seen_fraction(model.read_cloud(), cameras)
+    if seen < SEEN_MIN:
+        raise ModelError(f"{model.ply_path}: only {100 * seen:.0f}% of its Gaussians lie in view of the cameras of "
+                         f"{data_dir}: the model and the data are in different frames{hint}")
+    model.notes.append(f"{100 * seen:.0f}% of its Gaussians in view of the data's cameras")
+    return seen
+
+
+def _inria_model(root: Path, ply: Path | None, data_dir: str | Path | None,
+                 data_cameras: "Sequence[Camera] | None") -> ModelFolder:
+    from . import other_models as om
+
+    args = om.read_cfg_args(root / om.INRIA_ARGS)
+    data = _recorded_data(root, args.get("source_path"), root / om.INRIA_ARGS, data_dir)
+    found = model_iterations(root)
+    if not found and ply is None:
+        raise ModelError(f"{root}: no point_cloud/iteration_N/point_cloud.ply in the Inria output folder")
+    iteration = max(found) if ply is None else {v.resolve(): k for k, v in found.items()}.get(ply.resolve(), 0)
+    cams = list(data_cameras) if data_cameras is not None else _quiet_cameras(data)
+    notes = [f"Inria output folder, iteration {iteration}"]
+    width = None
+    if (root / om.INRIA_CAMERAS).is_file():
+        n = om.check_inria_cameras(root / om.INRIA_CAMERAS, cams, data)
+        notes.append(f"its cameras.json agrees with {n} of the dataset's cameras")
+    else:
+        notes.append("no cameras.json to check the frame against")
+    if cams:
+        width = max(c.width for c in cams)
+    settings = om.inria_settings(root, args, width)
+    config = {"data_dir": str(data), **settings}
+    return ModelFolder(root, ply if ply is not None else found[iteration], iteration, config, kind="inria",
+                       notes=notes)
+
+
+def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path | None,
+                  data_cameras: "Sequence[Camera] | None") -> ModelFolder:
+    from ..similarity import transform_cloud
+    from . import other_models as om
+    from .dataset import _find_colmap_sparse
+
+    if len(files) > 1:
+        raise ModelError(f"{root}: step {step} is split over {len(files)} ranks' checkpoints ({files[0].name}, ...); "
+                         "this reads a single-GPU run's ckpt_N_rank0.pt")
+    cfg = om.read_gsplat_config(root)
+    record = root / om.GSPLAT_CONFIG
+    data = _recorded_data(root, cfg.get("data_dir"), record, data_dir) if data_dir is not None or cfg else None
+    if data is None:
+        raise ModelError(f"{files[0]}: no {om.GSPLAT_CONFIG} beside its ckpts folder names the data; give DATA_DIR")
+    settings = om.gsplat_settings(cfg, record)
+    normalize = settings.pop("normalize")
+    config = {"data_dir": str(data), **settings}
+    notes = [f"gsplat checkpoint, step {step}" + ("" if cfg else f" (no {om.GSPLAT_CONFIG}: gsplat's defaults "
+                                                                  "taken, normalize_world_space on)")]
+    model = ModelFolder(root, files[0], step, config, kind="gsplat", notes=notes)
+    cloud = model.read_cloud()  # a broken checkpoint is named before anything else is looked at
+    cams = list(data_cameras) if data_cameras is not None else _quiet_cameras(data)
+    if normalize:
+        sparse = _find_colmap_sparse(data) if data.is_dir() else None
+        if sparse is None:
+            raise ModelError(f"{files[0]}: gsplat normalised its world from a COLMAP capture, but {data} has no "
+                             "sparse/0; give the COLMAP data folder it was trained on")
+        frames = [f.inverse() for f in om.gsplat_frames(sparse)]
+        seen = [om.seen_fraction(transform_cloud(cloud, f), cams) for f in frames]
+        keep = [f for f, s in zip(frames, seen) if s >= SEEN_MIN]
+        if not keep:
+            raise ModelError(f"{files[0]}: with gsplat's normalisation of {data} undone, only {100 * max(seen):.0f}% "
+                             "of its Gaussians lie in view of the cameras: it was trained on other data (give that "
+                             "DATA_DIR)")
+        model.to_data = keep[0]
+        model.frames = keep if len(keep) > 1 else []
+        model.notes.append("gsplat's normalised world undone" + (" (two gsplat versions differ here: the photos "
+                                                                   "decide)" if len(keep) > 1 else ""))
+    else:
+        _check_seen(model, cams, data)
+    return model
+
+
+def _nerfstudio_model(p: Path, data_dir: str | Path | None, transforms: Path,
+                      data_cameras: "Sequence[Camera] | None") -> ModelFolder:
+    from . import other_models as om
+    from ..similarity import Similarity
+
+    if data_dir is None:
+        raise ModelError(f"{p}: a nerfstudio export needs the data folder it was trained on; give DATA_DIR")
+    data = Path(data_dir)
+    to_model = om.read_dataparser_transforms(transforms)
+    to_data = to_model.inverse()
+    applied = _applied_transform(data)
+    note = "nerfstudio export: its data parser's transform undone"
+    if applied is not None:
+        to_data = to_data.then(Similarity.from_matrix(applied, f"{data}: applied_transform"))
+        note += ", then the capture's applied_transform applied"
+    model = ModelFolder(p, p, 0, {"data_dir": str(data)}, kind="nerfstudio", to_data=to_data, notes=[note])
+    _check_seen(model, data_cameras if data_cameras is not None else _quiet_cameras(data), data,
+                " (is --dataparser-transforms the one of this training run?)")
+    return model
+
+
+def _applied_transform(data: Path) -> list | None:
+    """Return the ``applied_transform`` of a nerfstudio capture (as its data parser takes it), None for other data."""
+    from .dataset import detect_format
+    from .nerfstudio import _applied_transform as applied, _json_path, _read_meta
+
+    if detect_format(data) != "nerfstudio":
+        return None
+    json_path = _json_path(data)
+    return applied(json_path, _read_meta(json_path))
 
 
 def file_digest(path: str | Path, chunk: int = 1 << 22) -> str:
@@ -143,6 +428,20 @@ class Distillation:
     @property
     def masks_dir(self) -> Path:
         return self.root / MASKS_DIR
+
+    def read_scene(self) -> "GaussianCloud":
+        """Return the scene the features belong to, in the data's frame (a model from another tool is moved as it
+        was when distilled)."""
+        from ..similarity import Similarity
+
+        matrix = self.record.get("model_to_data")
+        move = None
+        if matrix is not None:
+            try:
+                move = Similarity.from_matrix(matrix, f"{self.root / DISTILL_RECORD}: model_to_data")
+            except RoodiError as exc:
+                raise ModelError(str(exc)) from None
+        return read_scene(self.model_ply, move)
 
 
 def write_distillation(out_dir: str | Path, *, model_ply: Path, features: np.ndarray,

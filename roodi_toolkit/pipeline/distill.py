@@ -547,10 +547,9 @@ def load_distillation(distill_dir: str | Path, scene: GaussianCloud | None = Non
         ModelError: not a distillation folder, or its model file changed or is gone.
     """
     from ..io.model import read_distillation
-    from ..io.ply import read_ply
 
     distillation = read_distillation(distill_dir)
-    cloud = read_ply(distillation.model_ply) if scene is None else scene
+    cloud = distillation.read_scene() if scene is None else scene
     if len(cloud) != len(distillation.features):
         raise ConfigError(f"{distillation.root}: {len(distillation.features)} features for the "
                           f"{len(cloud)} Gaussians of {distillation.model_ply}; run roodi-toolkit distill again")
@@ -562,33 +561,37 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
                 clicks: Sequence[Any] = (), mask_dir: str | Path | None = None,
                 segmenter_options: dict[str, Any] | None = None, config: DistillConfig = DistillConfig(),
                 downscale: float | None = None, overwrite: bool = False,
-                progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> dict[str, Any]:
+                progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
+                dataparser_transforms: str | Path | None = None) -> dict[str, Any]:
     """Segment and distil a trained model folder into a distillation folder ``out_dir``; return its record
     (``renderer``: draws every view, the click segmenter's included; default the built-in CPU renderer).
 
-    Reads ``MODEL_DIR/point_cloud/iteration_N/point_cloud.ply`` (highest N) and ``cfg.json`` (downscale and the
-    held-out views of training, which are scored here too). Writes into ``out_dir`` only (see
+    Reads ``MODEL_DIR`` as :func:`~roodi_toolkit.io.model.open_model` does (``point_cloud/iteration_N``, ``cfg.json``
+    with the downscale and held-out views, also scored here; or another tool's model, checked against the photos
+    by :func:`~roodi_toolkit.pipeline.model_frame.settle_model_frame`). Writes into ``out_dir`` only (see
     :mod:`roodi_toolkit.io.model`): ``features.npy``, ``object_classifier.pt``, ``object_masks/<view>.png``,
     ``distill.png`` (per view: image, masks, rendered classes, rendered probability of the predicted class) and
     ``distill.json``. The model folder and the data folder are inputs and are never written.
     """
     from ..io import files
     from ..io.dataset import load_dataset
-    from ..io.model import DISTILL_RECORD, find_model
-    from ..io.ply import read_ply
+    from ..io.model import DISTILL_RECORD, open_model
+    from .model_frame import settle_model_frame
 
-    model = find_model(model_dir)
-    files.check_output_dir(out_dir, overwrite=overwrite, inputs=[model.root, data_dir])
+    model = open_model(model_dir, data_dir, dataparser_transforms=dataparser_transforms)
+    inputs = [model.root, model_dir, data_dir, dataparser_transforms]
+    files.check_output_dir(out_dir, overwrite=overwrite, inputs=inputs)
     ds_scale = float(downscale if downscale is not None else model.config.get("downscale", 1) or 1)
     dataset = load_dataset(data_dir, ds_scale, progress=progress)
+    settle_model_frame(model, dataset, renderer)  # another tool's scene: does it fit the photos?
     # clicks come in the photos' own pixels, whatever the downscale (as extract takes them)
     _, prompt = resolve_prompt(SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)), dataset)
-    out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=[model.root, data_dir])
-    distilled = distill_scene(read_ply(model.ply_path), dataset, segmenter=segmenter, prompt=prompt,
+    out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=inputs)
+    distilled = distill_scene(model.read_cloud(), dataset, segmenter=segmenter, prompt=prompt,
                               segmenter_options=segmenter_options, config=config,
                               holdout_every=int(model.config.get("holdout_every", 8)), labels=scene_labels(data_dir),
                               progress=progress, renderer=renderer)
     save_distilled(out, distilled, model.ply_path, {"data_dir": str(Path(data_dir).resolve()), "downscale": ds_scale,
-                                                    "model_dir": str(model.root.resolve())})
+                                                    "model_dir": str(model.root.resolve()), **model.record()})
     return {**distilled.summary, "model": str(model.ply_path), "data_dir": str(data_dir), "downscale": ds_scale,
             "out_dir": str(out), "record": str(out / DISTILL_RECORD), "picture": str(out / "distill.png")}

@@ -65,6 +65,8 @@ class ExtractConfig:
         prompt: the segmenter's clicks or mask folder. Clicks are in the original photo's pixels (what an image
             viewer shows), whatever ``downscale``; a click whose view is ``""`` is in the first training view.
         segmenter_options: keyword options of the segmenter.
+        inpainter_options: keyword options of the inpainter (``--inpainter-option KEY=VALUE``; text values take the
+            type of the plugin's default).
     """
 
     train: TrainConfig = field(default_factory=lambda: TrainConfig(init="auto"))
@@ -81,6 +83,7 @@ class ExtractConfig:
     segmenter: str = "files"
     prompt: SegmentPrompt = SegmentPrompt()
     segmenter_options: dict = field(default_factory=dict)
+    inpainter_options: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not 0 < self.threshold < 1:
@@ -97,14 +100,24 @@ def _settings(config: Any) -> Any:
 
 
 class _Stages:
-    """Which finished stages a run reused and which it made again, and why (into the report)."""
+    """Which finished stages a run reused and which it made again, and why (into the report).
 
-    def __init__(self, report: dict[str, Any]) -> None:
+    ``replace_changed``: a finished stage made with other settings is made again (the benchmark and batch re-runs);
+    False (the ``extract`` command): it is refused, since that would replace an output without ``--overwrite``.
+    """
+
+    def __init__(self, report: dict[str, Any], replace_changed: bool = True) -> None:
         self.reused: list[str] = report.setdefault("reused", [])
         self.remade: list[str] = report.setdefault("recomputed", [])
+        self.replace_changed = replace_changed
 
-    def fresh(self, name: str, record: dict[str, Any] | None, wanted: dict[str, Any], overwrite: bool) -> bool:
-        """Return True if the stage's earlier result can be reused (same settings, no ``overwrite``)."""
+    def fresh(self, name: str, record: dict[str, Any] | None, wanted: dict[str, Any], overwrite: bool,
+              where: Path | None = None) -> bool:
+        """Return True if the stage's earlier result can be reused (same settings, no ``overwrite``).
+
+        Raises:
+            OutputError: other settings, neither ``overwrite`` nor ``replace_changed`` (``where``: the stage's folder).
+        """
         if record is None:
             return False
         if overwrite:
@@ -112,10 +125,22 @@ class _Stages:
             return False
         changed = sorted(k for k in set(wanted) | set(record) if k in wanted and record.get(k) != wanted[k])
         if changed:
+            if not self.replace_changed:
+                raise _changed_error(where, name, changed)
             self.remade.append(f"{name} ({', '.join(changed)} changed)")
             return False
         self.reused.append(name)
         return True
+
+
+def _changed_error(where: Path | None, name: str, changed: Sequence[str]) -> Exception:
+    """The refusal to replace a finished stage made with other settings (it says how to go on)."""
+    from ..errors import OutputError
+
+    out = where.parent if where is not None else Path("OUT_DIR")
+    return OutputError(f"{where or name}: the {name} there was made with other settings ({', '.join(changed)} "
+                       f"changed) and would be replaced; give --overwrite to make every stage again, or another "
+                       f"OUT_DIR (with --model {out / 'scene'} --distill {out / 'distill'} it reuses this run's scene)")
 
 
 def _train_record(model_root: Path) -> dict[str, Any] | None:
@@ -144,13 +169,20 @@ def _object_masks(masks: torch.Tensor, object_id: int, views: Sequence[int]) -> 
     return masks[list(views)] == object_id
 
 
-def _picture(cloud: GaussianCloud, path: Path, size: int = 192, renderer: Any = None) -> None:
-    """Write the object from four directions on white."""
+def _picture(cloud: GaussianCloud, path: Path, size: int = 192, renderer: Any = None,
+             cameras: Sequence[Any] = ()) -> None:
+    """Write the object from four directions on white, standing on the training cameras' mean up (z without them)."""
+    from ..errors import ConfigError
     from ..io.files import write_image
     from ..render.renderer import render_cloud
+    from ..render.upright import cameras_up
     from ..render.views import framing_orbit
 
-    cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size)
+    try:
+        up = cameras_up(cameras) if len(cameras) else np.array([0.0, 0.0, 1.0])
+    except ConfigError:  # cameras whose ups cancel out (a capture all around, upside down half the time)
+        up = np.array([0.0, 0.0, 1.0])
+    cams = framing_orbit(cloud, 4, elevation_deg=25.0, width=size, height=size, up=up)
     row = [render_cloud(cloud, c, renderer=renderer, background=(1.0, 1.0, 1.0)).rgb.clamp(0, 1).numpy()
            for c in cams]
     write_image(np.concatenate(row, axis=1), path)
@@ -218,7 +250,8 @@ class PreparedScene:
 def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir: str | Path | None = None,
                   distill_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
                   overwrite: bool = False, progress: ProgressFactory = null_progress,
-                  renderer: Any = None) -> PreparedScene:
+                  renderer: Any = None, replace_changed: bool = True,
+                  dataparser_transforms: str | Path | None = None) -> PreparedScene:
     """Return the stages the objects of a scene share: the decoded dataset, the trained scene (trained into
     ``out_dir/scene`` unless ``model_dir`` is given) and its distillation (into ``out_dir/distill`` unless
     ``distill_dir`` is given), each reused when a previous run made it with the same settings.
@@ -226,10 +259,11 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     """
     from ..io import files
     from ..io.dataset import load_dataset
-    from ..io.model import DISTILL_RECORD, checkpoint_file, find_model
+    from ..io.model import DISTILL_RECORD, checkpoint_file, find_model, open_model
     from ..io.ply import read_ply
     from ..render.renderer import resolve_renderer
     from .distill import _without_features, distill_scene, load_distillation, save_distilled, scene_labels
+    from .model_frame import settle_model_frame
     from .segment import FilesSegmenter, SegmentPrompt
     from .train import train_scene
 
@@ -238,7 +272,10 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
                           "--model or --distill")
     if distill_dir is not None and model_dir is None:
         raise ConfigError("--distill needs the --model it was distilled from")
-    model = find_model(model_dir) if model_dir is not None else None
+    if dataparser_transforms is not None and model_dir is None:
+        raise ConfigError("--dataparser-transforms goes with the nerfstudio export given as --model")
+    model = open_model(model_dir, data_dir, dataparser_transforms=dataparser_transforms) \
+        if model_dir is not None else None
     if data_dir is None:
         recorded = model.config.get("data_dir") if model is not None else None
         if not recorded:
@@ -248,16 +285,20 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
             raise ConfigError(f"{data_dir}: the data folder named in {model.root / 'cfg.json'} is gone; give DATA_DIR")
     data_dir = Path(data_dir)
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
-                                   inputs=[data_dir, model_dir, distill_dir])
+                                   inputs=[data_dir, model_dir, distill_dir, dataparser_transforms,
+                                           model.root if model is not None else None])
     renderer = resolve_renderer(renderer)
-    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {}}
-    stages = _Stages(report)
+    report: dict[str, Any] = {"data_dir": str(data_dir), "objects": {}, "stages": {},
+                              "replace_changed": replace_changed}
+    stages = _Stages(report, replace_changed)
     timings = report["stages"]
     downscale = config.downscale
     if downscale is None:
         downscale = float(model.config.get("downscale", 1) or 1) if model is not None else 1.0
     report["downscale"] = downscale
     dataset = load_dataset(data_dir, downscale, progress=progress)  # decoded once; every stage reads it from memory
+    if model is not None:
+        report.update(settle_model_frame(model, dataset, renderer))  # another tool's scene: does it fit the photos?
     given, prompt = resolve_prompt(config.prompt, dataset)  # checked now, before any training
     distill_out = out / "distill"
     distill_wanted = {"config": _settings(config.distill), "segmenter": config.segmenter,
@@ -276,13 +317,17 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
         old = _train_record(model_root)
         if config.single_stage and old is not None and not _Stages({}).fresh("", distill_old, distill_wanted, False):
             old = None  # the features are learned with the scene: a changed distillation means training again
-        if stages.fresh("train", old, train_wanted, overwrite):
+        if stages.fresh("train", old, train_wanted, overwrite, model_root):
             model = find_model(model_root)
             scene = read_ply(model.ply_path)
         else:
             record = files.read_json(model_root / "cfg.json", "training record") \
                 if (model_root / "cfg.json").is_file() else None
             same = isinstance(record, dict) and all(record.get(k) == v for k, v in train_wanted.items())
+            if isinstance(record, dict) and not same and not overwrite and not replace_changed:
+                # an unfinished run of other settings: starting afresh would replace what it wrote
+                raise _changed_error(model_root, "train", sorted(k for k, v in train_wanted.items()
+                                                                 if record.get(k) != v))
             resume = same and checkpoint_file(model_root).is_file() and not overwrite
             if config.single_stage:
                 from .joint import train_joint
@@ -297,7 +342,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
             model = find_model(model_root)
             scene = result.cloud
     else:
-        scene = read_ply(model.ply_path)
+        scene = model.read_cloud()
     scene = _without_features(scene)
     timings["train_s"] = time.perf_counter() - t
 
@@ -311,7 +356,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
         distill_out = Path(distill_dir)
     else:
         wanted = {**distill_wanted, "model_ply": str(model.ply_path.resolve())}
-        if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite):
+        if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite, distill_out):
             _, cloud, classifier = load_distillation(distill_out, scene)
         else:
             if distilled is None:
@@ -322,7 +367,8 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
             save_distilled(distill_out, distilled, model.ply_path,
                            {"downscale": downscale, "data_dir": wanted["data_dir"], "prompt": wanted["prompt"],
                             "segmenter_options": wanted["segmenter_options"],
-                            "single_stage": config.single_stage, "model_dir": str(model.root.resolve())})
+                            "single_stage": config.single_stage, "model_dir": str(model.root.resolve()),
+                            **model.record()})
             report["distill"] = {k: v for k, v in distilled.summary.items() if k != "history"}
             cloud, classifier = distilled.cloud, distilled.classifier
     report["distill_dir"] = str(distill_out)
@@ -331,6 +377,8 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     if masks is None and config.inpaint:  # the masks the features were distilled from
         masks = FilesSegmenter(distill_out / "object_masks").segment(dataset, SegmentPrompt()).masks
     report["model"] = str(model.root)
+    if model.notes:
+        report["model_notes"] = list(model.notes)
     return PreparedScene(out, dataset, scene, cloud, classifier, masks, model, distill_out,
                          files.read_json(distill_out / DISTILL_RECORD, "distillation record"), downscale, report,
                          renderer)
@@ -346,7 +394,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
     from .finetune import refine_object
     from .select import prune_selection, select_object
 
-    stages = _Stages(prepared.report)
+    stages = _Stages(prepared.report, bool(prepared.report.get("replace_changed", True)))
     odir = prepared.out / f"object_{object_id}"
     odir.mkdir(exist_ok=True)
     record = prepared.distill_record
@@ -356,9 +404,11 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
               "finetune": _settings(config.finetune), "downscale": prepared.downscale,
               "features_of": record.get("model_ply_sha256"),
               "distillation": {k: record.get(k) for k in ("config", "segmenter", "prompt", "data_dir")}}
+    if config.inpainter_options:  # only when given: records of runs without them stay the same
+        wanted["inpainter_options"] = _settings(config.inpainter_options)
     stage_file = odir / "stage.json"
     old = files.read_json(stage_file, "object record") if stage_file.is_file() else None
-    if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite):
+    if (odir / "object.ply").is_file() and stages.fresh(f"object {object_id}", old, wanted, overwrite, odir):
         return old["entry"]
     entry: dict[str, Any] = {}
     t = time.perf_counter()
@@ -382,6 +432,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
         views = ds.train_indices
         res = refine_object(selected, prepared.scene, ds.images[views], [ds.cameras[v] for v in views],
                             _object_masks(prepared.masks, int(object_id), views), inpainter=config.inpainter,
+                            inpainter_options=config.inpainter_options,
                             occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",
                             progress=progress, renderer=prepared.renderer)
         final = res.cloud
@@ -394,7 +445,7 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
         entry["inpainter"] = res.inpainter
     entry["refine_s"] = time.perf_counter() - t
     write_ply(final, odir / "object.ply")
-    _picture(final, odir / "object.png", renderer=prepared.renderer)
+    _picture(final, odir / "object.png", renderer=prepared.renderer, cameras=prepared.dataset.cameras)
     entry["object_ply"] = str(odir / "object.ply")
     entry["gaussians"] = len(final)
     files.write_json({**wanted, "entry": entry}, stage_file)  # last: marks the object as finished
@@ -404,7 +455,8 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
 def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids: Sequence[int | str], *,
                     model_dir: str | Path | None = None, distill_dir: str | Path | None = None,
                     config: ExtractConfig = ExtractConfig(), overwrite: bool = False,
-                    progress: ProgressFactory = null_progress, renderer: Any = None) -> dict[str, Any]:
+                    progress: ProgressFactory = null_progress, renderer: Any = None,
+                    replace_changed: bool = True, dataparser_transforms: str | Path | None = None) -> dict[str, Any]:
     """Return a report of every stage after writing each object's clean model into ``out_dir``.
 
     Args:
@@ -414,7 +466,9 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
             (``overwrite`` makes every stage again).
         object_ids: the instance ids of the objects to extract, or ``"all"`` (they share the scene and the
             distillation); 1 for the object a click segmenter's binary masks hold.
-        model_dir: a trained scene (``roodi-toolkit train`` output) to use instead of training one; only read.
+        model_dir: a trained scene to use instead of training one; only read: a ``roodi-toolkit train`` output, or
+            what :func:`~roodi_toolkit.io.model.open_model` opens (an Inria or gsplat output, a gsplat checkpoint, a
+            splat file with ``data_dir``).
         distill_dir: a distillation of that scene (``roodi-toolkit distill`` output) to use instead of distilling;
             only read.
         config: settings of every stage.
@@ -422,6 +476,13 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
         progress: progress factory.
         renderer: a :class:`~roodi_toolkit.render.renderer.Renderer` (or registered name) every stage renders with;
             default the built-in CPU renderer.
+        dataparser_transforms: with a nerfstudio export as ``model_dir``, its run's ``dataparser_transforms.json``.
+        replace_changed: make a finished stage of other settings again (True), or refuse to replace it without
+            ``overwrite`` (False: the ``extract`` command, whose outputs are replaced only with ``--overwrite``).
+
+    Raises:
+        OutputError: with ``replace_changed=False``, a finished (or started) stage in ``out_dir`` made with other
+            settings; the message names it, what changed and how to go on.
     """
     from ..io import files
 
@@ -431,7 +492,8 @@ def extract_objects(data_dir: str | Path | None, out_dir: str | Path, object_ids
     created = not out.exists()
     try:
         prepared = prepare_scene(data_dir, out_dir, model_dir=model_dir, distill_dir=distill_dir, config=config,
-                                 overwrite=overwrite, progress=progress, renderer=renderer)
+                                 overwrite=overwrite, progress=progress, renderer=renderer,
+                                 replace_changed=replace_changed, dataparser_transforms=dataparser_transforms)
     except BaseException:
         # a refused input (a bad click, say) leaves nothing behind; a partly trained scene stays, to resume from
         if created and out.is_dir() and not any(p.is_file() for p in out.rglob("*")):

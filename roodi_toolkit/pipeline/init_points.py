@@ -33,6 +33,8 @@ def projected_colors(points: np.ndarray, dataset: Dataset, views: list[int], max
         uv, z = cam.project(points)
         px = np.floor(uv).astype(np.int64)
         ok = (z > cam.near) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        if dataset.valid is not None:  # a pixel the dataset says to ignore (nerfstudio's masks) gives no colour
+            ok[ok] = dataset.valid[v].numpy()[px[ok, 1], px[ok, 0]] > 0.5
         img = dataset.images[v].numpy()
         samples[j, ok] = img[px[ok, 1], px[ok, 0]]
     with np.errstate(all="ignore"):

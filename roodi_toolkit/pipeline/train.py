@@ -234,8 +234,12 @@ class Trainer:
             if alpha is not None:  # the images were composited on the dataset background: swap it for the new one
                 gt = (gt + (1 - alpha) * (background - old_background)).clamp(0, 1)
         out = self.renderer.render(self.params, camera, sh_degree=self.sh_degree, background=background)
-        l1 = torch.abs(out.rgb - gt).mean()
-        ssim = ssim_value(out.rgb, gt, cfg.ssim_window)
+        rgb = out.rgb
+        if self.dataset.valid is not None:  # masked pixels (nerfstudio's mask_path) count in neither image
+            weight = self.dataset.valid[view][..., None]
+            rgb, gt = rgb * weight, gt * weight
+        l1 = torch.abs(rgb - gt).mean()
+        ssim = ssim_value(rgb, gt, cfg.ssim_window)
         loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim) + self.strategy.regularization(self.params)
         extra = self._extra_loss(out, view)
         if extra is not None:
@@ -250,7 +254,7 @@ class Trainer:
                                          self.generator)
         self.step += 1
         return {"step": self.step, "loss": float(loss.detach()), "l1": float(l1.detach()),
-                "psnr": psnr(out.rgb.detach().clamp(0, 1), gt), "count": self.num_gaussians}
+                "psnr": psnr(rgb.detach().clamp(0, 1), gt), "count": self.num_gaussians}
 
     def _extra_loss(self, out: RenderOutput, view: int) -> Tensor | None:
         """Return a loss term added to the photometric loss of ``view`` (none here)."""

@@ -31,34 +31,42 @@ def filter_mask(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, 
     Raises:
         CloudError: NaN/Inf rows without ``filter_nan``.
     """
+    keep, removed = _filter_stages(cloud, config)
+    return keep, [(name, int(mask.sum())) for name, mask, _ in removed]
+
+
+def _filter_stages(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarray, list[tuple[str, np.ndarray, str]]]:
+    """Return the keep mask ``[N]`` after the filters and, per filter in order, its name, what it removed ``[N]``
+    and that in a few words."""
     n = len(cloud)
     keep = np.ones(n, dtype=bool)
-    stages: list[tuple[str, int]] = []
+    stages: list[tuple[str, np.ndarray, str]] = []
     bad = cloud.nonfinite_rows()
     if bad.any() and not config.filter_nan:
         cloud.require_finite("input")
-    stages.append(("nonfinite", int(bad.sum())))
+    stages.append(("nonfinite", bad, "NaN or Inf values (--filter-nan)"))
     keep &= ~bad
     if config.min_opacity is not None:
         low = keep & (cloud.opacities < config.min_opacity)
-        stages.append(("min_opacity", int(low.sum())))
+        stages.append(("min_opacity", low, f"opacity under {config.min_opacity:g} (--min-opacity)"))
         keep &= ~low
     if config.box is not None:
         lo, hi = np.asarray(config.box[:3]), np.asarray(config.box[3:])
         inside = np.all((cloud.means >= lo) & (cloud.means <= hi), axis=1)
-        stages.append(("box", int((keep & ~inside).sum())))
+        stages.append(("box", keep & ~inside, "outside --filter-box"))
         keep &= inside
     if config.sphere is not None:
         c, r = np.asarray(config.sphere[:3], dtype=np.float64), float(config.sphere[3])
         dist2 = np.sum((cloud.means.astype(np.float64) - c) ** 2, axis=1)
         inside = dist2 <= r * r
-        stages.append(("sphere", int((keep & ~inside).sum())))
+        stages.append(("sphere", keep & ~inside, "outside --filter-sphere"))
         keep &= inside
     for name, low, high in config.value_ranges:
         with np.errstate(invalid="ignore"):
             value = named_value(cloud, name)
             inside = (value >= low) & (value <= high)
-        stages.append((f"{name} in [{low:g}, {high:g}]", int((keep & ~inside).sum())))
+        label = f"{name} in [{low:g}, {high:g}]"
+        stages.append((label, keep & ~inside, f"{name} outside [{low:g}, {high:g}] (--filter-value)"))
         keep &= inside
     return keep, stages
 
@@ -71,6 +79,8 @@ def filtered_report(cloud: GaussianCloud, config: PruneConfig) -> tuple[PruneRep
     t0 = time.perf_counter()
     report = PruneReport(input_count=len(cloud))
     report.config = {**asdict(config), "alpha": config.effective_alpha}
-    keep, report.stages = filter_mask(cloud, config)
+    keep, stages = _filter_stages(cloud, config)
+    for name, removed, detail in stages:
+        report.remove(name, removed, detail)
     report.timings["filters"] = time.perf_counter() - t0
     return report, keep, np.flatnonzero(keep)

@@ -200,6 +200,12 @@ class PruneReport:
             robust rule, the value of the round that last re-evaluated a Gaussian the first round flagged (for
             isolated floaters a proven lower bound already above the threshold), the first-round value otherwise.
         first_mean_distances: ``[M]`` d_i of the first round (the paper's quantity).
+        removed_by: ``[N]`` int16, for each input Gaussian the index in ``stages`` of the stage that removed it, -1
+            for the kept (:meth:`remove`); the floater picture colours by it.
+        details: ``{stage: what went}`` in a few words, for the summary (e.g. "pieces of at most 3 Gaussians").
+        stayed: ``[(stage, count, why), ...]``: Gaussians a test flagged that stay, and why (a neighbour's colour,
+            no photos to judge a large piece, the photos show them); they are among the kept.
+        notes: short remarks on what did not run or what the cloud is (one line each).
     """
 
     input_count: int
@@ -217,6 +223,19 @@ class PruneReport:
     first_mean_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
     mode: str = "statistical"
     mode_reason: str = ""
+    removed_by: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int16))
+    details: dict[str, str] = field(default_factory=dict)
+    stayed: list[tuple[str, int, str]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def remove(self, stage: str, removed: np.ndarray, detail: str = "") -> None:
+        """Append ``stage`` with the Gaussians it removes (``[N]`` bool over the input, none removed before)."""
+        if self.removed_by.shape != (self.input_count,):
+            self.removed_by = np.full(self.input_count, -1, dtype=np.int16)
+        self.removed_by[removed] = len(self.stages)
+        self.stages.append((stage, int(np.count_nonzero(removed))))
+        if detail:
+            self.details[stage] = detail
 
     def to_dict(self) -> dict[str, Any]:
         """Return a JSON-ready summary (counts per stage, thresholds, timings; no per-Gaussian arrays)."""
@@ -227,6 +246,9 @@ class PruneReport:
             "stages": [{"stage": name, "removed": int(n)} for name, n in self.stages],
             "removed_count": self.input_count - self.kept_count,
             "kept_count": self.kept_count,
+            "removed_details": dict(self.details),
+            "flagged_but_kept": [{"stage": name, "count": int(n), "why": why} for name, n, why in self.stayed],
+            "notes": list(self.notes),
             "threshold": self.threshold,
             "thresholds": self.thresholds,
             "iterations": self.iterations,
@@ -565,8 +587,10 @@ def remove_statistical_outliers(cloud: GaussianCloud, config: PruneConfig | None
     flagged = outlier_mask(dist, config, report)
     report.timings["rule"] = time.perf_counter() - t2
     report.evaluated = evaluated
-    report.stages.append(("statistical", int(flagged.sum())))
     keep[evaluated[flagged]] = False
+    measure = "W2²" if config.distance == "w2" else "distance"
+    report.remove("statistical", ~keep & (report.removed_by < 0), f"mean {measure} to {config.k} neighbours above "
+                  f"{report.threshold:.4g} (rule {config.rule}, alpha {config.effective_alpha:g})")
     t3 = time.perf_counter()
     out = cloud.select(keep)
     report.timings["select"] = time.perf_counter() - t3

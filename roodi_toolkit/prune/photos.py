@@ -106,8 +106,9 @@ def _from_dataset(path: Path, downscale: float, holdout_every: int, max_views: i
 
 
 def _is_model(folder: Path) -> bool:
-    """Whether ``folder`` is a roodi-toolkit model folder (its record ``cfg.json`` beside ``point_cloud/``)."""
-    return (folder / "cfg.json").is_file() and (folder / "point_cloud").is_dir()
+    """Whether ``folder`` is a roodi-toolkit model folder (its record ``cfg.json`` beside ``point_cloud/``), or an
+    Inria one (``cfg_args``)."""
+    return ((folder / "cfg.json").is_file() or (folder / "cfg_args").is_file()) and (folder / "point_cloud").is_dir()
 
 
 def _record(root: Path) -> tuple[dict, Path | None]:
@@ -119,6 +120,10 @@ def _record(root: Path) -> tuple[dict, Path | None]:
     """
     from ..io.files import read_json
 
+    if not (root / "cfg.json").is_file():  # an Inria folder: its cfg_args in this toolkit's keys
+        from ..io.model import model_record
+
+        return model_record(root)
     record = read_json(root / "cfg.json", "training record")
     record = record if isinstance(record, dict) else {}
     data_dir = record.get("data_dir")
@@ -135,7 +140,7 @@ def _model_photos(root: Path, max_views: int, progress: ProgressFactory) -> Phot
         PhotosUnavailable: the record is unreadable or names no data folder, it is not on this machine, or it does
             not load.
     """
-    where = root / "cfg.json"
+    where = root / "cfg.json" if (root / "cfg.json").is_file() else root / "cfg_args"
     try:
         record, data = _record(root)
     except RoodiError as exc:
@@ -144,6 +149,13 @@ def _model_photos(root: Path, max_views: int, progress: ProgressFactory) -> Phot
         raise PhotosUnavailable(f"{where} names no data folder")
     if not data.exists():
         raise PhotosUnavailable(f"the data folder {data} that {where} names is not here")
+    if where.name == "cfg_args":  # an Inria model: its cameras.json must agree with the data's cameras
+        from ..io.model import open_model
+
+        try:
+            open_model(root, data)
+        except RoodiError as exc:
+            raise PhotosUnavailable(str(exc)) from None
     downscale = float(record.get("downscale") or 1)
     holdout = int(record.get("holdout_every", 8))
     try:
@@ -173,7 +185,7 @@ def photo_folders(cloud_path: str | Path, spec: str = "auto") -> list[Path]:
     root = _enclosing_model(Path(cloud_path)) if spec == "auto" else Path(spec)
     if root is None or not root.is_dir():
         return []
-    if not (root / "cfg.json").is_file():
+    if not _is_model(root):
         return [root]
     try:
         _, data = _record(root)

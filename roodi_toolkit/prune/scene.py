@@ -115,6 +115,7 @@ class LocalDecision:
         colour_spared: oversized candidates kept for having the colour of a neighbour (``blob_colour``).
         foreign: Gaussians found by the foreign-blob test (large, round, of a colour no neighbour has), counted in
             ``oversized``.
+        foreign_mask: ``[M]`` which they are (None: none).
     """
 
     detached: np.ndarray
@@ -128,6 +129,7 @@ class LocalDecision:
     spared: tuple[int, int] = (0, 0)
     colour_spared: int = 0
     foreign: int = 0
+    foreign_mask: np.ndarray | None = None
 
     @property
     def flagged(self) -> np.ndarray:
@@ -356,6 +358,7 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
     scores[order] = row_scores
     oversized = (scores > config.blob_score) & ~detached
     colour_spared = foreign = 0
+    foreign_mask = None
     if rgb is not None and colour_gate and config.blob_colour > 0:
         # only the candidates below blob_sure are asked (a few hundred): their colour against their neighbours'
         rows = np.flatnonzero(oversized[order] & (row_scores <= config.blob_sure))
@@ -368,8 +371,10 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
         found = rows[colour_gaps(rgb, order[rows], order[neighbors[rows]]) > FOREIGN_COLOUR]
         oversized[order[found]] = True
         foreign = int(found.size)
+        foreign_mask = np.zeros(n, dtype=bool)
+        foreign_mask[order[found]] = True
     return LocalDecision(detached, oversized, label, sizes, scores, largest_fraction, mode, reason,
-                         (int(spared.sum()), int(sizes[spared].sum())), colour_spared, foreign)
+                         (int(spared.sum()), int(sizes[spared].sum())), colour_spared, foreign, foreign_mask)
 
 
 def choose_mode(config: "PruneConfig", largest_fraction: float) -> tuple[str, str]:
@@ -457,8 +462,20 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
         report.mode_reason += f"; {background}-background fog removed ({config.background} background)"
     report.timings["rule"] = time.perf_counter() - t2
     detached, oversized, photo_figures = decision.detached, decision.oversized, {}
+    if decision.spared[0]:
+        report.stayed.append((DETACHED, decision.spared[1], f"in {decision.spared[0]:,} pieces of more than "
+                              f"{max_piece} (no photos to judge them; --max-piece 0: they go)"))
+    if decision.colour_spared:
+        report.stayed.append((OVERSIZED, decision.colour_spared,
+                              "of a neighbour's colour (--blob-colour 0: they go)"))
+    if one_colour and photos is None:
+        report.notes.append("no colour test of the oversized Gaussians: the cloud is nearly one colour")
     if photos is not None and (decision.flagged | fog).any():
         supported, photo_figures = _photo_supported(sub, oversized | fog, detached, photos, renderer, progress, report)
+        for name, flagged in ((DETACHED, detached), (OVERSIZED, oversized), (FOG, fog)):
+            if (flagged & supported).any():
+                report.stayed.append((name, int((flagged & supported).sum()), "the photos show them"))
+        report.notes.append(f"photo check on {photos.source}: renders {photo_figures['photo_psnr']:.1f} dB")
         detached, oversized, fog = detached & ~supported, oversized & ~supported, fog & ~supported
     report.evaluated = evaluated
     report.mean_distances = decision.blob_score
@@ -470,7 +487,21 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
                          "blob_score_median": float(np.median(decision.blob_score)),
                          "oversized_colour_spared": decision.colour_spared, "oversized_foreign": decision.foreign}
     report.statistics.update(photo_figures)
-    report.stages += [(DETACHED, int(detached.sum())), (OVERSIZED, int(oversized.sum())), (FOG, int(fog.sum()))]
+    piece = "pieces apart from the object" if decision.mode == "object" else \
+        f"pieces under {config.min_cluster:.1%} of the Gaussians"
+    if max_piece is not None:
+        piece += f", of at most {max_piece} Gaussians"
+    foreign_went = int((oversized & decision.foreign_mask).sum()) if decision.foreign_mask is not None else 0
+    blobs = f"bigger than their spacing and neighbours (score > {config.blob_score:g})"
+    if foreign_went:
+        blobs = (f"{int(oversized.sum()) - foreign_went:,} bigger than their spacing and neighbours, {foreign_went:,} "
+                 f"round blobs of a colour no neighbour has")
+    for name, flagged, detail in ((DETACHED, detached, piece),
+                                  (OVERSIZED, oversized, blobs),
+                                  (FOG, fog, f"faint, of the {background} training background's colour")):
+        removed = np.zeros(n, dtype=bool)
+        removed[evaluated[flagged]] = True
+        report.remove(name, removed, detail)
     keep[evaluated[detached | oversized | fog]] = False
     t3 = time.perf_counter()
     out = cloud.select(keep) if not keep.all() else cloud

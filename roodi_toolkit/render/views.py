@@ -23,17 +23,30 @@ from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
 from ..params import GaussianParams
 from .renderer import Renderer, resolve_renderer
+from .upright import cameras_up, model_cameras  # noqa: F401 - their home before upright.py
+from .upright import resolve_up as resolve_upright
 
 WHATS = ("rgb", "depth", "alpha")
 
 
+INSIDE_DEPTH = 0.25
+"""framing_orbit: a view is inside the content when the Gaussians nearer than this fraction of its distance to the
+orbit's centre cover more than :data:`INSIDE_COVER` of its image."""
+INSIDE_COVER = 0.3
+INSIDE_STEPS = 6
+"""framing_orbit: the radius is raised 1.5x at most this many times to get every view out of the content."""
+
+
 def framing_orbit(cloud: GaussianCloud, n: int, *, elevation_deg: float = 20.0, radius: Optional[float] = None,
                   width: int = 512, height: int = 512, fov_x_deg: float = 50.0,
-                  up: Sequence[float] = (0.0, 0.0, 1.0)) -> list[Camera]:
+                  up: Sequence[float] = (0.0, 0.0, 1.0), azimuth0_deg: float = 0.0) -> list[Camera]:
     """Return ``n`` orbit cameras around the cloud's centre that frame it.
 
     The centre is the per-axis median of the means; without ``radius`` the camera distance makes a sphere holding 95%
-    of the means (distance from the centre, 95th percentile) fill the narrower field of view, with 10% margin.
+    of the means (distance from the centre, 95th percentile) fill the narrower field of view, with 10% margin, raised
+    (1.5x at a time, :data:`INSIDE_STEPS` times at most) while a view starts inside the content
+    (:func:`views_inside`): a wall, a plinth or a floor beside the object, which the 95% sphere leaves out, covering
+    the view.
     """
     if len(cloud) == 0:
         raise CloudError("cannot frame an empty cloud; give --radius and a centre, or render a non-empty file")
@@ -42,90 +55,64 @@ def framing_orbit(cloud: GaussianCloud, n: int, *, elevation_deg: float = 20.0, 
         raise CloudError("all Gaussian means are NaN/Inf; nothing to frame")
     means = cloud.means[finite].astype(np.float64)
     center = np.median(means, axis=0)
+    fixed = radius is not None
     if radius is None:
         extent = float(np.percentile(np.linalg.norm(means - center, axis=1), 95))
         extent = max(extent, 1e-6)
         fov_x = math.radians(fov_x_deg)
         fov_min = min(fov_x, 2 * math.atan(math.tan(fov_x / 2) * height / width))
         radius = 1.1 * extent / math.sin(fov_min / 2)
-    near = max(1e-4, radius * 1e-3)
-    return orbit_cameras(center, radius, n, elevation_deg=elevation_deg, width=width, height=height,
-                         fov_x_deg=fov_x_deg, up=up, near=near)
+
+    def circle(r: float) -> list[Camera]:
+        return orbit_cameras(center, r, n, elevation_deg=elevation_deg, width=width, height=height,
+                             fov_x_deg=fov_x_deg, up=up, near=max(1e-4, r * 1e-3), azimuth0_deg=azimuth0_deg)
+
+    cams = circle(radius)
+    if fixed:
+        return cams
+    sample = np.flatnonzero(finite)[::max(1, int(finite.sum()) // 200_000)]  # the check needs shares, not all
+    near = cloud.select(sample)
+    for _ in range(INSIDE_STEPS):
+        if not views_inside(cams, near, center).any():
+            break
+        radius *= 1.5
+        cams = circle(radius)
+    return cams
 
 
-def cameras_up(cameras: Sequence[Camera]) -> np.ndarray:
-    """Return the unit mean up direction ``[3]`` of cameras: the mean of minus each camera's image y axis.
-
-    Photographers hold cameras upright, so this is the scene's up whatever the file's convention (z up, y down ...).
-
-    Raises:
-        ConfigError: no cameras, or their up directions cancel out.
-    """
-    if not cameras:
-        raise ConfigError("no cameras to take the up direction from")
-    # row 1 of the world-to-camera rotation is the camera's y axis (image down, OpenCV) in world coordinates
-    mean = -np.mean([c.world_to_camera[1, :3] for c in cameras], axis=0)
-    norm = float(np.linalg.norm(mean))
-    if norm < 1e-3:
-        raise ConfigError("the cameras' up directions cancel out (no common up); give --up X,Y,Z")
-    return mean / norm
-
-
-def model_cameras(ply: str | os.PathLike) -> list[Camera] | None:
-    """Return the training cameras of the model a PLY belongs to, or None.
-
-    A ``roodi-toolkit train`` output keeps its scene at ``MODEL/point_cloud/iteration_N/point_cloud.ply`` beside
-    ``MODEL/cfg.json``, whose ``data_dir`` names the dataset; None when there is no such record or the dataset is gone.
-    """
-    from ..errors import RoodiError
-    from ..io.dataset import load_cameras
-    from ..io.files import read_json
-
-    root = Path(ply).resolve().parent.parent.parent
-    record = root / "cfg.json"
-    if Path(ply).resolve().parent.parent.name != "point_cloud" or not record.is_file():
-        return None
-    try:
-        cfg = read_json(record, "training record")
-        data = Path(str(cfg["data_dir"])) if isinstance(cfg, dict) and "data_dir" in cfg else None
-        return load_cameras(data) if data is not None and data.exists() else None
-    except (RoodiError, OSError):
-        return None
+def views_inside(cameras: Sequence[Camera], cloud: GaussianCloud, center: Sequence[float]) -> np.ndarray:
+    """Return ``[V]`` whether each camera starts inside the content: the Gaussians of ``cloud`` nearer than
+    :data:`INSIDE_DEPTH` times its distance to ``center`` cover more than :data:`INSIDE_COVER` of its image (each
+    a disc of twice its largest scale, weighted by its opacity)."""
+    out = np.zeros(len(cameras), dtype=bool)
+    means = cloud.means.astype(np.float64)
+    sigma = np.exp(cloud.log_scales.astype(np.float64).max(axis=1))  # [N]
+    alpha = cloud.opacities.astype(np.float64)
+    for i, cam in enumerate(cameras):
+        near = INSIDE_DEPTH * float(np.linalg.norm(cam.center - np.asarray(center, dtype=np.float64)))
+        px, z = cam.project(means)
+        close = (z > cam.near) & (z < near)
+        if not close.any():
+            continue
+        area = float(cam.width * cam.height)
+        r = cam.K[0, 0] * 2.0 * sigma[close] / z[close]  # footprint radius in pixels
+        u, v = px[close, 0], px[close, 1]
+        seen = (u > -r) & (u < cam.width + r) & (v > -r) & (v < cam.height + r)
+        cover = float((alpha[close][seen] * np.minimum(np.pi * r[seen] ** 2, area)).sum())
+        out[i] = cover > INSIDE_COVER * area
+    return out
 
 
-def resolve_up(spec: str | None, ply: str | os.PathLike) -> tuple[np.ndarray, str]:
-    """Return the orbit's up direction ``[3]`` and where it came from.
-
-    ``spec``: ``"X,Y,Z"``; a dataset or camera file (its cameras' mean up, :func:`cameras_up`); ``"auto"``: the
-    training cameras of the model ``ply`` belongs to, refused when there are none; or None: those cameras when there
-    are, else z up.
-
-    ``auto`` makes no guess from the cloud alone: the guesses tried (the direction of least spread of the means,
-    pointed away from the denser side) were wrong on both real clouds at hand, the PlayCanvas biker (y down; guessed
-    -x) and the 3DGS donut (z up; guessed -z).
+def resolve_up(spec: str | None, ply: str | os.PathLike, means: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """Return the orbit's up direction ``[3]`` and where it came from (:func:`~roodi_toolkit.render.upright.resolve_up`:
+    ``spec`` ``X,Y,Z`` or a dataset or camera file; ``auto`` or None: the training cameras, the format's convention,
+    a ground plane among ``means``, z up).
 
     Raises:
-        ConfigError: a malformed ``spec``, or ``auto`` without cameras.
+        ConfigError: a malformed ``spec``.
     """
-    if spec is not None and spec.strip().lower() not in ("", "auto") and not Path(spec).exists():
-        try:
-            vec = np.array([float(v) for v in spec.replace(" ", "").split(",") if v])
-        except ValueError:
-            raise ConfigError(f"--up must be X,Y,Z, auto, or a dataset or camera file; got {spec!r}") from None
-        if vec.shape != (3,) or not np.isfinite(vec).all() or np.linalg.norm(vec) == 0:
-            raise ConfigError(f"--up must be three finite numbers, not all zero; got {spec!r}")
-        return vec / np.linalg.norm(vec), "given"
-    if spec is not None and Path(spec).exists():
-        from ..io.dataset import load_cameras
-
-        return cameras_up(load_cameras(spec)), f"the mean up of the cameras in {spec}"
-    cams = model_cameras(ply)
-    if cams:
-        return cameras_up(cams), "the mean up of the model's training cameras"
-    if spec is not None:  # auto
-        raise ConfigError(f"--up auto: {ply} is not the scene of a trained model whose dataset is still in place, so "
-                          "no cameras tell its up; give --up X,Y,Z or --up DATASET")
-    return np.array([0.0, 0.0, 1.0]), "z up (default)"
+    up = resolve_upright(spec, ply, means)
+    return up.vector, up.source
 
 
 @dataclass(frozen=True)

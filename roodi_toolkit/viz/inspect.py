@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, EnvironmentProblemError, OutputError
+from ..errors import ConfigError, OutputError
 from ..gaussians import GaussianCloud
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -191,17 +191,29 @@ def robust_sphere(points: np.ndarray, quantile: float = ROBUST_QUANTILE) -> tupl
 
 
 def frame_camera(plotter: "pv.Plotter", centre: Sequence[float], radius: float, camera: str = "iso",
-                 margin: float = 1.1) -> float:
+                 margin: float = 1.1, up: Sequence[float] | None = None) -> float:
     """Return the camera distance after pointing ``plotter`` at the sphere ``(centre, radius)`` from ``camera``.
 
     The sphere fits the narrower of the two view angles, times ``margin``. Directions are those of
-    :data:`CAMERAS`: ``+x`` puts the camera on the +x side looking back; ``xy`` is the xy plane seen from +z;
-    the view up is +z (+y for views along z).
+    :data:`CAMERAS`: ``+x`` puts the camera on the +x side looking back; ``xy`` is the xy plane seen from +z.
+    Without ``up`` the view up is +z (+y for views along z) and ``iso`` looks from +x+y+z; with the cloud's ``up``
+    (:mod:`roodi_toolkit.render.upright`) the view stands on it (another axis when looking along it) and ``iso``
+    looks diagonally from above on it.
     """
     _check_choice(camera, CAMERAS, "camera")
     centre = np.asarray(centre, dtype=np.float64)
     radius = max(float(radius), 1e-6)
-    direction, up = (np.asarray(v, dtype=np.float64) for v in _DIRECTIONS[camera])
+    direction, view_up = (np.asarray(v, dtype=np.float64) for v in _DIRECTIONS[camera])
+    if up is not None:
+        from ..cameras import horizontal_basis
+
+        up_v, e1, e2 = horizontal_basis(up)
+        if camera == "iso":
+            direction = e1 + e2 + up_v
+        view_up = up_v
+        if abs(float(view_up @ direction) / np.linalg.norm(direction)) > 0.99:  # looking along the up
+            view_up = e2
+    up = view_up
     direction /= np.linalg.norm(direction)
     width, height = plotter.window_size
     vfov = math.radians(VIEW_ANGLE_DEG)
@@ -270,7 +282,7 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
                glyphs: str = "auto", camera: str = "iso", off_screen: bool | None = None,
                window_size: Sequence[int] = DEFAULT_WINDOW_SIZE, background: Any = DEFAULT_BACKGROUND,
                sigmas: float = ELLIPSOID_SIGMAS, distance_label: str | None = None,
-               distance_log: bool = True) -> "pv.Plotter":
+               distance_log: bool = True, up: Sequence[float] | None = None) -> "pv.Plotter":
     """Return a configured ``pyvista.Plotter`` showing the cloud, the Gaussians pruning removes highlighted.
 
     Call ``.show()`` for a window, or ``.screenshot(None, return_img=True)`` off screen.
@@ -295,6 +307,7 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
         distance_label: colour bar title for ``color_by='distance'`` (e.g. "mean W2^2 to 16 neighbours").
         distance_log: a logarithmic colour bar for ``distances`` (False for the local tests' blob scores,
             :func:`distance_is_log`).
+        up: the cloud's up (:func:`frame_camera`); None: z.
 
     Raises:
         ConfigError: an unknown option, a mask or distances of the wrong shape, or nothing to draw.
@@ -340,7 +353,7 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
     centre, radius = robust_sphere(cloud.means[frame_idx])
     # a tiny or single-Gaussian object: frame at least its own footprint
     radius = max(radius, 3.0 * float(np.median(cloud.scales[frame_idx].max(axis=1))))
-    frame_camera(plotter, centre, radius, camera)
+    frame_camera(plotter, centre, radius, camera, up=up)
 
     scalars = colormap = None
     bar_title, log_bar = "", False
@@ -418,48 +431,6 @@ def screenshot_image(plotter: "pv.Plotter") -> np.ndarray:
     """Return the plotter's current image ``[H, W, 3]`` uint8, rendering it off screen if needed."""
     img = plotter.screenshot(None, return_img=True)
     return np.asarray(img)[..., :3].copy()
-
-
-def html_export_supported(plotter: "pv.Plotter | None" = None) -> tuple[bool, str]:
-    """Return ``(supported, reason)``: whether ``export_html`` works with the installed PyVista and its extras."""
-    try:
-        import pyvista as pv
-    except ImportError as exc:  # pragma: no cover - pyvista is a dependency
-        return False, f"pyvista cannot be imported ({exc})"
-    if not hasattr(pv.Plotter, "export_html"):
-        return False, f"pyvista {pv.__version__} has no Plotter.export_html"
-    if plotter is not None and getattr(plotter, "trame", None) is None:
-        return False, (f"pyvista {pv.__version__} exports HTML through trame, which is not installed "
-                       "(pip install trame-pyvista)")
-    if plotter is None:
-        import importlib.util
-
-        if importlib.util.find_spec("trame") is None and importlib.util.find_spec("trame_vtk") is None:
-            return False, (f"pyvista {pv.__version__} exports HTML through trame, which is not installed "
-                           "(pip install trame-pyvista)")
-    return True, ""
-
-
-def export_html(plotter: "pv.Plotter", path: str | os.PathLike) -> None:
-    """Write the plotter's scene as an interactive HTML page (atomically).
-
-    Raises:
-        RoodiError: the installed PyVista cannot export HTML (the message says what to install).
-    """
-    import warnings
-
-    from ..io.files import atomic_path
-
-    ok, reason = html_export_supported(plotter)
-    if not ok:
-        raise EnvironmentProblemError(f"{path}: cannot export HTML: {reason}")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # export_html is deprecated in favour of plotter.trame.export_html
-        try:
-            with atomic_path(path, suffix=".html") as tmp:
-                plotter.export_html(str(tmp))
-        except ImportError as exc:
-            raise EnvironmentProblemError(f"{path}: cannot export HTML: {' '.join(str(exc).split())}") from None
 
 
 # ------------------------------------------------------------------------------------------------------ histogram

@@ -1,5 +1,7 @@
 """Fuzzing every reader: mutated PLY (binary, ASCII), compressed PLY, SPZ (v3, v4), .splat, .ksplat, SOG, COLMAP
-binaries and Blender transforms JSON. Each mutated input must read, or fail with the toolkit's own error
+binaries, Blender transforms JSON, nerfstudio / instant-ngp transforms.json (its images, masks and SfM points
+read too), and the records of other tools' models: Inria cfg_args and cameras.json, gsplat checkpoints (bytes and
+tensors) and cfg.yml, nerfstudio's dataparser_transforms.json. Each mutated input must read, or fail with the toolkit's own error
 (:class:`~roodi_toolkit.errors.RoodiError`, one line), within a time limit per case; any other exception or a hang
 is a failure.
 
@@ -16,6 +18,7 @@ import json
 import os
 import signal
 import time
+import warnings
 import zipfile
 from collections import Counter
 from pathlib import Path
@@ -132,6 +135,89 @@ def _transforms_seed(tmp: Path) -> tuple[Path, dict]:
     return root, json.loads(Path(path).read_text())
 
 
+def _nerfstudio_seed(tmp: Path) -> tuple[Path, dict]:
+    """A small nerfstudio capture using every key the reader takes: per-frame intrinsics, a lens, masks, SfM points,
+    split lists and applied_transform."""
+    from roodi_toolkit.cameras import orbit_cameras, w2c_to_opengl_c2w
+    from roodi_toolkit.io.files import write_image
+
+    root = tmp / "ns_seed"
+    (root / "images").mkdir(parents=True)
+    (root / "masks").mkdir()
+    cams = orbit_cameras([0, 0, 0], 3.0, 4, width=16, height=12)
+    frames = []
+    for i, cam in enumerate(cams):
+        write_image(np.full((12, 16, 3), 0.5), root / "images" / f"f{i}.png")
+        write_image(np.full((12, 16), 255, np.uint8), root / "masks" / f"f{i}.png")
+        frames.append({"file_path": f"images/f{i}", "transform_matrix": w2c_to_opengl_c2w(cam.world_to_camera).tolist(),
+                       "fl_x": 14.0, "fl_y": 14.0, "cx": 8.0, "cy": 6.0, "w": 16, "h": 12, "mask_path": f"masks/f{i}.png",
+                       "camera_model": "OPENCV", "k1": -0.05, "k2": 0.01, "p1": 0.0, "p2": 0.0})
+    (root / "pc.ply").write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+                                 "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+                                 "end_header\n0 0 0 1 2 3\n0.1 0.2 0.3 4 5 6\n")
+    doc = {"frames": frames, "ply_file_path": "pc.ply", "applied_transform": [[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0]],
+           "train_filenames": ["images/f0.png", "images/f1.png", "images/f2.png"], "val_filenames": ["images/f3.png"]}
+    return root, doc
+
+
+def _other_model_seeds(tmp: Path) -> dict[str, bytes]:
+    """Valid records of other tools' models: Inria cfg_args and cameras.json, a gsplat checkpoint and cfg.yml, a
+    nerfstudio dataparser_transforms.json."""
+    import torch
+
+    from roodi_toolkit.cameras import orbit_cameras
+
+    cams = orbit_cameras([0, 0, 0], 3.0, 3, width=16, height=12)
+    entries = [{"id": i, "img_name": f"v{i}", "width": 16, "height": 12,
+                "position": np.linalg.inv(c.world_to_camera)[:3, 3].tolist(),
+                "rotation": np.linalg.inv(c.world_to_camera)[:3, :3].tolist(), "fy": c.K[1, 1], "fx": c.K[0, 0]}
+               for i, c in enumerate(cams)]
+    rng = np.random.default_rng(0)
+    splats = {"means": torch.from_numpy(rng.normal(size=(30, 3)).astype(np.float32)),
+              "quats": torch.from_numpy(rng.normal(size=(30, 4)).astype(np.float32)),
+              "scales": torch.full((30, 3), -3.0), "opacities": torch.zeros(30), "sh0": torch.zeros(30, 1, 3),
+              "shN": torch.zeros(30, 3, 3)}
+    buf = io.BytesIO()
+    torch.save({"step": 99, "splats": splats}, buf)
+    return {
+        "cfg_args": b"Namespace(data_device='cuda', eval=True, images='images', model_path='./output/x', "
+                    b"resolution=-1, sh_degree=3, source_path='/data/x', white_background=False)",
+        "inria_cameras": json.dumps(entries).encode(),
+        "gsplat_ckpt": buf.getvalue(),
+        "gsplat_cfg": b"data_dir: data/360_v2/garden\ndata_factor: 4\nnormalize_world_space: true\ntest_every: 8\n"
+                      b"strategy: !!python/object:gsplat.strategy.default.DefaultStrategy\n  refine_every: 100\n"
+                      b"ply_steps:\n- 7000\n- 30000\n",
+        "dataparser_transforms": json.dumps({"transform": [[1, 0, 0, 0.1], [0, 0, 1, 0.2], [0, -1, 0, 0.3]],
+                                             "scale": 0.25}).encode(),
+    }
+
+
+def _mutate_tensors(data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
+    """Return a gsplat checkpoint whose splats were changed in kind rather than in bytes: a tensor dropped, reshaped,
+    retyped or filled with NaN, a wrong container."""
+    import torch
+
+    state = torch.load(io.BytesIO(data), weights_only=True)
+    splats = state["splats"]
+    name = list(splats)[int(rng.integers(0, len(splats)))]
+    kind = int(rng.integers(0, 6))
+    if kind == 0:
+        del splats[name]
+    elif kind == 1:
+        splats[name] = splats[name].reshape(-1)[: max(1, splats[name].numel() // 2)]
+    elif kind == 2:
+        splats[name] = splats[name].to(torch.int64)
+    elif kind == 3:
+        splats[name] = torch.full_like(splats[name], float("nan"))
+    elif kind == 4:
+        splats[name] = [1, 2, 3]
+    else:
+        state = {"step": 1, "splats": [t for t in splats.values()]}
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    return f"tensor edit {kind} on {name}", buf.getvalue()
+
+
 _ODD_VALUES = [None, "", "x", -1, 0, 1e308, -1e308, float("nan"), float("inf"), [], {}, [[]], [1, 2], True,
                2 ** 63, "../../../etc/passwd", "\x00", [[0] * 4] * 4, [[float("nan")] * 4] * 4]
 
@@ -202,6 +288,59 @@ def _run_cases(reader: str, n: int, tmp: Path, seed: int = 0) -> Counter:
                 what = "json value"
                 path.write_text(json.dumps(_mutate_json(doc, rng)))
             return what, lambda: load_cameras(path), path
+    elif reader == "nerfstudio_json":
+        root, doc = _nerfstudio_seed(tmp)
+
+        def cases(i: int) -> tuple[str, Callable[[], object], Path]:
+            from roodi_toolkit.io.dataset import load_dataset
+
+            path = root / f"c{i}.json"
+            if rng.random() < 0.2:
+                what, text = _mutate(json.dumps(doc).encode(), rng)
+                path.write_bytes(text)
+            else:
+                what = "json value"
+                path.write_text(json.dumps(_mutate_json(doc, rng)))
+
+            def read() -> object:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # missing images are expected here; errors are what is checked
+                    load_cameras(path)
+                    return load_dataset(path, 2)
+            return what, read, path
+    elif reader in ("cfg_args", "inria_cameras", "gsplat_ckpt", "gsplat_cfg", "dataparser_transforms"):
+        from roodi_toolkit.cameras import orbit_cameras
+        from roodi_toolkit.io import other_models as om
+
+        data = _other_model_seeds(tmp)[reader]
+        data_cams = [c.__class__(c.world_to_camera, c.K, c.width, c.height, name=f"v{i}")
+                     for i, c in enumerate(orbit_cameras([0, 0, 0], 3.0, 3, width=16, height=12))]
+
+        def cases(i: int) -> tuple[str, Callable[[], object], Path]:
+            folder = work / f"c{i}"
+            folder.mkdir()
+            if reader in ("inria_cameras", "dataparser_transforms") and rng.random() >= 0.2:
+                what, out = "json value", json.dumps(_mutate_json(json.loads(data), rng)).encode()
+            elif reader == "gsplat_ckpt" and rng.random() < 0.4:
+                what, out = _mutate_tensors(data, rng)
+            else:
+                what, out = _mutate(data, rng)
+            name = {"cfg_args": "cfg_args", "inria_cameras": "cameras.json", "gsplat_ckpt": "ckpt_99_rank0.pt",
+                    "gsplat_cfg": "cfg.yml", "dataparser_transforms": "dataparser_transforms.json"}[reader]
+            path = folder / name
+            path.write_bytes(out)
+
+            def read() -> object:
+                if reader == "cfg_args":
+                    return om.inria_settings(folder, om.read_cfg_args(path), 1000)
+                if reader == "inria_cameras":
+                    return om.check_inria_cameras(path, data_cams, folder)
+                if reader == "gsplat_ckpt":
+                    return om.read_gsplat_checkpoint([path])
+                if reader == "gsplat_cfg":
+                    return om.gsplat_settings(om.read_gsplat_config(folder), path)
+                return om.read_dataparser_transforms(path)
+            return what, read, path
     else:
         name, data = _cloud_seeds(tmp)[reader]
 
@@ -245,7 +384,8 @@ def _run_cases(reader: str, n: int, tmp: Path, seed: int = 0) -> Counter:
 
 
 READERS = ["ply", "ply_ascii", "compressed_ply", "spz", "spz_v4", "splat", "ksplat", "sog", "colmap",
-           "transforms_json"]
+           "transforms_json", "nerfstudio_json", "cfg_args", "inria_cameras", "gsplat_ckpt", "gsplat_cfg",
+           "dataparser_transforms"]
 
 
 @pytest.mark.parametrize("reader", READERS)

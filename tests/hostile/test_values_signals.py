@@ -163,7 +163,7 @@ def test_a_missing_system_library_is_named(world, run_cli, tmp_path: Path, monke
     monkeypatch.setattr(builtins, "__import__", no_gl)
     for mod in [m for m in sys.modules if m.split(".")[0] in ("pyvista", "vtk", "vtkmodules")]:
         monkeypatch.delitem(sys.modules, mod)
-    res = run_cli("inspect", world.ply, "--screenshot", tmp_path / "s.png", "-q")
+    res = run_cli("inspect", world.ply, "--view-png", tmp_path / "s.png", "-q")  # the PyVista view
     expect_failure(res, 1, "libGL.so.1", "apt-get install libgl1")
 
 

@@ -41,13 +41,27 @@ class GsplatRenderer(Renderer):
         self.tile_size = tile_size
 
     @classmethod
+    def status(cls) -> tuple[str, str]:
+        """Return ``("installed", "")``, ``("needs CUDA", ...)`` (torch sees no CUDA GPU: gsplat builds and
+        rasterizes only there) or ``("needs a package", ...)`` (a CUDA GPU without the gsplat package)."""
+        import importlib.util
+
+        cuda = torch.cuda.is_available()
+        if importlib.util.find_spec("gsplat") is None:
+            if cuda:
+                return "needs a package", f"the gsplat package is not installed; {INSTALL_HINT}"
+            return "needs CUDA", f"torch sees no CUDA GPU here, and the gsplat package is not installed; {INSTALL_HINT}"
+        ok, why = cls.available()
+        return ("installed", "") if ok else ("needs CUDA", why)
+
+    @classmethod
     def available(cls) -> tuple[bool, str]:
         try:
             _import_gsplat()
         except PluginError as exc:
             return False, str(exc)
         if not torch.cuda.is_available():
-            return False, "gsplat rasterizes only on CUDA GPUs and torch sees none; use --renderer torch on CPUs"
+            return False, "gsplat rasterizes only on CUDA GPUs and torch sees none; use the default renderer (numba) on CPUs"
         return True, ""
 
     def render(self, params: GaussianParams, camera: Camera, *, background: Optional[Sequence[float]] = None,

@@ -95,6 +95,15 @@ class SAM2Segmenter(Segmenter):
             return False, INSTALL_HINT
         return True, ""
 
+    @classmethod
+    def status(cls) -> tuple[str, str]:
+        """Return ``("needs a package", ...)`` without sam2, else ``("needs weights", ...)``: the checkpoint is never
+        downloaded and comes with each run (``--segmenter-option checkpoint=PATH``)."""
+        if importlib.util.find_spec("sam2") is None:
+            return "needs a package", INSTALL_HINT
+        return "needs weights", ("give a local SAM2 checkpoint with each run: --segmenter-option "
+                                 "checkpoint=PATH/sam2.1_hiera_tiny.pt")
+
     def segment(self, dataset: Dataset, prompt: SegmentPrompt, *, scene: Optional[GaussianCloud] = None,
                 progress: ProgressFactory = null_progress) -> ViewMasks:
         """Return binary masks (1 = the clicked object) of every view, propagated by SAM2 from the clicked view.

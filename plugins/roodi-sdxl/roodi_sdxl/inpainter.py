@@ -34,6 +34,20 @@ def _import_diffusers() -> Any:
     return diffusers
 
 
+def local_weights() -> str | None:
+    """Return where the default weights are on disk (``$ROODI_SDXL_MODEL``'s folder, or the local Hugging Face
+    cache's copy of :data:`MODEL_ID`), or None; nothing is downloaded."""
+    given = os.environ.get(ENV_MODEL)
+    if given:
+        return given if os.path.isfile(os.path.join(given, "model_index.json")) else None
+    try:
+        from huggingface_hub import try_to_load_from_cache
+    except ImportError:
+        return None
+    found = try_to_load_from_cache(MODEL_ID, "model_index.json")
+    return found if isinstance(found, str) else None
+
+
 def native_size(height: int, width: int, resolution: int) -> tuple[int, int]:
     """Return the (height, width) the model runs at: longer side ``resolution``, both multiples of 8.
 
@@ -91,6 +105,21 @@ class SDXLInpainter(Inpainter):
         except PluginError as exc:
             return False, str(exc)
         return True, ""
+
+    @classmethod
+    def status(cls) -> tuple[str, str]:
+        """Return ``("installed", "")`` when diffusers is there and the default weights are on disk
+        (``$ROODI_SDXL_MODEL``, else :data:`MODEL_ID` in the local Hugging Face cache), ``("needs a package", ...)``
+        without diffusers, ``("needs weights", ...)`` without the weights."""
+        ok, why = cls.available()
+        if not ok:
+            return "needs a package", why
+        where = local_weights()
+        if where is None:
+            return "needs weights", (f"no SD-XL Inpainting 0.1 weights in ${ENV_MODEL} or the local Hugging Face "
+                                     f"cache; download {MODEL_ID} (huggingface-cli download {MODEL_ID}) or give "
+                                     "--inpainter-option model=PATH")
+        return "installed", ""
 
     @property
     def pipeline(self) -> Any:
