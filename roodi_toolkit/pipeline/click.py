@@ -88,6 +88,8 @@ SCENE_REGION_RADIUS = 0.15
 """``region_radius`` for datasets without sparse points (their box holds the whole scene)."""
 CAPTURE_REGION_RADIUS = 0.5
 """``region_radius`` for captures with SfM points (their box is what SfM reconstructed)."""
+MAX_PART_GAUSSIANS = 4_000_000
+"""Above this many Gaussians near the click the free-standing test is skipped (its neighbour graph would not fit)."""
 
 
 @dataclass(frozen=True)
@@ -128,6 +130,14 @@ class ClickSettings:
             selected Gaussians; a Gaussian is selected when its smoothed label exceeds it.
         vote_rounds: rounds of the multi-view vote: each Gaussian is re-selected when more than ``threshold`` of its
             compositing weight over all views falls inside the masks, and the masks are rendered again.
+        part_spacing: Gaussians whose centres are within this multiple of the median spacing of the Gaussians near
+            the click are one piece (:meth:`ClickSegmenter._parts`; 0: never look for a free-standing object) ...
+        part_share: ... a piece holding more than this share of the scene's Gaussians is no free-standing object
+            (the ground; a scene that is one object) ...
+        part_gap: ... a free-standing piece takes the pieces within this multiple of its radius ...
+        part_colour: ... that are no larger and mostly (half their Gaussians) within this RGB distance of its
+            colours. Chosen on the PlayCanvas playbot (its robot's hands float 0.2 body radii from it, its ground
+            slab 0.03 below it); ``benchmarks/RESULTS.md``, "Extraction at scale".
     """
 
     depth_tolerance_min: float = 0.004
@@ -147,6 +157,10 @@ class ClickSettings:
     colour_weight: float = 0.1
     threshold: float = 0.5
     vote_rounds: int = 2
+    part_spacing: float = 5.0
+    part_share: float = 0.5
+    part_gap: float = 0.3
+    part_colour: float = 0.15
 
 
 class ClickSegmenter(Segmenter):
@@ -250,11 +264,19 @@ class ClickSegmenter(Segmenter):
         points = cam0.backproject(rc, depth0[mask0 & (depth0 > 0)])
         centre = points.mean(axis=0)
         radius0 = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-6)
-        labels = self._grow(scene, fg, bg, centre, s.grow_radius * radius0)
-        selected = labels > s.threshold
-        candidates = np.linalg.norm(scene.means - centre, axis=1) <= s.grow_radius * radius0
-        info: dict[str, Any] = {"clicked_view": names[v0], "seed_gaussians": int(fg.sum()),
-                                "grown_gaussians": int(selected.sum())}
+        info: dict[str, Any] = {"clicked_view": names[v0], "seed_gaussians": int(fg.sum())}
+        # negative clicks say the object touches what they hit: only the growth keeps that out
+        diag = float(np.linalg.norm(np.asarray(dataset.bounds[1]) - np.asarray(dataset.bounds[0])))
+        parts = self._parts(scene, fg, centre, radius0, diag) if not not_seeds else None
+        if parts is not None:  # a free-standing object: its connected pieces, whatever their colours
+            selected = candidates = parts
+            info["free_standing"] = True
+        else:  # an object that touches the rest: grown from the seeds, stopping at colour edges
+            labels = self._grow(scene, fg, bg, centre, s.grow_radius * radius0)
+            selected = labels > s.threshold
+            candidates = np.linalg.norm(scene.means - centre, axis=1) <= s.grow_radius * radius0
+            info["free_standing"] = False
+        info["grown_gaussians"] = int(selected.sum())
         sel = (selected & candidates).astype(np.float32)
         masks = np.zeros((len(dataset), H, W), np.uint8)
         rounds = max(int(s.vote_rounds), 0)
@@ -371,6 +393,69 @@ class ClickSegmenter(Segmenter):
         for r, c in not_seeds:
             not_region[r, c] = True
         return region, not_region
+
+    def _parts(self, scene: GaussianCloud, fg: np.ndarray, centre: np.ndarray, radius0: float,
+               limit: float) -> np.ndarray | None:
+        """Return the Gaussians ``[N]`` bool of a free-standing object, or None when the clicked one touches more.
+
+        The Gaussians within a sphere around the click are cut into connected pieces (each linked to those of its
+        16 nearest within ``part_spacing`` times the median spacing). The sphere starts at twice the clicked
+        region's 3D radius and doubles, up to ``limit``, until the piece holding most seeds ends inside it: then it
+        stands free (a robot over a ground slab, a vase with a gap under it; a click on its eye finds the whole
+        body) and is the object, with the pieces near it (a gap under ``part_gap`` of its radius) that are no larger
+        and mostly of its colours (the robot's floating hands). A piece that still reaches the sphere at ``limit``
+        (a statue on its table: the piece is the table and the room) gives None, and the seeds are grown through
+        colour-weighted links instead; so does a piece that is most of the scene.
+        """
+        from scipy import sparse
+        from scipy.sparse.csgraph import connected_components
+        from scipy.spatial import cKDTree
+
+        s = self.settings
+        if not fg.any() or s.part_spacing <= 0:
+            return None
+        dist = np.linalg.norm(scene.means - centre, axis=1)
+        reach = max(2.0 * radius0, 1e-9)
+        while True:
+            idx = np.flatnonzero(dist <= reach)
+            if len(idx) > MAX_PART_GAUSSIANS:
+                return None
+            if len(idx) >= 3 and fg[idx].any():
+                pos = scene.means[idx].astype(np.float64)
+                tree = cKDTree(pos)
+                near, nb = tree.query(pos, k=min(17, len(idx)))
+                spacing = float(np.median(near[:, 1]))
+                link = near[:, 1:] <= s.part_spacing * spacing
+                rows = np.repeat(np.arange(len(idx)), link.sum(axis=1))
+                graph = sparse.coo_matrix((np.ones(len(rows)), (rows, nb[:, 1:][link])), shape=(len(idx),) * 2)
+                _, piece = connected_components(graph, directed=False)
+                main = int(np.argmax(np.bincount(piece[fg[idx]], minlength=piece.max() + 1)))
+                inside = piece == main
+                if dist[idx][inside].max() < 0.8 * reach:  # the piece ends inside the sphere
+                    if inside.sum() > s.part_share * len(scene):
+                        return None  # it is most of the scene (the ground, a lone object): nothing stands free
+                    break
+            if reach >= limit:
+                return None  # it runs on as far as we look: it touches the rest
+            reach = min(2.0 * reach, limit)
+        body = pos[inside]
+        radius = float(np.linalg.norm(body - body.mean(axis=0), axis=1).max())
+        obj_tree = cKDTree(body)
+        rgb = np.clip(scene.rgb[idx], 0, 1)
+        colours = cKDTree(rgb[inside])
+        sizes = np.bincount(piece)
+        chosen = inside.copy()
+        for other in np.flatnonzero((sizes >= 3) & (sizes <= sizes[main])):
+            if other == main:
+                continue
+            members = piece == other
+            if float(obj_tree.query(pos[members])[0].min()) > s.part_gap * radius:
+                continue
+            if np.mean(colours.query(rgb[members])[0] <= s.part_colour) >= 0.5:
+                chosen |= members
+        out = np.zeros(len(scene), dtype=bool)
+        out[idx[chosen]] = True
+        return out
 
     def _grow(self, scene: GaussianCloud, fg: np.ndarray, bg: np.ndarray, centre: np.ndarray,
               radius: float) -> np.ndarray:
