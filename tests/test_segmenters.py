@@ -257,3 +257,30 @@ def test_the_default_region_radius_follows_what_the_scene_box_is(scene):
     assert torch.equal(wide, ClickSegmenter(region_radius=CAPTURE_REGION_RADIUS, **kw).segment(
         capture, prompt, scene=cloud).masks)
     assert not torch.equal(default, wide)  # the two radii do differ on this scene
+
+
+def test_click_votes_on_a_few_views_and_renders_every_view(scene):
+    """The vote looks at ``vote_views`` views spread over the dataset (and the clicked one); every view gets a mask,
+    as good as with all voting."""
+    from roodi_toolkit.render.renderer import NumbaRenderer
+
+    class Counting(NumbaRenderer):
+        calls = 0
+
+        def render_features(self, params, features, camera):
+            Counting.calls += 1
+            return super().render_features(params, features, camera)
+
+    ds, cloud, _ = scene
+    v = 3
+    ys, xs = np.nonzero((ds.masks[v] == 1).numpy())
+    k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
+    prompt = SegmentPrompt((Click(ds.names[v], xs[k] + 0.5, ys[k] + 0.5),))
+    few = ClickSegmenter(renderer=Counting(), vote_views=4).segment(ds, prompt, scene=cloud)
+    voters = {0, 4, 7, 11, v}  # linspace(0, 11, 4) rounded, and the clicked view
+    assert Counting.calls == 1 + 2 * len(voters) + len(ds)
+    every = ClickSegmenter().segment(ds, prompt, scene=cloud)
+    ious = [mask_iou(few.masks[i] == 1, ds.masks[i] == 1) for i in range(len(ds))]
+    ref = [mask_iou(every.masks[i] == 1, ds.masks[i] == 1) for i in range(len(ds))]
+    assert all(few.masks[i].any() for i in range(len(ds)) if ds.masks[i].eq(1).any())
+    assert np.mean(ious) > np.mean(ref) - 0.05

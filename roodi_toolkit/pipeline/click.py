@@ -129,7 +129,9 @@ class ClickSettings:
         threshold: a pixel is in a view's mask when more than this fraction of its rendered alpha comes from the
             selected Gaussians; a Gaussian is selected when its smoothed label exceeds it.
         vote_rounds: rounds of the multi-view vote: each Gaussian is re-selected when more than ``threshold`` of its
-            compositing weight over all views falls inside the masks, and the masks are rendered again.
+            compositing weight over the voting views falls inside their masks, and the masks are rendered again.
+        vote_views: the vote looks at this many views spread evenly over the dataset (and the clicked one); the
+            masks of every view are rendered from its result.
         part_spacing: Gaussians whose centres are within this multiple of the median spacing of the Gaussians near
             the click are one piece (:meth:`ClickSegmenter._parts`; 0: never look for a free-standing object) ...
         part_share: ... a piece holding more than this share of the scene's Gaussians is no free-standing object
@@ -157,6 +159,7 @@ class ClickSettings:
     colour_weight: float = 0.1
     threshold: float = 0.5
     vote_rounds: int = 2
+    vote_views: int = 32
     part_spacing: float = 5.0
     part_share: float = 0.5
     part_gap: float = 0.3
@@ -182,7 +185,8 @@ class ClickSegmenter(Segmenter):
        back, which no pixel of the clicked view shows.
     4. Masks: in every view a pixel is the object when more than ``threshold`` of its alpha comes from the selected
        Gaussians (occlusion is the full scene's compositing). ``vote_rounds`` times, the selection is re-estimated as
-       the Gaussians whose weight over all views falls mostly inside the masks, and the masks are rendered again.
+       the Gaussians whose weight over ``vote_views`` views falls mostly inside their masks; then the masks of
+       every view are rendered.
 
     Every per-Gaussian sum of weights over pixels is one rendering of features and its backward pass (the gradient
     of the feature image times the pixel factors), so the cost of a view is that of a rendering and the memory does
@@ -280,12 +284,15 @@ class ClickSegmenter(Segmenter):
         sel = (selected & candidates).astype(np.float32)
         masks = np.zeros((len(dataset), H, W), np.uint8)
         rounds = max(int(s.vote_rounds), 0)
-        with progress(total=len(dataset) * (rounds + 1), desc="render the selection") as bar:
+        # the vote is a statistic over views: a few dozen spread round the scene decide it as well as hundreds
+        voters = sorted(set(np.linspace(0, len(dataset) - 1, min(len(dataset), s.vote_views)).round().astype(int))
+                        | {v0})
+        with progress(total=rounds * len(voters) + len(dataset), desc="render the selection") as bar:
             for r in range(rounds + 1):
                 vote = r < rounds
                 inw = np.zeros(len(scene))
                 tot = np.zeros(len(scene))
-                for v in range(len(dataset)):
+                for v in voters if vote else range(len(dataset)):
                     feats = torch.zeros(len(scene), 2, dtype=params.dtype)
                     feats[:, 0] = torch.from_numpy(sel)
                     feats.requires_grad_(vote)
