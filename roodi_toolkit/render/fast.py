@@ -136,9 +136,8 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
 
 def bin_gaussians(proj: Projected, view: View) -> Bins:
     """Return the drawn Gaussians binned to tiles, in depth order (stable: ties keep index order)."""
-    ids = np.flatnonzero(proj.ntiles > 0)
-    order = ids[np.argsort(proj.depths[ids], kind="stable")].astype(np.int64)
-    lists, starts, counts = kernels.bin_tiles(order, proj.bounds, view.width, view.height, view.tile)
+    order = kernels.depth_order(proj.ntiles, proj.depths)
+    lists, starts, counts = kernels.bin_tiles(order, proj.bounds, view.width, view.height, view.tile, _set_workers())
     return Bins(lists, starts, counts, np.flatnonzero(counts > 0))
 
 
@@ -166,6 +165,8 @@ def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, 
 def channels_of(proj: Projected, features: Optional[np.ndarray], colours: bool = True) -> np.ndarray:
     """Return the per-Gaussian channels composited: ``[rgb | depth | features]`` [N, 4 + F], or the features alone
     ``[N, F]`` without ``colours``."""
+    if not colours and features is not None:  # no copy of the features themselves
+        return np.ascontiguousarray(features, dtype=proj.rgb.dtype)
     parts = ([proj.rgb, proj.depths[:, None]] if colours else []) + \
         ([] if features is None else [features.astype(proj.rgb.dtype)])
     return np.ascontiguousarray(np.concatenate(parts, axis=1))
@@ -217,11 +218,15 @@ class _Render(torch.autograd.Function):
                                    n_workers, t_final, last, _numpy(g_render),
                                    np.ascontiguousarray(_numpy(g_alpha)[..., 0]), bg, pair_geom, pair_chan, geometry)
         g_chan = kernels.reduce_pairs(bins.lists, pair_chan, n, n_workers)
-        if not colours:  # the features alone: no colour, depth or background channels
+        if colours:
+            g_background = (g_render[..., :3] * torch.from_numpy(t_final)[..., None]).sum((0, 1))
+            g_features = torch.from_numpy(np.ascontiguousarray(g_chan[:, 4:])) if n_feat else None
+        else:  # the features alone: no colour, depth or background channels
+            g_background = torch.zeros_like(background)
+            g_features = torch.from_numpy(g_chan)
+            if not geometry:
+                return None, None, None, None, None, g_features, g_background, None, None, None
             g_chan = np.concatenate([np.zeros((n, 4), dtype), g_chan], axis=1)
-        g_background = (g_render[..., :3] * torch.from_numpy(t_final)[..., None]).sum((0, 1)) if colours \
-            else torch.zeros_like(background)
-        g_features = torch.from_numpy(np.ascontiguousarray(g_chan[:, 4:])) if n_feat else None
         need_colors = ctx.needs_input_grad[4] and colours
         if not (geometry or need_colors):
             return None, None, None, None, None, g_features, g_background, None, None, None

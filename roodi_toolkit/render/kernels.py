@@ -81,32 +81,79 @@ def footprints(means2d, cov_xx, cov_yy, opacities, usable, width, height, tile):
 
 
 @nb.njit(cache=True, nogil=True)
-def bin_tiles(order, bounds, width, height, tile):  # pragma: no cover - compiled
+def depth_order(ntiles, depths):  # pragma: no cover - compiled
+    """Return the ids ``[D]`` int64 of the drawn Gaussians (``ntiles > 0``) by increasing depth, ties in id order:
+    what ``argsort(kind="stable")`` gives, by a two-pass radix sort of the depths' float32 bit patterns (ordered
+    as unsigned integers once negative ones are flipped); it works in time linear in ``D``."""
+    n = ntiles.shape[0]
+    count = 0
+    for i in range(n):
+        if ntiles[i] > 0:
+            count += 1
+    ids = np.empty(count, np.int64)
+    keys = np.empty(count, np.uint32)
+    k = 0
+    for i in range(n):
+        if ntiles[i] > 0:
+            bits = np.array([np.float32(depths[i])]).view(np.uint32)[0]
+            keys[k] = bits ^ (np.uint32(0xFFFFFFFF) if bits >> 31 else np.uint32(0x80000000))
+            ids[k] = i
+            k += 1
+    tmp_ids = np.empty(count, np.int64)
+    tmp_keys = np.empty(count, np.uint32)
+    for shift in (0, 16):
+        hist = np.zeros(65537, np.int64)
+        for j in range(count):
+            hist[((keys[j] >> shift) & 0xFFFF) + 1] += 1
+        for d in range(65536):
+            hist[d + 1] += hist[d]
+        for j in range(count):
+            d = (keys[j] >> shift) & 0xFFFF
+            tmp_keys[hist[d]] = keys[j]
+            tmp_ids[hist[d]] = ids[j]
+            hist[d] += 1
+        keys, tmp_keys = tmp_keys, keys
+        ids, tmp_ids = tmp_ids, ids
+    return ids
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover - compiled
     """Return (lists [M] int32 Gaussian ids grouped by tile in ``order``'s order, starts [T] int64, counts [T]
     int64) for the Gaussians ``order`` (depth-sorted ids of drawn Gaussians): a counting sort by tile, stable, so
-    every tile's run stays in depth order."""
+    every tile's run stays in depth order. Each worker counts and places a contiguous stretch of ``order``; a tile's
+    entries from an earlier stretch come first, so the result does not depend on the number of workers."""
     tiles_x = (width + tile - 1) // tile
     tiles_y = (height + tile - 1) // tile
-    counts = np.zeros(tiles_x * tiles_y, np.int64)
-    for k in range(order.shape[0]):
-        g = order[k]
-        for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
-            for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
-                counts[ty * tiles_x + tx] += 1
-    starts = np.zeros(tiles_x * tiles_y, np.int64)
+    T = tiles_x * tiles_y
+    n = order.shape[0]
+    span = (n + workers - 1) // workers
+    per = np.zeros((workers, T), np.int64)
+    for w in nb.prange(workers):
+        for k in range(w * span, min(n, (w + 1) * span)):
+            g = order[k]
+            for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
+                for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
+                    per[w, ty * tiles_x + tx] += 1
+    counts = np.zeros(T, np.int64)
+    starts = np.zeros(T, np.int64)
     total = 0
-    for t in range(counts.shape[0]):
+    for t in range(T):
         starts[t] = total
-        total += counts[t]
-    cursor = starts.copy()
+        for w in range(workers):
+            c = per[w, t]
+            per[w, t] = total  # becomes the worker's cursor in this tile
+            total += c
+        counts[t] = total - starts[t]
     lists = np.empty(total, np.int32)
-    for k in range(order.shape[0]):
-        g = order[k]
-        for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
-            for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
-                t = ty * tiles_x + tx
-                lists[cursor[t]] = g
-                cursor[t] += 1
+    for w in nb.prange(workers):
+        for k in range(w * span, min(n, (w + 1) * span)):
+            g = order[k]
+            for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
+                for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
+                    t = ty * tiles_x + tx
+                    lists[per[w, t]] = g
+                    per[w, t] += 1
     return lists, starts, counts
 
 
@@ -322,14 +369,17 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                         one_minus = 1.0 - alpha
                         Ti = T[p] / one_minus
                         weight = alpha * Ti
+                        T[p] = Ti
+                        for ch in range(C):
+                            gcol[ch] += weight * gpix[p, ch]
+                        if not geometry:  # colours or features alone: no need for the alpha's gradient
+                            continue
                         cg = 0.0
                         for ch in range(C):
                             cg += col[ch] * gpix[p, ch]
-                            gcol[ch] += weight * gpix[p, ch]
                         d_alpha = Ti * cg - (S[p] + tail[p]) / one_minus
                         S[p] += weight * cg
-                        T[p] = Ti
-                        if geometry and raw < ALPHA_MAX:
+                        if raw < ALPHA_MAX:
                             dx = dx0 + q
                             g_o += d_alpha * gauss
                             d_sigma = -d_alpha * alpha
