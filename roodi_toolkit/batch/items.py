@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import glob
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,12 +32,15 @@ class Item:
         input: the input file or folder.
         output: where the result goes: a local path or an fsspec URL (None: the task writes no file, e.g. ``info``).
         options: per-item settings that override the batch's (e.g. ``{"k": 32}`` for prune).
+        replace: whether the item may replace a file at its output (``--overwrite``, or an output an earlier run of
+            the batch wrote, as its results file records); otherwise a file there is left alone and the item fails.
     """
 
     name: str
     input: str
     output: str | None
     options: dict[str, Any] = field(default_factory=dict)
+    replace: bool = False
 
 
 def _splat_files(folder: Path) -> list[Path]:
@@ -112,12 +114,13 @@ def _manifest_items(path: Path, out_root: str | None, suffix: str | None) -> lis
         for number, line in enumerate(text.splitlines(), 1):
             if not line.strip():
                 continue
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise InputError(f"{path}:{number}: not JSON ({exc.msg})") from None
+            from ..io.files import parse_json
+
+            row = parse_json(line, f"{path}:{number}", "manifest line")
             if not isinstance(row, dict) or not isinstance(row.get("input"), str):
                 raise InputError(f"{path}:{number}: each line needs an 'input' string")
+            if row.get("output") is not None and not isinstance(row["output"], str):
+                raise InputError(f"{path}:{number}: 'output' must be a string (or left out), got {row['output']!r}")
             options = row.get("options", {})
             if not isinstance(options, dict):
                 raise InputError(f"{path}:{number}: 'options' must be an object")
