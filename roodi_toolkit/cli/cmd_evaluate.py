@@ -28,10 +28,13 @@ EXAMPLE = """Example:
               help="Local LPIPS weights (default: $ROODI_LPIPS_WEIGHTS or the upstream local caches).")
 @renderer_option
 @click.option("--max-views", type=click.IntRange(1), default=None, help="Score only the first N test views.")
+@click.option("--filter-nan", is_flag=True,
+              help="Drop Gaussians with NaN/Inf values instead of refusing the file (as render does).")
 @overwrite_option
 @quiet_option
 def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | None, renders_dir: str | None,
-             lpips_weights: str | None, renderer: Any, max_views: int | None, overwrite: bool, quiet: bool) -> None:
+             lpips_weights: str | None, renderer: Any, max_views: int | None, filter_nan: bool, overwrite: bool,
+             quiet: bool) -> None:
     """Score OBJECT.ply against the true views of target --object in DATA_DIR (a make-scene folder).
 
     PSNR, SSIM and LPIPS inside 1.2x the true object's tight bounding box, and IoU of the rendered alpha, on a
@@ -61,6 +64,9 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     if lpips_weights or os.environ.get(ENV_WEIGHTS):  # weights named by the user must load: fail now, naming them
         LPIPS.from_local(lpips_weights)
     cloud = read_cloud(object_ply)
+    if filter_nan:
+        cloud = cloud.select(~cloud.nonfinite_rows())
+    cloud.require_finite(object_ply)  # NaN rows render as nothing: scores of them would mislead
     ev, renders = evaluate_object(cloud, data_dir, object_id, renderer=renderer, lpips_weights=lpips_weights,
                                   max_views=max_views, progress=progress_factory(quiet))
     if json_path is not None:
