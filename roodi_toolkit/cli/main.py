@@ -30,6 +30,7 @@ import importlib
 import os
 import signal
 import sys
+import warnings
 from typing import Any, Iterator, Sequence
 
 import click
@@ -253,6 +254,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _pop_threads([a for a in args if a != "--debug"])
     previous = _on_signals()
     _forget_claims()
+    # NumPy's numerical warnings (overflow, invalid value) on extreme values are not lines for the user: every
+    # command checks the values it needs and says what is wrong in one line; --debug shows them
+    numbers = warnings.catch_warnings()
+    numbers.__enter__()
+    if not debug:
+        warnings.simplefilter("ignore", RuntimeWarning)
     try:
         _torch_threads(args)
         with _output_scope(args):
@@ -298,6 +305,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                    "traceback and please report it)", err=True)
         return 1
     finally:
+        numbers.__exit__(None, None, None)
         _forget_claims()
         for signum, handler in (previous or {}).items():
             signal.signal(signum, handler)

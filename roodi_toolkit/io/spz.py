@@ -237,6 +237,13 @@ def _to_u8(x: np.ndarray) -> np.ndarray:
 
 
 def encode_spz(cloud: GaussianCloud) -> bytes:
+    """Return ``cloud`` as SPZ version 3 bytes (gzip); see :func:`_encode_spz` (values beyond the bytes' range, such
+    as a colour of -1e38 or a quaternion of 1e30, are clipped without numpy's overflow warnings)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _encode_spz(cloud)
+
+
+def _encode_spz(cloud: GaussianCloud) -> bytes:
     """Return ``cloud`` as SPZ version 3 bytes (gzip), in the RUB frame SPZ readers expect.
 
     The fixed-point precision is the reference's 12 fractional bits unless the scene is larger than 24-bit fixed
