@@ -128,10 +128,8 @@ def check_results_file(path: str | Path, items: Sequence[Item], inputs: Sequence
             data = f.read()
     except OSError as exc:
         raise OutputError(f"{p}: cannot read the results file ({exc.strerror or exc})") from None
-    texts = data.split(b"\n")
-    torn = texts[-1]  # what follows the last newline: a line a killed run did not finish (or nothing)
-    for number, raw in enumerate(texts[:-1], 1):
-        if not raw.strip():
+    for number, raw in enumerate(data.split(b"\n"), 1):
+        if not raw.strip() or raw.startswith(_TORN):  # a line a killed run did not finish
             continue
         try:
             line = json.loads(raw.decode("utf-8"))
@@ -140,9 +138,24 @@ def check_results_file(path: str | Path, items: Sequence[Item], inputs: Sequence
         if not (isinstance(line, dict) and isinstance(line.get("item"), str) and "status" in line):
             raise OutputError(f"{p}: exists and is not a batch results file (line {number} is no result line); "
                               "results are appended, so give a new file or one an earlier batch wrote")
-    if torn.strip() and not torn.lstrip().startswith(b"{"):
-        raise OutputError(f"{p}: exists and is not a batch results file; results are appended, so give a new file "
-                          "or one an earlier batch wrote")
+
+
+_TORN = b'{"item": '
+"""How every result line begins: an unparsable line that begins so is one a killed run did not finish."""
+
+
+def _end_torn_line(path: str | Path) -> None:
+    """End a results file's torn last line (a killed run's), so that the next line is not glued to it."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            f.seek(-1, os.SEEK_END)
+            last = f.read(1)
+    except OSError:  # missing or empty
+        return
+    if last != b"\n":
+        with open(p, "ab") as f:
+            f.write(b"\n")
 
 
 def _own_outputs(path: str | Path) -> set[tuple[str, tuple[int, int] | None]]:
@@ -177,8 +190,9 @@ def _init_worker() -> None:
     # worker exits at once. (The pool would otherwise catch the interruption as the item's error and go on.)
     from ..signals import deferrable
 
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, deferrable(_worker_signal))  # held while an output is put in place
+    for sig in (signal.SIGTERM, signal.SIGINT, getattr(signal, "SIGHUP", None)):
+        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, deferrable(_worker_signal))  # held while an output is put in place
 
 
 _IN_ITEM = False
@@ -376,6 +390,7 @@ def run_batch(task: str, items: Sequence[Item], results: str | Path, *, settings
                           f"{results}){more}; pass --overwrite to replace it")
     summary = BatchSummary(len(items), 0, 0, len(skipped), 0.0, str(results))
     Path(results).parent.mkdir(parents=True, exist_ok=True)
+    _end_torn_line(results)
     with open(results, "a", buffering=1) as out, progress(total=len(items), desc=f"batch {task}") as bar:
         def emit(line: dict[str, Any]) -> None:
             if line.get("status") == "ok":

@@ -17,6 +17,7 @@ exit  when
 1     out of memory, or an unexpected error (the message asks to rerun with ``--debug`` and report it)
 2     usage errors: an unknown option, a missing argument, a value click rejects
 130   interrupted (Ctrl-C)
+143   terminated (SIGTERM; 129 for SIGHUP, a closed terminal): as with Ctrl-C, no output appears half made
 ====  ==========================================================================================================
 
 Commands are imported only when run (or when ``--help`` lists them), so ``roodi-toolkit info`` stays fast; command
@@ -223,23 +224,31 @@ def _one_line(text: str) -> str:
 
 
 class Terminated(BaseException):
-    """SIGTERM arrived: unwinds like Ctrl-C, so that half-written temporary outputs are removed on the way out."""
+    """SIGTERM (or SIGHUP, a closed terminal) arrived: unwinds like Ctrl-C, so that half-written temporary outputs
+    are removed on the way out. ``signum`` gives the exit code, 128 + signum."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = int(signum)
 
 
 def _on_signals() -> dict[int, Any] | None:
-    """Make SIGTERM raise :class:`Terminated` and Ctrl-C ``KeyboardInterrupt`` (in the main thread only), both held
-    while outputs are put in place (:mod:`roodi_toolkit.signals`); return the handlers they replace. A SIGINT that
-    is ignored (a background job's) stays ignored."""
+    """Make SIGTERM and SIGHUP raise :class:`Terminated` and Ctrl-C ``KeyboardInterrupt`` (in the main thread only),
+    all held while outputs are put in place (:mod:`roodi_toolkit.signals`); return the handlers they replace. A
+    signal that is ignored (SIGINT in a background job, SIGHUP under nohup) stays ignored."""
     import threading
 
     from roodi_toolkit.signals import deferrable
 
     def handler(signum: int, frame: Any) -> None:
-        raise Terminated()
+        raise Terminated(signum)
 
     if threading.current_thread() is not threading.main_thread():
         return None
     previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, deferrable(handler))}
+    hup = getattr(signal, "SIGHUP", None)
+    if hup is not None and signal.getsignal(hup) is signal.SIG_DFL:
+        previous[hup] = signal.signal(hup, deferrable(handler))
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         previous[signal.SIGINT] = signal.signal(signal.SIGINT, deferrable(signal.default_int_handler))
     return previous
@@ -286,9 +295,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
         return 130
-    except Terminated:
-        click.echo("terminated", err=True)
-        return 143
+    except Terminated as exc:
+        click.echo("terminated" if exc.signum == signal.SIGTERM else f"terminated ({signal.Signals(exc.signum).name})",
+                   err=True)
+        return 128 + exc.signum
     except MemoryError:
         if debug:
             raise

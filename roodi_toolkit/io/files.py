@@ -660,8 +660,32 @@ def save_checkpoint(obj: Any, path: str | os.PathLike) -> Path:
     return Path(path)
 
 
+def check_torch_archive(path: str | os.PathLike, what: str = "checkpoint") -> None:
+    """Refuse a ``torch.save`` zip archive whose entries are compressed: ``torch.save`` stores them as they are,
+    and ``torch.load`` inflates a compressed entry whole before it checks its size (a 260 KB file took 256 MB).
+
+    Raises:
+        InputError: naming the file and the entry.
+    """
+    import zipfile
+
+    p = Path(path)
+    try:
+        if not zipfile.is_zipfile(p):
+            return  # the legacy (pickle) format, or not a checkpoint: torch.load says so
+        with zipfile.ZipFile(p) as archive:
+            for info in archive.infolist():
+                if info.compress_type != zipfile.ZIP_STORED or info.file_size > p.stat().st_size:
+                    raise InputError(f"{p}: {what} entry {info.filename!r} is compressed ({info.file_size:,} bytes "
+                                     "once inflated); torch.save never compresses: not a PyTorch file, or a "
+                                     "decompression bomb")
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise InputError(f"{p}: cannot read {what} ({exc})") from None
+
+
 def load_checkpoint(path: str | os.PathLike) -> Any:
-    """Read a checkpoint written by :func:`save_checkpoint` with ``torch.load(weights_only=True)`` (no code runs)."""
+    """Read a checkpoint written by :func:`save_checkpoint` with ``torch.load(weights_only=True)`` (no code runs;
+    a compressed entry is refused first, :func:`check_torch_archive`)."""
     import pickle
 
     import torch
@@ -669,6 +693,7 @@ def load_checkpoint(path: str | os.PathLike) -> Any:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: checkpoint not found")
+    check_torch_archive(p)
     try:
         return torch.load(p, map_location="cpu", weights_only=True)
     except (RuntimeError, pickle.UnpicklingError, EOFError, OSError, ValueError) as exc:

@@ -77,6 +77,11 @@ def test_results_of_an_earlier_batch_are_appended_to(src: Path, run_cli, tmp_pat
     res = run_cli("batch", "convert", "src", "out", "--to", ".ply", "--results", "r.jsonl", "-q")
     assert res.exit_code == 0, res.stderr
     assert "2 unchanged and skipped" in res.stdout
+    # the torn line was ended, so the lines after it stay whole, and the file is still a results file
+    texts = (tmp_path / "r.jsonl").read_text().splitlines()
+    assert texts[-3] == '{"item": "a.ply", "sta' and all(json.loads(t)["status"] == "skipped" for t in texts[-2:])
+    res = run_cli("batch", "convert", "src", "out", "--to", ".ply", "--results", "r.jsonl", "-q")
+    assert res.exit_code == 0 and "2 unchanged and skipped" in res.stdout, res.stderr
 
 
 # ------------------------------------------------------------------------------------------ items' outputs

@@ -346,3 +346,57 @@ def test_render_of_cameras_claiming_a_huge_image_is_refused(world, tmp_path: Pat
     res = run_cli("render", world.ply, tmp_path / "r", "--cameras", cams, "-q")
     expect_failure(res, 1, "transforms_train.json", "100000x100000")
     assert not (tmp_path / "r").exists()
+
+
+# ------------------------------------------------------------------------------------------ PyTorch archives
+def _deflated_torch_file(src: Path, dst: Path, size: int = 64 << 20) -> Path:
+    """``src`` (a torch.save zip) rebuilt with its first tensor record deflated and grown to ``size`` bytes."""
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w") as zout:
+        grown = False
+        for info in zin.infolist():
+            data = zin.read(info.filename)
+            if not grown and "/data/" in info.filename and not info.filename.endswith(".pkl"):
+                zout.writestr(info.filename, bytes(size), compress_type=zipfile.ZIP_DEFLATED)
+                grown = True
+            else:
+                zout.writestr(info, data)
+    return dst
+
+
+@pytest.mark.parametrize("where", ["train --resume", "select", "--lpips-weights"])
+def test_a_compressed_torch_archive_is_refused_before_loading(where: str, world, tmp_path: Path, run_cli) -> None:
+    import shutil
+
+    if where == "train --resume":
+        model = tmp_path / "t"
+        assert run_cli("train", world.data, model, "--iterations", "1", "--eval-every", "0", "-q").exit_code == 0
+        ckpt = model / "checkpoints" / "latest.pt"
+        _deflated_torch_file(ckpt, tmp_path / "bomb.pt").replace(ckpt)
+        res = run_cli("train", world.data, model, "--resume", "--iterations", "2", "-q")
+        expect_failure(res, 1, "latest.pt", "compressed")
+    elif where == "select":
+        dist = tmp_path / "dist"
+        shutil.copytree(world.dist, dist)
+        ckpt = dist / "object_classifier.pt"
+        _deflated_torch_file(ckpt, tmp_path / "bomb.pt").replace(ckpt)
+        res = run_cli("select", dist, tmp_path / "o.ply", "--object", "1", "-q")
+        expect_failure(res, 1, "object_classifier.pt", "compressed")
+    else:
+        import torch
+
+        torch.save({"w": torch.zeros(4)}, tmp_path / "w.pth")
+        bomb = _deflated_torch_file(tmp_path / "w.pth", tmp_path / "lpips.pth")
+        res = run_cli("evaluate", world.ply, world.gen, "--object", "1", "--lpips-weights", bomb, "-q")
+        expect_failure(res, 1, "lpips.pth", "compressed")
+    assert world.unchanged()
+
+
+def test_a_compressed_checkpoint_is_never_inflated(tmp_path: Path) -> None:
+    import torch
+
+    torch.save({"w": torch.zeros(10)}, tmp_path / "small.pt")
+    bomb = _deflated_torch_file(tmp_path / "small.pt", tmp_path / "bomb.pt", 256 << 20)
+    growth, out, err = _peak_growth_mb("from roodi_toolkit.io.files import load_checkpoint",
+                                       f"load_checkpoint({str(bomb)!r})")
+    assert "raised InputError" in out and "compressed" in out, out + err
+    assert growth < 64, f"loading took {growth:.0f} MB more"

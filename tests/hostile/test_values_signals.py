@@ -210,7 +210,7 @@ def test_killed_at_the_final_step_completes_it(sig: int, code: int, command: str
     assert world.unchanged()
 
 
-@pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
 def test_a_real_process_killed_while_converting(sig: int, code: int, tmp_path: Path) -> None:
     """A separate process, signalled while it works: it exits with the signal's code (or finished first), and leaves
     either the complete output or none, never a hidden partial file."""
