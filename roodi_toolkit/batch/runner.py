@@ -263,9 +263,11 @@ class _Pool:
         pool = self.pool
         if pool is None:
             return []
-        for fut in self.futures:
-            fut.cancel()
-        workers = list(getattr(pool, "_processes", {}).values())  # the standard pool offers no public handle
+        workers = list((getattr(pool, "_processes", None) or {}).values())  # the pool offers no public handle
+        # queued items are cancelled by the pool itself (cancelling them here as well made its manager thread set
+        # an exception on a cancelled future when the workers went: InvalidStateError on stderr)
+        with contextlib.suppress(Exception):
+            pool.shutdown(wait=False, cancel_futures=True)
         for proc in workers:
             with contextlib.suppress(OSError, ValueError, AttributeError):
                 if proc.is_alive():

@@ -66,10 +66,10 @@ def _run(task: str, source: str, out: str, suffix: str | None, settings: dict[st
     from roodi_toolkit.batch.outputs import is_url
     from roodi_toolkit.batch.runner import run_batch
     from roodi_toolkit.batch.tasks import check_items
-    from roodi_toolkit.io.files import refuse_inside_inputs
+    from roodi_toolkit.io.files import check_output_dir
 
-    if not is_url(out):
-        refuse_inside_inputs(out, [source])
+    if not is_url(out):  # a folder (made if missing, added to if not), never a file nor inside the source
+        check_output_dir(out, overwrite=True, inputs=[source])
     items = collect_items(source, out, suffix=suffix)
     check_items(task, items, settings, source)
     if results is None:

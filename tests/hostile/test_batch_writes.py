@@ -166,6 +166,13 @@ def test_a_file_appearing_at_an_output_while_the_batch_runs_is_left_alone(src: P
     assert not [p for p in (tmp_path / "out").iterdir() if p.name.startswith(".")]
 
 
+def test_an_output_folder_that_is_a_file_is_refused(src: Path, run_cli, tmp_path: Path) -> None:
+    (tmp_path / "out").write_bytes(b"a file\n")
+    res = run_cli("batch", "convert", "src", "out", "--to", ".ply", "-q")
+    expect_failure(res, 1, "out", "not a folder")
+    assert (tmp_path / "out").read_bytes() == b"a file\n"
+
+
 # ------------------------------------------------------------------------------------------ per-item options
 MANIFESTS = {
     "k=abc": ("m.csv", "input,k\nsrc/a.ply,abc\n", "k"),
@@ -201,9 +208,12 @@ def test_convert_items_take_no_options(src: Path, run_cli, tmp_path: Path) -> No
 
 
 # ------------------------------------------------------------------------------------------ stopped by a signal
-def test_sigterm_stops_a_batch_at_once_and_keeps_what_finished(tmp_path: Path) -> None:
-    """SIGTERM to the batch (not its workers): exit 143 in seconds, not after the queue; every output present has
-    its line (a re-run skips exactly those), no hidden temporary file, and the re-run does the rest."""
+@pytest.mark.parametrize("how", ["SIGTERM to the batch",
+                                 pytest.param("Ctrl-C to its process group", marks=pytest.mark.slow)])
+def test_a_signal_stops_a_batch_at_once_and_keeps_what_finished(how: str, tmp_path: Path) -> None:
+    """SIGTERM to the batch (not its workers), or Ctrl-C to all of them: the signal's exit code in seconds, not
+    after the queue; every output present has its line (a re-run skips exactly those), no hidden temporary file, no
+    traceback, and the re-run does the rest."""
     from roodi_toolkit.io.ply import write_ply
     from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
 
@@ -214,15 +224,19 @@ def test_sigterm_stops_a_batch_at_once_and_keeps_what_finished(tmp_path: Path) -
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     cmd = [sys.executable, "-m", "roodi_toolkit.cli.main", "batch", "prune", str(tmp_path / "in"),
            str(tmp_path / "out"), "--jobs", "2", "-q"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.time() + 120
     while time.time() < deadline and (not results.is_file() or '"status": "ok"' not in results.read_text()):
         time.sleep(0.02)
     t0 = time.time()
-    proc.send_signal(signal.SIGTERM)
+    if how.startswith("SIGTERM"):
+        proc.send_signal(signal.SIGTERM)
+    else:
+        os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     stopped = time.time() - t0
-    assert proc.returncode == 143, err
+    assert proc.returncode == (143 if how.startswith("SIGTERM") else 130), err
+    assert "Traceback" not in err.decode() and "Error" not in err.decode(), err
     assert stopped < 10, f"took {stopped:.1f} s to stop"
     done = {line["item"] for line in _results(results) if line["status"] == "ok"}
     written = {p.name for p in (tmp_path / "out").glob("*.ply")}
