@@ -44,13 +44,14 @@ def output_exists(dest: str) -> bool:
 
 
 def file_id(path: str | os.PathLike) -> list[int] | None:
-    """Return a local file's identity ``[device, inode]`` (kept by the rename or link that puts an output in place),
-    or None if it is not there."""
+    """Return a local file's identity ``[device, inode, size, modification time in ns]`` (all kept by the rename or
+    link that puts an output in place), or None if it is not there. The inode alone is not enough: a file the user
+    writes just after deleting an output often gets the freed inode back."""
     try:
         st = os.stat(path)
     except OSError:
         return None
-    return [st.st_dev, st.st_ino]
+    return [st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns]
 
 
 def write_output(dest: str, write: Callable[[Path], None], *, replace: bool = False,

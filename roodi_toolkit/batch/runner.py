@@ -158,14 +158,15 @@ def _end_torn_line(path: str | Path) -> None:
             f.write(b"\n")
 
 
-def _own_outputs(path: str | Path) -> set[tuple[str, tuple[int, int] | None]]:
-    """Return what earlier runs recorded writing: (output, its [device, inode]) from ``ok`` lines and from the
+def _own_outputs(path: str | Path) -> set[tuple[str, tuple[int, ...] | None]]:
+    """Return what earlier runs recorded writing: (output, its identity, :func:`~.outputs.file_id`) from ``ok`` lines
+    and from the
     ``writing`` lines workers add just before an output is put in place (None: an old line without identity)."""
     own = set()
     for line in _result_lines(path):
         if line.get("status") in ("ok", "writing") and isinstance(line.get("output"), str):
             ident = line.get("output_id")
-            own.add((line["output"], tuple(ident) if isinstance(ident, list) and len(ident) == 2 else None))
+            own.add((line["output"], tuple(ident) if isinstance(ident, list) and len(ident) == 4 else None))
     return own
 
 

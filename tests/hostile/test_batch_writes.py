@@ -189,6 +189,12 @@ MANIFESTS = {
     "JSON value_ranges=3": ("m.jsonl", '{"input": "src/a.ply", "options": {"value_ranges": 3}}\n', "value_ranges"),
     "JSON output=3": ("m.jsonl", '{"input": "src/a.ply", "output": 3}\n', "output"),
     "JSON nested deeply": ("m.jsonl", '{"input": "src/a.ply", "options": ' + "[" * 100_000 + "\n", "nested"),
+    "JSON empty input": ("m.jsonl", '{"input": ""}\n', "input"),
+    "a NUL byte": ("m.csv", "input\nsrc/a.ply\0\n", "NUL"),
+    "a 200 KB cell": ("m.csv", "input,k\nsrc/a.ply," + "9" * 200_000 + "\n", "m.csv:2"),
+    "input named twice": ("m.csv", "input,input\nsrc/a.ply,src/b.spz\n", "'input'"),
+    "more cells than columns": ("m.csv", "input,k\nsrc/a.ply,8,9\n", "m.csv:2"),
+    "an empty input cell": ("m.csv", 'input,k\n"",8\n', "empty"),
 }
 
 
@@ -199,6 +205,14 @@ def test_bad_item_options_are_refused_before_any_work(case: str, src: Path, run_
     res = run_cli("batch", "prune", name, "out", "-q")
     expect_failure(res, 1, name, needle)
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*.ply"))
+
+
+def test_a_manifest_with_a_byte_order_mark_is_read(src: Path, run_cli, tmp_path: Path) -> None:
+    """Spreadsheets write CSV with a byte-order mark before the header: it is no part of 'input'."""
+    (tmp_path / "m.csv").write_bytes(b"\xef\xbb\xbfinput,k\nsrc/a.ply,8\n")
+    res = run_cli("batch", "prune", "m.csv", "out", "-q")
+    assert res.exit_code == 0, res.stderr
+    assert (tmp_path / "out" / "src" / "a.ply").is_file()
 
 
 def test_convert_items_take_no_options(src: Path, run_cli, tmp_path: Path) -> None:
