@@ -130,12 +130,32 @@ def read_sog(path: str | os.PathLike) -> GaussianCloud:
         raise _fail(p, f"SOG meta.json is malformed ({type(exc).__name__}: {exc})") from None
 
 
+def _webp_size(data: bytes) -> tuple[int, int] | None:
+    """Return a WebP file's (width, height) from its header (the VP8X canvas, or the VP8L / VP8 frame), or None if
+    it is no WebP. Read here, not by Pillow: opening a WebP, Pillow's decoder already allocates the whole canvas."""
+    if len(data) < 30 or data[:4] != b"RIFF" or data[8:12] != b"WEBP":
+        return None
+    kind = data[12:16]
+    if kind == b"VP8X":
+        return 1 + int.from_bytes(data[24:27], "little"), 1 + int.from_bytes(data[27:30], "little")
+    if kind == b"VP8L" and data[20] == 0x2F:
+        bits = int.from_bytes(data[21:25], "little")
+        return 1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF)
+    if kind == b"VP8 " and data[23:26] == b"\x9d\x01\x2a":
+        return int.from_bytes(data[26:28], "little") & 0x3FFF, int.from_bytes(data[28:30], "little") & 0x3FFF
+    return None
+
+
 def _open_webp(p: Path, name: str, data: bytes, max_pixels: int) -> Any:
     """Return Pillow's (not yet decoded) image of a WebP texture whose size is at most ``max_pixels``."""
     import warnings
 
     from PIL import Image, UnidentifiedImageError
 
+    size = _webp_size(data)
+    if size is not None and size[0] * size[1] > max_pixels:
+        raise _fail(p, f"SOG texture {name!r} claims {size[0]}x{size[1]} pixels, more than the count in meta.json can "
+                       f"need ({max_pixels:,}): corrupt or a decompression bomb")
     limit = Image.MAX_IMAGE_PIXELS
     try:
         Image.MAX_IMAGE_PIXELS = None  # the bound is ours, from the count (Pillow would warn on stderr)

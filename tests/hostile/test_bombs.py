@@ -27,16 +27,19 @@ ROOT = Path(__file__).resolve().parents[2]
 HUGE_WEBP = bytes.fromhex("524946461a000000574542505650384c0d0000002ffebfaa1a071011118888fe0700")
 
 
-def _peak_growth_mb(setup: str, work: str) -> tuple[float, str, str]:
-    """Run ``work`` in a fresh Python after ``setup``; return its peak memory growth (MB), stdout and stderr."""
-    code = (f"import resource, sys\n{setup}\nbase = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
-            f"try:\n    {work}\nexcept Exception as exc:\n    print('raised', type(exc).__name__, exc)\n"
-            "print('growth', (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024)\n")
+def _within_memory(setup: str, work: str, allowance_mb: int) -> tuple[str, str]:
+    """Run ``work`` in a fresh Python after ``setup``, allowed ``allowance_mb`` MB of data memory more than it holds
+    then (RLIMIT_DATA: private writable memory, whatever the machine's other load; a peak of resident memory is not a
+    fair measure there, as the kernel drops the libraries' pages under pressure); return its stdout and stderr. Work
+    that needs more gets MemoryError ("raised MemoryError" on stdout)."""
+    code = (f"import re, resource, sys\n{setup}\n"
+            "held = int(re.search(r'VmData:\\s+(\\d+) kB', open('/proc/self/status').read()).group(1)) * 1024\n"
+            f"limit = held + {allowance_mb} * 2 ** 20\n"
+            "resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))\n"
+            f"try:\n    {work}\nexcept BaseException as exc:\n    print('raised', type(exc).__name__, exc)\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)})
-    growth = [line for line in res.stdout.splitlines() if line.startswith("growth")]
-    assert growth, res.stderr
-    return float(growth[-1].split()[1]), res.stdout, res.stderr
+                         env={**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"})
+    return res.stdout, res.stderr
 
 
 def _zeros_deflated(size: int) -> bytes:
@@ -60,10 +63,9 @@ def _spz_with_tail(cloud_spz: Path, tail: int) -> bytes:
 def test_spz_stream_past_the_count_is_never_inflated(world, tmp_path: Path, run_cli) -> None:
     f = tmp_path / "tail.spz"
     f.write_bytes(_spz_with_tail(world.spz, 512 << 20))  # ~500 KB that inflate to 512 MB past the 60 Gaussians
-    growth, out, err = _peak_growth_mb("from roodi_toolkit.io.spz import read_spz",
-                                       f"print('count', len(read_spz({str(f)!r})))")
+    out, err = _within_memory("from roodi_toolkit.io.spz import read_spz", f"print('count', len(read_spz({str(f)!r})))",
+                              64)
     assert "count 60" in out, out + err
-    assert growth < 64, f"reading took {growth:.0f} MB more"
     res = run_cli("info", f)
     assert res.exit_code == 0 and res.stderr == ""
 
@@ -97,9 +99,8 @@ def test_sog_zip_entry_that_inflates_past_the_count_is_refused(sog_files, tmp_pa
     """The entry's header says 256 MB (a texture of 300 Gaussians is kilobytes): refused from the header."""
     f = tmp_path / "bomb.sog"
     f.write_bytes(_zip({**sog_files, "means_l.webp": bytes(256 << 20)}, zipfile.ZIP_DEFLATED))
-    growth, out, err = _peak_growth_mb("from roodi_toolkit.io.sog import read_sog", f"read_sog({str(f)!r})")
+    out, err = _within_memory("from roodi_toolkit.io.sog import read_sog", f"read_sog({str(f)!r})", 64)
     assert "raised FormatError" in out and "means_l.webp" in out and "BytesIO" not in out, out + err
-    assert growth < 64, f"reading took {growth:.0f} MB more"
     expect_failure(run_cli("info", f), 1, "bomb.sog", "means_l.webp", "decompression bomb")
 
 
@@ -132,9 +133,8 @@ def test_sog_zip_entry_whose_header_lies_is_inflated_no_further(sog_files, tmp_p
         pos += 46 + name_len + extra_len + comment_len
     f = tmp_path / "liar.sog"
     f.write_bytes(bytes(patched))
-    growth, out, err = _peak_growth_mb("from roodi_toolkit.io.sog import read_sog", f"read_sog({str(f)!r})")
+    out, err = _within_memory("from roodi_toolkit.io.sog import read_sog", f"read_sog({str(f)!r})", 64)
     assert "raised FormatError" in out, out + err
-    assert growth < 64, f"reading took {growth:.0f} MB more"
     expect_failure(run_cli("info", f), 1, "liar.sog", "means_l.webp")
 
 
@@ -142,9 +142,9 @@ def test_sog_texture_whose_header_claims_too_many_pixels_is_refused_before_decod
                                                                                    run_cli) -> None:
     f = tmp_path / "huge.sog"
     f.write_bytes(_zip({**sog_files, **{name: HUGE_WEBP for name in sog_files if name.endswith(".webp")}}))
-    growth, out, err = _peak_growth_mb("from roodi_toolkit.io.sog import read_sog", f"read_sog({str(f)!r})")
+    out, err = _within_memory("from roodi_toolkit.io.sog import read_sog", f"read_sog({str(f)!r})", 64)
     assert "raised FormatError" in out and "16383x10923" in out, out + err
-    assert growth < 64 and "DecompressionBomb" not in err
+    assert "DecompressionBomb" not in err
     res = run_cli("convert", f, tmp_path / "o.ply")
     expect_failure(res, 1, "huge.sog", "16383x10923")
     assert not (tmp_path / "o.ply").exists()
@@ -232,10 +232,9 @@ def test_a_huge_1_bit_photo_is_decoded_at_its_stored_size(tmp_path: Path) -> Non
     big = tmp_path / "big.png"
     Image.new("1", (4000, 4000), 1).save(big)
     data = _dataset(tmp_path / "data", [big, big])
-    growth, out, err = _peak_growth_mb("from roodi_toolkit.io.dataset import load_dataset",
-                                       f"d = load_dataset({str(data)!r}, 40); print('shape', list(d.images.shape))")
+    out, err = _within_memory("from roodi_toolkit.io.dataset import load_dataset",
+                              f"d = load_dataset({str(data)!r}, 40); print('shape', list(d.images.shape))", 150)
     assert "shape [2, 100, 100, 3]" in out, out + err
-    assert growth < 150, f"loading took {growth:.0f} MB more"
     assert err == "", err
 
 
@@ -373,21 +372,21 @@ def test_a_compressed_torch_archive_is_refused_before_loading(where: str, world,
         ckpt = model / "checkpoints" / "latest.pt"
         _deflated_torch_file(ckpt, tmp_path / "bomb.pt").replace(ckpt)
         res = run_cli("train", world.data, model, "--resume", "--iterations", "2", "-q")
-        expect_failure(res, 1, "latest.pt", "compressed")
+        expect_failure(res, 1, "latest.pt", "never compresses")
     elif where == "select":
         dist = tmp_path / "dist"
         shutil.copytree(world.dist, dist)
         ckpt = dist / "object_classifier.pt"
         _deflated_torch_file(ckpt, tmp_path / "bomb.pt").replace(ckpt)
         res = run_cli("select", dist, tmp_path / "o.ply", "--object", "1", "-q")
-        expect_failure(res, 1, "object_classifier.pt", "compressed")
+        expect_failure(res, 1, "object_classifier.pt", "never compresses")
     else:
         import torch
 
         torch.save({"w": torch.zeros(4)}, tmp_path / "w.pth")
         bomb = _deflated_torch_file(tmp_path / "w.pth", tmp_path / "lpips.pth")
         res = run_cli("evaluate", world.ply, world.gen, "--object", "1", "--lpips-weights", bomb, "-q")
-        expect_failure(res, 1, "lpips.pth", "compressed")
+        expect_failure(res, 1, "lpips.pth", "never compresses")
     assert world.unchanged()
 
 
@@ -396,7 +395,6 @@ def test_a_compressed_checkpoint_is_never_inflated(tmp_path: Path) -> None:
 
     torch.save({"w": torch.zeros(10)}, tmp_path / "small.pt")
     bomb = _deflated_torch_file(tmp_path / "small.pt", tmp_path / "bomb.pt", 256 << 20)
-    growth, out, err = _peak_growth_mb("from roodi_toolkit.io.files import load_checkpoint",
-                                       f"load_checkpoint({str(bomb)!r})")
-    assert "raised InputError" in out and "compressed" in out, out + err
-    assert growth < 64, f"loading took {growth:.0f} MB more"
+    out, err = _within_memory("import torch\nfrom roodi_toolkit.io.files import load_checkpoint",
+                              f"load_checkpoint({str(bomb)!r})", 64)
+    assert "raised InputError" in out and "never compresses" in out, out + err
