@@ -3,7 +3,8 @@
 Conventions every command follows: one line on stderr for any failure, no traceback unless ``--debug`` (accepted
 anywhere on the line); outputs are written atomically, never over an input, and over an existing file only with
 ``--overwrite`` (a file that appears at an output while the command runs is left alone and the command refuses); a
-command's outputs appear together or not at all (:data:`GROUPED_COMMANDS`). Kinds of failure (:mod:`roodi_toolkit.errors`) and exit codes:
+command's outputs appear together or not at all (:data:`GROUPED_COMMANDS`). Kinds of failure
+(:mod:`roodi_toolkit.errors`) and exit codes:
 
 ====  ==========================================================================================================
 exit  when
@@ -134,7 +135,7 @@ def app() -> None:
     """
 
 
-# Commands whose outputs appear together or not at all: each runs inside one output group (roodi_toolkit.io.files),
+# Commands whose outputs appear together or not at all: each runs inside one output group (roodi_toolkit.io.atomic),
 # its finished files put in place together at its end, none on an error, a signal or a full disk. Not train (its
 # checkpoints must land as they are made), extract and benchmark (stages and scores kept for a re-run to reuse),
 # batch (each item's output is its own), demo (its steps are commands of their own).
@@ -144,8 +145,6 @@ GROUPED_COMMANDS = frozenset({"convert", "distill", "evaluate", "inspect", "make
 def _output_scope(args: Sequence[str]) -> Any:
     """Return the context a command runs in: for :data:`GROUPED_COMMANDS` an output group, with what the command
     prints on stdout ("wrote OUT") held back until its outputs are in place; else nothing."""
-    import contextlib
-
     command = next((a for a in args if not a.startswith("-")), None)
     if command not in GROUPED_COMMANDS:
         return contextlib.nullcontext()

@@ -145,8 +145,9 @@ class OutputGroup:
         return any(_claim_key(dest) == key for _, dest, _ in self.pending)
 
     def commit(self) -> None:
-        """Put every held output in place (the group stays open for later ones): the new ones first (all refused, none placed, if one of their names was
-        taken meanwhile), then the replacements; signals are held until all are done."""
+        """Put every held output in place (the group stays open for later ones): the new ones first (all refused,
+        none placed, if one of their names was taken meanwhile), then the replacements; signals are held until all
+        are done."""
         held = _hold_signals()
         try:
             fresh = [(t, d) for t, d, r in self.pending if not r]

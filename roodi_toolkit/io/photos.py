@@ -82,11 +82,11 @@ class _ViewStack:
 
     Each image is decoded as stored (1 to 8 bytes a pixel) and turned into float32 a strip of rows at a time: each
     strip is composited on the background (alpha and colour area-averaged afterwards give the same result as
-    averaging first, as compositing is linear), cut to the common size (:class:`~roodi_toolkit.io.dataset._Crop`) and area-resized into its
-    rows of the ``[N, h, w, 3]`` tensor. The strips hold whole periods of the resize's bins, so the result is
-    bitwise what resizing the whole float image gives, without ever holding it (a 13300x13300 photo trained at
-    ``--downscale 250`` needs its 177-530 MB of stored pixels, not 4.8 GB). Masks and depths are resized with
-    nearest-exact sampling, taken straight from the stored values.
+    averaging first, as compositing is linear), cut to the common size (:class:`~roodi_toolkit.io.dataset._Crop`)
+    and area-resized into its rows of the ``[N, h, w, 3]`` tensor. The strips hold whole periods of the resize's
+    bins, so the result is bitwise what resizing the whole float image gives, without ever holding it (a
+    13300x13300 photo trained at ``--downscale 250`` needs its 177-530 MB of stored pixels, not 4.8 GB). Masks and
+    depths are resized with nearest-exact sampling, taken straight from the stored values.
     """
 
     def __init__(self, crop: _Crop, size: tuple[int, int], background: Sequence[float]) -> None:

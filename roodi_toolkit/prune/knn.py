@@ -101,9 +101,9 @@ class CentreIndex:
         if not reach <= MAX_COORDINATE:
             # the search works in float32: squared distances past 3.4e38 are infinite, and Open3D then returns
             # fewer neighbours than asked ("Shape [N, K] is invalid")
-            raise CloudError(f"Gaussian centres reach {reach:.3g}, beyond the {MAX_COORDINATE:.0e} the neighbour search "
-                             "can measure (its squared distances would overflow); drop those Gaussians first "
-                             "(--filter-sphere or --filter-value x,LOW,HIGH)")
+            raise CloudError(f"Gaussian centres reach {reach:.3g}, beyond the {MAX_COORDINATE:.0e} the neighbour "
+                             "search can measure (its squared distances would overflow); drop those Gaussians "
+                             "first (--filter-sphere or --filter-value x,LOW,HIGH)")
         self.order = morton_order(self.points)
         self._sorted = np.ascontiguousarray(self.points[self.order])
         self._nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor.from_numpy(self._sorted), o3d.core.int32)
