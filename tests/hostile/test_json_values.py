@@ -76,13 +76,14 @@ def test_sog_meta_json_deep_or_misshapen(text: str, run_cli, tmp_path: Path) -> 
 # ------------------------------------------------------------------------------------------ JSON written
 @pytest.fixture
 def nan_cloud(tmp_path: Path) -> Path:
+    """Every opacity NaN (info's opacity statistics are NaN), some centres infinite."""
     from roodi_toolkit.io.ply import write_ply
     from tests.conftest import make_cloud
 
     c = make_cloud(40, seed=2)
+    c.opacity_logits[:] = np.nan
     c.means[3] = np.inf
     c.means[4] = -np.inf
-    c.log_scales[5] = np.nan
     return write_ply(c, tmp_path / "bad.ply")
 
 
@@ -90,19 +91,27 @@ def test_info_json_is_strict_json(nan_cloud: Path, run_cli) -> None:
     res = run_cli("info", nan_cloud, "--json")
     assert res.exit_code == 0
     doc = _strict(res.stdout)
-    assert doc["nonfinite_rows"] == 3
+    assert doc["nonfinite_rows"] == 40 and doc["opacity"]["median"] is None
 
 
-def test_prune_report_is_strict_json(nan_cloud: Path, run_cli, tmp_path: Path) -> None:
-    res = run_cli("prune", nan_cloud, tmp_path / "o.ply", "--filter-nan", "--report", tmp_path / "r.json", "-q")
+def test_prune_report_is_strict_json(run_cli, tmp_path: Path) -> None:
+    """Log scales of 80 overflow the statistical rule's W2 distances: its statistics are NaN."""
+    from roodi_toolkit.io.ply import write_ply
+    from tests.conftest import make_cloud
+
+    c = make_cloud(60, seed=2)
+    c.log_scales[:] = 80.0
+    f = write_ply(c, tmp_path / "wide.ply")
+    res = run_cli("prune", f, tmp_path / "o.ply", "--mode", "statistical", "--report", tmp_path / "r.json", "-q")
     assert res.exit_code == 0, res.stderr
-    _strict((tmp_path / "r.json").read_text())
+    report = _strict((tmp_path / "r.json").read_text())
+    assert report["statistics"]["mean"] is None
 
 
 def test_batch_info_outputs_and_lines_are_strict_json(nan_cloud: Path, run_cli, tmp_path: Path) -> None:
     res = run_cli("batch", "info", nan_cloud, tmp_path / "out", "-q")
     assert res.exit_code == 0, res.stderr
-    _strict((tmp_path / "out" / "bad.json").read_text())
+    assert _strict((tmp_path / "out" / "bad.json").read_text())["opacity"]["median"] is None
     for line in (tmp_path / "out" / "results.jsonl").read_text().splitlines():
         _strict(line)
 
