@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import glob
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,12 +32,15 @@ class Item:
         input: the input file or folder.
         output: where the result goes: a local path or an fsspec URL (None: the task writes no file, e.g. ``info``).
         options: per-item settings that override the batch's (e.g. ``{"k": 32}`` for prune).
+        replace: whether the item may replace a file at its output (``--overwrite``, or an output an earlier run of
+            the batch wrote, as its results file records); otherwise a file there is left alone and the item fails.
     """
 
     name: str
     input: str
     output: str | None
     options: dict[str, Any] = field(default_factory=dict)
+    replace: bool = False
 
 
 def _splat_files(folder: Path) -> list[Path]:
@@ -98,26 +100,44 @@ def collect_items(source: str, out_root: str | None, *, suffix: str | None) -> l
 def _manifest_items(path: Path, out_root: str | None, suffix: str | None) -> list[Item]:
     rows: list[dict[str, Any]] = []
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a spreadsheet's CSV often starts with a byte-order mark
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read manifest ({exc})") from None
+    if "\0" in text:
+        raise InputError(f"{path}: holds NUL bytes: not a text manifest")
     if path.suffix.lower() == ".csv":
-        reader = csv.DictReader(text.splitlines())
-        if not reader.fieldnames or "input" not in reader.fieldnames:
-            raise InputError(f"{path}: a CSV manifest needs a header with an 'input' column")
-        for row in reader:
-            options = {k: _scalar(v) for k, v in row.items() if k not in ("input", "output") and v not in (None, "")}
-            rows.append({"input": row["input"], "output": row.get("output") or None, "options": options})
+        reader = csv.reader(text.splitlines())
+        try:
+            header = [h.strip() for h in next(reader, [])]
+            if "input" not in header:
+                raise InputError(f"{path}: a CSV manifest needs a header with an 'input' column")
+            twice = sorted({h for h in header if header.count(h) > 1})
+            if twice:
+                raise InputError(f"{path}: the header names the column(s) {', '.join(map(repr, twice))} more than once")
+            for cells in reader:
+                if not any(c.strip() for c in cells):
+                    continue
+                number = reader.line_num
+                if len(cells) > len(header):
+                    raise InputError(f"{path}:{number}: {len(cells)} cells, the header names {len(header)} columns")
+                row = dict(zip(header, cells))
+                if not row.get("input", "").strip():
+                    raise InputError(f"{path}:{number}: the 'input' cell is empty")
+                options = {k: _scalar(v) for k, v in row.items() if k not in ("input", "output") and v != ""}
+                rows.append({"input": row["input"], "output": row.get("output") or None, "options": options})
+        except csv.Error as exc:
+            raise InputError(f"{path}:{reader.line_num}: malformed CSV ({exc})") from None
     else:
         for number, line in enumerate(text.splitlines(), 1):
             if not line.strip():
                 continue
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise InputError(f"{path}:{number}: not JSON ({exc.msg})") from None
-            if not isinstance(row, dict) or not isinstance(row.get("input"), str):
+            from ..io.files import parse_json
+
+            row = parse_json(line, f"{path}:{number}", "manifest line")
+            if not isinstance(row, dict) or not isinstance(row.get("input"), str) or not row["input"].strip():
                 raise InputError(f"{path}:{number}: each line needs an 'input' string")
+            if row.get("output") is not None and not isinstance(row["output"], str):
+                raise InputError(f"{path}:{number}: 'output' must be a string (or left out), got {row['output']!r}")
             options = row.get("options", {})
             if not isinstance(options, dict):
                 raise InputError(f"{path}:{number}: 'options' must be an object")

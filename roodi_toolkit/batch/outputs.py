@@ -9,6 +9,7 @@ uploaded whole: a reader never sees half an output, and a killed batch leaves no
 from __future__ import annotations
 
 import contextlib
+import os
 import tempfile
 from pathlib import Path
 from typing import Callable
@@ -42,17 +43,31 @@ def output_exists(dest: str) -> bool:
     return Path(dest).is_file()
 
 
-def write_output(dest: str, write: Callable[[Path], None]) -> str:
+def file_id(path: str | os.PathLike) -> list[int] | None:
+    """Return a local file's identity ``[device, inode, size, modification time in ns]`` (all kept by the rename or
+    link that puts an output in place), or None if it is not there. The inode alone is not enough: a file the user
+    writes just after deleting an output often gets the freed inode back."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return [st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns]
+
+
+def write_output(dest: str, write: Callable[[Path], None], *, replace: bool = False,
+                 ready: Callable[[Path], None] | None = None) -> str:
     """Call ``write(tmp_path)`` and put what it wrote at ``dest`` whole; return ``dest``.
 
-    The temporary file keeps ``dest``'s name (hence its extension, which writers read the format from).
+    The temporary file keeps ``dest``'s name (hence its extension, which writers read the format from). Without
+    ``replace``, a file at ``dest`` (one that appeared while the item ran) is left alone and the item fails.
+    ``ready`` is called with the finished local temporary file before it is put in place.
     """
     if not is_url(dest):
         from ..io.files import atomic_path
 
         Path(dest).parent.mkdir(parents=True, exist_ok=True)
         suffix = "".join(Path(dest).suffixes[-2:]) if dest.lower().endswith(".compressed.ply") else None
-        with atomic_path(dest, suffix=suffix) as tmp:
+        with atomic_path(dest, suffix=suffix, replace=replace, ready=ready) as tmp:
             write(tmp)
         return dest
     fs, path = _filesystem(dest)
@@ -64,7 +79,12 @@ def write_output(dest: str, write: Callable[[Path], None]) -> str:
             if parent:
                 fs.makedirs(parent, exist_ok=True)
             fs.put_file(str(tmp), path + ".part")
-            with contextlib.suppress(FileNotFoundError):
+            if fs.exists(path):
+                if not replace:
+                    with contextlib.suppress(OSError, FileNotFoundError):
+                        fs.rm_file(path + ".part")
+                    raise OutputError(f"{dest}: appeared while the batch ran (another program or run wrote it); "
+                                      "it was left as it is: pass --overwrite to replace it")
                 fs.rm_file(path)
             fs.mv(path + ".part", path)
         except OSError as exc:

@@ -7,12 +7,13 @@ caught here and becomes the item's error line; the other items go on.
 
 from __future__ import annotations
 
+import json
 import os
 import time
 import traceback
 from dataclasses import asdict, fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from ..errors import ConfigError, RoodiError
 from .items import Item
@@ -35,25 +36,121 @@ def _write(cloud, path: Path) -> None:
     write_cloud(cloud, path)
 
 
+def _coerce(name: str, value: Any, hint: Any) -> Any:
+    """Return an item option's value as its PruneConfig field's type, or raise ConfigError naming the option."""
+    import math
+    import typing
+
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    optional = type(None) in typing.get_args(hint)
+    kind = args[0] if optional and len(args) == 1 else hint
+    if value is None and optional:
+        return None
+    if kind is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"option {name}: expected true or false, got {value!r}")
+    if kind in (int, float):
+        number = value
+        if isinstance(value, str):
+            try:
+                number = float(value.strip())
+            except ValueError:
+                number = None
+        if isinstance(number, bool) or not isinstance(number, (int, float)) or not math.isfinite(number):
+            what = "a whole number" if kind is int else "a finite number"
+            raise ConfigError(f"option {name}: expected {what}, got {value!r}")
+        if kind is int:
+            if number != int(number):
+                raise ConfigError(f"option {name}: expected a whole number, got {value!r}")
+            return int(number)
+        return float(number)
+    if kind is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"option {name}: expected text, got {value!r}")
+    if name in ("box", "sphere"):
+        parts = value.split(",") if isinstance(value, str) else value
+        size = 6 if name == "box" else 4
+        try:
+            numbers = tuple(float(v) for v in parts)
+        except (TypeError, ValueError):
+            numbers = ()
+        if len(numbers) != size or not all(math.isfinite(v) for v in numbers):
+            raise ConfigError(f"option {name}: expected {size} comma-separated finite numbers, got {value!r}")
+        return numbers
+    if name == "value_ranges":
+        try:
+            ranges = tuple((str(n), float(lo), float(hi)) for n, lo, hi in value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"option {name}: expected [[name, low, high], ...], got {value!r}") from None
+        return ranges
+    return value
+
+
 def prune_config(settings: dict[str, Any], options: dict[str, Any]):
     """Return the PruneConfig of an item: the batch's settings with the item's options over them.
 
     Raises:
-        ConfigError: an option that is no pruning setting, or a value out of range.
+        ConfigError: an option that is no pruning setting, a value of the wrong type, or out of range.
     """
+    import typing
+
     from ..prune.outliers import PruneConfig
 
     known = {f.name for f in fields(PruneConfig)}
     unknown = sorted(set(options) - known)
     if unknown:
         raise ConfigError(f"unknown prune option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
-    merged = {**settings, **options}
+    hints = typing.get_type_hints(PruneConfig)
+    merged = {**settings, **{k: _coerce(k, v, hints[k]) for k, v in options.items()}}
     for name in ("box", "sphere"):
         if isinstance(merged.get(name), str):
             merged[name] = tuple(float(v) for v in merged[name].split(","))
         elif merged.get(name) is not None:
             merged[name] = tuple(merged[name])
-    return PruneConfig(**merged)
+    try:
+        return PruneConfig(**merged)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ConfigError(f"prune options {options}: {exc}") from None
+
+
+def check_items(task: str, items: Sequence[Item], settings: dict[str, Any], where: str) -> None:
+    """Refuse, before any work, an item whose options the task cannot take (``k=abc``, an unknown option, options
+    given to ``convert``): the manifest ``where`` is wrong, not one item's file.
+
+    Raises:
+        ConfigError: naming the manifest, the item and the option.
+    """
+    for item in items:
+        try:
+            if task == "prune":
+                prune_config(settings.get("prune", {}), item.options)
+            elif task in ("convert", "info") and item.options:
+                raise ConfigError(f"{task} takes no per-item options, got {', '.join(map(str, item.options))}")
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: item {item.name}: {exc}") from None
+
+
+def _recorder(item: Item, settings: dict[str, Any]) -> Callable[[Path], None] | None:
+    """Return the callback that notes a finished output's identity in the results file before it is put in place
+    (a local pool's worker only), so that a batch killed between the two still knows the output as its own."""
+    record = settings.get("_record")
+    if not record:
+        return None
+
+    def ready(tmp: Path) -> None:
+        from .outputs import file_id
+
+        line = {"item": item.name, "output": item.output, "status": "writing", "output_id": file_id(tmp)}
+        fd = os.open(record, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        try:
+            os.write(fd, (json.dumps(line) + "\n").encode())
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+    return ready
 
 
 def _prune(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
@@ -62,28 +159,28 @@ def _prune(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
     config = prune_config(settings.get("prune", {}), item.options)
     cloud = _read(item.input)
     pruned, keep, report = prune_cloud(cloud, config)  # what `roodi-toolkit prune` runs
-    write_output(item.output, lambda tmp: _write(pruned, tmp))
+    write_output(item.output, lambda tmp: _write(pruned, tmp), replace=item.replace, ready=_recorder(item, settings))
     return {"input_count": report.input_count, "kept": report.kept_count,
             "removed": report.input_count - report.kept_count, "mode": report.mode, "threshold": report.threshold}
 
 
 def _convert(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
     if item.options:
-        raise ConfigError(f"convert takes no per-item options, got {', '.join(item.options)}")
+        raise ConfigError(f"convert takes no per-item options, got {', '.join(map(str, item.options))}")
     cloud = _read(item.input)
-    write_output(item.output, lambda tmp: _write(cloud, tmp))
+    write_output(item.output, lambda tmp: _write(cloud, tmp), replace=item.replace, ready=_recorder(item, settings))
     return {"count": len(cloud), "sh_degree": cloud.sh_degree}
 
 
 def _info(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
-    import json
-
+    from ..io.files import json_text
     from ..stats import describe_cloud
 
     cloud = _read(item.input)
     stats = describe_cloud(cloud)
     if item.output is not None:
-        write_output(item.output, lambda tmp: tmp.write_text(json.dumps(stats, indent=2, default=str) + "\n"))
+        write_output(item.output, lambda tmp: tmp.write_text(json_text(stats, indent=2) + "\n"), replace=item.replace,
+                     ready=_recorder(item, settings))
     return {"count": stats["count"], "sh_degree": stats["sh_degree"], "nonfinite_rows": stats["nonfinite_rows"]}
 
 
@@ -116,6 +213,10 @@ def run_item(task: str, item: Item, settings: dict[str, Any]) -> dict[str, Any]:
     line: dict[str, Any] = {"item": item.name, "input": item.input, "output": item.output}
     try:
         line.update(status="ok", **TASKS[task](item, settings))
+        if item.output is not None and "://" not in item.output and task != "extract":
+            from .outputs import file_id
+
+            line["output_id"] = file_id(item.output)  # what a later run recognises as its own output
     except RoodiError as exc:
         line.update(status="failed", error=str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except MemoryError:

@@ -26,8 +26,10 @@ Examples:
   roodi-toolkit batch info captures/ info/
   roodi-toolkit batch extract scenes/kitchen out/ --object all --jobs 2
 
-Results go to OUT/results.jsonl (or --results), one line per item as it finishes; a re-run skips the items whose
-output exists and whose input and settings are unchanged, so a killed batch resumes where it stopped.
+Results go to OUT/results.jsonl (or --results: a new file or one a batch wrote), one line per item as it finishes;
+a re-run skips the items whose output exists and whose input and settings are unchanged, so a killed batch resumes
+where it stopped. A file already at an item's output is replaced only if an earlier run of the batch wrote it, or
+with --overwrite.
 """
 
 CONVERT_SUFFIXES = (".ply", ".compressed.ply", ".spz")
@@ -43,6 +45,9 @@ def _common(func: Any) -> Any:
                      help="Run as Ray tasks on this cluster (ray://host:10001, auto), or 'local' to start Ray here."),
         click.option("--results", default=None, help="The JSON-lines results file [OUT/results.jsonl]."),
         click.option("--rerun", is_flag=True, help="Run every item again, even those an earlier run finished."),
+        click.option("--overwrite", is_flag=True,
+                     help="Replace files at the items' outputs that this batch did not write (outputs an earlier run "
+                          "of it wrote, as its results file records, are replaced without it)."),
         quiet_option,
     ]):
         func = option(func)
@@ -56,22 +61,35 @@ def batch() -> None:
 
 
 def _run(task: str, source: str, out: str, suffix: str | None, settings: dict[str, Any], jobs: int,
-         ray_address: str | None, results: str | None, rerun: bool, quiet: bool) -> None:
+         ray_address: str | None, results: str | None, rerun: bool, overwrite: bool, quiet: bool) -> None:
     from roodi_toolkit.batch.items import collect_items, join_output
     from roodi_toolkit.batch.outputs import is_url
     from roodi_toolkit.batch.runner import run_batch
-    from roodi_toolkit.io.files import refuse_inside_inputs
+    from roodi_toolkit.batch.tasks import check_items
+    from roodi_toolkit.io.files import check_output_dir
 
-    if not is_url(out):
-        refuse_inside_inputs(out, [source])
+    if not is_url(out):  # a folder (made if missing, added to if not), never a file nor inside the source
+        check_output_dir(out, overwrite=True, inputs=[source])
     items = collect_items(source, out, suffix=suffix)
+    check_items(task, items, settings, source)
     if results is None:
         results = join_output(out, "results.jsonl")
         if is_url(results):
             raise click.BadParameter("with a URL as OUT, give a local --results file", param_hint="--results")
+    elif is_url(results):
+        raise click.BadParameter("must be a local file", param_hint="--results")
     summary = run_batch(task, items, results, settings=settings, jobs=jobs, ray=ray_address, rerun=rerun,
+                        overwrite=overwrite, inputs=[source] if not glob_pattern(source) else [],
                         progress=progress_factory(quiet))
     _report(task, summary, results)
+
+
+def glob_pattern(source: str) -> bool:
+    """Whether SOURCE is a glob pattern rather than a folder or a file."""
+    import glob
+    from pathlib import Path
+
+    return not Path(source).exists() and glob.has_magic(source)
 
 
 def _report(task: str, summary: Any, results: str) -> None:
@@ -94,13 +112,13 @@ def _report(task: str, summary: Any, results: str) -> None:
 @prune_options
 @prune_mode_options
 def batch_prune(source: str, out: str, jobs: int, ray_address: str | None, results: str | None, rerun: bool,
-                quiet: bool, mode: str, **prune_kw: Any) -> None:
+                overwrite: bool, quiet: bool, mode: str, **prune_kw: Any) -> None:
     """Prune every splat of SOURCE into OUT (as PLY), with the prune command's options (per item from a manifest)."""
     from roodi_toolkit.batch.tasks import settings_for
 
     config = prune_config_from_options(mode=effective_mode(mode), **prune_kw)
     _run("prune", source, out, ".ply", settings_for("prune", prune_config=config), jobs, ray_address, results, rerun,
-         quiet)
+         overwrite, quiet)
 
 
 @batch.command("convert", epilog=EPILOG)
@@ -108,17 +126,17 @@ def batch_prune(source: str, out: str, jobs: int, ray_address: str | None, resul
 @click.option("--to", "suffix", type=click.Choice(CONVERT_SUFFIXES), required=True,
               help="Output format, by extension.")
 def batch_convert(source: str, out: str, jobs: int, ray_address: str | None, results: str | None, rerun: bool,
-                  quiet: bool, suffix: str) -> None:
+                  overwrite: bool, quiet: bool, suffix: str) -> None:
     """Convert every splat of SOURCE into OUT in the format of --to."""
-    _run("convert", source, out, suffix, {"to": suffix}, jobs, ray_address, results, rerun, quiet)
+    _run("convert", source, out, suffix, {"to": suffix}, jobs, ray_address, results, rerun, overwrite, quiet)
 
 
 @batch.command("info", epilog=EPILOG)
 @_common
 def batch_info(source: str, out: str, jobs: int, ray_address: str | None, results: str | None, rerun: bool,
-               quiet: bool) -> None:
+               overwrite: bool, quiet: bool) -> None:
     """Describe every splat of SOURCE (count, SH degree, bounds, opacities, scales, bad rows) as OUT/<name>.json."""
-    _run("info", source, out, ".json", {}, jobs, ray_address, results, rerun, quiet)
+    _run("info", source, out, ".json", {}, jobs, ray_address, results, rerun, overwrite, quiet)
 
 
 @batch.command("extract")

@@ -31,11 +31,13 @@ EXAMPLE = """Example:
 @click.option("--dataparser-transforms", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="OBJECT is a nerfstudio export: its training run's dataparser_transforms.json (moves it into "
                    "DATA_DIR's frame).")
+@click.option("--filter-nan", is_flag=True,
+              help="Drop Gaussians with NaN/Inf values instead of refusing the file (as render does).")
 @overwrite_option
 @quiet_option
 def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | None, renders_dir: str | None,
              lpips_weights: str | None, renderer: Any, max_views: int | None, dataparser_transforms: str | None,
-             overwrite: bool, quiet: bool) -> None:
+             filter_nan: bool, overwrite: bool, quiet: bool) -> None:
     """Score OBJECT.ply against the true views of target --object in DATA_DIR (a make-scene folder).
 
     OBJECT.ply is any splat file, or a model another tool trained (an Inria or gsplat output folder, a gsplat
@@ -77,6 +79,9 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
         cloud = open_model(object_ply, data_dir, dataparser_transforms=dataparser_transforms).read_cloud()
     else:
         cloud = read_cloud(object_ply)
+    if filter_nan:
+        cloud = cloud.select(~cloud.nonfinite_rows())
+    cloud.require_finite(object_ply)  # NaN rows render as nothing: scores of them would mislead
     ev, renders = evaluate_object(cloud, data_dir, object_id, renderer=renderer, lpips_weights=lpips_weights,
                                   max_views=max_views, progress=progress_factory(quiet))
     if json_path is not None:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-
 import click
 
 
@@ -13,7 +11,8 @@ def _fmt(x: float) -> str:
 
 @click.command(epilog="Example:\n\n\b\n  roodi-toolkit info scene.ply\n  roodi-toolkit info scene.ply --json > info.json")
 @click.argument("ply", metavar="FILE", type=click.Path(dir_okay=True, path_type=str))
-@click.option("--json", "as_json", is_flag=True, help="Print machine-readable JSON instead of a table.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print machine-readable JSON instead of a table (NaN and infinite values as null).")
 def info(ply: str, as_json: bool) -> None:
     """Show the detected format, count, SH degree, bounding box, opacity and scale statistics and bad values of FILE.
 
@@ -34,7 +33,9 @@ def info(ply: str, as_json: bool) -> None:
         file_info.update(encoding=layout.format, variant=layout.variant, properties=len(layout.property_names))
     stats["file"] = file_info
     if as_json:
-        click.echo(json.dumps(stats, indent=2))
+        from roodi_toolkit.io.files import json_text
+
+        click.echo(json_text(stats, indent=2))  # strict JSON: NaN and infinities as null
         return
     bb = stats["bbox"]
     op = stats["opacity"]

@@ -6,7 +6,8 @@ from typing import Any
 
 import click
 
-from .common import overwrite_option, parse_floats, parse_size, progress_factory, quiet_option, renderer_option
+from .common import (check_render_size, overwrite_option, parse_floats, parse_size, progress_factory, quiet_option,
+                     renderer_option)
 
 EPILOG = """Examples:
 
@@ -95,6 +96,8 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
         extra = {"orbit": {"framed_on": str(frame_path), "up": up_axis.tolist(), "up_from": up_from}}
         if not quiet:
             click.echo(f"orbit up {', '.join(f'{v:.3g}' for v in up_axis + 0.0)}: {up_from}", err=True)
+    big = max(cams, key=lambda c: c.width * c.height)
+    check_render_size(big.width, big.height, f"--size {size_text}" if size_text else cameras_path or "--size")
     # a transforms_*.json stands for its whole dataset folder: rendering into its images/ would overwrite them
     from pathlib import Path
 

@@ -2,7 +2,9 @@
 
 Conventions every command follows: one line on stderr for any failure, no traceback unless ``--debug`` (accepted
 anywhere on the line); outputs are written atomically, never over an input, and over an existing file only with
-``--overwrite``. Kinds of failure (:mod:`roodi_toolkit.errors`) and exit codes:
+``--overwrite`` (a file that appears at an output while the command runs is left alone and the command refuses); a
+command's outputs appear together or not at all (:data:`GROUPED_COMMANDS`). Kinds of failure
+(:mod:`roodi_toolkit.errors`) and exit codes:
 
 ====  ==========================================================================================================
 exit  when
@@ -16,6 +18,7 @@ exit  when
 1     out of memory, or an unexpected error (the message asks to rerun with ``--debug`` and report it)
 2     usage errors: an unknown option, a missing argument, a value click rejects
 130   interrupted (Ctrl-C)
+143   terminated (SIGTERM; 129 for SIGHUP, a closed terminal): as with Ctrl-C, no output appears half made
 ====  ==========================================================================================================
 
 Commands are imported only when run (or when ``--help`` lists them), so ``roodi-toolkit info`` stays fast; command
@@ -24,11 +27,13 @@ modules import heavy libraries inside their functions.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 import signal
 import sys
-from typing import Any, Sequence
+import warnings
+from typing import Any, Iterator, Sequence
 
 import click
 
@@ -130,6 +135,42 @@ def app() -> None:
     """
 
 
+# Commands whose outputs appear together or not at all: each runs inside one output group (roodi_toolkit.io.atomic),
+# its finished files put in place together at its end, none on an error, a signal or a full disk. Not train (its
+# checkpoints must land as they are made), extract and benchmark (stages and scores kept for a re-run to reuse),
+# batch (each item's output is its own), demo (its steps are commands of their own).
+GROUPED_COMMANDS = frozenset({"convert", "distill", "evaluate", "inspect", "make-scene", "prune", "render", "select"})
+
+
+def _output_scope(args: Sequence[str]) -> Any:
+    """Return the context a command runs in: for :data:`GROUPED_COMMANDS` an output group, with what the command
+    prints on stdout ("wrote OUT") held back until its outputs are in place; else nothing."""
+    command = next((a for a in args if not a.startswith("-")), None)
+    if command not in GROUPED_COMMANDS:
+        return contextlib.nullcontext()
+    return _grouped()
+
+
+@contextlib.contextmanager
+def _grouped() -> Iterator[None]:
+    import io
+
+    from roodi_toolkit.io.files import output_group
+
+    said = io.StringIO()
+    with output_group(), contextlib.redirect_stdout(said):
+        yield
+    sys.stdout.write(said.getvalue())
+    sys.stdout.flush()
+
+
+def _forget_claims() -> None:
+    """Forget the output paths a previous command (in this process: tests, notebooks) checked."""
+    files = sys.modules.get("roodi_toolkit.io.files")
+    if files is not None:
+        files.forget_claims()
+
+
 # Commands whose work is PyTorch (rendering, training, fine-tuning): they run with ROODI_THREADS intra-op threads.
 TORCH_COMMANDS = frozenset({"benchmark", "demo", "distill", "evaluate", "extract", "render", "select", "train"})
 
@@ -208,19 +249,34 @@ def _one_line(text: str) -> str:
 
 
 class Terminated(BaseException):
-    """SIGTERM arrived: unwinds like Ctrl-C, so that half-written temporary outputs are removed on the way out."""
+    """SIGTERM (or SIGHUP, a closed terminal) arrived: unwinds like Ctrl-C, so that half-written temporary outputs
+    are removed on the way out. ``signum`` gives the exit code, 128 + signum."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = int(signum)
 
 
-def _on_sigterm() -> Any:
-    """Make SIGTERM raise :class:`Terminated` (in the main thread only); return the handler it replaces."""
+def _on_signals() -> dict[int, Any] | None:
+    """Make SIGTERM and SIGHUP raise :class:`Terminated` and Ctrl-C ``KeyboardInterrupt`` (in the main thread only),
+    all held while outputs are put in place (:mod:`roodi_toolkit.signals`); return the handlers they replace. A
+    signal that is ignored (SIGINT in a background job, SIGHUP under nohup) stays ignored."""
     import threading
 
+    from roodi_toolkit.signals import deferrable
+
     def handler(signum: int, frame: Any) -> None:
-        raise Terminated()
+        raise Terminated(signum)
 
     if threading.current_thread() is not threading.main_thread():
         return None
-    return signal.signal(signal.SIGTERM, handler)
+    previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, deferrable(handler))}
+    hup = getattr(signal, "SIGHUP", None)
+    if hup is not None and signal.getsignal(hup) is signal.SIG_DFL:
+        previous[hup] = signal.signal(hup, deferrable(handler))
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, deferrable(signal.default_int_handler))
+    return previous
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -230,11 +286,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     args, quiet = _pop_quiet(_pop_threads([a for a in args if a != "--debug"]))
-    previous = _on_sigterm()
+    previous = _on_signals()
+    _forget_claims()
+    # NumPy's numerical warnings (overflow, invalid value) on extreme values are not lines for the user: every
+    # command checks the values it needs and says what is wrong in one line; --debug shows them
+    numbers = warnings.catch_warnings()
+    numbers.__enter__()
+    if not debug:
+        warnings.simplefilter("ignore", RuntimeWarning)
     restore_warnings = _show_input_warnings()
     try:
         _torch_threads(args)
-        app.main(args=args, prog_name="roodi-toolkit", standalone_mode=False, obj={"quiet": quiet})
+        with _output_scope(args):
+            app.main(args=args, prog_name="roodi-toolkit", standalone_mode=False, obj={"quiet": quiet})
         return 0
     except click.exceptions.Exit as exc:  # --help / --version
         return int(exc.exit_code or 0)
@@ -257,9 +321,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
         return 130
-    except Terminated:
-        click.echo("terminated", err=True)
-        return 143
+    except Terminated as exc:
+        click.echo("terminated" if exc.signum == signal.SIGTERM else f"terminated ({signal.Signals(exc.signum).name})",
+                   err=True)
+        return 128 + exc.signum
     except MemoryError:
         if debug:
             raise
@@ -277,8 +342,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     finally:
         restore_warnings()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        numbers.__exit__(None, None, None)
+        _forget_claims()
+        for signum, handler in (previous or {}).items():
+            signal.signal(signum, handler)
 
 
 def _show_input_warnings() -> Any:

@@ -164,10 +164,16 @@ def _lpips_package_weights() -> Path | None:
 
 
 def _load(path: Path) -> dict[str, Tensor]:
+    from ..io.files import check_torch_archive
+
     try:
+        check_torch_archive(path, "LPIPS weights")  # a compressed entry would be inflated whole first
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unreadable file is reported by name
-        raise LPIPSUnavailable(f"{path}: cannot read LPIPS weights ({type(exc).__name__})") from None
+        from ..errors import RoodiError
+
+        reason = str(exc) if isinstance(exc, RoodiError) else f"cannot read LPIPS weights ({type(exc).__name__})"
+        raise LPIPSUnavailable(reason if reason.startswith(str(path)) else f"{path}: {reason}") from None
     if isinstance(state, dict) and "state_dict" in state:
         state = state["state_dict"]
     if not isinstance(state, dict):

@@ -27,9 +27,10 @@ import numpy as np
 import torch
 
 from ..cameras import Camera
-from ..errors import ConfigError, DatasetError, RoodiError
+from ..errors import ConfigError, DatasetError
 from ..progress import ProgressFactory, null_progress
-from .files import read_image
+# the photo decoding (photos.py), which the loaders (blender.py, colmap.py) import from here
+from .photos import _image_size, _read_depth, _read_mask, _ViewStack  # noqa: F401
 
 __all__ = [
     "Dataset",
@@ -268,28 +269,6 @@ def _find_colmap_sparse(root: Path) -> Path | None:
 # ------------------------------------------------------------------------------------------------ image helpers
 
 
-def _to_float_image(arr: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Return (rgb [H, W, 3] float32, alpha [H, W] float32 or None) from a uint8/uint16 image array."""
-    if arr.dtype == np.uint16:
-        scale = 65535.0
-    elif arr.dtype == np.uint8:
-        scale = 255.0
-    else:
-        raise DatasetError(f"{path}: unsupported image data type {arr.dtype}")
-    img = arr.astype(np.float32) / scale
-    if img.ndim == 2:
-        return np.repeat(img[..., None], 3, axis=2), None
-    if img.shape[2] == 4:
-        return img[..., :3], img[..., 3]
-    if img.shape[2] == 3:
-        return img, None
-    raise DatasetError(f"{path}: expected a grey, RGB or RGBA image, got {img.shape[2]} channels")
-
-
-def _read_rgb(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    return _to_float_image(_read_dataset_image(path), path)
-
-
 MAX_CROP_FRACTION = 0.10  # most of an image's width or height that cropping to a common size may discard
 
 
@@ -329,11 +308,25 @@ def _plan_crop(paths: Sequence[Path], sizes: Sequence[tuple[int, int]],
     """
     w0 = min(w for w, _ in sizes)
     h0 = min(h for _, h in sizes)
-    for path, (w, h) in zip(paths, sizes):
-        if (w - w0) > max_fraction * w or (h - h0) > max_fraction * h:
-            raise DatasetError(f"{path}: image is {w}x{h} but the dataset's smallest images are {w0} wide and {h0} "
-                               f"high; images of one dataset may differ in size by at most {max_fraction:.0%} (they "
-                               "are cropped to the common size): resize them to one size first")
+    too_far = [i for i, (w, h) in enumerate(sizes) if (w - w0) > max_fraction * w or (h - h0) > max_fraction * h]
+    if too_far:
+        from collections import Counter
+
+        counts = Counter((int(w), int(h)) for w, h in sizes).most_common()
+        common = counts[0][0] if len(counts) == 1 or counts[0][1] > counts[1][1] else None
+        rule = (f"images of one dataset may differ in size by at most {max_fraction:.0%} (they are cropped to the "
+                "common size): resize them to one size first")
+        if common is not None:
+            # name the odd one out: the image farthest from the size most images have (an 8x8 image among 48x48
+            # ones is the 8x8 one, though the crop it forces is refused at every 48x48 image)
+            cw, ch = common
+            odd = max(range(len(sizes)), key=lambda i: max(abs(sizes[i][0] - cw) / cw, abs(sizes[i][1] - ch) / ch))
+            raise DatasetError(f"{paths[odd]}: image is {sizes[odd][0]}x{sizes[odd][1]} but most of the dataset's "
+                               f"images are {cw}x{ch}; {rule}")
+        small = min(range(len(sizes)), key=lambda i: sizes[i][0] * sizes[i][1])
+        large = max(range(len(sizes)), key=lambda i: sizes[i][0] * sizes[i][1])
+        raise DatasetError(f"{paths[small]}: image is {sizes[small][0]}x{sizes[small][1]} but {paths[large]} is "
+                           f"{sizes[large][0]}x{sizes[large][1]}; {rule}")
     return _Crop(w0, h0, tuple(((w - w0) // 2, (h - h0) // 2) for w, h in sizes),
                  tuple((int(w), int(h)) for w, h in sizes))
 
@@ -394,113 +387,6 @@ def _crop_camera(cam: Camera, offset: tuple[int, int], width: int, height: int) 
     K[0, 2] -= offset[0]
     K[1, 2] -= offset[1]
     return Camera(cam.world_to_camera, K, width, height, cam.near, cam.far, cam.name)
-
-
-def _image_size(path: Path) -> tuple[int, int]:
-    """Return an image file's (width, height) from its header, without decoding it."""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as img:
-            return int(img.size[0]), int(img.size[1])
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: image not found") from None
-    except (UnidentifiedImageError, OSError) as exc:
-        raise DatasetError(f"{path}: cannot read image ({exc})") from None
-
-
-class _ViewStack:
-    """Decodes a dataset's images one at a time straight to the training size, so memory follows that size.
-
-    Each image is composited on the background at full resolution (alpha and colour area-averaged afterwards give the
-    same result as averaging first, as compositing is linear), cut to the common size (:class:`_Crop`) and
-    area-resized to ``size``; masks and depths are resized with nearest-exact sampling. Only one full-size image is in
-    memory at a time, and the reduced ones go straight into the ``[N, h, w, 3]`` tensor (no stacking copy).
-    """
-
-    def __init__(self, crop: _Crop, size: tuple[int, int], background: Sequence[float]) -> None:
-        self.crop, self.size = crop, size  # size: (width, height) after downscaling
-        self.bg = np.asarray(background, np.float32)
-        n = len(crop.offsets)
-        self.rgb = torch.empty(n, size[1], size[0], 3, dtype=torch.float32)
-        self.alpha: torch.Tensor | None = None  # made at the first image with alpha: ones for views without
-        self.masks: list[torch.Tensor | None] = []
-        self.depths: list[torch.Tensor | None] = []
-
-    def _fit(self, arr: np.ndarray, index: int, mode: str) -> torch.Tensor:
-        x0, y0 = self.crop.offsets[index]
-        arr = arr[y0:y0 + self.crop.height, x0:x0 + self.crop.width]
-        t = torch.from_numpy(np.ascontiguousarray(arr))
-        w, h = self.size
-        if (w, h) == (self.crop.width, self.crop.height):
-            return t
-        return _resize_stack(t[None], (h, w), mode)[0]
-
-    def add(self, path: Path, index: int, mask: np.ndarray | None = None, depth: np.ndarray | None = None, *,
-            undistort: Any = None) -> None:
-        """Decode ``path`` (view ``index``) and keep it at the reduced size, with its mask and depth if given;
-        ``undistort`` maps the decoded full-size image (and its alpha) onto a pinhole camera's first."""
-        rgb, alpha = _read_rgb(path)
-        if undistort is not None:
-            rgb = undistort(rgb)
-            alpha = None if alpha is None else undistort(alpha)
-        if alpha is not None:
-            rgb = rgb * alpha[..., None] + self.bg * (1.0 - alpha[..., None])
-        self.rgb[index] = self._fit(rgb.astype(np.float32), index, "area")
-        if alpha is not None:
-            if self.alpha is None:
-                self.alpha = torch.ones(self.rgb.shape[:3], dtype=torch.float32)
-            self.alpha[index] = self._fit(alpha.astype(np.float32), index, "area")
-        self.masks.append(None if mask is None else self._fit(mask, index, "nearest"))
-        self.depths.append(None if depth is None else self._fit(depth, index, "nearest"))
-
-    def images(self) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Return images ``[N, h, w, 3]`` and alphas ``[N, h, w]`` (ones for views without alpha), or None."""
-        return self.rgb, self.alpha
-
-
-def _read_dataset_image(path: Path) -> np.ndarray:
-    """Return an image file's array, its read errors as DatasetError."""
-    try:
-        return read_image(path)
-    except RoodiError as exc:
-        raise DatasetError(str(exc)) from None
-
-
-def _read_mask(path: Path) -> np.ndarray:
-    arr = _read_dataset_image(path)
-    if arr.ndim == 3:
-        # an RGB(A) mask: instance ids are stored in the first channel
-        arr = arr[..., 0]
-    return arr.astype(np.int64)
-
-
-def _read_depth(path: Path, scale: float) -> np.ndarray:
-    if path.suffix.lower() == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise DatasetError(f"{path}: cannot read depth ({exc})") from None
-        return np.asarray(arr, dtype=np.float32).reshape(arr.shape[:2])
-    arr = _read_dataset_image(path)
-    if arr.ndim == 3:
-        arr = arr[..., 0]
-    return arr.astype(np.float32) * np.float32(scale)
-
-
-def _resize_stack(images: torch.Tensor, size: tuple[int, int], mode: str) -> torch.Tensor:
-    """Resize ``[N, H, W, C]`` or ``[N, H, W]`` to ``size`` (height, width)."""
-    squeeze = images.ndim == 3
-    x = images[..., None] if squeeze else images
-    x = x.permute(0, 3, 1, 2)
-    dtype = x.dtype
-    if mode == "nearest":
-        # "nearest-exact" samples pixel centres: the one that keeps instance ids on the same pixel grid
-        out = torch.nn.functional.interpolate(x.float(), size=size, mode="nearest-exact").to(dtype)
-    else:
-        out = torch.nn.functional.interpolate(x, size=size, mode="area")
-    out = out.permute(0, 2, 3, 1)
-    return out[..., 0] if squeeze else out.contiguous()
 
 
 def _downscaled_size(width: int, height: int, downscale: float) -> tuple[int, int]:

@@ -1,116 +1,55 @@
 """File output helpers: atomic writes and output-path policy. With ``ply.py`` the only modules that open files.
 
-Outputs are written to a temporary file in the destination folder and renamed into place, so a reader never sees a
-half-written file and an interrupted run leaves any previous output intact.
+Outputs are written to a temporary file in the destination folder and moved into place, so a reader never sees a
+half-written file and an interrupted run leaves any previous output intact. The move never replaces a file the
+command did not see at its start, and inside :func:`output_group` a command's outputs appear together or not at all
+(:mod:`roodi_toolkit.io.atomic`, whose :func:`atomic_path`, :func:`output_group` and :func:`forget_claims` are
+re-exported here). This module says which paths may be written (:func:`check_output`, :func:`prepare_output_dir`)
+and writes and reads JSON, images and checkpoints.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
-import signal
-import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from ..errors import EnvironmentProblemError, InputError, OutputError, os_error_problem
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success rename it onto ``path``, on failure remove it.
-
-    Args:
-        path: the final destination.
-        suffix: the temporary file's suffix (defaults to the destination's, so writers that pick a format from the
-            extension keep working).
-    """
-    dest = Path(path)
-    parent = dest.parent if str(dest.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"{dest}: the folder {parent} does not exist")
-    # SIGTERM / Ctrl-C between creating the temporary file and entering the ``try`` below would leave it behind:
-    # hold them until it is known (a held signal is delivered on unblocking, inside the ``try``)
-    held = _hold_signals()
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix,
-                                   dir=parent)
-    except OSError as exc:
-        _release_signals(held)
-        _raise_environment_problem(exc, dest)
-        raise
-    except BaseException:
-        _release_signals(held)
-        raise
-    tmp_path = Path(tmp)
-    try:
-        os.close(fd)
-        _release_signals(held)
-        yield tmp_path
-        # mkstemp creates the file 0600; an output is a normal file, readable as the user's umask allows
-        with contextlib.suppress(FileNotFoundError):
-            os.chmod(tmp_path, 0o666 & ~_umask())
-        os.replace(tmp_path, dest)
-    except BaseException as exc:
-        _release_signals(held)  # (again, if os.close failed before the release)
-        with contextlib.suppress(OSError):
-            tmp_path.unlink()
-        if isinstance(exc, OSError):
-            _raise_environment_problem(exc, dest)
-        raise
-
-
-_HELD = (signal.SIGTERM, signal.SIGINT)
-
-
-def _hold_signals() -> Any:
-    """Block SIGTERM and SIGINT in this thread; return the previous mask (None where the platform cannot)."""
-    if not hasattr(signal, "pthread_sigmask"):
-        return None
-    return signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
-
-
-def _release_signals(previous: Any) -> None:
-    if previous is not None:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-
-
-def _umask() -> int:
-    """Return the process's umask (reading it means setting it: set it straight back)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def _raise_environment_problem(exc: OSError, path: Path) -> None:
-    """Raise :class:`EnvironmentProblemError` if ``exc`` is a full disk, a read-only folder or a denied write."""
-    message = os_error_problem(exc, path)
-    if message is not None:
-        raise EnvironmentProblemError(message) from exc
+from ..errors import InputError, OutputError
+from .atomic import (NAME_MAX, PATH_MAX, OutputGroup, atomic_path, check_name_lengths,  # noqa: F401
+                     forget_claims, output_group)
+from .atomic import _CLAIMS, _FOLDER_CLAIMS, _claim_key, _note_created, _raise_environment_problem
 
 
 def check_output(path: str | os.PathLike, *, overwrite: bool,
                  inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
-    """Return ``path`` as a Path after checking it may be written.
+    """Return ``path`` as a Path after checking it may be written, and record the answer for the final step of
+    :func:`atomic_path`: a path found free must still be free when the output is put in place.
+
+    A symbolic link counts as a file there, even a dangling one (replacing it needs ``overwrite`` like any file).
 
     Raises:
         OutputError: the path is one of the inputs, exists without ``overwrite``, is a folder, or its folder is missing.
     """
-    dest = Path(path)
+    dest = check_name_lengths(path)
     for src in inputs:
         if src is not None and same_file(src, dest):
             raise OutputError(f"{dest}: output is the same file as the input {src}; choose another output path")
     refuse_inside_inputs(dest, inputs)
     if dest.is_dir():
         raise OutputError(f"{dest}: is a folder; give a file path for this output")
-    if dest.exists() and not overwrite:
-        raise OutputError(f"{dest}: already exists; pass --overwrite to replace it")
+    if os.path.lexists(dest) and not overwrite:
+        what = "" if not dest.is_symlink() else " (a symbolic link)" if dest.exists() else \
+            " (a symbolic link to nothing)"
+        raise OutputError(f"{dest}: already exists{what}; pass --overwrite to replace it")
     parent = dest.parent if str(dest.parent) else Path(".")
     if not parent.is_dir():
         raise OutputError(f"{dest}: the folder {parent} does not exist; create it first")
+    _CLAIMS[_claim_key(dest)] = bool(overwrite)
     return dest
 
 
@@ -163,7 +102,7 @@ def check_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existing
                      inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Raise what :func:`prepare_output_dir` would refuse, creating nothing (for commands that check their other
     inputs before they make the folder)."""
-    out = Path(path)
+    out = check_name_lengths(path)
     refuse_inside_inputs(out, inputs)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
@@ -178,32 +117,71 @@ def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool, allow_existi
 
     An existing non-empty folder is refused unless ``overwrite`` (its contents are then replaced file by file) or
     ``allow_existing`` (a stage-reusing command such as ``extract`` or ``train --resume``); so is a folder that is,
-    or lies inside, one of the ``inputs`` folders.
+    or lies inside, one of the ``inputs`` folders. Inside :func:`output_group`, a folder made here is removed again
+    if the group fails and no file is left in it.
     """
     out = check_output_dir(path, overwrite=overwrite, allow_existing=allow_existing, inputs=inputs)
+    _note_created(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         _raise_environment_problem(exc, out)
         raise OutputError(f"{out}: cannot create folder ({exc.strerror})") from None
+    # what may be replaced in it: the files there now (none in a new or empty folder), never one that appears later
+    _FOLDER_CLAIMS[os.path.realpath(out)] = {p.relative_to(out).as_posix() for p in out.rglob("*")
+                                              if p.is_file() or p.is_symlink()}
     return out
 
 
+def json_ready(obj: Any) -> Any:
+    """Return ``obj`` with numpy scalars and arrays as Python numbers and lists, paths as strings, and every NaN or
+    infinity as None (``null``): JSON has no such numbers, and a bare ``NaN`` makes the file unreadable to strict
+    parsers (JavaScript's ``JSON.parse``, ``jq``)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, np.ndarray):
+        return json_ready(obj.tolist())
+    if isinstance(obj, np.generic):
+        return json_ready(obj.item())
+    if isinstance(obj, dict):
+        return {(k.item() if isinstance(k, np.generic) else k): json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_ready(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def json_text(obj: Any, **dumps: Any) -> str:
+    """Return ``obj`` as strict JSON (:func:`json_ready`; anything else unknown is written as its ``str``)."""
+    return json.dumps(json_ready(obj), allow_nan=False, default=str, **dumps)
+
+
 def write_json(obj: Any, path: str | os.PathLike) -> Path:
-    """Write ``obj`` as indented JSON atomically; numpy scalars and arrays are converted."""
+    """Write ``obj`` as indented JSON atomically; numpy scalars and arrays are converted, NaN and infinities
+    written as ``null`` (:func:`json_ready`)."""
 
     def default(o: Any) -> Any:
-        if isinstance(o, np.generic):
-            return o.item()
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        if isinstance(o, Path):
-            return str(o)
         raise TypeError(f"cannot write {type(o).__name__} as JSON")
 
+    text = json.dumps(json_ready(obj), indent=2, allow_nan=False, default=default) + "\n"
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2, default=default) + "\n")
+        tmp.write_text(text)
     return Path(path)
+
+
+def parse_json(text: str | bytes, where: str | os.PathLike, what: str = "JSON file") -> Any:
+    """Parse JSON text read from ``where``, every failure a one-line :class:`~roodi_toolkit.errors.InputError`:
+    malformed text, and nesting too deep for the parser (``[[[[...`` a hundred thousand deep)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{where}: malformed {what}: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{where}: {what} is not UTF-8 text ({exc.reason})") from None
+    except RecursionError:
+        raise InputError(f"{where}: {what} is nested too deeply to read (lists or objects inside each other "
+                         "thousands of levels deep)") from None
 
 
 def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
@@ -217,10 +195,7 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
         raise InputError(f"{p}: is a folder, expected a {what}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{p}: cannot read {what} ({exc})") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{p}: malformed {what}: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    return parse_json(text, p, what)
 
 
 def write_image(image: np.ndarray, path: str | os.PathLike) -> Path:
@@ -247,22 +222,83 @@ def write_image(image: np.ndarray, path: str | os.PathLike) -> Path:
     return Path(path)
 
 
-def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image file as a numpy array (uint8 or uint16, channels last), with one-line errors."""
+_BYTES_PER_PIXEL = {"1": 2, "L": 2, "P": 8, "I;16": 4, "I;16L": 4, "I;16B": 4, "I;16N": 4, "I": 8, "F": 8}
+"""Memory a decoded pixel takes (Pillow's copy and ours), by Pillow mode; others (RGB, RGBA, ...): 8 bytes."""
+
+
+def image_memory(mode: str, width: int, height: int) -> int:
+    """Return about how many bytes reading a ``width`` x ``height`` image of Pillow ``mode`` takes."""
+    return _BYTES_PER_PIXEL.get(mode, 8) * int(width) * int(height)
+
+
+@contextlib.contextmanager
+def open_image(path: str | os.PathLike, what: str = "image") -> Iterator[Any]:
+    """Open an image file with Pillow (header only: nothing is decoded yet), its failures one-line
+    :class:`InputError`; an image too large for the memory available is refused before decoding.
+
+    Pillow's own decompression-bomb guard (a warning on stderr above 89 M pixels, an error above 179 M) is
+    replaced by that memory bound, which says what the image needs and what there is.
+    """
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
+    from ..limits import check_memory
+
     p = Path(path)
+    limit = Image.MAX_IMAGE_PIXELS
     try:
-        with Image.open(p) as img:
-            if img.mode in ("I;16", "I;16B", "I;16L", "I"):
+        Image.MAX_IMAGE_PIXELS = None
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(p)
+    except FileNotFoundError:
+        raise InputError(f"{p}: {what} not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a folder, expected an {what} file") from None
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        raise InputError(f"{p}: cannot read {what} ({' '.join(str(exc).split())[:200]})") from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+    with img:
+        width, height = img.size
+        check_memory(image_memory(img.mode, width, height), f"{p}: this {width}x{height} {what}",
+                     "make it smaller first")
+        yield img
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image file as a numpy array (uint8 or uint16, channels last), with one-line errors.
+
+    Grey and 1-bit images give ``[H, W]`` uint8, 16-bit ones ``[H, W]`` uint16, others ``[H, W, 3]`` or
+    ``[H, W, 4]`` uint8. A 32-bit integer image is read as 16-bit if its values fit, else refused, as are 32-bit
+    floating-point images (they would wrap or clip silently).
+
+    Raises:
+        InputError: missing, unreadable, corrupt, too large for the memory available, or of 32-bit values.
+    """
+    p = Path(path)
+    with open_image(p) as img:
+        try:
+            if img.mode in ("I;16", "I;16B", "I;16L", "I;16N"):
                 return np.asarray(img).astype(np.uint16)
-            if img.mode not in ("L", "RGB", "RGBA"):
+            if img.mode == "I":
+                arr = np.asarray(img)
+                lo, hi = (int(arr.min()), int(arr.max())) if arr.size else (0, 0)
+                if lo < 0 or hi > 65535:
+                    raise InputError(f"{p}: 32-bit integer image with values from {lo} to {hi}; images, masks and "
+                                     "depth maps must be 8- or 16-bit (values 0-65535)")
+                return arr.astype(np.uint16)
+            if img.mode == "F":
+                raise InputError(f"{p}: 32-bit floating-point image; images and masks must be 8- or 16-bit "
+                                 "(give depth maps as .npy)")
+            if img.mode == "1":
+                img = img.convert("L")
+            elif img.mode not in ("L", "RGB", "RGBA"):
                 img = img.convert("RGBA" if "A" in img.mode else "RGB")
             return np.asarray(img).copy()
-    except FileNotFoundError:
-        raise InputError(f"{p}: image not found") from None
-    except (UnidentifiedImageError, OSError) as exc:
-        raise InputError(f"{p}: cannot read image ({exc})") from None
+        except (OSError, SyntaxError, ValueError, EOFError) as exc:  # decoding a corrupt or truncated file
+            raise InputError(f"{p}: cannot read image ({' '.join(str(exc).split())[:200]})") from None
 
 
 def new_figure(*args: Any, figsize: tuple[float, float], **subplots: Any) -> tuple[Any, Any]:
@@ -291,16 +327,44 @@ def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 110) -> Path:
 
 
 def save_checkpoint(obj: Any, path: str | os.PathLike) -> Path:
-    """Write a checkpoint (tensors, numbers, strings, lists, dicts only) atomically with ``torch.save``."""
+    """Write a checkpoint (tensors, numbers, strings, lists, dicts only) atomically with ``torch.save``.
+
+    ``torch.save`` writes through a Python file object: a full disk is then the ``OSError`` it is (named as an
+    environment problem), not the zip writer's "enforce fail at inline_container.cc" of a path given to torch.
+    """
     import torch
 
-    with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        torch.save(obj, f)
     return Path(path)
 
 
+def check_torch_archive(path: str | os.PathLike, what: str = "checkpoint") -> None:
+    """Refuse a ``torch.save`` zip archive whose entries are compressed: ``torch.save`` stores them as they are,
+    and ``torch.load`` inflates a compressed entry whole before it checks its size (a 260 KB file took 256 MB).
+
+    Raises:
+        InputError: naming the file and the entry.
+    """
+    import zipfile
+
+    p = Path(path)
+    try:
+        if not zipfile.is_zipfile(p):
+            return  # the legacy (pickle) format, or not a checkpoint: torch.load says so
+        with zipfile.ZipFile(p) as archive:
+            for info in archive.infolist():
+                if info.compress_type != zipfile.ZIP_STORED or info.file_size > p.stat().st_size:
+                    raise InputError(f"{p}: {what} entry {info.filename!r} is compressed ({info.file_size:,} bytes "
+                                     "once inflated); torch.save never compresses: not a PyTorch file, or a "
+                                     "decompression bomb")
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise InputError(f"{p}: cannot read {what} ({exc})") from None
+
+
 def load_checkpoint(path: str | os.PathLike) -> Any:
-    """Read a checkpoint written by :func:`save_checkpoint` with ``torch.load(weights_only=True)`` (no code runs)."""
+    """Read a checkpoint written by :func:`save_checkpoint` with ``torch.load(weights_only=True)`` (no code runs;
+    a compressed entry is refused first, :func:`check_torch_archive`)."""
     import pickle
 
     import torch
@@ -308,6 +372,7 @@ def load_checkpoint(path: str | os.PathLike) -> Any:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: checkpoint not found")
+    check_torch_archive(p)
     try:
         return torch.load(p, map_location="cpu", weights_only=True)
     except (RuntimeError, pickle.UnpicklingError, EOFError, OSError, ValueError) as exc:

@@ -160,7 +160,9 @@ def find_model(model_dir: str | Path) -> ModelFolder:
     iteration = max(found)
     cfg_path = root / MODEL_RECORD
     config = read_json(cfg_path, "training record") if cfg_path.is_file() else {}
-    return ModelFolder(root, found[iteration], iteration, config if isinstance(config, dict) else {})
+    if not isinstance(config, dict):
+        raise ModelError(f"{cfg_path}: not a training record (a JSON object is expected)")
+    return ModelFolder(root, found[iteration], iteration, config)
 
 
 def _quiet_cameras(data_dir: Path) -> "list[Camera]":

@@ -10,11 +10,11 @@ Pillow. The data are in the 3DGS PLY frame already.
 from __future__ import annotations
 
 import io
-import json
 import os
 import zipfile
+import zlib
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from ..errors import FormatError
 from ..gaussians import GaussianCloud
 
 _MAX_COUNT = 1 << 28
+_BYTES_PER_GAUSSIAN = 600  # peak memory of decoding one Gaussian (int64 texels, float64 steps, the cloud)
 
 
 def _fail(p: Path | str, msg: str) -> FormatError:
@@ -37,12 +38,32 @@ def _sigmoid_inv(y: np.ndarray) -> np.ndarray:
     return np.log(e / (1 - e))
 
 
+_META_MAX_BYTES = 64 << 20  # meta.json: codebooks and ranges, kilobytes in practice
+_CENTROID_MAX_PIXELS = 64 * 15 * 1024  # shN centroids: 64 palette entries of up to 15 coefficients a row, <= 1024 rows
+
+
+def _texture_pixel_limit(count: int) -> int:
+    """Most pixels a per-Gaussian texture of ``count`` Gaussians may have. splat-transform lays ``count`` pixels out
+    ``ceil(sqrt(count) / 4) * 4`` wide and a multiple of 4 high (a few rows spare); four times the count plus 64 K
+    leaves room for any sane layout, and refuses a header that claims a 16383x10923 texture for 1,000 Gaussians."""
+    return 4 * count + (1 << 16)
+
+
+def _byte_limit(pixels: int) -> int:
+    """Most bytes a WebP file of ``pixels`` pixels may hold: lossless WebP of noise is about 4 bytes a pixel."""
+    return 5 * pixels + (1 << 20)
+
+
 def read_sog(path: str | os.PathLike) -> GaussianCloud:
     """Return the Gaussians of a ``.sog`` zip or of a SOG ``meta.json`` (textures beside it).
 
+    Nothing larger than the count in ``meta.json`` justifies is read or decoded: a zip entry or texture file is read
+    up to the bytes its pixels may take (so a zip entry that inflates to gigabytes stops there), and a WebP header's
+    size is checked against the count before the pixels are decoded.
+
     Raises:
-        FormatError: not a zip / JSON, missing meta.json or texture, a texture that is not WebP or too small for
-            the count, an unsupported SOG version, malformed metadata.
+        FormatError: not a zip / JSON, missing meta.json or texture, a texture that is not WebP, too small or too
+            large for the count, an unsupported SOG version, malformed metadata.
     """
     p = Path(path)
     if zipfile.is_zipfile(p):
@@ -56,60 +77,145 @@ def read_sog(path: str | os.PathLike) -> GaussianCloud:
             raise _fail(p, "SOG zip holds no meta.json")
         base = meta_name[: -len("meta.json")]
 
-        def load(name: str) -> bytes:
+        def load(name: str, limit: int) -> bytes:
             try:
-                return zf.read(base + name)
+                info = zf.getinfo(base + name)
             except KeyError:
                 raise _fail(p, f"SOG zip lacks {base + name!r} named in meta.json") from None
-            except (zipfile.BadZipFile, OSError, EOFError) as exc:
+            if info.file_size > limit:
+                raise _fail(p, f"SOG zip entry {name!r} declares {info.file_size:,} bytes, more than the count in "
+                               f"meta.json can need ({limit:,}): corrupt or a decompression bomb")
+            try:
+                with zf.open(info) as f:  # inflates no more than asked, whatever the entry's header says
+                    data = f.read(limit + 1)
+            except (zipfile.BadZipFile, OSError, EOFError, RuntimeError, ValueError, zlib.error) as exc:
                 raise _fail(p, f"SOG zip entry {name!r} is corrupt ({exc})") from None
+            if len(data) > limit:
+                raise _fail(p, f"SOG zip entry {name!r} inflates to more than the count in meta.json can need "
+                               f"({limit:,} bytes): corrupt or a decompression bomb")
+            return data
 
-        meta_bytes = load("meta.json")
+        meta_bytes = load("meta.json", _META_MAX_BYTES)
     else:
         folder = p.parent
 
-        def load(name: str) -> bytes:
+        def load(name: str, limit: int) -> bytes:
             f = folder / name
             if not f.is_file():
                 raise _fail(p, f"SOG texture {name!r} named in meta.json is missing beside it")
-            return f.read_bytes()
+            size = f.stat().st_size
+            if size > limit:
+                raise _fail(p, f"SOG file {name!r} holds {size:,} bytes, more than the count in meta.json can need "
+                               f"({limit:,})")
+            try:
+                return f.read_bytes()
+            except OSError as exc:
+                raise _fail(p, f"cannot read SOG file {name!r} ({exc.strerror or exc})") from None
 
+        if p.stat().st_size > _META_MAX_BYTES:
+            raise _fail(p, f"SOG meta.json holds {p.stat().st_size:,} bytes, more than any meta.json needs")
         meta_bytes = p.read_bytes()
+    from ..errors import InputError
+    from .files import parse_json
+
     try:
-        meta = json.loads(meta_bytes.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise _fail(p, f"SOG meta.json is not valid JSON ({exc})") from None
+        meta = parse_json(meta_bytes, p, "SOG meta.json")
+    except InputError as exc:
+        raise FormatError(str(exc)) from None
+    if not isinstance(meta, dict):
+        raise _fail(p, "SOG meta.json is malformed (not a JSON object)")
     try:
         return _decode(p, meta, load)
-    except (KeyError, TypeError, IndexError, ValueError) as exc:
+    except (KeyError, TypeError, IndexError, ValueError, OverflowError) as exc:
         raise _fail(p, f"SOG meta.json is malformed ({type(exc).__name__}: {exc})") from None
 
 
-def _texture(p: Path, load: Callable[[str], bytes], name: str, count: int) -> np.ndarray:
-    """Return the first ``count`` RGBA pixels ``[count, 4]`` of a WebP texture, row-major."""
+def _webp_size(data: bytes) -> tuple[int, int] | None:
+    """Return a WebP file's (width, height) from its header (the VP8X canvas, or the VP8L / VP8 frame), or None if
+    it is no WebP. Read here, not by Pillow: opening a WebP, Pillow's decoder already allocates the whole canvas."""
+    if len(data) < 30 or data[:4] != b"RIFF" or data[8:12] != b"WEBP":
+        return None
+    kind = data[12:16]
+    if kind == b"VP8X":
+        return 1 + int.from_bytes(data[24:27], "little"), 1 + int.from_bytes(data[27:30], "little")
+    if kind == b"VP8L" and data[20] == 0x2F:
+        bits = int.from_bytes(data[21:25], "little")
+        return 1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF)
+    if kind == b"VP8 " and data[23:26] == b"\x9d\x01\x2a":
+        return int.from_bytes(data[26:28], "little") & 0x3FFF, int.from_bytes(data[28:30], "little") & 0x3FFF
+    return None
+
+
+def _open_webp(p: Path, name: str, data: bytes, max_pixels: int) -> Any:
+    """Return Pillow's (not yet decoded) image of a WebP texture whose size is at most ``max_pixels``."""
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
-    data = load(name)
+    size = _webp_size(data)
+    if size is not None and size[0] * size[1] > max_pixels:
+        raise _fail(p, f"SOG texture {name!r} claims {size[0]}x{size[1]} pixels, more than the count in meta.json can "
+                       f"need ({max_pixels:,}): corrupt or a decompression bomb")
+    limit = Image.MAX_IMAGE_PIXELS
     try:
-        with Image.open(io.BytesIO(data)) as im:
-            if im.format != "WEBP":
-                raise _fail(p, f"SOG texture {name!r} is {im.format}, not WebP")
+        Image.MAX_IMAGE_PIXELS = None  # the bound is ours, from the count (Pillow would warn on stderr)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(io.BytesIO(data))
+    except UnidentifiedImageError:
+        raise _fail(p, f"SOG texture {name!r} is not a readable image") from None
+    except (OSError, SyntaxError, ValueError) as exc:
+        raise _fail(p, f"SOG texture {name!r} is not a readable WebP image ({' '.join(str(exc).split())[:160]})") \
+            from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+    if im.format != "WEBP":
+        im.close()
+        raise _fail(p, f"SOG texture {name!r} is {im.format}, not WebP")
+    w, h = im.size
+    if w * h > max_pixels:
+        im.close()
+        raise _fail(p, f"SOG texture {name!r} claims {w}x{h} pixels, more than the count in meta.json can need "
+                       f"({max_pixels:,}): corrupt or a decompression bomb")
+    return im
+
+
+def _texture(p: Path, load: Callable[[str, int], bytes], name: str, count: int,
+             max_pixels: int | None = None) -> np.ndarray:
+    """Return the first ``count`` RGBA pixels ``[count, 4]`` of a WebP texture, row-major.
+
+    ``max_pixels``: the most pixels the texture may have (default from ``count``, :func:`_texture_pixel_limit`).
+    """
+    from ..limits import check_memory
+
+    max_pixels = _texture_pixel_limit(count) if max_pixels is None else max_pixels
+    data = load(name, _byte_limit(max_pixels))
+    with _open_webp(p, name, data, max_pixels) as im:
+        w, h = im.size
+        if w * h < count:
+            raise _fail(p, f"SOG texture {name!r} has {w * h} pixels, fewer than the {count} Gaussians")
+        check_memory(16.0 * w * h, f"{p}: decoding its {w}x{h} texture {name!r}", "convert it on a larger machine",
+                     FormatError)
+        try:
             rgba = np.asarray(im.convert("RGBA"))
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
-        raise _fail(p, f"SOG texture {name!r} is not a readable WebP image ({exc})") from None
+        except (OSError, SyntaxError, ValueError) as exc:
+            raise _fail(p, f"SOG texture {name!r} is not a readable WebP image "
+                           f"({' '.join(str(exc).split())[:160]})") from None
     flat = rgba.reshape(-1, 4)
-    if len(flat) < count:
-        raise _fail(p, f"SOG texture {name!r} has {len(flat)} pixels, fewer than the {count} Gaussians")
     return flat[:count].astype(np.int64)
 
 
-def _decode(p: Path, meta: dict, load: Callable[[str], bytes]) -> GaussianCloud:
+def _decode(p: Path, meta: dict, load: Callable[[str, int], bytes]) -> GaussianCloud:
     version = meta.get("version")
     if version not in (None, 2):
         raise _fail(p, f"SOG version {version} is not supported (1 or 2)")
     count = int(meta["count"]) if version == 2 else int(meta["means"]["shape"][0])
     if count <= 0 or count > _MAX_COUNT:
         raise _fail(p, f"SOG count {count} is out of range")
+    from ..limits import check_memory
+
+    check_memory(_BYTES_PER_GAUSSIAN * count, f"{p}: reading its {count:,} Gaussians", "convert it on a larger machine",
+                 FormatError)
     lo = _texture(p, load, meta["means"]["files"][0], count)
     hi = _texture(p, load, meta["means"]["files"][1], count)
     q16 = (lo[:, :3] | (hi[:, :3] << 8)).astype(np.float64) / 65535.0
@@ -151,12 +257,10 @@ def _decode(p: Path, meta: dict, load: Callable[[str], bytes]) -> GaussianCloud:
     sh_meta = meta.get("shN")
     if sh_meta:
         centroids_name, labels_name = sh_meta["files"][0], sh_meta["files"][1]
-        from PIL import Image
-
-        cdata = load(centroids_name)
-        with Image.open(io.BytesIO(cdata)) as im:
+        cdata = load(centroids_name, _byte_limit(_CENTROID_MAX_PIXELS))
+        with _open_webp(p, centroids_name, cdata, _CENTROID_MAX_PIXELS) as im:
             cw, chh = im.size
-        cen = _texture(p, load, centroids_name, cw * chh).reshape(chh, cw, 4)
+        cen = _texture(p, load, centroids_name, cw * chh, _CENTROID_MAX_PIXELS).reshape(chh, cw, 4)
         if version == 2:
             coeffs = [0, 3, 8, 15][int(sh_meta["bands"])]
             if cw != 64 * coeffs:

@@ -34,17 +34,51 @@ _SQRT1_2 = np.float32(0.7071067811865476)
 _FLIP_SH = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], dtype=np.float32)
 _FLIP_Q = np.array([1.0, -1.0, -1.0], dtype=np.float32)  # x, y, z of an xyzw quaternion
 _MAX_POINTS = 1 << 28  # refuse absurd counts before allocating (the reference has none; 268M Gaussians is ~20 GB)
+_BYTES_PER_GAUSSIAN = 400  # peak memory of decoding one Gaussian of SH degree 3 (bytes, int32/float32 steps, cloud)
 
 
 def _fail(p: Path | str, msg: str) -> FormatError:
     return FormatError(f"{p}: {msg}")
 
 
-def _decompress_gzip(p: Path, raw: bytes) -> bytes:
-    try:
-        return gzip.decompress(raw)
-    except (OSError, EOFError, zlib.error) as exc:
-        raise _fail(p, f"SPZ gzip stream is corrupt or truncated ({exc})") from None
+_HEADER_BYTES = 16
+_DEFLATE_MAX_RATIO = 1100  # deflate's best is 1032:1: fewer compressed bytes than need / this cannot hold the data
+
+
+def _check_memory(p: Path, n: int) -> None:
+    from ..limits import check_memory
+
+    check_memory(_BYTES_PER_GAUSSIAN * n, f"{p}: reading its {n:,} Gaussians", "convert it on a larger machine",
+                 FormatError)
+
+
+class _GzipStream:
+    """Inflate an SPZ's gzip stream (concatenated members too) only as far as asked: the header first, then exactly
+    the bytes the header's count needs, so a stream that inflates to gigabytes past them is never inflated."""
+
+    def __init__(self, p: Path, raw: bytes) -> None:
+        self.p, self.rest = p, raw
+        self.inflater = zlib.decompressobj(wbits=31)
+
+    def read(self, size: int) -> bytes:
+        """Return the next ``size`` inflated bytes (fewer where the stream ends first)."""
+        parts, got = [], 0
+        try:
+            while got < size:
+                chunk = self.inflater.decompress(self.rest, size - got)
+                self.rest = self.inflater.unconsumed_tail
+                parts.append(chunk)
+                got += len(chunk)
+                if self.inflater.eof:  # a member ended: another may follow (gzip allows several)
+                    tail = self.inflater.unused_data
+                    if not tail:
+                        break
+                    self.inflater, self.rest = zlib.decompressobj(wbits=31), tail
+                elif not chunk and not self.rest:
+                    break
+        except zlib.error as exc:
+            raise _fail(self.p, f"SPZ gzip stream is corrupt or truncated ({exc})") from None
+        return b"".join(parts)
 
 
 def _streams_v4(p: Path, raw: bytes, num_streams: int, toc: int, expected: list[int]) -> list[bytes]:
@@ -93,11 +127,13 @@ def read_spz(path: str | os.PathLike) -> GaussianCloud:
     """
     p = Path(path)
     raw = p.read_bytes()
+    gz = None
     if raw[:2] == b"\x1f\x8b":
-        body = _decompress_gzip(p, raw)
-        if len(body) < 16:
+        gz = _GzipStream(p, raw)
+        head = gz.read(_HEADER_BYTES)
+        if len(head) < _HEADER_BYTES:
             raise _fail(p, "SPZ header is truncated")
-        magic, version, n, degree, frac, flags, _ = struct.unpack_from("<IIIBBBB", body)
+        magic, version, n, degree, frac, flags, _ = struct.unpack_from("<IIIBBBB", head)
         if magic != MAGIC:
             raise _fail(p, "gzip data is not an SPZ file (no NGSP magic)")
         if version not in (1, 2, 3):
@@ -108,12 +144,12 @@ def read_spz(path: str | os.PathLike) -> GaussianCloud:
         if version != 4:
             raise _fail(p, f"SPZ version {version} with a plain header is not supported (expected 4)")
         if degree <= 3 and 0 < n <= _MAX_POINTS:
+            _check_memory(p, n)
             dim4 = (degree + 1) ** 2 - 1
             expected = [9 * n, n, 3 * n, 3 * n, 4 * n] + ([3 * dim4 * n] if dim4 else [])
             streams = _streams_v4(p, raw, num_streams, toc, expected)
         else:
             streams = []
-        body = b""
     else:
         raise _fail(p, "not an SPZ file (neither gzip nor NGSP magic)")
     if degree > 3:
@@ -127,10 +163,15 @@ def read_spz(path: str | os.PathLike) -> GaussianCloud:
     rot_bytes = 4 if version >= 3 else 3
     sizes = [n * pos_bytes, n, 3 * n, 3 * n, n * rot_bytes, n * dim * 3]
     if streams is None:
-        need = 16 + sum(sizes)
+        need = sum(sizes)
+        if len(raw) * _DEFLATE_MAX_RATIO < need:
+            raise _fail(p, f"SPZ file holds {len(raw):,} compressed bytes, too few for the {need:,} that {n:,} "
+                           "Gaussians need: truncated or a corrupt count")
+        _check_memory(p, n)
+        body = gz.read(need)  # no further: whatever follows the count's data is never inflated
         if len(body) < need:
-            raise _fail(p, f"SPZ data holds {len(body) - 16} bytes, {n} Gaussians need {need - 16}: truncated")
-        parts, off = [], 16
+            raise _fail(p, f"SPZ data holds {len(body)} bytes, {n} Gaussians need {need}: truncated")
+        parts, off = [], 0
         for s in sizes:
             parts.append(np.frombuffer(body, dtype=np.uint8, count=s, offset=off))
             off += s
@@ -196,6 +237,13 @@ def _to_u8(x: np.ndarray) -> np.ndarray:
 
 
 def encode_spz(cloud: GaussianCloud) -> bytes:
+    """Return ``cloud`` as SPZ version 3 bytes (gzip); see :func:`_encode_spz` (values beyond the bytes' range, such
+    as a colour of -1e38 or a quaternion of 1e30, are clipped without numpy's overflow warnings)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _encode_spz(cloud)
+
+
+def _encode_spz(cloud: GaussianCloud) -> bytes:
     """Return ``cloud`` as SPZ version 3 bytes (gzip), in the RUB frame SPZ readers expect.
 
     The fixed-point precision is the reference's 12 fractional bits unless the scene is larger than 24-bit fixed

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import CloudError, ConfigError
 from ..progress import ProgressFactory, null_progress
 from .wasserstein import GaussianShapes, w2_sq_neighbors
 
 QUERY_CHUNK = 1 << 19
+MAX_COORDINATE = 1e18
+"""Largest centre coordinate the float32 neighbour search takes: differences up to 2e18, squared 4e36, well inside
+float32 (3.4e38)."""
 """Queries per batched kNN call (progress granularity; memory is one chunk of results)."""
 
 
@@ -94,6 +97,13 @@ class CentreIndex:
         import open3d as o3d
 
         self.points = np.ascontiguousarray(points, dtype=np.float32)
+        reach = float(np.abs(self.points).max()) if self.points.size else 0.0
+        if not reach <= MAX_COORDINATE:
+            # the search works in float32: squared distances past 3.4e38 are infinite, and Open3D then returns
+            # fewer neighbours than asked ("Shape [N, K] is invalid")
+            raise CloudError(f"Gaussian centres reach {reach:.3g}, beyond the {MAX_COORDINATE:.0e} the neighbour "
+                             "search can measure (its squared distances would overflow); drop those Gaussians "
+                             "first (--filter-sphere or --filter-value x,LOW,HIGH)")
         self.order = morton_order(self.points)
         self._sorted = np.ascontiguousarray(self.points[self.order])
         self._nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor.from_numpy(self._sorted), o3d.core.int32)

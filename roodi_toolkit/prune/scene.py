@@ -264,7 +264,8 @@ def blob_scores(log_min: np.ndarray, log_size: np.ndarray, neighbors: np.ndarray
 
     ``log_min`` and ``log_size`` ``[N]``: each Gaussian's smallest log scale and mean log scale (log of its size),
     in the order of ``neighbors`` and ``dist`` ``[N, K]``."""
-    spacing = np.log(np.maximum(dist.mean(axis=1), np.finfo(np.float32).tiny))
+    with np.errstate(over="ignore"):  # centres far out (1e38): an infinite spacing, no overflow warning
+        spacing = np.log(np.maximum(dist.mean(axis=1), np.finfo(np.float32).tiny))
     # median of the neighbours' sizes (the lower middle value for even K): robust to a few blobs among them
     mid = (neighbors.shape[1] - 1) // 2
     local = log_size[neighbors]
@@ -327,7 +328,8 @@ def decide(log_scales: np.ndarray, graph: NeighbourGraph, config: "PruneConfig",
     """
     order, neighbors, dist = graph.order, graph.neighbors, graph.dist
     ls = np.asarray(log_scales, dtype=np.float32)[order]
-    largest_axis = np.exp(_axis_extreme(ls, np.maximum))
+    with np.errstate(over="ignore"):  # a log scale of 1e30 is an infinite axis: it links to everything
+        largest_axis = np.exp(_axis_extreme(ls, np.maximum))
     reach = largest_axis[neighbors]  # [N, K] becomes reach * (own + neighbour's largest axis), in place
     reach += largest_axis[:, None]
     reach *= np.float32(config.reach)

@@ -134,8 +134,9 @@ def gaussian_shapes(quats_wxyz: np.ndarray, log_scales: np.ndarray, dtype: type 
     with np.errstate(over="ignore"):
         trace = rel_sum[:, 0] * np.exp(2.0 * shift[:, 0])
     trace = np.where(rel_sum[:, 0] > 0, trace, 0.0)
-    return GaussianShapes(q.astype(dtype), sq.astype(dtype), cof.astype(dtype), det_sqrt.astype(dtype),
-                          trace.astype(dtype))
+    with np.errstate(over="ignore"):  # a trace past float32 (log scales of 80) is infinite in float32
+        return GaussianShapes(q.astype(dtype), sq.astype(dtype), cof.astype(dtype), det_sqrt.astype(dtype),
+                              trace.astype(dtype))
 
 
 def _bures_sq(a: GaussianShapes, b: GaussianShapes) -> np.ndarray:
@@ -176,7 +177,8 @@ def _bures_sq(a: GaussianShapes, b: GaussianShapes) -> np.ndarray:
     steps = NEWTON_STEPS_FLOAT32 if np.result_type(i1) == np.float32 else NEWTON_STEPS
     t = sum_sqrt_eigenvalues(i1, i2, a.det_sqrt * b.det_sqrt, steps=steps)
     ta, tb = a.trace, b.trace
-    bures = ta + tb - 2 * np.sqrt(ta * tb) * t
+    with np.errstate(over="ignore", invalid="ignore"):  # infinite traces give an infinite or NaN distance, silently
+        bures = ta + tb - 2 * np.sqrt(ta * tb) * t
     return np.maximum(bures, 0)
 
 
