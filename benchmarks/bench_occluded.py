@@ -16,10 +16,13 @@ never-seen share of every target and the tables' means.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -45,6 +48,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--inpainter", default="opencv", help="inpainter plugin of the methods that inpaint")
     args = ap.parse_args(argv)
 
+    # one PyTorch thread unless $ROODI_THREADS says otherwise, as the CLI runs (two threads on a busy 2-core
+    # machine made every training step ~10x slower, and the thread count changes float summation order)
+    torch.set_num_threads(int(os.environ.get("ROODI_THREADS", "1")))
     load_plugin("inpainters", args.inpainter)  # fail before training on an unknown name
     size = replace(MACHINE_SIZE, size=args.size, train_views=args.train_views, test_views=args.test_views,
                    iterations=args.iterations)

@@ -297,6 +297,158 @@ def extrude_to_support(cloud: GaussianCloud, up: Sequence[float], support: float
     return GaussianCloud.concatenate(copies)
 
 
+def _circular_fill(values: np.ndarray) -> np.ndarray:
+    """Return ``values`` ``[K, ...]`` of K sectors round a circle with the NaN sectors linearly interpolated
+    between their nearest filled neighbours on either side (all NaN stays all NaN)."""
+    k = len(values)
+    flat = values.reshape(k, -1)
+    ok = ~np.isnan(flat[:, 0])
+    if ok.all() or not ok.any():
+        return values.copy()
+    idx = np.flatnonzero(ok)
+    pos = np.concatenate([idx - k, idx, idx + k])  # the filled sectors, repeated once either side of the circle
+    out = np.stack([np.interp(np.arange(k), pos, np.tile(flat[idx, c], 3)) for c in range(flat.shape[1])], axis=1)
+    return out.reshape(values.shape)
+
+
+def _ring_centre(xy: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Return the centre ``[2]`` of the circle best fitting points ``[N, 2]`` (weighted algebraic fit: unlike their
+    centroid, it does not move towards where the points are denser), or their centroid when the fit is degenerate
+    or lands outside their extent."""
+    centroid = (weights[:, None] * xy).sum(0) / weights.sum()
+    sw = np.sqrt(weights)[:, None]
+    a = np.c_[2 * xy, np.ones(len(xy))] * sw
+    b = (xy ** 2).sum(1)[:, None] * sw
+    sol, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
+    centre = sol[:2, 0]
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    if rank < 3 or not np.all((centre >= lo) & (centre <= hi)):
+        return centroid
+    return centre
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return float(values[order][min(int(np.searchsorted(cum, 0.5 * cum[-1])), len(order) - 1)])
+
+
+def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, *, band: float = 0.1,
+                     colour_band: float = 0.25, sectors: Optional[int] = None, around: int = 40,
+                     opacity: float = 0.9, overlap: float = 0.7, thickness: float = 0.2,
+                     max_rows: int = 200) -> GaussianCloud:
+    """Return a closed wall of new Gaussians from the object's lowest seen band straight down to the support (an
+    empty cloud if there is no gap).
+
+    What a wrap hid below the lowest part that was seen most often continues that part (a bottle's body under its
+    shoulders, a pot's wall, a box's sides). The band (the Gaussians within ``band`` of the object's height above its
+    lowest point) gives the cross-section: round its centre, in ``sectors`` equal angles (default: one per four band
+    Gaussians, 6 to 48), the opacity-weighted median distance of the band's Gaussians from the centre, sectors
+    without any interpolated from their neighbours. The wall is that outline carried down to ``support`` and tiled
+    with flat Gaussians, ``around`` of them round the outline and rows as far apart as they are wide, each lying in
+    the wall (``thickness`` of its spacing across it), ``overlap`` of its spacing wide along it so that neighbours
+    overlap and the wall renders opaque, with ``opacity`` and no view-dependent colour. Its colour per sector is the
+    opacity-weighted median base colour of the Gaussians within ``colour_band`` of the height above the lowest point
+    (thicker than the band: the lowest Gaussians blend with the gap and the wrap), pulled towards the median of all
+    sectors where a sector holds few Gaussians.
+
+    Unlike copies of the band Gaussians (:func:`extrude_to_support`), which keep the trained model's sparse,
+    semi-transparent layout, the wall has no gaps. Callers drop what a training view sees through
+    (``FillContext.seen_empty``), as for every completion.
+
+    Args:
+        cloud: the object (after the mirror, if one was added). Its columns are kept: the new Gaussians are
+            made from its Gaussians (extra columns copied from the nearest band Gaussian).
+        up: the scene's up axis. [3]
+        support: the height along ``up`` of the surface the object stands on.
+    """
+    from scipy.spatial.transform import Rotation
+
+    from ..cameras import horizontal_basis
+
+    u, h, lowest, height = _vertical_extent(cloud, up)
+    gap = lowest - float(support)
+    layer = np.flatnonzero(h <= lowest + band * height)
+    if gap <= 0 or height <= 0 or len(layer) < 3:
+        return cloud.select(np.zeros(len(cloud), dtype=bool))
+    _, e1, e2 = horizontal_basis(u)
+    means = cloud.means.astype(np.float64)
+    w_all = np.maximum(cloud.opacities.astype(np.float64), 1e-3)
+    xy = np.stack([means @ e1, means @ e2], axis=1)  # [N, 2]
+    w = w_all[layer]
+    centre = _ring_centre(xy[layer], w)
+    k = int(np.clip(len(layer) // 4, 6, 48)) if sectors is None else int(sectors)
+    edges = 2 * np.pi / k
+
+    def sector_of(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = xy[idx] - centre
+        return np.floor((np.arctan2(d[:, 1], d[:, 0]) % (2 * np.pi)) / edges).astype(int) % k, np.linalg.norm(d, axis=1)
+
+    sec, rad = sector_of(layer)
+    radius = np.full(k, np.nan)
+    for s in range(k):
+        in_s = sec == s
+        if in_s.any():
+            radius[s] = _weighted_median(rad[in_s], w[in_s])
+    radius = _circular_fill(radius)
+    radius = (np.roll(radius, 1) + 2 * radius + np.roll(radius, -1)) / 4  # a little smoothing round the outline
+    # colour: the thicker slab, per sector, shrunk towards the median of all of it where a sector has few Gaussians
+    slab = np.flatnonzero(h <= lowest + colour_band * height)
+    rgb = np.clip(cloud.rgb[slab].astype(np.float64), 0, 1)
+    ws = w_all[slab]
+    overall = np.array([_weighted_median(rgb[:, c], ws) for c in range(3)])
+    ssec, _ = sector_of(slab)
+    colours = np.tile(overall, (k, 1))
+    for s in range(k):
+        in_s = ssec == s
+        if in_s.any():
+            own = np.array([_weighted_median(rgb[in_s, c], ws[in_s]) for c in range(3)])
+            t = in_s.sum() / (in_s.sum() + 4.0)
+            colours[s] = t * own + (1 - t) * overall
+    # the samples: ``around`` angles, rows evenly from just under the band down to the support
+    perimeter = float(np.sum(np.hypot(radius * edges, np.diff(np.r_[radius, radius[:1]]))))
+    spacing = perimeter / max(int(around), 3)
+    rows = int(min(max_rows, max(1, np.ceil(gap / max(spacing, 1e-9)))))
+    step = gap / rows
+    theta = (np.arange(around) + 0.5) * 2 * np.pi / around
+    pos = theta / edges - 0.5  # sector-centre coordinates: linear interpolation of the radius round the circle
+    i0 = np.floor(pos).astype(int)
+    f = pos - i0
+    r_at = (1 - f) * radius[i0 % k] + f * radius[(i0 + 1) % k]
+    c_at = (1 - f[:, None]) * colours[i0 % k] + f[:, None] * colours[(i0 + 1) % k]
+    radial = np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2  # [A, 3]
+    ring = (centre[0] * e1 + centre[1] * e2) + r_at[:, None] * radial  # [A, 3] at height 0
+    heights = float(support) + (np.arange(rows) + 0.5) * step  # [R]
+    pts = (ring[None] + heights[:, None, None] * u).reshape(-1, 3)  # [R * A, 3]
+    # the wall's own normal: across the outline (radial where the outline is round)
+    tangent = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
+    tangent -= np.outer(tangent @ u, u)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    normal = np.cross(tangent, u)
+    normal *= np.sign(np.sum(normal * radial, axis=1, keepdims=True) + 1e-12)
+    tangent = np.cross(u, normal)  # right-handed frame (tangent, up, normal)
+    frames = np.stack([tangent, np.broadcast_to(u, tangent.shape), normal], axis=2)  # [A, 3, 3], columns
+    xyzw = Rotation.from_matrix(frames).as_quat()
+    quats = np.tile(np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1), (rows, 1))
+    along = max(spacing, 1e-9)
+    scales = np.tile([overlap * along, overlap * step, thickness * min(along, step)], (len(pts), 1))
+    # each new Gaussian takes its columns (SH degree, extras) from the nearest band Gaussian
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(xy[layer] - centre).query((ring - (centre[0] * e1 + centre[1] * e2)) @ np.stack([e1, e2], 1))
+    out = cloud.select(np.tile(layer[nearest], rows))
+    from ..gaussians import SH_C0, logit
+
+    colour = np.tile(c_at, (rows, 1))
+    out = out.with_fields(
+        means=pts.astype(out.means.dtype), quats_wxyz=quats.astype(out.quats_wxyz.dtype),
+        log_scales=np.log(np.maximum(scales, 1e-12)).astype(out.log_scales.dtype),
+        opacity_logits=np.full(len(pts), logit(opacity), dtype=out.opacity_logits.dtype),
+        sh_dc=((colour - 0.5) / SH_C0).astype(out.sh_dc.dtype), sh_rest=np.zeros_like(out.sh_rest),
+        normals=None if out.normals is None else np.tile(normal, (rows, 1)).astype(out.normals.dtype))
+    return out
+
+
 def _vertical_extent(cloud: GaussianCloud, up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Return the unit up axis, the heights of the cloud's centres along it, its lowest point (the 2% quantile:
     a stray Gaussian is not the bottom) and its height above that point; :func:`support_height` and
@@ -335,7 +487,7 @@ class SymmetryInpainter(Inpainter):
 
     def __init__(self, *, fallback: str = "exemplar", min_agreement: float = 0.35, alpha_threshold: float = 0.5,
                  propose: bool = True, new_distance: float = 2.0, mirror: bool = True, extrude: bool = True,
-                 fallback_options: Optional[dict] = None) -> None:
+                 wall: bool = True, fallback_options: Optional[dict] = None) -> None:
         if fallback == self.name:
             raise ConfigError("symmetry inpainter: the fallback must be another inpainter")
         if not 0 <= min_agreement <= 1 or not 0 < alpha_threshold < 1 or new_distance <= 0:
@@ -346,39 +498,52 @@ class SymmetryInpainter(Inpainter):
         self.alpha_threshold = float(alpha_threshold)
         self.propose = bool(propose)
         self.new_distance = float(new_distance)
-        self.mirror, self.extrude = bool(mirror), bool(extrude)
+        self.mirror, self.extrude, self.wall = bool(mirror), bool(extrude), bool(wall)
         self.last_mirror: Optional[Mirror] = None
         self.last_extruded = 0
+        self._completed: Optional[tuple[FillContext, Optional[GaussianCloud]]] = None
+
+    def complete(self, context: FillContext) -> Optional[GaussianCloud]:
+        """Return the completion's Gaussians (mirror image, then the wall or the copies down to the support), less
+        what a training view sees through, or None when nothing applies (no plane agrees well enough and no support
+        is known) or nothing is left. Needs only the context's object, ``up``, ``support`` and ``seen_empty``."""
+        if self._completed is not None and self._completed[0] is context:
+            return self._completed[1]
+        cloud = context.object_cloud
+        result = None
+        self.last_extruded = 0
+        if len(cloud) >= 4:
+            parts = []
+            if self.mirror:
+                plane = find_mirror(cloud, up=context.up)
+                self.last_mirror = plane
+                if plane.agreement >= self.min_agreement:
+                    parts.append(mirror_cloud(cloud, plane.normal, plane.offset))
+            if self.extrude and context.up is not None and context.support is not None:
+                below = shell_to_support if self.wall else extrude_to_support
+                extruded = below(GaussianCloud.concatenate([cloud, *parts]), context.up, context.support)
+                self.last_extruded = len(extruded)
+                parts.append(extruded)
+            parts = [p for p in parts if len(p)]
+            if parts:
+                result = GaussianCloud.concatenate(parts)
+                if context.seen_empty is not None:
+                    # what a training view sees through is not part of the object, whatever the completion says
+                    result = result.select(~np.asarray(context.seen_empty(result.means.astype(np.float64)), bool))
+                result = result if len(result) else None
+        self._completed = (context, result)
+        return result
 
     def mirror_views(self, context: FillContext) -> Optional[tuple[Tensor, Tensor, GaussianCloud]]:
-        """Return the object with its completion (mirror image, then extrusion to the support) rendered in the
-        context's views (rgb ``[V, H, W, 3]``, alpha ``[V, H, W]``) and the completion's Gaussians, or None when
-        neither applies (no plane agrees well enough and no support is known)."""
+        """Return the object with its completion (:meth:`complete`, or the context's ``completion`` when the
+        refinement made it first) rendered in the context's views (rgb ``[V, H, W, 3]``, alpha ``[V, H, W]``) and
+        the completion's Gaussians, or None when there is no completion."""
         from ..params import GaussianParams
 
-        cloud = context.object_cloud
-        if len(cloud) < 4:
+        mirrored = context.completion if context.completion is not None else self.complete(context)
+        if mirrored is None:
             return None
-        parts = []
-        if self.mirror:
-            plane = find_mirror(cloud, up=context.up)
-            self.last_mirror = plane
-            if plane.agreement >= self.min_agreement:
-                parts.append(mirror_cloud(cloud, plane.normal, plane.offset))
-        self.last_extruded = 0
-        if self.extrude and context.up is not None and context.support is not None:
-            extruded = extrude_to_support(GaussianCloud.concatenate([cloud, *parts]), context.up, context.support)
-            self.last_extruded = len(extruded)
-            parts.append(extruded)
-        parts = [p for p in parts if len(p)]
-        if not parts:
-            return None
-        mirrored = GaussianCloud.concatenate(parts)
-        if context.seen_empty is not None:
-            # what a training view sees through is not part of the object, whatever the mirror says
-            keep = ~np.asarray(context.seen_empty(mirrored.means.astype(np.float64)), dtype=bool)
-            mirrored = mirrored.select(keep)
-        both = GaussianParams.from_cloud(GaussianCloud.concatenate([cloud, mirrored]))
+        both = GaussianParams.from_cloud(GaussianCloud.concatenate([context.object_cloud, mirrored]))
         bg = torch.as_tensor(context.background, dtype=torch.float32)
         rgb, alpha = [], []
         with torch.no_grad():
@@ -390,6 +555,8 @@ class SymmetryInpainter(Inpainter):
 
     def fill(self, images: Tensor, masks: Tensor, prompt: str,  # type: ignore[override]
              context: Optional[FillContext] = None) -> Tensor:
+        from scipy.ndimage import binary_fill_holes
+
         if context is not None:
             context.proposed = None
         views = None
@@ -404,7 +571,13 @@ class SymmetryInpainter(Inpainter):
             grid_rgb = to_grid(rgb, context.rows, context.cols)[None]
             covered = masks & (to_grid(alpha, context.rows, context.cols)[None] >= self.alpha_threshold)
             out = torch.where(covered[..., None], grid_rgb, out)
-            rest = masks & ~covered
+            # the 2D fallback only where the completed object has a hole or the scene hides it: round the
+            # completed silhouette the background stays (exemplar patches there are not the object's)
+            shown = ~masks | covered
+            inside = torch.from_numpy(np.stack([binary_fill_holes(m) for m in shown.numpy()])) & ~shown
+            if context.occlusion is not None:
+                inside |= to_grid(context.occlusion.occluded, context.rows, context.cols)[None]
+            rest = masks & ~covered & inside
             if self.propose:
                 spacing = _spacing(context.object_cloud.means.astype(np.float64))
                 new = new_gaussians(context.object_cloud, mirrored, self.new_distance * spacing)
