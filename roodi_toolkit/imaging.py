@@ -14,7 +14,7 @@ Example:
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -71,3 +71,14 @@ def mask_iou(pred: np.ndarray | Tensor, true: np.ndarray | Tensor) -> float:
     t = np.asarray(true, dtype=bool)
     union = np.logical_or(p, t).sum()
     return 1.0 if union == 0 else float(np.logical_and(p, t).sum() / union)
+
+
+def class_map_ious(pred: np.ndarray, true: np.ndarray, ids: Sequence[int] | None = None) -> dict[int, float]:
+    """Return the IoU per id of two ``[H, W]`` class maps (default ids: the non-zero ids in ``true``).
+
+    Example:
+        >>> class_map_ious(np.array([[0, 1], [1, 2]]), np.array([[0, 1], [2, 2]]))
+        {1: 0.5, 2: 0.5}
+    """
+    ids = sorted(int(i) for i in np.unique(true) if i != 0) if ids is None else list(ids)
+    return {i: mask_iou(pred == i, true == i) for i in ids}

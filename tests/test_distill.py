@@ -198,7 +198,8 @@ def test_generated_scene_end_to_end(tmp_path):
     """make-scene -> train -> distil the scene's masks -> select a target: the figures of benchmarks/RESULTS.md at
     a smaller size (48x48, 600 training steps), so the thresholds here are looser than the issue's."""
     from roodi_toolkit.io.dataset import load_dataset
-    from roodi_toolkit.pipeline.distill import alpha_iou, run_distill
+    from roodi_toolkit.evaluate.metrics import alpha_iou
+    from roodi_toolkit.pipeline.distill import run_distill
     from roodi_toolkit.synth.scene import SceneSettings, make_scene
     from roodi_toolkit.pipeline.strategy import MCMCStrategy
     from roodi_toolkit.pipeline.train import TrainConfig, train_scene

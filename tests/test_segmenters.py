@@ -169,16 +169,17 @@ def test_click_propagates_to_the_other_views(scene, obj):
     assert abs(masks.info["selected_gaussians"] - n_true) <= 0.1 * n_true, (masks.info, n_true)
 
 
-def test_click_uses_its_renderers_compositing_weights(scene):
-    """The renderer argument is real: its weights are used; one without weights falls back on the built-in's."""
-    from roodi_toolkit.render.renderer import Renderer, TorchRenderer
+def test_click_renders_with_its_renderer_and_any_renderer_gives_the_same_masks(scene):
+    """The renderer argument is real: every view is rendered with it (one rendering per view and vote round, plus the
+    clicked view's weights); a renderer without the optional capabilities (only ``render``) gives the same masks."""
+    from roodi_toolkit.render.renderer import NumbaRenderer, Renderer, TorchRenderer
 
-    class Counting(TorchRenderer):
+    class Counting(NumbaRenderer):
         calls = 0
 
-        def compositing_weights(self, params, camera, *, max_elements=None):
+        def render(self, params, camera, *, background=None, sh_degree=None):
             Counting.calls += 1
-            return super().compositing_weights(params, camera, max_elements=max_elements)
+            return super().render(params, camera, background=background, sh_degree=sh_degree)
 
     class DenseOnly(Renderer):
         def render(self, params, camera, *, background=None, sh_degree=None):
@@ -189,9 +190,10 @@ def test_click_uses_its_renderers_compositing_weights(scene):
     k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
     prompt = SegmentPrompt((Click(ds.names[3], xs[k] + 0.5, ys[k] + 0.5),))
     counted = ClickSegmenter(renderer=Counting()).segment(ds, prompt, scene=cloud)
-    assert Counting.calls == len(ds)
+    rounds = ClickSegmenter().settings.vote_rounds
+    assert Counting.calls == 1 + len(ds) * (rounds + 1)
     dense = ClickSegmenter(renderer=DenseOnly()).segment(ds, prompt, scene=cloud)
-    assert torch.equal(counted.masks, dense.masks)
+    assert (counted.masks != dense.masks).float().mean() < 1e-3  # float32 paths: a pixel on the threshold may flip
     with pytest.raises(PluginError, match="registered name"):
         ClickSegmenter(renderer=object())
 

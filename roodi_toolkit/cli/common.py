@@ -74,7 +74,7 @@ def _load_renderer(ctx: click.Context, param: click.Parameter, value: str) -> An
 
 
 renderer_option = click.option(
-    "--renderer", default="torch", show_default=True, metavar="NAME", callback=_load_renderer,
-    help="Renderer plugin for every rendering of the command: torch (built-in, CPU) or an installed one such as "
-         "gsplat (CUDA); see roodi-toolkit plugins.")
+    "--renderer", default="numba", show_default=True, metavar="NAME", callback=_load_renderer,
+    help="Renderer plugin for every rendering of the command: numba (built-in, compiled CPU kernels), torch "
+         "(built-in, the slower reference) or an installed one such as gsplat (CUDA); see roodi-toolkit plugins.")
 """``--renderer NAME``: the command receives the :class:`~roodi_toolkit.render.renderer.Renderer` instance."""

@@ -28,7 +28,9 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 import torch
+from torch import Tensor
 
+from ..cameras import Camera
 from ..errors import CloudError, DatasetError
 from ..gaussians import GaussianCloud
 from ..imaging import mask_iou, psnr, ssim
@@ -361,3 +363,16 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
                         truth.names[:count], lpips_model, never_seen)
     return Evaluation.from_views(object_id, name, views, lpips_status=status,
                                  never_seen=never_seen is not None), renders_np
+
+
+def alpha_iou(cloud: GaussianCloud, cameras: Sequence[Camera], alphas: Sequence[np.ndarray] | Tensor, *,
+              level: float = 0.5, renderer: Renderer | None = None) -> list[float]:
+    """Return per view the IoU of ``alpha > level`` of the rendered ``cloud`` and of the given alpha maps."""
+    from ..render.renderer import render_cloud, resolve_renderer
+
+    renderer = resolve_renderer(renderer)
+    out = []
+    for cam, a in zip(cameras, alphas):
+        rendered = render_cloud(cloud, cam, renderer=renderer).alpha[..., 0].numpy()
+        out.append(mask_iou(rendered > level, np.asarray(a) > level))
+    return out

@@ -18,7 +18,8 @@ from ..gaussians import GaussianCloud
 from ..io.dataset import Dataset
 from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
-from ..render.renderer import Renderer, TorchRenderer, has_compositing_weights, resolve_renderer
+from ..render import fast
+from ..render.renderer import Renderer, resolve_renderer
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
@@ -149,14 +150,25 @@ class ClickSettings:
     vote_rounds: int = 2
 
 
-def _view_weights(renderer: Renderer, params: GaussianParams, camera: Camera) -> Any:
-    """Return the sparse ``[H*W, N]`` scipy CSR matrix of the Gaussians' alpha-compositing weights in ``camera``
-    (rows: pixels in row-major order), from the renderer's ``compositing_weights``, in scipy's form for the column
-    slicing and sums the propagation needs."""
-    from scipy import sparse
+def _weight_sums(renderer: Renderer, params: GaussianParams, camera: Camera,
+                 images: np.ndarray) -> tuple[np.ndarray, Any]:
+    """Return, per Gaussian, the sum over the view's pixels of its compositing weight times each image ``[N, K]``,
+    and the rendering.
 
-    w = renderer.compositing_weights(params, camera)
-    return sparse.csr_matrix((w.values().numpy(), w.col_indices().numpy(), w.crow_indices().numpy()), shape=w.shape)
+    This is the gradient of ``sum(features_image * images)`` with respect to per-Gaussian features, so any
+    differentiable renderer gives it, at the cost of one rendering and one backward pass, without listing the
+    (pixel, Gaussian) weights (gigabytes for a real scene at 1000 px).
+
+    Args:
+        renderer: draws the features.
+        params: the scene's Gaussians (no gradients).
+        camera: the view.
+        images: the per-pixel factors. [H, W, K]
+    """
+    feats = torch.zeros(len(params), images.shape[-1], dtype=params.dtype, requires_grad=True)
+    out = renderer.render(params.with_features(feats), camera)
+    (out.features * torch.as_tensor(images, dtype=params.dtype)).sum().backward()
+    return feats.grad.numpy(), out
 
 
 class ClickSegmenter(Segmenter):
@@ -168,9 +180,8 @@ class ClickSegmenter(Segmenter):
        where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact); GrabCut on the image
        then refines it. A negative click's surface (its own fill at the smallest tolerance) is closed to the fill,
        is sure background for GrabCut and joins the band of rest below.
-    2. Seeds: with the view's per-pixel compositing weights (the renderer's ``compositing_weights``), a Gaussian whose
-       weight lies mostly inside the region seeds the object; one whose weight lies mostly in the band around the
-       region seeds the rest.
+    2. Seeds: a Gaussian whose compositing weight in the clicked view lies mostly inside the region seeds the
+       object; one whose weight lies mostly in the band around the region seeds the rest.
     3. 3D growth: the Gaussians within ``grow_radius`` times the region's 3D radius are linked to their
        ``neighbours`` nearest Gaussians, links weakened across colour edges (``colour_sigma``). Each Gaussian's label
        is the smooth solution of this graph (a sparse linear solve, as in random-walker segmentation) with the
@@ -181,13 +192,15 @@ class ClickSegmenter(Segmenter):
        Gaussians (occlusion is the full scene's compositing). ``vote_rounds`` times, the selection is re-estimated as
        the Gaussians whose weight over all views falls mostly inside the masks, and the masks are rendered again.
 
+    Every per-Gaussian sum of weights over pixels is one rendering of features and its backward pass (the gradient
+    of the feature image times the pixel factors), so the cost of a view is that of a rendering and the memory does
+    not grow with the number of (pixel, Gaussian) pairs; the masks are made at the dataset's resolution (pass a
+    downscaled dataset for a cheaper, coarser segmentation). The clicked view's largest-weight Gaussian per pixel
+    comes from the built-in compiled kernels.
+
     Args:
-        renderer: gives the per-pixel compositing weights every step above works on (an instance, a registered
-            name, or None for the built-in one). The method needs each pixel's weight of each Gaussian, which only
-            a renderer with the optional ``compositing_weights`` capability
-            (:class:`~roodi_toolkit.render.renderer.CompositingWeights`) lists; for a renderer without it the
-            weights come from the built-in :class:`~roodi_toolkit.render.renderer.TorchRenderer`, which draws the
-            same Gaussians (a dense rendering cannot give a pixel's largest-weight Gaussian).
+        renderer: renders the feature images and their gradients (an instance, a registered name, or None for the
+            default).
         seed: OpenCV's random seed (GrabCut's GMM initialisation).
         **settings: fields of :class:`ClickSettings`.
     """
@@ -197,7 +210,6 @@ class ClickSegmenter(Segmenter):
 
     def __init__(self, renderer: Renderer | str | None = None, seed: int = 0, **settings: Any) -> None:
         self.renderer = resolve_renderer(renderer)
-        self._weights_renderer = self.renderer if has_compositing_weights(self.renderer) else TorchRenderer()
         self.seed = seed
         types = {f.name: float if f.default is None else type(f.default) for f in fields(ClickSettings)}
         for key, value in settings.items():  # options from the command line arrive as text
@@ -236,17 +248,16 @@ class ClickSegmenter(Segmenter):
         names = dataset.names
         params = GaussianParams.from_cloud(scene, sh_degree=0)
         cam0 = dataset.cameras[v0]
-        w0 = _view_weights(self._weights_renderer, params, cam0)
         seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if c.positive]
         not_seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if not c.positive]
-        mask0, band0 = self._clicked_region(dataset, v0, scene, w0, seeds, not_seeds)
-        inside = np.asarray(w0.T @ mask0.reshape(-1).astype(np.float64)).ravel()
-        around = np.asarray(w0.T @ band0.reshape(-1).astype(np.float64)).ravel()
-        total = np.asarray(w0.sum(axis=0)).ravel()
+        mask0, band0 = self._clicked_region(dataset, v0, scene, seeds, not_seeds)
+        sums, out0 = _weight_sums(self.renderer, params, cam0,
+                                  np.stack([mask0, band0, np.ones_like(mask0)], -1).astype(np.float32))
+        inside, around, total = sums.T
         seen = total >= s.min_weight
         fg = seen & (inside >= s.seed_fraction * total)
         bg = seen & (around >= s.seed_fraction * total)
-        depth0 = self._depth(w0, scene, cam0).reshape(H, W)
+        depth0 = out0.depth[..., 0].detach().numpy()
         rc = np.argwhere(mask0 & (depth0 > 0))
         points = cam0.backproject(rc, depth0[mask0 & (depth0 > 0)])
         centre = points.mean(axis=0)
@@ -256,54 +267,42 @@ class ClickSegmenter(Segmenter):
         candidates = np.linalg.norm(scene.means - centre, axis=1) <= s.grow_radius * radius0
         info: dict[str, Any] = {"clicked_view": names[v0], "seed_gaussians": int(fg.sum()),
                                 "grown_gaussians": int(selected.sum())}
-        weights = []
-        with progress(total=len(dataset), desc="render the selection") as bar:
-            for v in range(len(dataset)):
-                w = w0 if v == v0 else _view_weights(self._weights_renderer, params, dataset.cameras[v])
-                alpha = np.asarray(w.sum(axis=1)).ravel()
-                weights.append((w[:, candidates].tocsr(), alpha))
-                bar.update(1)
-        cand_index = np.flatnonzero(candidates)
-        sel = selected[cand_index].astype(np.float64)
-        for _ in range(max(int(s.vote_rounds), 0) + 1):
-            masks = [(wc @ sel > s.threshold * np.maximum(alpha, 1e-12)) & (alpha >= 1.0 / 255.0)
-                     for wc, alpha in weights]
-            if _ == s.vote_rounds:
-                break
-            inw = np.zeros(len(cand_index))
-            tot = np.zeros(len(cand_index))
-            for (wc, _alpha), m in zip(weights, masks):
-                inw += wc.T @ m.astype(np.float64)
-                tot += np.asarray(wc.sum(axis=0)).ravel()
-            voted = tot >= s.min_weight
-            sel = np.where(voted, inw > s.threshold * tot, sel > 0).astype(np.float64)
+        sel = (selected & candidates).astype(np.float32)
+        masks = np.zeros((len(dataset), H, W), np.uint8)
+        rounds = max(int(s.vote_rounds), 0)
+        with progress(total=len(dataset) * (rounds + 1), desc="render the selection") as bar:
+            for r in range(rounds + 1):
+                vote = r < rounds
+                inw = np.zeros(len(scene))
+                tot = np.zeros(len(scene))
+                for v in range(len(dataset)):
+                    feats = torch.zeros(len(scene), 2, dtype=params.dtype)
+                    feats[:, 0] = torch.from_numpy(sel)
+                    feats.requires_grad_(vote)
+                    with torch.set_grad_enabled(vote):
+                        out = self.renderer.render(params.with_features(feats), dataset.cameras[v])
+                    alpha = out.alpha[..., 0].detach().numpy()
+                    share = out.features[..., 0].detach().numpy()
+                    m = (share > s.threshold * np.maximum(alpha, 1e-12)) & (alpha >= 1.0 / 255.0)
+                    masks[v] = m
+                    if vote:  # per Gaussian: its weight inside the mask (channel 0) and in all (channel 1)
+                        grads = torch.from_numpy(np.stack([m, np.ones_like(m)], -1).astype(np.float32))
+                        (out.features * grads.to(params.dtype)).sum().backward()
+                        inw += feats.grad[:, 0].numpy()
+                        tot += feats.grad[:, 1].numpy()
+                    bar.update(1)
+                if vote:
+                    voted = tot >= s.min_weight
+                    sel = (np.where(voted, inw > s.threshold * tot, sel > 0) & candidates).astype(np.float32)
         info["selected_gaussians"] = int(sel.sum())
         if not masks[v0].any():
             raise SegmentationError(
                 f"the click in {names[v0]} selected no Gaussians of the scene model ({int(fg.sum())} seeds, "
                 f"{int(selected.sum())} after growing, none left after the multi-view vote): click nearer the middle "
                 "of the object, add a second click, or give masks with the files segmenter")
-        out = np.stack([m.reshape(H, W) for m in masks]).astype(np.int64)
-        return ViewMasks(torch.from_numpy(out), names, "binary", 2, source=f"click in {names[v0]}", info=info)
+        return ViewMasks(torch.from_numpy(masks), names, "binary", 2, source=f"click in {names[v0]}", info=info)
 
-    @staticmethod
-    def _depth(weights: Any, scene: GaussianCloud, camera: Camera) -> np.ndarray:
-        """Return the rendered expected depth ``[H*W]`` (0 where nothing is hit) from compositing weights."""
-        z = scene.means @ camera.world_to_camera[2, :3] + camera.world_to_camera[2, 3]
-        alpha = np.asarray(weights.sum(axis=1)).ravel()
-        return np.where(alpha > 1e-10, (weights @ z) / np.maximum(alpha, 1e-10), 0.0)
-
-    @staticmethod
-    def _surface_depth(weights: Any, scene: GaussianCloud, camera: Camera) -> np.ndarray:
-        """Return the depth ``[H*W]`` of each pixel's largest-weight Gaussian (0 where nothing is hit): unlike the
-        expected depth it does not blend across object edges, so a flood fill stops there."""
-        z = scene.means @ camera.world_to_camera[2, :3] + camera.world_to_camera[2, 3]
-        top = np.asarray(weights.argmax(axis=1)).ravel()
-        hit = np.asarray(weights.max(axis=1).todense()).ravel() > 0
-        return np.where(hit, z[top], 0.0)
-
-    def _clicked_region(self, dataset: Dataset, v0: int, scene: GaussianCloud, w0: Any,
-                        seeds: Sequence[tuple[int, int]],
+    def _clicked_region(self, dataset: Dataset, v0: int, scene: GaussianCloud, seeds: Sequence[tuple[int, int]],
                         not_seeds: Sequence[tuple[int, int]] = ()) -> tuple[np.ndarray, np.ndarray]:
         """Return the clicked view's object region and the rest around it (a band, and the surfaces of the negative
         clicks ``not_seeds``), both ``[H, W]`` bool."""
@@ -312,8 +311,13 @@ class ClickSegmenter(Segmenter):
         s = self.settings
         H, W = dataset.height, dataset.width
         cam0 = dataset.cameras[v0]
-        alpha0 = np.asarray(w0.sum(axis=1)).ravel().reshape(H, W)
-        depth0 = self._surface_depth(w0, scene, cam0).reshape(H, W)
+        view = fast.make_view(cam0.world_to_camera, cam0.K, W, H, near=cam0.near, far=cam0.far)
+        f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+        top, alpha0, z = fast.surface_ids(f32(scene.means), f32(scene.quats_wxyz), f32(scene.log_scales),
+                                          f32(scene.opacity_logits), view)
+        # the depth of each pixel's largest-weight Gaussian: unlike the expected depth it does not blend across
+        # object edges, so a flood fill stops there
+        depth0 = np.where(top >= 0, z[np.maximum(top, 0)], 0.0)
         valid0 = (alpha0 >= s.min_alpha) & (depth0 > 0)
         for (r, c), what in [(rc, "click") for rc in seeds] + [(rc, "negative click") for rc in not_seeds]:
             if not valid0[r, c]:

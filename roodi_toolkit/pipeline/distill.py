@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import re
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -34,7 +34,8 @@ from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer, to_csr
 from ..progress import ProgressFactory, null_progress
-from ..imaging import mask_iou
+from ..imaging import class_map_ious
+from .resolution import working_dataset
 from .segment import SegmentPrompt, ViewMasks, resolve_prompt
 
 FEATURE_PREFIX = "object_feature_"
@@ -60,8 +61,13 @@ class DistillConfig:
         seed: seeds the initial features, the classifier and the view order.
         cache_weights: the geometry is frozen, so rendering features is a fixed sparse linear map per view (the
             compositing weights): compute each view's map once (:func:`compositing_weights`) and render with a
-            sparse product; False calls the rasterizer every step (same result to float rounding, much slower on
-            the CPU).
+            sparse product, when all the views' maps fit in ``cache_mb``; otherwise (and with False) every step
+            renders (the same result to float rounding).
+        cache_mb: memory bound of the cached maps (12 bytes a (pixel, Gaussian) pair: a real scene's map is about
+            300 MB per 800 px view, so a real capture renders instead).
+        max_pixels: segmentation and distillation work on the views scaled down by the smallest integer factor that
+            brings them to this many pixels (:mod:`roodi_toolkit.pipeline.resolution`); a selection needs masks of
+            the object, not sharp ones (measured: ``benchmarks/RESULTS.md``, "Working resolution").
     """
 
     iterations: int = 500
@@ -71,6 +77,8 @@ class DistillConfig:
     feature_init_std: float = 1e-2
     seed: int = 0
     cache_weights: bool = True
+    cache_mb: int = 1024
+    max_pixels: int = 512 * 512
 
     def __post_init__(self) -> None:
         if self.iterations < 1:
@@ -81,6 +89,8 @@ class DistillConfig:
             raise ConfigError("learning rates must be positive")
         if self.feature_init_std < 0:
             raise ConfigError(f"feature_init_std must be >= 0, got {self.feature_init_std}")
+        if self.cache_mb < 0 or self.max_pixels < 1:
+            raise ConfigError(f"cache_mb must be >= 0 and max_pixels positive, got {self.cache_mb}, {self.max_pixels}")
 
 
 @dataclass
@@ -143,6 +153,7 @@ class DistillResult:
         history: ``{"step", "loss"}`` every 10 steps.
         seconds: wall time of the optimisation.
         train_views: indices of the views trained on.
+        cached: whether the views' compositing weights were cached (else every step rendered).
     """
 
     features: Tensor
@@ -150,6 +161,7 @@ class DistillResult:
     history: list[dict[str, float]]
     seconds: float
     train_views: list[int]
+    cached: bool = False
 
 
 def render_features(params: GaussianParams, features: Tensor, camera: Camera, *,
@@ -248,6 +260,10 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
         with progress(total=len(views), desc="compositing weights") as bar:
             for v in views:
                 w = compositing_weights(frozen, dataset.cameras[v], renderer=renderer)
+                if w.values().numel() * 12 * len(views) > config.cache_mb * 2**20:  # (two maps of) 12 bytes a pair
+                    cache.clear()
+                    cached = False
+                    break
                 cache[v] = (w, to_csr(w.to_sparse_coo().t()))
                 bar.update(1)
     with progress(total=config.iterations, desc="distill") as bar:
@@ -264,7 +280,7 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
                     -1, config.feature_dim)
             # the 1x1 convolution, written as the per-pixel linear map it is
             logits = rendered @ weight.T + bias  # [H*W, C]
-            loss = F.cross_entropy(logits.reshape(-1, C), masks.masks[v].reshape(-1)) / log_c
+            loss = F.cross_entropy(logits.reshape(-1, C), masks.masks[v].reshape(-1).long()) / log_c
             opt_features.zero_grad(set_to_none=True)
             opt_classifier.zero_grad(set_to_none=True)
             loss.backward()
@@ -277,7 +293,7 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
             bar.set_postfix_str(f"loss {value:.4f}", refresh=False)
     seconds = time.perf_counter() - t0
     classifier = ObjectClassifier(weight.detach().clone(), bias.detach().clone())
-    return DistillResult(features.detach().clone(), classifier, history, seconds, views)
+    return DistillResult(features.detach().clone(), classifier, history, seconds, views, cached)
 
 
 # ---------------------------------------------------------------------------------------------------- the cloud
@@ -336,17 +352,6 @@ def initial_classifier(num_classes: int, feature_dim: int, generator: torch.Gene
 # ---------------------------------------------------------------------------------------------------- evaluation
 
 
-def class_map_ious(pred: np.ndarray, true: np.ndarray, ids: Sequence[int] | None = None) -> dict[int, float]:
-    """Return the IoU per id of two ``[H, W]`` class maps (default ids: the non-zero ids in ``true``).
-
-    Example:
-        >>> class_map_ious(np.array([[0, 1], [1, 2]]), np.array([[0, 1], [2, 2]]))
-        {1: 0.5, 2: 0.5}
-    """
-    ids = sorted(int(i) for i in np.unique(true) if i != 0) if ids is None else list(ids)
-    return {i: mask_iou(pred == i, true == i) for i in ids}
-
-
 def evaluate_class_maps(cloud: GaussianCloud, classifier: ObjectClassifier, dataset: Dataset, masks: ViewMasks,
                         views: Sequence[int], *, object_ids: Sequence[int] | None = None,
                         progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> dict[str, Any]:
@@ -375,19 +380,6 @@ def evaluate_class_maps(cloud: GaussianCloud, classifier: ObjectClassifier, data
             "mean_iou": float(np.mean([p[2] for p in pairs])) if pairs else float("nan"),
             "per_object": {i: float(np.mean(v)) for i, v in sorted(per_object.items())},
             "pairs": len(pairs)}
-
-
-def alpha_iou(cloud: GaussianCloud, cameras: Sequence[Camera], alphas: Sequence[np.ndarray] | Tensor, *,
-              level: float = 0.5, renderer: Renderer | None = None) -> list[float]:
-    """Return per view the IoU of ``alpha > level`` of the rendered ``cloud`` and of the given alpha maps."""
-    from ..render.renderer import render_cloud
-
-    renderer = resolve_renderer(renderer)
-    out = []
-    for cam, a in zip(cameras, alphas):
-        rendered = render_cloud(cloud, cam, renderer=renderer).alpha[..., 0].numpy()
-        out.append(mask_iou(rendered > level, np.asarray(a) > level))
-    return out
 
 
 # ---------------------------------------------------------------------------------------------------- commands
@@ -465,15 +457,19 @@ def distill_scene(cloud: GaussianCloud, dataset: Dataset, *, segmenter: str = "f
     if segmenter == "click":
         options.setdefault("renderer", renderer)
     seg = get_segmenter(segmenter, **options)
+    work, factor = working_dataset(dataset, config.max_pixels)
+    prompt = replace(prompt, clicks=tuple(replace(c, x=c.x / factor, y=c.y / factor) for c in prompt.clicks))
     t0 = time.perf_counter()
-    masks = seg.segment(dataset, prompt, scene=cloud if seg.needs_scene else None, progress=progress)
+    masks = seg.segment(work, prompt, scene=cloud if seg.needs_scene else None, progress=progress)
     seg_seconds = time.perf_counter() - t0
-    train_views, _ = split_views(dataset, holdout_every)
-    result = distill_object_features(cloud, dataset, masks, config, train_views=train_views, progress=progress,
+    train_views, _ = split_views(work, holdout_every)
+    result = distill_object_features(cloud, work, masks, config, train_views=train_views, progress=progress,
                                      renderer=renderer)
-    distilled = finish_distillation(cloud, result, dataset, masks, holdout_every=holdout_every, labels=labels,
+    distilled = finish_distillation(cloud, result, work, masks, holdout_every=holdout_every, labels=labels,
                                     progress=progress, renderer=renderer)
-    distilled.summary.update({"segmenter": segmenter, "config": asdict(config), "segment_seconds": seg_seconds})
+    distilled.summary.update({"segmenter": segmenter, "config": asdict(config), "segment_seconds": seg_seconds,
+                              "working_downscale": factor, "working_size": [work.width, work.height],
+                              "cached_weights": result.cached})
     return distilled
 
 

@@ -73,7 +73,7 @@ class JointTrainer(Trainer):
         C = self.masks.num_classes
         logits = out.features.reshape(-1, self.distill.feature_dim) @ self.classifier_params["weight"].T \
             + self.classifier_params["bias"]
-        return self.object_weight * F.cross_entropy(logits, self.masks.masks[view].reshape(-1)) / math.log(C)
+        return self.object_weight * F.cross_entropy(logits, self.masks.masks[view].reshape(-1).long()) / math.log(C)
 
     def classifier(self) -> ObjectClassifier:
         """Return the current classifier."""

@@ -39,6 +39,7 @@ from ..errors import ConfigError, DatasetError, PluginError, RoodiError
 from ..gaussians import GaussianCloud
 from ..plugins import discover, instantiate
 from ..progress import ProgressFactory, null_progress
+from .resolution import full_size_masks
 
 MASK_KINDS = ("binary", "instances")
 
@@ -106,7 +107,8 @@ class ViewMasks:
     """Per-view masks, one for every view of the dataset, in dataset order.
 
     Attributes:
-        masks: class id per pixel, 0 = background / rest. [N, H, W] int64
+        masks: class id per pixel, 0 = background / rest; stored as uint8 (int32 above id 255): take ``.long()``
+            of a view for a loss. [N, H, W]
         names: the views' names. [N]
         kind: ``"binary"`` (ids 0 and 1, 1 = the target) or ``"instances"`` (ids 0..C-1).
         num_classes: C, at least 2 (distillation's classifier size).
@@ -126,7 +128,6 @@ class ViewMasks:
                               f"{list(self.masks.shape)}")
         if self.kind not in MASK_KINDS:
             raise PluginError(f"mask kind must be one of {MASK_KINDS}, got {self.kind!r}")
-        self.masks = self.masks.to(torch.int64)
         if len(self.masks) and int(self.masks.min()) < 0:
             raise PluginError("mask ids must be non-negative")
         top = int(self.masks.max()) if self.masks.numel() else 0
@@ -136,6 +137,8 @@ class ViewMasks:
         if self.kind == "binary" and top > 1:
             raise PluginError(f"binary masks must hold 0 and 1 only, found id {top}")
         self.num_classes = max(int(self.num_classes), top + 1, 2)
+        # one byte a pixel where the ids fit (90 views of 800x800 are 58 MB, not 461 MB as int64)
+        self.masks = self.masks.to(torch.uint8 if top <= 255 else torch.int32)
 
     def __len__(self) -> int:
         return len(self.names)
@@ -267,7 +270,8 @@ def _mask_file(folder: Path, name: str) -> Optional[Path]:
 
 
 def mask_from_array(arr: np.ndarray, size: tuple[int, int], where: str) -> np.ndarray:
-    """Return ``[H, W]`` int64 ids from a mask image, resized (nearest) when it is a larger copy of the view.
+    """Return ``[H, W]`` int64 ids from a mask image, resized (nearest) when it is a larger copy of the view or an
+    integer reduction of it.
 
     Args:
         arr: the image: ``[h, w]`` ids (8 or 16 bit) or ``[h, w, 3|4]`` grey stored as colour.
@@ -275,8 +279,8 @@ def mask_from_array(arr: np.ndarray, size: tuple[int, int], where: str) -> np.nd
         where: the file, for messages.
 
     Raises:
-        DatasetError: colour masks, or a size that is not the view's (or an exact multiple of it, as when the
-            dataset is loaded downscaled).
+        DatasetError: colour masks, or a size that is not the view's (nor an exact multiple of it, as when the
+            dataset is loaded downscaled, nor its size divided by an integer, as the mask stages write them).
     """
     a = np.asarray(arr)
     if a.ndim == 3:
@@ -287,6 +291,10 @@ def mask_from_array(arr: np.ndarray, size: tuple[int, int], where: str) -> np.nd
         a = rgb[..., 0]
     a = a.astype(np.int64)
     w, h = size
+    f = w // max(a.shape[1], 1)
+    if a.shape[1] < w and f >= 1 and (w // f, h // f) == (a.shape[1], a.shape[0]):
+        # made at a working resolution (pipeline/resolution.py): each pixel stands for an f x f block
+        return full_size_masks(a[None], w, h)[0]
     if a.shape != (h, w):
         fy, fx = a.shape[0] / h, a.shape[1] / w
         if not (a.shape[0] > h and abs(fx - fy) < 1e-6 and abs(fx - round(fx)) < 1e-6 and a.shape[1] % w == 0):

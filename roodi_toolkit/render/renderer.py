@@ -1,12 +1,17 @@
 """The renderer plugin interface: :class:`~roodi_toolkit.params.GaussianParams` + a camera -> images.
 
-A renderer is a class registered under the entry-point group ``roodi_toolkit.renderers``; the built-in ``torch``
-renderer (:class:`TorchRenderer`, this package's ``setup.cfg``) registers exactly as a third-party one does, e.g. the
-``gsplat`` CUDA renderer in ``plugins/roodi-gsplat``::
+A renderer is a class registered under the entry-point group ``roodi_toolkit.renderers``; the built-in ones register
+exactly as a third-party one does (this package's ``setup.cfg``), e.g. the ``gsplat`` CUDA renderer in
+``plugins/roodi-gsplat``::
 
     [options.entry_points]
     roodi_toolkit.renderers =
+        numba = roodi_toolkit.render.renderer:NumbaRenderer
         torch = roodi_toolkit.render.renderer:TorchRenderer
+
+``numba`` (:class:`NumbaRenderer`, compiled kernels, all cores) is the default; ``torch`` (:class:`TorchRenderer`,
+plain torch tensor code with autograd-free hand-written backward) is kept beside it as the reference it is tested
+against.
 
 A renderer class subclasses :class:`Renderer`: ``available()`` says whether it can run here (and why not), and
 ``render(params, camera, ...)`` returns a :class:`RenderOutput` (channels-last images, differentiable w.r.t. every
@@ -17,7 +22,7 @@ Optional capability: a renderer that can list the alpha-compositing weights of a
 click segmenter use it as a fast path when the renderer has it, and the dense ``render`` of features otherwise.
 
 Every pipeline stage that renders takes ``renderer: Renderer | None = None``; :func:`resolve_renderer` turns that
-(or a registered name) into an instance, None meaning the built-in :class:`TorchRenderer`.
+(or a registered name) into an instance, None meaning the default :class:`NumbaRenderer`.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import warnings
 from abc import ABC, abstractmethod
 from typing import Any, Optional, Protocol, Sequence, runtime_checkable
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -34,6 +40,7 @@ from ..errors import PluginError
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..plugins import discover, instantiate
+from . import fast as _fast
 from . import rasterizer as _rasterizer
 from .rasterizer import RasterOutput
 
@@ -75,8 +82,56 @@ class CompositingWeights(Protocol):
         """Return the sparse CSR ``[H*W, N]`` matrix of ``alpha_i T_i`` per pixel (row-major) and Gaussian."""
 
 
+class NumbaRenderer(Renderer):
+    """The default differentiable CPU renderer: compiled kernels on all the threads torch may use
+    (:func:`roodi_toolkit.render.fast.rasterize_fast`), the same images and gradients as :class:`TorchRenderer`.
+
+    Example:
+        >>> from roodi_toolkit.cameras import look_at, intrinsics_from_fov
+        >>> cloud = GaussianCloud.from_activated(np.zeros((1, 3)), scales=np.full((1, 3), 0.2),
+        ...                                      opacities=np.array([0.99]), rgb=np.array([[1.0, 0.0, 0.0]]))
+        >>> cam = Camera(look_at([0, -3, 0], [0, 0, 0]), intrinsics_from_fov(0.8, 33, 33), 33, 33)
+        >>> out = NumbaRenderer().render(GaussianParams.from_cloud(cloud), cam, background=(0, 0, 1))
+        >>> [round(v, 3) for v in out.rgb[16, 16].tolist()], round(out.depth[16, 16].item(), 3)
+        ([0.99, 0.0, 0.01], 3.0)
+    """
+
+    name = "numba"
+
+    def __init__(self, *, tile_size: int = _fast.TILE_SIZE) -> None:
+        self.tile_size = tile_size
+
+    def render(self, params: GaussianParams, camera: Camera, *, background: Optional[Sequence[float]] = None,
+               sh_degree: Optional[int] = None) -> RenderOutput:
+        dtype = params.dtype
+        bg = None if background is None else torch.as_tensor(background, dtype=dtype)
+        return _fast.rasterize_fast(
+            params.means, params.quats_wxyz, params.log_scales, params.opacity_logits, params.colors,
+            camera.world_to_camera, camera.K, camera.width, camera.height, near=camera.near, far=camera.far,
+            features=params.features, background=bg, sh_degree=sh_degree, tile_size=self.tile_size)
+
+    def compositing_weights(self, params: GaussianParams, camera: Camera, *,
+                            max_elements: Optional[int] = None) -> Tensor:
+        """Return the sparse CSR ``[H*W, N]`` matrix of the alpha-compositing weights of ``params`` in ``camera``
+        (``W @ features`` is the rendered feature image, to float rounding). It holds one entry per blended
+        (pixel, Gaussian): at 1000 px and hundreds of Gaussians per pixel that is gigabytes, so prefer rendering
+        features and their gradients (what distillation and the click segmenter do). ``max_elements`` is accepted
+        for the interface and not needed: the kernels hold no more than the result."""
+        view = _fast.make_view(camera.world_to_camera, camera.K, camera.width, camera.height, near=camera.near,
+                               far=camera.far, tile=self.tile_size)
+        arrays = [t.detach().contiguous().numpy() for t in (params.means, params.quats_wxyz, params.log_scales,
+                                                              params.opacity_logits)]
+        proj = _fast.project(*arrays, np.zeros((len(params), 3), arrays[0].dtype), 0, view)
+        pixels, ids, weights = _fast.compositing_pairs(_fast.bin_gaussians(proj, view), proj, view)
+        coo = torch.sparse_coo_tensor(torch.stack([torch.from_numpy(pixels), torch.from_numpy(ids.astype(np.int64))]),
+                                      torch.from_numpy(weights), (camera.height * camera.width, len(params)),
+                                      check_invariants=False)
+        return to_csr(coo)
+
+
 class TorchRenderer(Renderer):
-    """The built-in differentiable CPU renderer (:func:`roodi_toolkit.render.rasterizer.rasterize`).
+    """The reference differentiable CPU renderer in torch tensor code (:func:`roodi_toolkit.render.rasterizer.
+    rasterize`), kept beside the default :class:`NumbaRenderer` that the tests compare with it.
 
     Example:
         >>> from roodi_toolkit.cameras import look_at, intrinsics_from_fov
@@ -140,7 +195,7 @@ def renderer_names() -> list[str]:
     return [spec.name for spec in discover("renderers")]
 
 
-def get_renderer(name: str = "torch", **options: Any) -> Renderer:
+def get_renderer(name: str = "numba", **options: Any) -> Renderer:
     """Return an instance of the renderer registered as ``name``, built with ``options``.
 
     Raises:
@@ -151,15 +206,15 @@ def get_renderer(name: str = "torch", **options: Any) -> Renderer:
 
 
 def resolve_renderer(renderer: Renderer | str | None = None) -> Renderer:
-    """Return ``renderer`` itself, the renderer registered under that name, or the built-in :class:`TorchRenderer`
+    """Return ``renderer`` itself, the renderer registered under that name, or the default :class:`NumbaRenderer`
     for None: the one place every stage turns its ``renderer`` argument into an instance.
 
     Example:
         >>> type(resolve_renderer()).__name__, resolve_renderer("torch").name
-        ('TorchRenderer', 'torch')
+        ('NumbaRenderer', 'torch')
     """
     if renderer is None:
-        return TorchRenderer()
+        return NumbaRenderer()
     if isinstance(renderer, str):
         return get_renderer(renderer)
     if not isinstance(renderer, Renderer):

@@ -1,0 +1,319 @@
+"""The default CPU renderer: compiled kernels behind one torch autograd function.
+
+Every per-Gaussian and per-pixel step (projection, SH colours, footprints, tile binning, compositing) and its
+gradient runs in the compiled kernels of :mod:`roodi_toolkit.render.projection_kernels` and
+:mod:`roodi_toolkit.render.kernels`; torch only holds the tensors. The images are those of
+:func:`~roodi_toolkit.render.rasterizer.rasterize` (the torch tiled path, kept beside it as the reference) and of the
+dense reference, to float rounding, and so are the gradients (``tests/render/test_fast.py``).
+
+Why numba: it installs as a wheel with LLVM inside (no compiler on the user's machine), compiles plain loops over
+numpy arrays to native code on all cores (``prange``) and caches what it compiled. ``docs/rendering.md`` has the
+figures of what was tried.
+
+Cost of one view: O(N) per-Gaussian work (projection, SH, footprints; ``parallel``), a sort of the drawn Gaussians by
+depth (O(N log N), numpy), a counting sort into tiles (O(pairs), serial), and O(sum of footprint pixels in front of
+each pixel's cut-off) compositing (``parallel`` over tiles). Memory: a few arrays of N and of (tile, Gaussian) pairs,
+plus the image; the backward adds a [pairs, 6 + channels] gradient array, reduced per Gaussian in pair order, so
+the gradients do not depend on the number of threads either.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Optional
+
+import numba
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..errors import ConfigError
+from . import kernels, projection_kernels
+from .projection import EPS2D, camera_tensors, check_inputs
+from .rasterizer import RasterOutput, _split_output
+
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    # workqueue threads sleep while they wait (OpenMP's spin, stealing the cores from the other threads and processes
+    # of a busy machine); each kernel call comes from one Python thread, which is all workqueue supports
+    numba.config.THREADING_LAYER = "workqueue"
+
+TILE_SIZE = 16
+"""Tile edge in pixels (as gsplat and 3DGS). Each Gaussian visits only its footprint's pixels in a tile, so small
+tiles save no per-pixel work and cost binning work."""
+
+
+def workers() -> int:
+    """Return the number of threads the kernels run on: ``$ROODI_THREADS`` (what ``--threads`` sets) when set, else
+    every core numba sees. Results do not depend on it; unlike PyTorch's OpenMP threads, numba's workqueue threads
+    sleep rather than spin while they wait, so they cost nothing on a busy machine."""
+    value = os.environ.get("ROODI_THREADS", "")
+    n = int(value) if value.isdigit() and int(value) > 0 else numba.config.NUMBA_NUM_THREADS
+    return max(1, min(n, numba.config.NUMBA_NUM_THREADS))
+
+
+@dataclass
+class View:
+    """One camera as the kernels take it (float64)."""
+
+    view: np.ndarray  # [4, 4] world-to-camera
+    center: np.ndarray  # [3] camera centre
+    intr: np.ndarray  # [4] fx, fy, cx, cy
+    width: int
+    height: int
+    near: float
+    far: float
+    eps2d: float
+    tile: int
+
+
+def make_view(world_to_camera, K, width: int, height: int, *, near: float = 0.01, far: float = 1e10,
+              eps2d: float = EPS2D, tile: int = TILE_SIZE) -> View:
+    """Return the camera as the kernels take it."""
+    w2c, Kt = camera_tensors(world_to_camera, K, torch.float64, "cpu")
+    view = w2c.numpy().copy()
+    center = -view[:3, :3].T @ view[:3, 3]
+    k = Kt.numpy()
+    return View(view, center, np.array([k[0, 0], k[1, 1], k[0, 2], k[1, 2]]), int(width), int(height), float(near),
+                float(far), float(eps2d), int(tile))
+
+
+@dataclass
+class Projected:
+    """Gaussians projected into one view (numpy, the inputs' dtype)."""
+
+    means2d: np.ndarray  # [N, 2]
+    conics: np.ndarray  # [N, 3]
+    depths: np.ndarray  # [N]
+    rgb: np.ndarray  # [N, 3]
+    opacities: np.ndarray  # [N]
+    bounds: np.ndarray  # [N, 4] int32 inclusive pixel box of each footprint
+    half: np.ndarray  # [N, 2] int32
+    ntiles: np.ndarray  # [N] int64, 0 where not drawn
+
+
+@dataclass
+class Bins:
+    """The drawn Gaussians binned to the view's tiles in depth order (what forward and backward walk)."""
+
+    lists: np.ndarray  # [M] int32 Gaussian ids, grouped by tile, depth order within a tile
+    starts: np.ndarray  # [T] int64
+    counts: np.ndarray  # [T] int64
+    busy: np.ndarray  # [B] int64 tiles with at least one Gaussian
+
+
+def _numpy(t: Tensor) -> np.ndarray:
+    return t.detach().contiguous().numpy()
+
+
+def _sh_bases(colors: Tensor, sh_degree: Optional[int]) -> int:
+    """Return how many SH bases to evaluate (0: ``colors`` are RGB)."""
+    if colors.ndim == 2:
+        return 0
+    k = colors.shape[1]
+    full = {1: 0, 4: 1, 9: 2, 16: 3}[k]
+    degree = full if sh_degree is None else int(sh_degree)
+    if not 0 <= degree <= full:
+        raise ConfigError(f"SH degree {degree} needs more than the {k} coefficients given")
+    return (degree + 1) ** 2
+
+
+def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacity_logits: np.ndarray,
+            colors: np.ndarray, n_bases: int, view: View) -> Projected:
+    """Return the Gaussians projected into ``view`` with their colours and footprints (compiled, no autograd)."""
+    n, dtype = means.shape[0], means.dtype
+    rgb = np.ascontiguousarray(colors) if n_bases == 0 else np.empty((n, 3), dtype)
+    sh = colors if n_bases > 0 else np.zeros((n, 1, 3), dtype)
+    out = Projected(np.empty((n, 2), dtype), np.empty((n, 3), dtype), np.empty(n, dtype), rgb, np.empty(n, dtype),
+                    np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32), np.zeros(n, np.int64))
+    _set_workers()
+    projection_kernels.project_forward(means, quats, log_scales, opacity_logits, sh, n_bases, view.view, view.center,
+                                       view.intr, view.width, view.height, view.near, view.far, view.eps2d, view.tile,
+                                       out.means2d, out.conics, out.depths, out.rgb, out.opacities, out.bounds,
+                                       out.half, out.ntiles)
+    return out
+
+
+def bin_gaussians(proj: Projected, view: View) -> Bins:
+    """Return the drawn Gaussians binned to tiles, in depth order (stable: ties keep index order)."""
+    ids = np.flatnonzero(proj.ntiles > 0)
+    order = ids[np.argsort(proj.depths[ids], kind="stable")].astype(np.int64)
+    lists, starts, counts = kernels.bin_tiles(order, proj.bounds, view.width, view.height, view.tile)
+    return Bins(lists, starts, counts, np.flatnonzero(counts > 0))
+
+
+def _set_workers() -> int:
+    n = workers()
+    numba.set_num_threads(n)
+    return n
+
+
+def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, want_top: bool = False
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, Optional[np.ndarray]]:
+    """Return (channels composited [H, W, C] without background, final transmittance [H, W], walked run lengths
+    [H, W] (the backward's starting points), each pixel's largest-weight Gaussian [H, W] (-1: none) or None)."""
+    H, W, C = view.height, view.width, channels.shape[1]
+    out = np.zeros((H, W, C), channels.dtype)
+    t_final = np.ones((H, W), channels.dtype)
+    last = np.zeros((H, W), np.int32)
+    top = np.full((H, W) if want_top else (0, 0), -1, np.int32)
+    n_workers = _set_workers()
+    kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics,
+                              proj.opacities, channels, W, H, view.tile, n_workers, out, t_final, last, top)
+    return out, t_final, last, (top if want_top else None)
+
+
+def channels_of(proj: Projected, features: Optional[np.ndarray]) -> np.ndarray:
+    """Return the per-Gaussian channels composited: ``[rgb | depth | features]`` [N, 4 + F]."""
+    parts = [proj.rgb, proj.depths[:, None]] + ([] if features is None else [features.astype(proj.rgb.dtype)])
+    return np.ascontiguousarray(np.concatenate(parts, axis=1))
+
+
+class _Render(torch.autograd.Function):
+    """Projection, colours and compositing of one view, with the compiled backward."""
+
+    @staticmethod
+    def forward(ctx, means, quats, log_scales, opacity_logits, colors, features, background, probe, view,
+                n_bases):  # type: ignore[override]
+        arrays = [_numpy(t) for t in (means, quats, log_scales, opacity_logits, colors)]
+        proj = project(*arrays, n_bases, view)
+        feats = _numpy(features) if features.shape[1] else None
+        channels = channels_of(proj, feats)
+        bins = bin_gaussians(proj, view)
+        out, t_final, last, _ = composite(bins, proj, channels, view)
+        ctx.save_for_backward(background)
+        ctx.state = (arrays, proj, channels, bins, t_final, last, view, n_bases, features.shape[1])
+        t_t = torch.from_numpy(t_final)
+        bg = torch.cat([background, background.new_zeros(channels.shape[1] - 3)])
+        render = torch.from_numpy(out) + t_t[..., None] * bg
+        drawn = proj.ntiles > 0
+        means2d, depths = torch.from_numpy(proj.means2d), torch.from_numpy(proj.depths)
+        radii = torch.from_numpy(np.where(drawn[:, None], proj.half, 0).astype(np.int32))
+        ctx.mark_non_differentiable(means2d, depths)
+        return render, (1.0 - t_t)[..., None], means2d, depths, torch.from_numpy(drawn), radii
+
+    @staticmethod
+    def backward(ctx, g_render, g_alpha, *_unused):  # type: ignore[override]
+        (background,) = ctx.saved_tensors
+        arrays, proj, channels, bins, t_final, last, view, n_bases, n_feat = ctx.state
+        means, quats, log_scales, opacity_logits, colors = arrays
+        n, C = channels.shape
+        dtype = channels.dtype
+        geometry = any(ctx.needs_input_grad[i] for i in (0, 1, 2, 3, 7))
+        n_workers = _set_workers()
+        m = len(bins.lists)
+        pair_geom = np.zeros((m if geometry else 0, 6), dtype)
+        pair_chan = np.zeros((m, C), dtype)
+        bg = np.concatenate([_numpy(background).astype(np.float64), np.zeros(C - 3)])
+        g_render = g_render.contiguous()
+        kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d,
+                                   proj.conics, proj.opacities, channels, view.width, view.height, view.tile,
+                                   n_workers, t_final, last, _numpy(g_render),
+                                   np.ascontiguousarray(_numpy(g_alpha)[..., 0]), bg, pair_geom, pair_chan, geometry)
+        g_chan = kernels.reduce_pairs(bins.lists, pair_chan, n, n_workers)
+        g_background = (g_render[..., :3] * torch.from_numpy(t_final)[..., None]).sum((0, 1))
+        g_features = torch.from_numpy(np.ascontiguousarray(g_chan[:, 4:])) if n_feat else None
+        need_colors = ctx.needs_input_grad[4]
+        if not (geometry or need_colors):
+            return None, None, None, None, None, g_features, g_background, None, None, None
+        g = kernels.reduce_pairs(bins.lists, pair_geom, n, n_workers) if geometry else np.zeros((n, 6), dtype)
+        g_means = np.zeros((n, 3), dtype)
+        g_quats = np.zeros((n, 4), dtype)
+        g_log_scales = np.zeros((n, 3), dtype)
+        g_logits = np.zeros(n, dtype)
+        g_sh = np.zeros(colors.shape, dtype) if n_bases > 0 else np.zeros((n, 1, 3), dtype)
+        g_rgb = np.ascontiguousarray(g_chan[:, :3])
+        projection_kernels.project_backward(means, quats, log_scales, opacity_logits,
+                                            colors if n_bases > 0 else np.zeros((n, 1, 3), dtype), n_bases,
+                                            view.view, view.center, view.intr, view.width, view.height, view.near,
+                                            view.far, view.eps2d, np.ascontiguousarray(g[:, :2]),
+                                            np.ascontiguousarray(g[:, 2:5]), np.ascontiguousarray(g[:, 5]), g_rgb,
+                                            np.ascontiguousarray(g_chan[:, 3]), g_means, g_quats, g_log_scales,
+                                            g_logits, g_sh, geometry)
+        t = torch.from_numpy
+        g_colors = (t(g_sh) if n_bases > 0 else t(g_rgb)) if need_colors else None
+        if not geometry:
+            return None, None, None, None, g_colors, g_features, g_background, None, None, None
+        return (t(g_means), t(g_quats), t(g_log_scales), t(g_logits), g_colors, g_features, g_background,
+                t(np.ascontiguousarray(g[:, :2])), None, None)
+
+
+def rasterize_fast(
+    means: Tensor,  # [N, 3]
+    quats_wxyz: Tensor,  # [N, 4]
+    log_scales: Tensor,  # [N, 3]
+    opacity_logits: Tensor,  # [N]
+    colors: Tensor,  # [N, 3] or [N, K, 3]
+    world_to_camera: Tensor,  # [4, 4]
+    K: Tensor,  # [3, 3]
+    width: int,
+    height: int,
+    *,
+    near: float = 0.01,
+    far: float = 1e10,
+    features: Optional[Tensor] = None,  # [N, F]
+    background: Optional[Tensor] = None,  # [3]
+    sh_degree: Optional[int] = None,
+    eps2d: float = EPS2D,
+    tile_size: int = TILE_SIZE,
+) -> RasterOutput:
+    """Return the differentiable rendering of Gaussians in one camera with the compiled CPU kernels.
+
+    Arguments and outputs as :func:`roodi_toolkit.render.rasterizer.rasterize` (the torch reference), which this
+    matches to float rounding; ``means2d_grad()`` of the output gives the screen-space gradient.
+
+    Example:
+        >>> out = rasterize_fast(torch.tensor([[0.0, 0.0, 2.0]]), torch.tensor([[1.0, 0, 0, 0]]),
+        ...     torch.log(torch.full((1, 3), 0.05)), torch.tensor([10.0]), torch.tensor([[1.0, 0.5, 0.0]]),
+        ...     torch.eye(4), torch.tensor([[64.0, 0, 16.5], [0, 64, 16.5], [0, 0, 1]]), 33, 33)
+        >>> [round(v, 4) for v in out.rgb[16, 16].tolist()], round(out.depth[16, 16].item(), 4)
+        ([0.99, 0.495, 0.0], 2.0)
+    """
+    check_inputs(means, quats_wxyz, log_scales, opacity_logits, colors, features, width, height, near, far)
+    if tile_size < 1:
+        raise ConfigError(f"tile_size must be positive, got {tile_size}")
+    dtype = means.dtype
+    n = means.shape[0]
+    view = make_view(world_to_camera, K, width, height, near=near, far=far, eps2d=eps2d, tile=tile_size)
+    n_bases = _sh_bases(colors, sh_degree)
+    bg = torch.zeros(3, dtype=dtype) if background is None else torch.as_tensor(background, dtype=dtype).reshape(-1)
+    if bg.shape != (3,):
+        raise ConfigError(f"background must have 3 values, got {list(bg.shape)}")
+    feats = features.to(dtype) if features is not None else torch.zeros(n, 0, dtype=dtype)
+    geometry = any(t.requires_grad for t in (means, quats_wxyz, log_scales, opacity_logits)) and \
+        torch.is_grad_enabled()
+    probe = torch.zeros(n, 2, dtype=dtype, requires_grad=True) if geometry else torch.zeros(0, 2, dtype=dtype)
+    render, alpha, means2d, depths, visible, radii = _Render.apply(
+        means, quats_wxyz, log_scales, opacity_logits, colors.to(dtype), feats, bg, probe, view, n_bases)
+    out = _split_output(render, alpha, 0 if features is None else features.shape[1], means2d, radii, depths,
+                        visible)
+    out.grad_source = probe if geometry else None
+    return out
+
+
+def compositing_pairs(bins: Bins, proj: Projected, view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return ``(pixels, gaussians, weights)`` [M]: every blended ``alpha T`` of the view with its row-major pixel
+    index, exactly as :func:`composite` blends them (two compiled passes: count, then fill)."""
+    n_workers = _set_workers()
+    offsets = np.zeros(len(bins.busy) + 1, np.int64)
+    empty_i, empty_f = np.zeros(0, np.int64), np.zeros(0, proj.opacities.dtype)
+    args = (bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics, proj.opacities,
+            view.width, view.height, view.tile, n_workers, offsets)
+    kernels.composite_pairs(*args, empty_i, np.zeros(0, np.int32), empty_f)
+    np.cumsum(offsets, out=offsets)
+    total = int(offsets[-1])
+    pixels, ids, weights = np.empty(total, np.int64), np.empty(total, np.int32), np.empty(total, proj.opacities.dtype)
+    if total:
+        kernels.composite_pairs(*args, pixels, ids, weights)
+    return pixels, ids, weights
+
+
+def surface_ids(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacity_logits: np.ndarray,
+                view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return each pixel's largest-weight Gaussian ``[H, W]`` (-1 where none), the alpha ``[H, W]`` and every
+    Gaussian's camera-space depth ``[N]``: what a depth that does not blend across object edges is made of (the
+    click segmenter's flood fill). No colours are evaluated."""
+    proj = project(means, quats, log_scales, opacity_logits, np.zeros((len(means), 3), means.dtype), 0, view)
+    _, t_final, _, top = composite(bin_gaussians(proj, view), proj, np.zeros((len(means), 1), means.dtype), view,
+                                   want_top=True)
+    return top, 1.0 - t_final, proj.depths

@@ -1,0 +1,345 @@
+"""Compiled per-Gaussian work of the default renderer: EWA projection, SH colours and footprints, and their gradients.
+
+The equations are those of :func:`roodi_toolkit.render.projection.project_gaussians` and
+:func:`roodi_toolkit.sh.eval_sh_colors` (the torch code the reference renderer differentiates with autograd), written
+out per Gaussian with their hand-derived derivatives; the tests check both against autograd in float64 and the whole
+renderer against the dense reference. Work is in float64 whatever the arrays' dtype.
+
+- rotation ``R`` of the normalised quaternion (w, x, y, z; zero gives the identity), ``M = R diag(exp(s))``;
+- camera-space mean ``p = W mu + t``, culled unless ``near < z < far`` (then ``z`` is taken as 1 so nothing is
+  infinite), ``Mc = W M``;
+- ``T = J Mc`` with ``J`` the perspective Jacobian at the mean whose ``x/z``, ``y/z`` are clamped to the frustum
+  widened by 30%; ``cov2d = T T^T + eps2d I``; conic = its inverse's upper triangle ``(a, b, c)``;
+- colour ``max(0, 0.5 + sum_k Y_k(d) c_k)`` with ``d`` the unit direction from the camera centre to the mean.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..gaussians import SH_C0
+from ..sh import SH_C1, SH_C2, SH_C3
+
+ALPHA_MIN = 1.0 / 255.0
+BLOCK = 1024
+"""Gaussians per parallel work item of the backward (its scratch arrays are allocated once per block)."""
+
+C20, C21, C22, C23, C24 = SH_C2
+C30, C31, C32, C33, C34, C35, C36 = SH_C3
+
+
+@nb.njit(cache=True, nogil=True)
+def _rotation(qw, qx, qy, qz):  # pragma: no cover - compiled
+    """Return the rotation matrix's entries (row-major) of the normalised quaternion, the normalised (w, x, y, z)
+    and the quaternion's norm (scalars only: array arguments would cost reference counting per Gaussian)."""
+    norm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    inv = 1.0 / max(norm, 1e-12)
+    w, x, y, z = qw * inv, qx * inv, qy * inv, qz * inv
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+            2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
+            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y),
+            w, x, y, z, norm)
+
+
+@nb.njit(cache=True, nogil=True)
+def _sh_basis(n_bases, x, y, z):  # pragma: no cover - compiled
+    """Return the 16 real SH basis values at the unit direction (those past ``n_bases`` are 0)."""
+    b1 = b2 = b3 = b4 = b5 = b6 = b7 = b8 = b9 = b10 = b11 = b12 = b13 = b14 = b15 = 0.0
+    if n_bases > 1:
+        b1, b2, b3 = -SH_C1 * y, SH_C1 * z, -SH_C1 * x
+    xx, yy, zz = x * x, y * y, z * z
+    if n_bases > 4:
+        b4, b5 = C20 * x * y, C21 * y * z
+        b6 = C22 * (2.0 * zz - xx - yy)
+        b7, b8 = C23 * x * z, C24 * (xx - yy)
+    if n_bases > 9:
+        b9 = C30 * y * (3.0 * xx - yy)
+        b10 = C31 * x * y * z
+        b11 = C32 * y * (4.0 * zz - xx - yy)
+        b12 = C33 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+        b13 = C34 * x * (4.0 * zz - xx - yy)
+        b14 = C35 * z * (xx - yy)
+        b15 = C36 * x * (xx - 3.0 * yy)
+    return (SH_C0, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, b11, b12, b13, b14, b15)
+
+
+@nb.njit(cache=True, nogil=True)
+def _sh_basis_grad(n_bases, x, y, z):  # pragma: no cover - compiled
+    """Return the partial derivatives (d/dx, d/dy, d/dz, 16 each) of the basis w.r.t. the direction's components."""
+    x1 = x2 = x3 = x4 = x5 = x6 = x7 = x8 = x9 = x10 = x11 = x12 = x13 = x14 = x15 = 0.0
+    y1 = y2 = y3 = y4 = y5 = y6 = y7 = y8 = y9 = y10 = y11 = y12 = y13 = y14 = y15 = 0.0
+    z1 = z2 = z3 = z4 = z5 = z6 = z7 = z8 = z9 = z10 = z11 = z12 = z13 = z14 = z15 = 0.0
+    if n_bases > 1:
+        y1, z2, x3 = -SH_C1, SH_C1, -SH_C1
+    xx, yy, zz = x * x, y * y, z * z
+    if n_bases > 4:
+        x4, y4 = C20 * y, C20 * x
+        y5, z5 = C21 * z, C21 * y
+        x6, y6, z6 = -2.0 * C22 * x, -2.0 * C22 * y, 4.0 * C22 * z
+        x7, z7 = C23 * z, C23 * x
+        x8, y8 = 2.0 * C24 * x, -2.0 * C24 * y
+    if n_bases > 9:
+        x9, y9 = C30 * 6.0 * x * y, C30 * (3.0 * xx - 3.0 * yy)
+        x10, y10, z10 = C31 * y * z, C31 * x * z, C31 * x * y
+        x11, y11, z11 = -2.0 * C32 * x * y, C32 * (4.0 * zz - xx - 3.0 * yy), 8.0 * C32 * y * z
+        x12, y12, z12 = -6.0 * C33 * x * z, -6.0 * C33 * y * z, C33 * (6.0 * zz - 3.0 * xx - 3.0 * yy)
+        x13, y13, z13 = C34 * (4.0 * zz - 3.0 * xx - yy), -2.0 * C34 * x * y, 8.0 * C34 * x * z
+        x14, y14, z14 = 2.0 * C35 * x * z, -2.0 * C35 * y * z, C35 * (xx - yy)
+        x15, y15 = C36 * (3.0 * xx - 3.0 * yy), -6.0 * C36 * x * y
+    return ((0.0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15),
+            (0.0, y1, y2, y3, y4, y5, y6, y7, y8, y9, y10, y11, y12, y13, y14, y15),
+            (0.0, z1, z2, z3, z4, z5, z6, z7, z8, z9, z10, z11, z12, z13, z14, z15))
+
+
+@nb.njit(cache=True, nogil=True)
+def _frustum(intr, width, height):  # pragma: no cover - compiled
+    fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
+    lim_x_pos = (width - cx) / fx + 0.3 * (0.5 * width / fx)
+    lim_x_neg = cx / fx + 0.3 * (0.5 * width / fx)
+    lim_y_pos = (height - cy) / fy + 0.3 * (0.5 * height / fy)
+    lim_y_neg = cy / fy + 0.3 * (0.5 * height / fy)
+    return fx, fy, cx, cy, lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def project_forward(means, quats, log_scales, opacity_logits, sh, n_bases, view, center, intr, width, height, near,
+                    far, eps2d, tile, means2d, conics, depths, rgb, opacities, bounds, half,
+                    ntiles):  # pragma: no cover - compiled
+    """Project every Gaussian; write means2d [N, 2], conics [N, 3], depths [N], rgb [N, 3] (when ``n_bases`` > 0:
+    SH colours of ``sh`` [N, K, 3]; otherwise left as the caller filled it), opacities [N], and the footprints:
+    bounds [N, 4] (inclusive pixel box), half [N, 2], ntiles [N] (0: not drawn).
+
+    ``view`` is the 4x4 world-to-camera matrix, ``center`` the camera centre [3], ``intr`` (fx, fy, cx, cy).
+    """
+    n = means.shape[0]
+    fx, fy, cx, cy, lxp, lxn, lyp, lyn = _frustum(intr, width, height)
+    for i in nb.prange(n):
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, _, _, _, _, _ = _rotation(
+            np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]), np.float64(quats[i, 3]))
+        s0 = np.exp(np.float64(log_scales[i, 0]))
+        s1 = np.exp(np.float64(log_scales[i, 1]))
+        s2 = np.exp(np.float64(log_scales[i, 2]))
+        mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+        p0 = view[0, 0] * mu0 + view[0, 1] * mu1 + view[0, 2] * mu2 + view[0, 3]
+        p1 = view[1, 0] * mu0 + view[1, 1] * mu1 + view[1, 2] * mu2 + view[1, 3]
+        p2 = view[2, 0] * mu0 + view[2, 1] * mu1 + view[2, 2] * mu2 + view[2, 3]
+        depths[i] = p2
+        usable = p2 > near and p2 < far
+        z = p2 if usable else 1.0
+        xz = p0 / z
+        yz = p1 / z
+        xc = min(max(xz, -lxn), lxp)
+        yc = min(max(yz, -lyn), lyp)
+        # T = J W R S, row by row: row r of W R S dotted with J's rows
+        a0 = fx / z
+        a1 = fy / z
+        c00 = eps2d
+        c01 = 0.0
+        c11 = eps2d
+        for j in range(3):
+            rj0, rj1, rj2, sj = (r00, r10, r20, s0) if j == 0 else ((r01, r11, r21, s1) if j == 1
+                                                                    else (r02, r12, r22, s2))
+            m0 = (view[0, 0] * rj0 + view[0, 1] * rj1 + view[0, 2] * rj2) * sj
+            m1 = (view[1, 0] * rj0 + view[1, 1] * rj1 + view[1, 2] * rj2) * sj
+            m2 = (view[2, 0] * rj0 + view[2, 1] * rj1 + view[2, 2] * rj2) * sj
+            t0 = a0 * (m0 - xc * m2)
+            t1 = a1 * (m1 - yc * m2)
+            c00 += t0 * t0
+            c01 += t0 * t1
+            c11 += t1 * t1
+        det = max(c00 * c11 - c01 * c01, 1e-30)
+        conics[i, 0] = c11 / det
+        conics[i, 1] = -c01 / det
+        conics[i, 2] = c00 / det
+        mx = fx * xz + cx
+        my = fy * yz + cy
+        means2d[i, 0] = mx
+        means2d[i, 1] = my
+        o = 1.0 / (1.0 + np.exp(-np.float64(opacity_logits[i])))
+        opacities[i] = o
+        if n_bases > 0:
+            d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
+            inv = 1.0 / max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
+            basis = _sh_basis(n_bases, d0 * inv, d1 * inv, d2 * inv)
+            for ch in range(3):
+                v = 0.5
+                for k in range(n_bases):
+                    v += basis[k] * sh[i, k, ch]
+                rgb[i, ch] = max(v, 0.0)
+        # the footprint: where opacity * G >= 1/255
+        ntiles[i] = 0
+        if not usable or not o >= ALPHA_MIN:
+            continue
+        r2 = 2.0 * np.log(max(o * 255.0, 1.0)) * (1.0 + 1e-6)
+        hx = np.sqrt(r2 * c00)
+        hy = np.sqrt(r2 * c11)
+        if not (np.isfinite(mx) and np.isfinite(my) and np.isfinite(hx) and np.isfinite(hy)):
+            continue
+        x0 = np.ceil(mx - hx - 0.5)
+        x1 = np.floor(mx + hx - 0.5)
+        y0 = np.ceil(my - hy - 0.5)
+        y1 = np.floor(my + hy - 0.5)
+        if x0 > x1 or y0 > y1 or x1 < 0 or y1 < 0 or x0 > width - 1 or y0 > height - 1:
+            continue
+        ix0 = int(max(x0, 0.0))
+        ix1 = int(min(x1, width - 1.0))
+        iy0 = int(max(y0, 0.0))
+        iy1 = int(min(y1, height - 1.0))
+        bounds[i, 0] = ix0
+        bounds[i, 1] = ix1
+        bounds[i, 2] = iy0
+        bounds[i, 3] = iy1
+        half[i, 0] = int(np.ceil(hx))
+        half[i, 1] = int(np.ceil(hy))
+        ntiles[i] = (ix1 // tile - ix0 // tile + 1) * (iy1 // tile - iy0 // tile + 1)
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def project_backward(means, quats, log_scales, opacity_logits, sh, n_bases, view, center, intr, width, height, near,
+                     far, eps2d, g_means2d, g_conics, g_opacities, g_rgb, g_depths, g_means, g_quats, g_log_scales,
+                     g_logits, g_sh, geometry):  # pragma: no cover - compiled
+    """Write the gradients of the inputs of :func:`project_forward` from those of its outputs.
+
+    ``g_rgb`` [N, 3] is used when ``n_bases`` > 0 (then ``g_sh`` [N, K, 3] is written and the direction's gradient
+    reaches the means); ``geometry`` False skips the projection's gradients (only colours are trained).
+    """
+    n = means.shape[0]
+    fx, fy, cx, cy, lxp, lxn, lyp, lyn = _frustum(intr, width, height)
+    for blk in nb.prange((n + BLOCK - 1) // BLOCK):
+        R = np.empty((3, 3))
+        s = np.empty(3)
+        Mc = np.empty((3, 3))
+        T0 = np.empty(3)
+        T1 = np.empty(3)
+        gT0 = np.empty(3)
+        gT1 = np.empty(3)
+        gMc = np.empty((3, 3))
+        gR = np.empty((3, 3))
+        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+            mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+            gm0 = 0.0
+            gm1 = 0.0
+            gm2 = 0.0
+            if n_bases > 0:
+                d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
+                norm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                inv = 1.0 / max(norm, 1e-12)
+                ux, uy, uz = d0 * inv, d1 * inv, d2 * inv
+                basis = _sh_basis(n_bases, ux, uy, uz)
+                bx, by, bz = _sh_basis_grad(n_bases, ux, uy, uz)
+                gux = 0.0
+                guy = 0.0
+                guz = 0.0
+                for ch in range(3):
+                    v = 0.5
+                    for k in range(n_bases):
+                        v += basis[k] * sh[i, k, ch]
+                    g = np.float64(g_rgb[i, ch]) if v >= 0.0 else 0.0
+                    for k in range(n_bases):
+                        c = sh[i, k, ch]
+                        g_sh[i, k, ch] = basis[k] * g
+                        gux += g * c * bx[k]
+                        guy += g * c * by[k]
+                        guz += g * c * bz[k]
+                if norm > 1e-12:  # d(d / |d|) = (I - u u^T) / |d|
+                    dot = gux * ux + guy * uy + guz * uz
+                    gux -= dot * ux
+                    guy -= dot * uy
+                    guz -= dot * uz
+                gm0 += gux * inv
+                gm1 += guy * inv
+                gm2 += guz * inv
+            if not geometry:
+                g_means[i, 0] = gm0
+                g_means[i, 1] = gm1
+                g_means[i, 2] = gm2
+                continue
+            # ---- recompute the forward
+            R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2], w, x, y, qz_, qnorm = \
+                _rotation(np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
+                          np.float64(quats[i, 3]))
+            for j in range(3):
+                s[j] = np.exp(np.float64(log_scales[i, j]))
+            p0 = view[0, 0] * mu0 + view[0, 1] * mu1 + view[0, 2] * mu2 + view[0, 3]
+            p1 = view[1, 0] * mu0 + view[1, 1] * mu1 + view[1, 2] * mu2 + view[1, 3]
+            p2 = view[2, 0] * mu0 + view[2, 1] * mu1 + view[2, 2] * mu2 + view[2, 3]
+            usable = p2 > near and p2 < far
+            z = p2 if usable else 1.0
+            xz = p0 / z
+            yz = p1 / z
+            xc = min(max(xz, -lxn), lxp)
+            yc = min(max(yz, -lyn), lyp)
+            for j in range(3):  # Mc = W R S, camera-space columns j
+                for r in range(3):
+                    Mc[r, j] = (view[r, 0] * R[0, j] + view[r, 1] * R[1, j] + view[r, 2] * R[2, j]) * s[j]
+                T0[j] = fx / z * (Mc[0, j] - xc * Mc[2, j])
+                T1[j] = fy / z * (Mc[1, j] - yc * Mc[2, j])
+            c00 = eps2d + T0[0] * T0[0] + T0[1] * T0[1] + T0[2] * T0[2]
+            c01 = T0[0] * T1[0] + T0[1] * T1[1] + T0[2] * T1[2]
+            c11 = eps2d + T1[0] * T1[0] + T1[1] * T1[1] + T1[2] * T1[2]
+            raw_det = c00 * c11 - c01 * c01
+            det = max(raw_det, 1e-30)
+            # ---- conic (a, b, c) = (c11, -c01, c00) / det
+            ga, gb, gc = np.float64(g_conics[i, 0]), np.float64(g_conics[i, 1]), np.float64(g_conics[i, 2])
+            g_c00 = gc / det
+            g_c11 = ga / det
+            g_c01 = -gb / det
+            if raw_det > 1e-30:
+                g_det = -(ga * c11 - gb * c01 + gc * c00) / (det * det)
+                g_c00 += g_det * c11
+                g_c11 += g_det * c00
+                g_c01 -= 2.0 * g_det * c01
+            # ---- cov2d = T T^T + eps; T0 = fx/z (Mc0 - xc Mc2), T1 = fy/z (Mc1 - yc Mc2)
+            g_xc = 0.0
+            g_yc = 0.0
+            g_z = 0.0
+            for j in range(3):
+                gT0[j] = 2.0 * g_c00 * T0[j] + g_c01 * T1[j]
+                gT1[j] = 2.0 * g_c11 * T1[j] + g_c01 * T0[j]
+                gMc[0, j] = fx / z * gT0[j]
+                gMc[1, j] = fy / z * gT1[j]
+                gMc[2, j] = -(fx / z * xc * gT0[j] + fy / z * yc * gT1[j])
+                g_xc -= fx / z * Mc[2, j] * gT0[j]
+                g_yc -= fy / z * Mc[2, j] * gT1[j]
+                g_z -= (gT0[j] * T0[j] + gT1[j] * T1[j]) / z
+            # ---- means2d = (fx xz + cx, fy yz + cy); the clamps pass the gradient inside the frustum
+            g_xz = fx * np.float64(g_means2d[i, 0]) + (g_xc if -lxn < xz < lxp else 0.0)
+            g_yz = fy * np.float64(g_means2d[i, 1]) + (g_yc if -lyn < yz < lyp else 0.0)
+            g_p0 = g_xz / z
+            g_p1 = g_yz / z
+            g_z -= (g_xz * p0 + g_yz * p1) / (z * z)
+            g_p2 = np.float64(g_depths[i]) + (g_z if usable else 0.0)
+            g_means[i, 0] = gm0 + view[0, 0] * g_p0 + view[1, 0] * g_p1 + view[2, 0] * g_p2
+            g_means[i, 1] = gm1 + view[0, 1] * g_p0 + view[1, 1] * g_p1 + view[2, 1] * g_p2
+            g_means[i, 2] = gm2 + view[0, 2] * g_p0 + view[1, 2] * g_p1 + view[2, 2] * g_p2
+            # ---- Mc = W R S: gR = W^T gMc S, g_s[j] = (W^T gMc)[:, j] . R[:, j]
+            for j in range(3):
+                gs = 0.0
+                for r in range(3):
+                    gwr = view[0, r] * gMc[0, j] + view[1, r] * gMc[1, j] + view[2, r] * gMc[2, j]
+                    gR[r, j] = gwr * s[j]
+                    gs += gwr * R[r, j]
+                g_log_scales[i, j] = gs * s[j]
+            # ---- R of the normalised quaternion (w, x, y, z), then the normalisation q / max(|q|, 1e-12)
+            z_ = qz_
+            gw = 2.0 * (-z_ * gR[0, 1] + y * gR[0, 2] + z_ * gR[1, 0] - x * gR[1, 2] - y * gR[2, 0] + x * gR[2, 1])
+            gx = 2.0 * (y * gR[0, 1] + z_ * gR[0, 2] + y * gR[1, 0] - 2.0 * x * gR[1, 1] - w * gR[1, 2]
+                        + z_ * gR[2, 0] + w * gR[2, 1] - 2.0 * x * gR[2, 2])
+            gy = 2.0 * (-2.0 * y * gR[0, 0] + x * gR[0, 1] + w * gR[0, 2] + x * gR[1, 0] + z_ * gR[1, 2]
+                        - w * gR[2, 0] + z_ * gR[2, 1] - 2.0 * y * gR[2, 2])
+            gz = 2.0 * (-2.0 * z_ * gR[0, 0] - w * gR[0, 1] + x * gR[0, 2] + w * gR[1, 0] - 2.0 * z_ * gR[1, 1]
+                        + y * gR[1, 2] + x * gR[2, 0] + y * gR[2, 1])
+            if qnorm > 1e-12:
+                dot = gw * w + gx * x + gy * y + gz * z_
+                gw -= dot * w
+                gx -= dot * x
+                gy -= dot * y
+                gz -= dot * z_
+            inv_q = 1.0 / max(qnorm, 1e-12)
+            g_quats[i, 0] = gw * inv_q
+            g_quats[i, 1] = gx * inv_q
+            g_quats[i, 2] = gy * inv_q
+            g_quats[i, 3] = gz * inv_q
+            o = 1.0 / (1.0 + np.exp(-np.float64(opacity_logits[i])))
+            g_logits[i] = np.float64(g_opacities[i]) * o * (1.0 - o)

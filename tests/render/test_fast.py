@@ -1,0 +1,116 @@
+"""The default compiled renderer against the dense reference and the torch tiled path: values, gradients, threads."""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import pytest
+import torch
+
+from roodi_toolkit.cameras import intrinsics_from_fov, look_at
+from roodi_toolkit.render.fast import rasterize_fast
+from roodi_toolkit.render.rasterizer import rasterize, rasterize_dense_reference
+
+from ..test_rasterizer import F64, call, grads, random_scene
+
+
+@pytest.mark.parametrize("sh_k, tile_size", [(16, 16), (9, 4), (4, 1), (1, 7), (0, 16)])
+def test_matches_dense_reference_values_and_gradients(sh_k, tile_size):
+    scene = random_scene(sh_k=sh_k)
+    fast, g_fast = grads(rasterize_fast, scene, tile_size=tile_size)
+    dense, g_dense = grads(rasterize_dense_reference, scene)
+    assert 0.05 < fast.alpha.mean() < 0.95
+    for name in ("rgb", "alpha", "depth", "features"):
+        torch.testing.assert_close(getattr(fast, name), getattr(dense, name), atol=1e-5, rtol=0)
+    for name, g in g_dense.items():
+        scale = max(1.0, g.abs().max().item())
+        torch.testing.assert_close(g_fast[name], g, atol=1e-5 * scale, rtol=0, msg=f"gradient of {name}")
+    torch.testing.assert_close(fast.means2d_grad(), dense.means2d_grad(), atol=1e-5, rtol=0)
+    torch.testing.assert_close(fast.depths, dense.depths)
+
+
+def test_matches_the_torch_tiled_path_in_float32_with_its_footprints():
+    scene = random_scene(n=600, seed=2, width=160, height=120, dtype=torch.float32)
+    a, ga = grads(rasterize_fast, scene)
+    b, gb = grads(rasterize, scene)
+    for name in ("rgb", "alpha", "features"):
+        # the kernels composite in float64: a few pixels where a float32 alpha or transmittance sits on a cut-off
+        # (1/255, 1e-4) are decided the other way
+        diff = (getattr(a, name) - getattr(b, name)).abs()
+        assert diff.max() < 1e-3 and (diff > 2e-5).float().mean() < 1e-3, name
+    assert torch.equal(a.visible, b.visible) and torch.equal(a.radii, b.radii)
+    for name in gb:
+        scale = gb[name].abs().max().item()
+        torch.testing.assert_close(ga[name], gb[name], atol=1e-4 * scale, rtol=0, msg=f"gradient of {name}")
+
+
+def test_gradcheck_full_pipeline():
+    g = torch.Generator().manual_seed(11)
+    n = 6
+    means = torch.randn(n, 3, generator=g, dtype=F64) * 0.3
+    quats = torch.randn(n, 4, generator=g, dtype=F64)
+    log_scales = torch.log(torch.rand(n, 3, generator=g, dtype=F64) * 0.1 + 0.08)
+    opacity_logits = torch.randn(n, generator=g, dtype=F64) * 0.5
+    sh = torch.randn(n, 9, 3, generator=g, dtype=F64) * 0.3
+    features = torch.randn(n, 2, generator=g, dtype=F64)
+    w2c = torch.tensor(look_at([0.2, -2.5, 0.4], [0, 0, 0]), dtype=F64)
+    K = torch.tensor(intrinsics_from_fov(math.radians(50), 14, 11), dtype=F64)
+
+    def fn(m, q, s, o, c, f, bg):
+        out = rasterize_fast(m, q, s, o, c, w2c, K, 14, 11, features=f, background=bg, tile_size=4)
+        return torch.cat([out.rgb.reshape(-1), out.alpha.reshape(-1), out.depth.reshape(-1),
+                          out.features.reshape(-1)])
+
+    bg = torch.tensor([0.1, 0.2, 0.3], dtype=F64)
+    inputs = [t.requires_grad_() for t in (means, quats, log_scales, opacity_logits, sh, features, bg)]
+    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+def test_only_colours_or_features_trained():
+    """With the geometry frozen (distillation, colour fitting) only the requested gradients are computed, and they
+    equal the full backward's."""
+    scene = random_scene(n=200, seed=5)
+    _, full = grads(rasterize_fast, scene)
+    for leaf in ("colors", "features"):
+        s = {k: (v.clone().requires_grad_() if k == leaf else v) for k, v in scene.items()}
+        out = call(rasterize_fast, s)
+        (out.rgb * 0.5 + 0 * out.alpha).sum().backward() if leaf == "colors" else out.features.sum().backward()
+        assert s[leaf].grad is not None and s[leaf].grad.abs().sum() > 0
+        assert out.grad_source is None
+    s = {k: (v.clone().requires_grad_() if k == "features" else v) for k, v in scene.items()}
+    out = call(rasterize_fast, s)
+    out.features.sum().backward()
+    s2 = {k: (v.clone().requires_grad_() if k in ("features", "means") else v) for k, v in scene.items()}
+    out2 = call(rasterize_fast, s2)
+    out2.features.sum().backward()
+    torch.testing.assert_close(s["features"].grad, s2["features"].grad, atol=1e-12, rtol=0)
+    assert full["features"].shape == s["features"].grad.shape
+
+
+def test_same_result_bit_for_bit_whatever_the_threads(monkeypatch):
+    scene = random_scene(n=800, seed=3, width=96, height=64, dtype=torch.float32)
+    runs = []
+    for threads in ("1", "1", str(min(3, numba.config.NUMBA_NUM_THREADS))):
+        monkeypatch.setenv("ROODI_THREADS", threads)
+        runs.append(grads(rasterize_fast, scene))
+    (a, ga), *others = runs
+    for b, gb in others:  # each pixel is composited by one worker; pair gradients are added in pair order
+        assert torch.equal(a.rgb, b.rgb) and torch.equal(a.alpha, b.alpha)
+        assert all(torch.equal(ga[k], gb[k]) for k in ga)
+
+
+def test_degenerate_inputs_give_finite_gradients_and_empty_views_the_background():
+    scene = random_scene(n=40, seed=3, dtype=torch.float32)
+    scene["opacity_logits"][:5] = -1e4
+    scene["log_scales"][5:8] = -30.0
+    scene["quats_wxyz"][8] = 0.0
+    out, g = grads(rasterize_fast, scene)
+    for name, grad in g.items():
+        assert torch.isfinite(grad).all(), name
+    assert (g["opacity_logits"][:5] == 0).all()
+    z = torch.zeros(0, 3, dtype=F64)
+    empty = rasterize_fast(z, torch.zeros(0, 4, dtype=F64), z, torch.zeros(0, dtype=F64), z,
+                           torch.eye(4, dtype=F64), torch.tensor(intrinsics_from_fov(1.0, 8, 6), dtype=F64), 8, 6,
+                           background=torch.tensor([1.0, 0.0, 0.0], dtype=F64))
+    assert empty.rgb.shape == (6, 8, 3) and (empty.rgb[..., 0] == 1).all() and (empty.alpha == 0).all()
