@@ -60,7 +60,7 @@ def test_occluded_demo_scores_the_target_it_names(tmp_path, run_cli):
     assert f"{ns['ns_pixels']:,} pixels" in line and f"IoU {ns['ns_iou']:.3f}" in line
     assert report["extract_config"]["train"]["seed"] == 3
     env = report["environment"]
-    assert env["threads"] == 1 and env["renderer"] == "torch" and env["torch"] and env["cpu_capability"]
+    assert env["threads"] == 1 and env["renderer"] == "numba" and env["torch"] and env["cpu_capability"]
 
 
 def test_demo_bad_input_is_one_line(tmp_path, run_cli):

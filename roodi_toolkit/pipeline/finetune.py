@@ -463,7 +463,9 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     # only a 3D-aware inpainter reads the context: the support is looked for only for one
     wants = getattr(inpainter, "uses_context", False) and len(object_cloud) >= 4
     context = FillContext(object_cloud, [], renderer, bg, None, up=tuple(float(u) for u in up),
-                          seen_empty=empty, support=support_height(object_cloud, scene_cloud, up) if wants else None)
+                          seen_empty=empty, support=support_height(object_cloud, scene_cloud, up) if wants else None,
+                          pixel=pixel_size(cameras, object_extent(object_cloud)[0]),
+                          obstacles=other_gaussians(scene_cloud, object_cloud) if wants else None)
     # a 3D completion first, so that the views frame the whole object, the part no training view saw included
     completion = inpainter.complete(context) if wants else None
     frame = None if completion is None else GaussianCloud.concatenate([object_cloud, completion])
@@ -524,6 +526,38 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                     "seconds_finetune": result.seconds, "history": result.history}, out_dir / "refine.json")
     return RefineResult(result.cloud, occ, inpainted, result,
                         getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir, filled, proposed, after)
+
+
+def other_gaussians(scene_cloud: GaussianCloud, object_cloud: GaussianCloud, *,
+                    min_opacity: float = 0.3) -> np.ndarray:
+    """Return the centres ``[M, 3]`` of the scene's Gaussians of at least ``min_opacity`` that are not the object's
+    (the object was selected from the scene: its Gaussians are the scene's at the same places)."""
+    from scipy.spatial import cKDTree
+
+    means = scene_cloud.means.astype(np.float64)
+    keep = scene_cloud.opacities >= min_opacity
+    if len(object_cloud):
+        d, _ = cKDTree(object_cloud.means.astype(np.float64)).query(means, distance_upper_bound=1e-6)
+        keep &= ~np.isfinite(d)
+    return means[keep]
+
+
+def pixel_size(cameras: Sequence[Camera], point: Sequence[float]) -> Optional[float]:
+    """Return the median over ``cameras`` of the width in world units of one pixel at ``point`` (its depth over the
+    focal length), or None when no camera has it in front.
+
+    Example:
+        >>> from roodi_toolkit.cameras import intrinsics_from_fov, look_at
+        >>> cam = Camera(look_at([0, -2, 0], [0, 0, 0]), intrinsics_from_fov(math.radians(90), 100, 100), 100, 100)
+        >>> round(pixel_size([cam], [0, 0, 0]), 3)  # 2 from the camera, a 90 degree view 100 pixels wide
+        0.04
+    """
+    widths = []
+    for cam in cameras:
+        _, z = cam.project(np.asarray(point, dtype=np.float64)[None])
+        if z[0] > 0:
+            widths.append(float(z[0]) / float(cam.K[0, 0]))
+    return float(np.median(widths)) if widths else None
 
 
 #: a masked pixel counts as filled when the inpainter changed it by more than this (max over channels)

@@ -62,6 +62,11 @@ class FillContext:
             what it would put there.
         support: the height along ``up`` of the surface the object stands on, if known
             (:func:`roodi_toolkit.pipeline.symmetry.support_height`).
+        pixel: the width in world units of one training-view pixel at the object (the median over the training
+            views), if known: Gaussians much smaller than that render wider than they are (every splat is widened
+            by a fraction of a pixel), so a completion sizes its Gaussians no smaller.
+        obstacles: positions ``[M, 3]`` of the scene's Gaussians that are not the object's (opaque enough to be
+            surfaces), if known: what hides the object's unseen part also bounds it.
         rows: grid rows the views are tiled in.
         cols: grid columns.
         completion: the Gaussians the inpainter's :meth:`Inpainter.complete` returned before the views were
@@ -77,6 +82,8 @@ class FillContext:
     up: Optional[Sequence[float]] = None
     seen_empty: Optional[Callable[[np.ndarray], np.ndarray]] = field(default=None, repr=False)
     support: Optional[float] = None
+    pixel: Optional[float] = None
+    obstacles: Optional[np.ndarray] = field(default=None, repr=False)
     rows: int = 2
     cols: int = 2
     completion: "Optional[GaussianCloud]" = field(default=None, repr=False)

@@ -333,16 +333,21 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[order][min(int(np.searchsorted(cum, 0.5 * cum[-1])), len(order) - 1)])
 
 
+MIN_BAND = 6
+"""shell_to_support takes at least this many of the object's lowest Gaussians as its band."""
+
+
 def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, *, band: float = 0.1,
-                     colour_band: float = 0.25, sectors: Optional[int] = None, around: int = 40,
+                     colour_band: float = 0.5, sectors: Optional[int] = None, around: int = 40,
                      opacity: float = 0.9, overlap: float = 0.7, thickness: float = 0.2,
-                     max_rows: int = 200) -> GaussianCloud:
+                     max_rows: int = 200, min_spacing: float = 0.0, min_around: int = 3,
+                     obstacles: Optional[np.ndarray] = None) -> GaussianCloud:
     """Return a closed wall of new Gaussians from the object's lowest seen band straight down to the support (an
     empty cloud if there is no gap).
 
     What a wrap hid below the lowest part that was seen most often continues that part (a bottle's body under its
     shoulders, a pot's wall, a box's sides). The band (the Gaussians within ``band`` of the object's height above its
-    lowest point) gives the cross-section: round its centre, in ``sectors`` equal angles (default: one per four band
+    lowest point, at least its :data:`MIN_BAND` lowest) gives the cross-section: round its centre, in ``sectors`` equal angles (default: one per four band
     Gaussians, 6 to 48), the opacity-weighted median distance of the band's Gaussians from the centre, sectors
     without any interpolated from their neighbours. The wall is that outline carried down to ``support`` and tiled
     with flat Gaussians, ``around`` of them round the outline and rows as far apart as they are wide, each lying in
@@ -361,6 +366,13 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
             made from its Gaussians (extra columns copied from the nearest band Gaussian).
         up: the scene's up axis. [3]
         support: the height along ``up`` of the surface the object stands on.
+        min_spacing: the Gaussians are at least this far apart, fewer than ``around`` where the outline is short
+            (the refinement passes a training-view pixel: a splat much smaller than a pixel is widened to about half
+            a pixel, so many tiny opaque ones render a wall wider than its outline).
+        min_around: no wall (an empty cloud) when fewer than this many Gaussians at ``min_spacing`` go round the
+            outline: the object is too few pixels wide in the views for a wall to be drawn.
+        obstacles: positions ``[M, 3]`` of the scene's other Gaussians: the wall stays inside what lies round
+            the hidden part (:func:`_inside_obstacles`; a ball in a bowl is narrower near the floor).
     """
     from scipy.spatial.transform import Rotation
 
@@ -369,6 +381,8 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
     u, h, lowest, height = _vertical_extent(cloud, up)
     gap = lowest - float(support)
     layer = np.flatnonzero(h <= lowest + band * height)
+    if len(layer) < MIN_BAND:  # a small object (a few pixels in the views): its lowest Gaussians, whatever the band
+        layer = np.argsort(h, kind="stable")[:MIN_BAND]
     if gap <= 0 or height <= 0 or len(layer) < 3:
         return cloud.select(np.zeros(len(cloud), dtype=bool))
     _, e1, e2 = horizontal_basis(u)
@@ -407,7 +421,10 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
             colours[s] = t * own + (1 - t) * overall
     # the samples: ``around`` angles, rows evenly from just under the band down to the support
     perimeter = float(np.sum(np.hypot(radius * edges, np.diff(np.r_[radius, radius[:1]]))))
-    spacing = perimeter / max(int(around), 3)
+    around = int(min(around, np.floor(perimeter / max(min_spacing, 1e-12))))
+    if around < max(3, min_around):
+        return cloud.select(np.zeros(len(cloud), dtype=bool))
+    spacing = perimeter / around
     rows = int(min(max_rows, max(1, np.ceil(gap / max(spacing, 1e-9)))))
     step = gap / rows
     theta = (np.arange(around) + 0.5) * 2 * np.pi / around
@@ -419,7 +436,13 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
     radial = np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2  # [A, 3]
     ring = (centre[0] * e1 + centre[1] * e2) + r_at[:, None] * radial  # [A, 3] at height 0
     heights = float(support) + (np.arange(rows) + 0.5) * step  # [R]
-    pts = (ring[None] + heights[:, None, None] * u).reshape(-1, 3)  # [R * A, 3]
+    r_rows = np.tile(r_at, (rows, 1))  # [R, A]
+    if obstacles is not None and len(obstacles):
+        r_rows = _inside_obstacles(r_rows, np.asarray(obstacles, np.float64), centre, e1, e2, u, float(support),
+                                   step, lowest, 0.5 * min(spacing, step))
+    keep = r_rows.ravel() > 0
+    centre3 = centre[0] * e1 + centre[1] * e2
+    pts = (centre3 + r_rows[..., None] * radial[None] + heights[:, None, None] * u).reshape(-1, 3)  # [R * A, 3]
     # the wall's own normal: across the outline (radial where the outline is round)
     tangent = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
     tangent -= np.outer(tangent @ u, u)
@@ -446,7 +469,43 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
         opacity_logits=np.full(len(pts), logit(opacity), dtype=out.opacity_logits.dtype),
         sh_dc=((colour - 0.5) / SH_C0).astype(out.sh_dc.dtype), sh_rest=np.zeros_like(out.sh_rest),
         normals=None if out.normals is None else np.tile(normal, (rows, 1)).astype(out.normals.dtype))
-    return out
+    return out.select(keep)
+
+
+def _inside_obstacles(r_rows: np.ndarray, obstacles: np.ndarray, centre: np.ndarray, e1: np.ndarray,
+                      e2: np.ndarray, u: np.ndarray, support: float, step: float, lowest: float,
+                      clearance: float) -> np.ndarray:
+    """Return the wall's radii ``[R, A]`` (rows from the support up, angles round the centre) pulled in to
+    ``clearance`` inside the nearest obstacle Gaussian of their row and angle (and the neighbouring ones); 0 where
+    that would leave less than a third of the radius (the sample is dropped).
+
+    Obstacles are the scene's other Gaussians: below the object's lowest seen point and above the support's
+    layer, what lies round the hidden part is what hides it (a sleeve, a bowl), and the object is inside it.
+    Only obstacles between half the wall's radius and the wall count: one nearer the axis is under the object
+    (the floor, a stand), not round it.
+    """
+    rows, around = r_rows.shape
+    h = obstacles @ u
+    d = obstacles - np.outer(h, u)
+    x, y = d @ e1 - centre[0], d @ e2 - centre[1]
+    rho = np.hypot(x, y)
+    j = np.floor((h - support) / step).astype(int)
+    i = np.floor((np.arctan2(y, x) % (2 * np.pi)) / (2 * np.pi / around)).astype(int) % around
+    ok = (h > support + step) & (h < lowest) & (j >= 0) & (j < rows)
+    near = np.full((rows, around), np.inf)
+    ok &= rho >= 0.5 * r_rows[np.clip(j, 0, rows - 1), i]
+    np.minimum.at(near, (j[ok], i[ok]), rho[ok])
+    # the nearest obstacle of each sample's row and angle and their neighbours (angles wrap round)
+    spread = near.copy()
+    for dj in (-1, 0, 1):
+        for di in (-1, 0, 1):
+            shifted = np.roll(near, di, axis=1)
+            if dj:
+                shifted = np.roll(shifted, dj, axis=0)
+                shifted[0 if dj > 0 else -1] = np.inf
+            spread = np.minimum(spread, shifted)
+    clamped = np.minimum(r_rows, spread - clearance)
+    return np.where(clamped >= r_rows / 3, clamped, 0.0)
 
 
 def _vertical_extent(cloud: GaussianCloud, up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -487,7 +546,7 @@ class SymmetryInpainter(Inpainter):
 
     def __init__(self, *, fallback: str = "exemplar", min_agreement: float = 0.35, alpha_threshold: float = 0.5,
                  propose: bool = True, new_distance: float = 2.0, mirror: bool = True, extrude: bool = True,
-                 wall: bool = True, fallback_options: Optional[dict] = None) -> None:
+                 wall: bool = True, min_around: int = 3, fallback_options: Optional[dict] = None) -> None:
         if fallback == self.name:
             raise ConfigError("symmetry inpainter: the fallback must be another inpainter")
         if not 0 <= min_agreement <= 1 or not 0 < alpha_threshold < 1 or new_distance <= 0:
@@ -498,7 +557,7 @@ class SymmetryInpainter(Inpainter):
         self.alpha_threshold = float(alpha_threshold)
         self.propose = bool(propose)
         self.new_distance = float(new_distance)
-        self.mirror, self.extrude, self.wall = bool(mirror), bool(extrude), bool(wall)
+        self.mirror, self.extrude, self.wall, self.min_around = bool(mirror), bool(extrude), bool(wall), int(min_around)
         self.last_mirror: Optional[Mirror] = None
         self.last_extruded = 0
         self._completed: Optional[tuple[FillContext, Optional[GaussianCloud]]] = None
@@ -520,8 +579,13 @@ class SymmetryInpainter(Inpainter):
                 if plane.agreement >= self.min_agreement:
                     parts.append(mirror_cloud(cloud, plane.normal, plane.offset))
             if self.extrude and context.up is not None and context.support is not None:
-                below = shell_to_support if self.wall else extrude_to_support
-                extruded = below(GaussianCloud.concatenate([cloud, *parts]), context.up, context.support)
+                joined = GaussianCloud.concatenate([cloud, *parts])
+                extruded = joined.select(np.zeros(len(joined), dtype=bool))
+                if self.wall:
+                    extruded = shell_to_support(joined, context.up, context.support, min_spacing=context.pixel or 0.0,
+                                                obstacles=context.obstacles, min_around=self.min_around)
+                if not len(extruded):  # no wall (the object a few pixels wide, or no room left round it): copies
+                    extruded = extrude_to_support(joined, context.up, context.support)
                 self.last_extruded = len(extruded)
                 parts.append(extruded)
             parts = [p for p in parts if len(p)]
