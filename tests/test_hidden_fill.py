@@ -155,3 +155,21 @@ def test_refine_frames_the_completed_object_and_draws_its_hidden_part(tmp_path):
     outside = ~(alphas(GaussianCloud.concatenate([seen, whole]), res.occlusion.cameras) > 0.05) & ~shown
     assert outside.sum() > 500 and np.abs(res.inpainted.numpy()[outside] - 1.0).max() < 0.02
     assert (tmp_path / "hidden_part.png").is_file()
+
+
+def test_support_is_found_under_a_seen_part_a_third_of_the_object_high():
+    """A plant whose pot a sleeve hides: the seen leaves (0.24 to 0.3 high, 0.06 wide) are a fifth of its height,
+    the floor 0.24 under them, a sleeve's rim at 0.2 round the pot: the support is the floor."""
+    from roodi_toolkit.pipeline.symmetry import support_height
+
+    rng = np.random.default_rng(4)
+    leaves = GaussianCloud.from_activated(np.c_[rng.normal(0, 0.03, (200, 2)), rng.uniform(0.24, 0.3, 200)],
+                                          scales=np.full((200, 3), 0.01), opacities=np.full(200, 0.8),
+                                          rgb=np.full((200, 3), 0.3))
+    rim = ring(120, 0.09, 0.195, 0.205, rng, scale=0.01, opacity=0.9, rgb=(0.5, 0.2, 0.2))
+    g = rng.uniform(-0.5, 0.5, size=(3000, 2))
+    g = g[np.linalg.norm(g, axis=1) > 0.1]  # not inside the sleeve
+    floor = GaussianCloud.from_activated(np.c_[g, rng.normal(0, 0.002, len(g))], scales=np.full((len(g), 3), 0.02),
+                                         opacities=np.full(len(g), 0.9), rgb=np.full((len(g), 3), 0.7))
+    support = support_height(leaves, GaussianCloud.concatenate([floor, rim, leaves]), (0, 0, 1))
+    assert support is not None and abs(support) < 0.02
