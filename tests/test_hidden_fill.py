@@ -14,7 +14,7 @@ from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.params import GaussianParams
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, object_extent, seen_empty, seen_through
-from roodi_toolkit.pipeline.symmetry import extrude_to_support, shell_to_support
+from roodi_toolkit.pipeline.support import extrude_to_support, shell_to_support
 from roodi_toolkit.render.renderer import TorchRenderer
 
 RIM = 0.6  # the sleeve's rim: the cylinder below it is never seen
@@ -160,7 +160,7 @@ def test_refine_frames_the_completed_object_and_draws_its_hidden_part(tmp_path):
 def test_support_is_found_under_a_seen_part_a_third_of_the_object_high():
     """A plant whose pot a sleeve hides: the seen leaves (0.24 to 0.3 high, 0.06 wide) are a fifth of its height,
     the floor 0.24 under them, a sleeve's rim at 0.2 round the pot: the support is the floor."""
-    from roodi_toolkit.pipeline.symmetry import support_height
+    from roodi_toolkit.pipeline.support import support_height
 
     rng = np.random.default_rng(4)
     leaves = GaussianCloud.from_activated(np.c_[rng.normal(0, 0.03, (200, 2)), rng.uniform(0.24, 0.3, 200)],

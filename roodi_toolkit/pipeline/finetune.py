@@ -34,8 +34,8 @@ from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
-from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, object_extent, occlusion_masks,
-                        seen_through, write_occlusion_images)
+from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, hidden_part_picture, object_extent,
+                        occlusion_masks, seen_through, write_occlusion_images)
 from ..progress import ProgressFactory, null_progress
 
 
@@ -458,7 +458,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         return seen_through(points, cameras, masks_np, scene_params, occlusion.depth_tolerance * seen_radius,
                             renderer=renderer)
 
-    from .symmetry import support_height
+    from .support import other_gaussians, pixel_size, support_height
 
     # only a 3D-aware inpainter reads the context: the support is looked for only for one
     wants = getattr(inpainter, "uses_context", False) and len(object_cloud) >= 4
@@ -511,8 +511,8 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         write_image(fill_picture(occ.object_rgb, inpainted, filled, occ.occluded), out_dir / "fill_views.png")
         write_image(fill_picture(occ.object_rgb, after, filled, occ.occluded), out_dir / "fill_before_after.png")
         if completion is not None:
-            write_image(hidden_part_picture(object_cloud_in, completion, occ, after, renderer, bg),
-                        out_dir / "hidden_part.png")
+            whole = GaussianCloud.concatenate([object_cloud_in, _same_columns(completion, object_cloud_in)])
+            write_image(hidden_part_picture(whole, completion, occ, after, renderer, bg), out_dir / "hidden_part.png")
         write_json({"inpainter": getattr(inpainter, "name", "") or type(inpainter).__name__,
                     "perceptual_loss": result.perceptual, "occlusion": asdict(occlusion),
                     "finetune": asdict(finetune), "object_centre": occ.centre.tolist(), "object_radius": occ.radius,
@@ -528,68 +528,8 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                         getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir, filled, proposed, after)
 
 
-def other_gaussians(scene_cloud: GaussianCloud, object_cloud: GaussianCloud, *,
-                    min_opacity: float = 0.3) -> np.ndarray:
-    """Return the centres ``[M, 3]`` of the scene's Gaussians of at least ``min_opacity`` that are not the object's
-    (the object was selected from the scene: its Gaussians are the scene's at the same places)."""
-    from scipy.spatial import cKDTree
-
-    means = scene_cloud.means.astype(np.float64)
-    keep = scene_cloud.opacities >= min_opacity
-    if len(object_cloud):
-        d, _ = cKDTree(object_cloud.means.astype(np.float64)).query(means, distance_upper_bound=1e-6)
-        keep &= ~np.isfinite(d)
-    return means[keep]
-
-
-def pixel_size(cameras: Sequence[Camera], point: Sequence[float]) -> Optional[float]:
-    """Return the median over ``cameras`` of the width in world units of one pixel at ``point`` (its depth over the
-    focal length), or None when no camera has it in front.
-
-    Example:
-        >>> from roodi_toolkit.cameras import intrinsics_from_fov, look_at
-        >>> cam = Camera(look_at([0, -2, 0], [0, 0, 0]), intrinsics_from_fov(math.radians(90), 100, 100), 100, 100)
-        >>> round(pixel_size([cam], [0, 0, 0]), 3)  # 2 from the camera, a 90 degree view 100 pixels wide
-        0.04
-    """
-    widths = []
-    for cam in cameras:
-        _, z = cam.project(np.asarray(point, dtype=np.float64)[None])
-        if z[0] > 0:
-            widths.append(float(z[0]) / float(cam.K[0, 0]))
-    return float(np.median(widths)) if widths else None
-
-
 #: a masked pixel counts as filled when the inpainter changed it by more than this (max over channels)
 FILL_CHANGE = 0.02
-
-
-def hidden_part_picture(object_cloud: GaussianCloud, completion: GaussianCloud, occ: OcclusionResult, after: Tensor,
-                        renderer: Renderer, background: Sequence[float]) -> np.ndarray:
-    """Return the hidden part before and after, in the refinement's views: the object as selected (top), the
-    Gaussians the 3D completion added, alone (middle), and the refined object (bottom); outlined in red, the
-    pixels the object with its completion covers and the object alone did not (the part no training view saw),
-    in yellow what the scene hides.
-
-    Args:
-        object_cloud: the object before the completion.
-        completion: the Gaussians the completion added.
-        occ: the occlusion reasoning of the views.
-        after: the refined object in the views. [V, H, W, 3]
-        renderer: draws the views.
-        background: RGB behind them.
-    """
-    bg = torch.as_tensor(background, dtype=torch.float32)
-    added = GaussianParams.from_cloud(completion)
-    whole = GaussianParams.from_cloud(GaussianCloud.concatenate([object_cloud, _same_columns(completion,
-                                                                                           object_cloud)]))
-    rgb, hidden = [], []
-    with torch.no_grad():
-        for k, cam in enumerate(occ.cameras):
-            rgb.append(renderer.render(added, cam, background=bg).rgb.clamp(0, 1))
-            covered = renderer.render(whole, cam).alpha[..., 0] >= 0.5
-            hidden.append(covered & (occ.object_alpha[k] < 0.5))
-    return fill_picture(occ.object_rgb, after, torch.stack(hidden), occ.occluded, middle=torch.stack(rgb))
 
 
 def _same_columns(cloud: GaussianCloud, like: GaussianCloud) -> GaussianCloud:

@@ -61,7 +61,7 @@ class FillContext:
             as empty space, if known (:func:`roodi_toolkit.pipeline.occlusion.seen_empty`); a 3D completion drops
             what it would put there.
         support: the height along ``up`` of the surface the object stands on, if known
-            (:func:`roodi_toolkit.pipeline.symmetry.support_height`).
+            (:func:`roodi_toolkit.pipeline.support.support_height`).
         pixel: the width in world units of one training-view pixel at the object (the median over the training
             views), if known: Gaussians much smaller than that render wider than they are (every splat is widened
             by a fraction of a pixel), so a completion sizes its Gaussians no smaller.

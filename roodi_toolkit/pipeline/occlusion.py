@@ -378,6 +378,33 @@ def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Option
     return probability_grid(rows, gap=gap)
 
 
+def hidden_part_picture(whole: GaussianCloud, completion: GaussianCloud, occ: OcclusionResult, after: Tensor,
+                        renderer: Renderer, background: Sequence[float], *, alpha_threshold: float = 0.5) -> np.ndarray:
+    """Return the hidden part before and after in the refinement's views (:func:`fill_picture` with three rows): the
+    object as selected (top), the Gaussians a 3D completion added, alone (middle), and the refined object (bottom);
+    outlined in red, the pixels the object with its completion covers and the object alone did not (the part no
+    training view saw), in yellow what the scene hides.
+
+    Args:
+        whole: the object with its completion, before fine-tuning.
+        completion: the Gaussians the completion added.
+        occ: the occlusion reasoning of the views (the object's renders before the completion).
+        after: the refined object in the views. [V, H, W, 3]
+        renderer: draws the views.
+        background: RGB behind them.
+        alpha_threshold: a pixel is covered at or above this alpha.
+    """
+    bg = torch.as_tensor(background, dtype=torch.float32)
+    added, both = GaussianParams.from_cloud(completion), GaussianParams.from_cloud(whole)
+    rgb, hidden = [], []
+    with torch.no_grad():
+        for k, cam in enumerate(occ.cameras):
+            rgb.append(renderer.render(added, cam, background=bg).rgb.clamp(0, 1))
+            covered = renderer.render(both, cam).alpha[..., 0] >= alpha_threshold
+            hidden.append(covered & (occ.object_alpha[k] < alpha_threshold))
+    return fill_picture(occ.object_rgb, after, torch.stack(hidden), occ.occluded, middle=torch.stack(rgb))
+
+
 def seen_empty(points: np.ndarray, cameras: Sequence[Camera], object_masks: Tensor | np.ndarray,
                depths: Tensor | np.ndarray, tolerance: float, *, margin: int = 1) -> np.ndarray:
     """Return which points ``[N, 3]`` some view sees as empty space (bool ``[N]``): the point projects into the view
