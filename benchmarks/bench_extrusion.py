@@ -2,7 +2,7 @@
 
 Reads a finished ``bench_occluded.py`` run (``OUT/<scene>/full/object_<id>/selected.ply`` and the support recorded in
 its ``debug/refine.json``) and renders the selected object with the copies that
-:func:`roodi_toolkit.pipeline.symmetry.extrude_to_support` makes under each rule set, from the target's object-alone
+:func:`roodi_toolkit.pipeline.support.extrude_to_support` makes under each rule set, from the target's object-alone
 test views: the box PSNR of the paper's metric, per target and its mean. No mirror, no see-through test and no
 fine-tuning, so it isolates what the copies themselves add; the full method's figures come from ``bench_occluded.py``.
 
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.io.generated import read_scene_record
     from roodi_toolkit.io.ply import read_ply
-    from roodi_toolkit.pipeline.symmetry import extrude_to_support
+    from roodi_toolkit.pipeline.support import extrude_to_support
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scenes", type=Path, help="the scenes' ROOT of bench_occluded.py")

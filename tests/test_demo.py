@@ -47,13 +47,20 @@ def test_occluded_demo_scores_the_target_it_names(tmp_path, run_cli):
     tiny = ("--preset", "picnic", "--seed", "0", "--size", "32", "--train-views", "10", "--test-views", "2",
             "--iterations", "100", "--max-gaussians", "1600", "--distill-iterations", "30", "--finetune-iterations",
             "4", "--view-size", "32")
-    res = run_cli("demo", out, *tiny, "--occluded", "-q")
+    res = run_cli("demo", out, *tiny, "--occluded", "--train-seed", "3", "-q")
     assert res.exit_code == 0, res.stderr
     report = json.loads((out / "report.json").read_text())
     record = json.loads((out / "data" / "scene.json").read_text())
     names = {o["id"]: o["name"] for o in record["objects"]}
     assert report["object_name"] == names[report["object_id"]] == report["metrics"]["object_name"]
     assert 0 < report["hidden_fraction"] < 0.99
+    # issue 37: the never-seen region's figures are printed, and what run-to-run differences come from is recorded
+    ns = report["metrics"]
+    line = next(x for x in res.stdout.splitlines() if "never seen in training" in x)
+    assert f"{ns['ns_pixels']:,} pixels" in line and f"IoU {ns['ns_iou']:.3f}" in line
+    assert report["extract_config"]["train"]["seed"] == 3
+    env = report["environment"]
+    assert env["threads"] == 1 and env["renderer"] == "numba" and env["torch"] and env["cpu_capability"]
 
 
 def test_demo_bad_input_is_one_line(tmp_path, run_cli):

@@ -16,8 +16,8 @@ from roodi_toolkit.params import GaussianParams
 from roodi_toolkit.pipeline.exemplar import ExemplarInpainter, exemplar_fill
 from roodi_toolkit.pipeline.inpaint import FillContext, OpenCVInpainter, get_inpainter, inpaint_views
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, fill_picture, object_cameras, seen_empty
-from roodi_toolkit.pipeline.symmetry import (SymmetryInpainter, extrude_to_support, find_mirror, mirror_cloud,
-                                             support_height)
+from roodi_toolkit.pipeline.support import extrude_to_support, support_height
+from roodi_toolkit.pipeline.symmetry import SymmetryInpainter, find_mirror, mirror_cloud
 from roodi_toolkit.plugins import discover
 from roodi_toolkit.render.renderer import TorchRenderer
 

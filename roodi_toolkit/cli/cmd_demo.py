@@ -24,7 +24,8 @@ EXAMPLE = """Example:
 EXTRACT_ONLY = {"preset": "--preset", "object_id": "--object", "size_text": "--size", "train_views": "--train-views",
                 "test_views": "--test-views", "iterations": "--iterations", "max_gaussians": "--max-gaussians",
                 "distill_iterations": "--distill-iterations", "finetune_iterations": "--finetune-iterations",
-                "view_size": "--view-size", "inpainter": "--inpainter", "occluded": "--occluded/--no-occluded"}
+                "view_size": "--view-size", "inpainter": "--inpainter", "occluded": "--occluded/--no-occluded",
+                "train_seed": "--train-seed"}
 
 
 def _duration(seconds: float) -> str:
@@ -48,6 +49,9 @@ def _scores(ev) -> str:
 @click.option("--test-views", type=click.IntRange(1, 1000), default=None,
               help="Views of the target alone, used for scoring [12].")
 @click.option("--iterations", type=click.IntRange(1), default=None, help="Scene training iterations [2000].")
+@click.option("--train-seed", type=click.IntRange(0), default=None,
+              help="Seed of the scene training [0]; the scene stays the same (--seed). Runs with other seeds show "
+                   "how much the figures move from run to run (docs/benchmark.md, \"Run to run\").")
 @click.option("--max-gaussians", type=click.IntRange(2), default=None,
               help="Most Gaussians the scene may grow to; it starts from half as many [30000].")
 @click.option("--distill-iterations", type=click.IntRange(1), default=None, help="Mask distillation steps [500].")
@@ -66,16 +70,19 @@ def _scores(ev) -> str:
 @renderer_option
 @quiet_option
 def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | None, size_text: str | None,
-         train_views: int | None, test_views: int | None, iterations: int | None, max_gaussians: int | None,
+         train_views: int | None, test_views: int | None, iterations: int | None, train_seed: int | None,
+         max_gaussians: int | None,
          distill_iterations: int | None, finetune_iterations: int | None, view_size: int | None,
          inpainter: str | None, occluded: bool | None, prune_only: bool,
          surface: str | None, overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Extract one object from a generated scene into OUT_DIR, score it, and say where the PLY and pictures are.
 
-    Generates a cluttered scene (make-scene), trains it, distils its instance masks, then selects, prunes, inpaints
-    the hidden parts (opencv) and fine-tunes the target; scores it (PSNR, SSIM, LPIPS, IoU) against the target's
-    object-alone views; writes OUT_DIR/extraction/object_<ID>/object.ply, OUT_DIR/summary.png and
-    OUT_DIR/report.json. The defaults take about 5 minutes on 2 CPU cores.
+    Generates a cluttered scene (make-scene), trains it, distils its instance masks, then selects, prunes, completes
+    the hidden parts (the weight-free symmetry fill: a mirror image where one agrees, and new Gaussians from the
+    lowest seen part down to the floor) and fine-tunes the target; scores it (PSNR, SSIM, LPIPS, IoU, and inside the
+    part no training view saw) against the target's object-alone views; writes
+    OUT_DIR/extraction/object_<ID>/object.ply, OUT_DIR/summary.png and OUT_DIR/report.json. The defaults take about
+    5 minutes on 2 CPU cores.
     """
     params = click.get_current_context().params
     given = [flag for name, flag in EXTRACT_ONLY.items() if params[name] is not None]
@@ -99,7 +106,7 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
                           test_views=test_views or base.scene.test_views,
                           occluded=base.scene.occluded if occluded is None else occluded)
     ex = base.extract
-    train = config_with(ex.train, iterations=iterations, cap_max=max_gaussians,
+    train = config_with(ex.train, iterations=iterations, cap_max=max_gaussians, seed=train_seed,
                         init_num_points=None if max_gaussians is None else max(1, max_gaussians // 2))
     extract = replace(ex, train=train,
                       distill=replace(ex.distill, iterations=distill_iterations or ex.distill.iterations),
@@ -128,6 +135,12 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
                f"pruned, {g['object']:,} after fine-tuning")
     click.echo(f"  {len(res.evaluation.views)} object-alone test views: {_scores(res.evaluation)}")
     click.echo(f"  before inpainting and fine-tuning: {_scores(res.before)}")
+    ev, bf = res.evaluation, res.before
+    if ev.ns_iou is not None and bf.ns_iou is not None:
+        pixels = sum(v.ns_pixels for v in ev.views)
+        click.echo(f"  never seen in training ({pixels:,} pixels over {sum(v.ns_pixels > 0 for v in ev.views)} "
+                   f"views): PSNR {ev.ns_psnr:.2f} dB, IoU {ev.ns_iou:.3f}; before inpainting and fine-tuning "
+                   f"PSNR {bf.ns_psnr:.2f} dB, IoU {bf.ns_iou:.3f}")
     f = res.files
     click.echo(f"object PLY  {f['object_ply']}")
     click.echo(f"pictures    {f['summary']} (a training view, the true object, before and after)")

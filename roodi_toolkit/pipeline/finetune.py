@@ -34,8 +34,8 @@ from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
-from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, object_extent, occlusion_masks, seen_empty,
-                        write_occlusion_images)
+from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, hidden_part_picture, object_extent,
+                        occlusion_masks, seen_through, write_occlusion_images)
 from ..progress import ProgressFactory, null_progress
 
 
@@ -446,24 +446,34 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     up = up_from_cameras(cameras) if up is None else np.asarray(up, dtype=np.float64)
     bg = finetune.background
     renderer = resolve_renderer(renderer)
-    occ = occlusion_masks(object_cloud, scene_cloud, None, occlusion, up=up, background=bg, renderer=renderer)
     # scene depth in the training views tells where something may hide the object, and where a view looks through
     # empty space (what a 3D completion must not fill)
     scene_params = GaussianParams.from_cloud(scene_cloud)
     with torch.no_grad():
         depths = torch.stack([renderer.render(scene_params, c).depth[..., 0] for c in cameras])
-    masks_np, depths_np = torch.as_tensor(object_masks).bool().numpy(), depths.numpy()
+    masks_np = torch.as_tensor(object_masks).bool().numpy()
+    _, seen_radius = object_extent(object_cloud)
 
     def empty(points: np.ndarray) -> np.ndarray:
-        return seen_empty(points, cameras, masks_np, depths_np, occlusion.depth_tolerance * occ.radius)
+        return seen_through(points, cameras, masks_np, scene_params, occlusion.depth_tolerance * seen_radius,
+                            renderer=renderer)
 
-    from .symmetry import support_height
+    from .support import other_gaussians, pixel_size, support_height
 
     # only a 3D-aware inpainter reads the context: the support is looked for only for one
     wants = getattr(inpainter, "uses_context", False) and len(object_cloud) >= 4
-    context = FillContext(object_cloud, occ.cameras, renderer, bg, occ, up=tuple(float(u) for u in up),
-                          seen_empty=empty, support=support_height(object_cloud, scene_cloud, up) if wants else None)
+    context = FillContext(object_cloud, [], renderer, bg, None, up=tuple(float(u) for u in up),
+                          seen_empty=empty, support=support_height(object_cloud, scene_cloud, up) if wants else None,
+                          pixel=pixel_size(cameras, object_extent(object_cloud)[0]),
+                          obstacles=other_gaussians(scene_cloud, object_cloud) if wants else None)
+    # a 3D completion first, so that the views frame the whole object, the part no training view saw included
+    completion = inpainter.complete(context) if wants else None
+    frame = None if completion is None else GaussianCloud.concatenate([object_cloud, completion])
+    occ = occlusion_masks(object_cloud, scene_cloud, None, occlusion, up=up, background=bg, renderer=renderer,
+                          frame=frame)
+    context.cameras, context.occlusion, context.completion = occ.cameras, occ, completion
     inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt, context=context)
+    object_cloud_in = object_cloud
     filled = occ.mask & ((inpainted - occ.object_rgb).abs().amax(dim=-1) > FILL_CHANGE)
     proposed = 0
     if finetune.adopt_proposed and context.proposed is not None and len(context.proposed):
@@ -500,6 +510,9 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                     out_dir / "object_before_after.png")
         write_image(fill_picture(occ.object_rgb, inpainted, filled, occ.occluded), out_dir / "fill_views.png")
         write_image(fill_picture(occ.object_rgb, after, filled, occ.occluded), out_dir / "fill_before_after.png")
+        if completion is not None:
+            whole = GaussianCloud.concatenate([object_cloud_in, _same_columns(completion, object_cloud_in)])
+            write_image(hidden_part_picture(whole, completion, occ, after, renderer, bg), out_dir / "hidden_part.png")
         write_json({"inpainter": getattr(inpainter, "name", "") or type(inpainter).__name__,
                     "perceptual_loss": result.perceptual, "occlusion": asdict(occlusion),
                     "finetune": asdict(finetune), "object_centre": occ.centre.tolist(), "object_radius": occ.radius,
@@ -507,6 +520,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                     "filled_fraction": [float(m.float().mean()) for m in filled],
                     "mirror": _mirror_record(inpainter), "support": context.support,
                     "extruded_gaussians": int(getattr(inpainter, "last_extruded", 0)),
+                    "completion_gaussians": 0 if completion is None else len(completion),
                     "occluded_fraction": [float(m.float().mean()) for m in occ.occluded],
                     "mask_fraction": [float(m.float().mean()) for m in occ.mask],
                     "seconds_finetune": result.seconds, "history": result.history}, out_dir / "refine.json")

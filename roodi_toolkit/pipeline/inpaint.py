@@ -20,7 +20,10 @@ get a fourth argument, a :class:`FillContext` (the object's Gaussians, the views
 occlusion reasoning) or None when the caller has none (they must still fill, e.g. with a 2D fallback). Inpainters
 that do not set it are called with three arguments exactly as before, so existing plugins keep working unchanged.
 A 3D-aware inpainter may also propose Gaussians to add to the object (:attr:`FillContext.proposed`), which
-:func:`roodi_toolkit.pipeline.finetune.refine_object` adds before fine-tuning.
+:func:`roodi_toolkit.pipeline.finetune.refine_object` adds before fine-tuning. One that completes the object in 3D
+before any view is drawn implements :meth:`Inpainter.complete`: the refinement then frames its four views around the
+object with its completion (a hidden lower half would otherwise fall outside views framed on the seen part) and hands
+the completion back in :attr:`FillContext.completion`.
 """
 
 from __future__ import annotations
@@ -58,9 +61,16 @@ class FillContext:
             as empty space, if known (:func:`roodi_toolkit.pipeline.occlusion.seen_empty`); a 3D completion drops
             what it would put there.
         support: the height along ``up`` of the surface the object stands on, if known
-            (:func:`roodi_toolkit.pipeline.symmetry.support_height`).
+            (:func:`roodi_toolkit.pipeline.support.support_height`).
+        pixel: the width in world units of one training-view pixel at the object (the median over the training
+            views), if known: Gaussians much smaller than that render wider than they are (every splat is widened
+            by a fraction of a pixel), so a completion sizes its Gaussians no smaller.
+        obstacles: positions ``[M, 3]`` of the scene's Gaussians that are not the object's (opaque enough to be
+            surfaces), if known: what hides the object's unseen part also bounds it.
         rows: grid rows the views are tiled in.
         cols: grid columns.
+        completion: the Gaussians the inpainter's :meth:`Inpainter.complete` returned before the views were
+            chosen (the refinement sets it), or None.
         proposed: set by the inpainter: Gaussians it proposes to add to the object (same columns), or None.
     """
 
@@ -72,8 +82,11 @@ class FillContext:
     up: Optional[Sequence[float]] = None
     seen_empty: Optional[Callable[[np.ndarray], np.ndarray]] = field(default=None, repr=False)
     support: Optional[float] = None
+    pixel: Optional[float] = None
+    obstacles: Optional[np.ndarray] = field(default=None, repr=False)
     rows: int = 2
     cols: int = 2
+    completion: "Optional[GaussianCloud]" = field(default=None, repr=False)
     proposed: "Optional[GaussianCloud]" = field(default=None, repr=False)
 
 
@@ -88,6 +101,15 @@ class Inpainter(ABC):
     def available(cls) -> tuple[bool, str]:
         """Return (True, "") if this inpainter can run on this machine, else (False, why not and what to do)."""
         return True, ""
+
+    def complete(self, context: FillContext) -> "Optional[GaussianCloud]":
+        """Return the Gaussians a 3D-aware inpainter adds to the object, from the context's object, up axis,
+        support and see-through test alone (before any view exists: ``context.cameras`` may be empty), or None.
+
+        The refinement calls it first and frames the views around the object with what it returns; 2D inpainters
+        keep this default (None), so their views and fills are as before.
+        """
+        return None
 
     @abstractmethod
     def fill(self, images: Tensor, masks: Tensor, prompt: str) -> Tensor:

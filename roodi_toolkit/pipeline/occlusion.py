@@ -222,8 +222,8 @@ def _render_stack(cloud: GaussianCloud, cameras: Sequence[Camera], background: T
 
 def occlusion_masks(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, cameras: Sequence[Camera] | None = None,
                     config: OcclusionConfig = OcclusionConfig(), *, up: Sequence[float] = (0.0, 0.0, 1.0),
-                    background: Sequence[float] = (1.0, 1.0, 1.0),
-                    renderer: Renderer | None = None) -> OcclusionResult:
+                    background: Sequence[float] = (1.0, 1.0, 1.0), renderer: Renderer | None = None,
+                    frame: Optional[GaussianCloud] = None) -> OcclusionResult:
     """Return the object-centred renders and the occlusion / inpainting masks of an object in its scene.
 
     Args:
@@ -234,8 +234,11 @@ def occlusion_masks(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, cam
         up: the scene's up axis (for the default cameras).
         background: RGB behind the renders.
         renderer: draws the object and the scene (default: the built-in CPU renderer).
+        frame: the Gaussians whose extent the views frame and whose bounding sphere the result holds (default
+            ``object_cloud``; the refinement passes the object with its 3D completion, so that a part no training
+            view saw is in the views too).
     """
-    centre, radius = object_extent(object_cloud)
+    centre, radius = object_extent(object_cloud if frame is None else frame)
     if cameras is None:
         cameras = object_cameras(centre, radius, config, up=up)
     cameras = list(cameras)
@@ -338,7 +341,7 @@ OCCLUDED_COLOUR = (1.0, 0.85, 0.0)
 
 
 def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Optional[Tensor] = None, *,
-                 gap: int = 2) -> np.ndarray:
+                 gap: int = 2, middle: Optional[Tensor] = None) -> np.ndarray:
     """Return a picture of views before (top row) and after (bottom row) the fill with the filled region outlined.
 
     Args:
@@ -347,8 +350,11 @@ def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Option
         filled: the region the fill added, outlined in red in both rows. [V, H, W] bool
         occluded: the region the scene hides, outlined in yellow (optional). [V, H, W] bool
         gap: white pixels between tiles.
+        middle: a row drawn between the two, outlined alike (optional; e.g. the Gaussians a 3D completion added,
+            alone). [V, H, W, 3]
 
-    Views smaller than 128 pixels are enlarged by a whole factor first.
+    The regions are tinted in the top row and only outlined below it. Views smaller than 128 pixels are enlarged by
+    a whole factor first.
     """
     from ..render.pictures import probability_grid
 
@@ -357,16 +363,46 @@ def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Option
     if scale > 1:
         before, after, filled = (t.repeat_interleave(scale, 1).repeat_interleave(scale, 2) for t in (before, after, filled))
         occluded = None if occluded is None else occluded.repeat_interleave(scale, 1).repeat_interleave(scale, 2)
+        middle = None if middle is None else middle.repeat_interleave(scale, 1).repeat_interleave(scale, 2)
     rows = []
-    for views in (before, after):
+    for r, views in enumerate((before, after) if middle is None else (before, middle, after)):
         row = []
         for k in range(len(views)):
             regions = [(filled[k], FILLED_COLOUR)]
             if occluded is not None:
                 regions.append((occluded[k], OCCLUDED_COLOUR))
-            row.append(outlined(np.asarray(views[k]), regions, width=max(1, views.shape[1] // 128)))
+            # tinted in the top row only: below, the fill's own colours are what the picture is for
+            row.append(outlined(np.asarray(views[k]), regions, width=max(1, views.shape[1] // 128),
+                                tint=0.25 if r == 0 else 0.0))
         rows.append(row)
     return probability_grid(rows, gap=gap)
+
+
+def hidden_part_picture(whole: GaussianCloud, completion: GaussianCloud, occ: OcclusionResult, after: Tensor,
+                        renderer: Renderer, background: Sequence[float], *, alpha_threshold: float = 0.5) -> np.ndarray:
+    """Return the hidden part before and after in the refinement's views (:func:`fill_picture` with three rows): the
+    object as selected (top), the Gaussians a 3D completion added, alone (middle), and the refined object (bottom);
+    outlined in red, the pixels the object with its completion covers and the object alone did not (the part no
+    training view saw), in yellow what the scene hides.
+
+    Args:
+        whole: the object with its completion, before fine-tuning.
+        completion: the Gaussians the completion added.
+        occ: the occlusion reasoning of the views (the object's renders before the completion).
+        after: the refined object in the views. [V, H, W, 3]
+        renderer: draws the views.
+        background: RGB behind them.
+        alpha_threshold: a pixel is covered at or above this alpha.
+    """
+    bg = torch.as_tensor(background, dtype=torch.float32)
+    added, both = GaussianParams.from_cloud(completion), GaussianParams.from_cloud(whole)
+    rgb, hidden = [], []
+    with torch.no_grad():
+        for k, cam in enumerate(occ.cameras):
+            rgb.append(renderer.render(added, cam, background=bg).rgb.clamp(0, 1))
+            covered = renderer.render(both, cam).alpha[..., 0] >= alpha_threshold
+            hidden.append(covered & (occ.object_alpha[k] < alpha_threshold))
+    return fill_picture(occ.object_rgb, after, torch.stack(hidden), occ.occluded, middle=torch.stack(rgb))
 
 
 def seen_empty(points: np.ndarray, cameras: Sequence[Camera], object_masks: Tensor | np.ndarray,
@@ -409,3 +445,79 @@ def seen_empty(points: np.ndarray, cameras: Sequence[Camera], object_masks: Tens
         through = ~near_object[ii, jj] & ((d <= 0) | (d > z[idx] + tolerance))
         empty[idx[through]] = True
     return empty
+
+
+def seen_through(points: np.ndarray, cameras: Sequence[Camera], object_masks: Tensor | np.ndarray,
+                 scene: GaussianCloud | GaussianParams, tolerance: float, *, renderer: Renderer | None = None,
+                 margin: int = 1, bins: int = 32, max_alpha: float = 0.5) -> np.ndarray:
+    """Return which points ``[N, 3]`` some view sees through (bool ``[N]``): the point projects into the view more
+    than ``margin`` pixels away from the object's mask there, and the scene's Gaussians in front of it (up to
+    ``tolerance`` behind it) stop less than ``max_alpha`` of that pixel's light.
+
+    :func:`seen_empty` compares the point with the view's expected depth, which blends every surface along the
+    ray: behind a thin, half-transparent wall (a sleeve round a bottle, 8 mm thick, a few pixels wide) the blend
+    lies beyond the wall, so the space the wall hides counts as seen through. Here each view is rendered once with
+    the scene's Gaussians binned by their depth along the view (``bins`` bins over the points' depth range, the
+    Gaussians nearer or farther in a bin of their own), composited as feature channels with the renderer's own
+    weights, so that the alpha accumulated in front of every point is known to a bin; the whole bin holding the
+    point's depth plus ``tolerance`` counts as in front (the safe side: less is seen through).
+
+    Args:
+        points: world points. [N, 3]
+        cameras: the training views.
+        object_masks: True on the object in each view. [V, H, W]
+        scene: the whole scene's Gaussians (a cloud, or parameters to render as they are).
+        tolerance: depth slack (world units).
+        renderer: draws the views (default: the built-in CPU renderer).
+        margin: pixels round the object's mask that never count as seen through (its outline is uncertain).
+        bins: depth bins between the nearest and farthest point (each view).
+        max_alpha: a view sees through a point when less than this much alpha lies in front of it.
+
+    Example:
+        >>> cam = Camera(look_at([0, -3, 0], [0, 0, 0]), intrinsics_from_fov(1.0, 16, 16), 16, 16)
+        >>> masks = np.zeros((1, 16, 16), bool)
+        >>> wall = GaussianCloud.from_activated(np.array([[0.0, -1.0, 0.0]]), scales=np.array([[2.0, 0.01, 2.0]]),
+        ...                                     opacities=np.array([0.7]), rgb=np.zeros((1, 3)))
+        >>> seen_through(np.array([[0.0, 0.0, 0.0], [0.0, -1.5, 0.0]]), [cam], masks, wall, 0.05).tolist()
+        [False, True]
+    """
+    from scipy.ndimage import binary_dilation
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    masks = np.asarray(object_masks, dtype=bool)
+    through = np.zeros(len(pts), dtype=bool)
+    if len(pts) == 0:
+        return through
+    renderer = resolve_renderer(renderer)
+    params = GaussianParams.from_cloud(scene) if isinstance(scene, GaussianCloud) else scene
+    means = params.means.detach().double().numpy()
+    for k, cam in enumerate(cameras):
+        uv, z = cam.project(pts)
+        with np.errstate(invalid="ignore"):
+            j, i = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+        ok = (z > 0) & (j >= 0) & (j < cam.width) & (i >= 0) & (i < cam.height) & ~through
+        idx = np.flatnonzero(ok)
+        if len(idx) == 0:
+            continue
+        ii, jj = i[idx].astype(int), j[idx].astype(int)
+        near_object = binary_dilation(masks[k], iterations=margin) if margin > 0 else masks[k]
+        free = ~near_object[ii, jj]
+        idx, ii, jj = idx[free], ii[free], jj[free]
+        if len(idx) == 0:
+            continue
+        reach = z[idx] + tolerance  # [M] how far each point's ray must get
+        edges = np.linspace(reach.min(), reach.max(), bins + 1) if reach.max() > reach.min() \
+            else np.array([reach.min(), reach.min() + max(tolerance, 1e-9)])
+        zg = means @ cam.world_to_camera[2, :3] + cam.world_to_camera[2, 3]  # [G] camera depth of each Gaussian
+        # bin 0: nearer than the nearest point's reach; bin b: up to edges[b]; the last: beyond the farthest
+        labels = np.searchsorted(edges, zg, side="left")
+        onehot = torch.zeros(len(zg), len(edges) + 1, dtype=params.means.dtype)
+        onehot[torch.arange(len(zg)), torch.from_numpy(labels)] = 1.0
+        with torch.no_grad():
+            out = renderer.render(params.with_features(onehot), cam)
+        cum = torch.cumsum(out.features, dim=-1).numpy()  # [H, W, B + 2] alpha accumulated up to each bin
+        # the bin holding each point's reach, counted whole
+        b = np.searchsorted(edges, reach, side="left")
+        through[idx[cum[ii, jj, b] < max_alpha]] = True
+    return through
+

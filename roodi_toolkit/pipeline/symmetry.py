@@ -1,5 +1,5 @@
-"""3D completion from the object itself: mirror symmetry about one of its principal planes, and extrusion of its
-lowest seen part down to the surface it stands on.
+"""3D completion from the object itself: mirror symmetry about one of its principal planes, and a wall of new
+Gaussians from its lowest seen part down to the surface it stands on.
 
 Many objects people extract (bottles, mugs, bowls, chairs, balls, baskets) are mirror-symmetric, and the part that no
 training view saw is often the mirror image of a part that one did. :func:`find_mirror` tries the planes
@@ -10,24 +10,22 @@ scene's up axis and the horizontal principal axes when the up axis is known, eac
 seen part: the opacity-weighted share of mirrored Gaussians that land within a few Gaussian spacings
 of an original one of a similar colour. On a partly seen object this measure leans a little towards planes through
 the seen part (they map more of it onto itself): the removed cap of an ellipsoid 1.2 long, 37% of its surface,
-puts the plane about 0.05 off its true place (tests/test_fill.py). :func:`mirror_cloud` reflects means, rotations (a reflection composed with a
-flip of one local axis, so that the rotation stays proper and the covariance is the mirror image) and keeps the
-base colour (higher SH bands are dropped: their mirror image is not a rotation of them).
+puts the plane about 0.05 off its true place (tests/test_fill.py). :func:`mirror_cloud` reflects means, rotations (a
+reflection composed with a flip of one local axis, so that the rotation stays proper and the covariance is the mirror
+image) and keeps the base colour (higher SH bands are dropped: their mirror image is not a rotation of them).
 
-:class:`SymmetryInpainter` renders the object together with its mirrored copy into the views and takes that render in
-the masked pixels the copy covers; the rest goes to a 2D inpainter (``exemplar`` by default). It also proposes the
-mirrored Gaussians that land where the object has none (:attr:`~roodi_toolkit.pipeline.inpaint.FillContext.proposed`):
-mirrored Gaussians that a training view sees through (empty space there: ``FillContext.seen_empty``) are dropped
-first, and the refinement adds the proposed ones before fine-tuning, which the training views then correct.
+A part hidden on every side (a bottle's lower half in a sleeve, a pot in a box) has no seen mirror image: below the
+lowest seen part the object is completed down to the surface it stands on (:mod:`roodi_toolkit.pipeline.support`:
+a wall of new Gaussians, or copies of the lowest band where no wall fits).
 
-A part hidden on every side (a bottle's lower half in a sleeve, a pot in a box) has no seen mirror image. Objects
-stand on something, so :func:`support_height` finds the floor or table top under the object among the scene's
-Gaussians around it, and :func:`extrude_to_support` carries the lowest seen band of the object (after the mirror)
-straight down to it; these copies go through the same see-through test and proposal. Measured on the occluded
-presets (``benchmarks/RESULTS.md``, "Occluded scenes"): inside the never-seen region +0.44 IoU and +4.0 dB over no
-fill, where the mirror alone gave +0.02 IoU and +0.1 dB, and +1.4 dB on the whole object's box over the Gaussian
-Grouping-style baseline. Without a context, or when no plane agrees well enough
-(``min_agreement``), it is the 2D fallback alone.
+:class:`SymmetryInpainter` makes this completion first (:meth:`SymmetryInpainter.complete`, before the refinement
+chooses its views, which then frame the completed object), drops what a training view sees through
+(``FillContext.seen_empty``), renders the object with it into the views and takes that render in the masked pixels
+it covers; a 2D inpainter (``exemplar`` by default) fills only the holes left inside the completed silhouette and
+what the scene hides. The completion's Gaussians that land where the object has none are proposed
+(:attr:`~roodi_toolkit.pipeline.inpaint.FillContext.proposed`) and the refinement adds them before fine-tuning.
+Measured on the occluded presets (``benchmarks/RESULTS.md``, "Completing what no view saw (issue 37)"). Without a
+context it is the 2D fallback alone.
 """
 
 from __future__ import annotations
@@ -42,6 +40,7 @@ from torch import Tensor
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
 from .inpaint import FillContext, Inpainter, get_inpainter, to_grid
+from .support import _spacing, extrude_to_support, shell_to_support
 
 
 @dataclass(frozen=True)
@@ -87,13 +86,6 @@ def mirror_cloud(cloud: GaussianCloud, normal: Sequence[float], offset: float) -
     if out.normals is not None:
         out.normals = (cloud.normals.astype(np.float64) @ house).astype(cloud.normals.dtype)
     return out
-
-
-def _spacing(means: np.ndarray) -> float:
-    from scipy.spatial import cKDTree
-
-    d, _ = cKDTree(means).query(means, k=2)
-    return float(np.median(d[:, 1]))
 
 
 def find_mirror(cloud: GaussianCloud, *, up: Optional[Sequence[float]] = None, offsets: int = 21,
@@ -197,124 +189,15 @@ def new_gaussians(cloud: GaussianCloud, mirrored: GaussianCloud, distance: float
     return ~np.isfinite(d)
 
 
-SUPPORT_RADIUS = 3.0
-"""support_height looks for the support among the scene's Gaussians within this many object radii (horizontally)."""
-
-
-def support_height(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, up: Sequence[float], *,
-                   bins: int = 64) -> Optional[float]:
-    """Return the height (along ``up``) of the surface the object stands on, or None when there is none below it.
-
-    The scene's Gaussians within :data:`SUPPORT_RADIUS` object radii of the object's vertical axis and below its
-    lowest point are binned by height; a support (floor, table top) is a dense, level layer, so it is the fullest
-    bin's centre. Where the object stands in a wrap, the support right under it was never seen, but the floor around
-    the wrap was, at the same height.
-
-    Example:
-        >>> rng = np.random.default_rng(0)
-        >>> floor = np.c_[rng.uniform(-2, 2, (2000, 2)), rng.normal(0, 0.005, 2000)]
-        >>> obj = np.c_[rng.normal(0, 0.1, (300, 2)), rng.uniform(0.6, 1.0, 300)]
-        >>> make = lambda p: GaussianCloud.from_activated(p, scales=np.full((len(p), 3), 0.02),
-        ...                                             opacities=np.full(len(p), 0.9), rgb=np.full((len(p), 3), 0.5))
-        >>> abs(support_height(make(obj), make(np.r_[floor, obj]), [0, 0, 1])) < 0.01
-        True
-    """
-    u, h_obj, lowest, height = _vertical_extent(object_cloud, up)
-    obj = object_cloud.means.astype(np.float64)
-    scene = scene_cloud.means.astype(np.float64)
-    h_scene = scene @ u
-    centre = obj.mean(axis=0)
-    flat = lambda p: (p - centre) - np.outer((p - centre) @ u, u)  # noqa: E731
-    radius = float(np.quantile(np.linalg.norm(flat(obj), axis=1), 0.9))
-    # under the object's lowest point by more than 5% of its height: not the object's own lowest Gaussians
-    near = ((np.linalg.norm(flat(scene), axis=1) <= SUPPORT_RADIUS * max(radius, 1e-9))
-            & (h_scene < lowest - 0.05 * height))
-    if near.sum() < 8:
-        return None
-    below = h_scene[near]
-    below = below[below > lowest - 2.0 * max(height, radius)]  # a support, not the bottom of the world
-    if len(below) < 8:
-        return None
-    counts, edges = np.histogram(below, bins=bins)
-    k = int(np.argmax(counts))
-    return float(0.5 * (edges[k] + edges[k + 1]))
-
-
-def extrude_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, *, band: float = 0.1,
-                       step: Optional[float] = None, reach: float = 2.0, mean_colour: bool = True,
-                       cap_scales: bool = True) -> GaussianCloud:
-    """Return copies of the object's lowest band carried straight down to the support (an empty cloud if none).
-
-    A part that every training view had hidden (a bottle in a sleeve, a pot in a box) most often continues the
-    lowest part that was seen: the Gaussians within ``band`` of the object's height above its lowest point (a slab)
-    are copied downwards every ``step`` (default: the slab's thickness, so that the copies tile the gap at the
-    object's own density) until they reach ``support``. Callers drop the
-    copies a training view sees through (``FillContext.seen_empty``): where a view saw empty space under the
-    object, the object does not go on.
-
-    What is below the band was never seen, so the copies are the safest guess rather than the band repeated:
-
-    - the object ends at the surface it stands on: a copy whose Gaussian reaches through it (``reach`` standard
-      deviations along ``up``) is dropped;
-    - ``mean_colour``: the copies take the band's opacity-weighted mean base colour (no view-dependent bands).
-      Under squared error the mean is the best single guess of a colour that was never seen; repeating each band
-      Gaussian repeats its blotches and highlights down the whole hidden part;
-    - ``cap_scales``: no axis of a copy is longer than the median of the object's Gaussians' largest axes, so that
-      one large band Gaussian does not spread its copies beyond the band's outline.
-
-    Measured on the occluded presets before fine-tuning (the selected object with its copies against the true
-    object-alone test views, box PSNR, 16 targets per seed, ``benchmarks/bench_extrusion.py``): seeds 0 / 1, the
-    band repeated as it is 14.75 / 14.19 dB, with the three rules 15.35 / 14.67 dB; full ROODI after fine-tuning
-    14.76 / 14.25 -> 15.48 / 14.71 dB (``benchmarks/RESULTS.md``, "Occluded scenes").
-    """
-    u, h, lowest, height = _vertical_extent(cloud, up)
-    means = cloud.means.astype(np.float64)
-    gap = lowest - float(support)
-    layer = np.flatnonzero(h <= lowest + band * height)
-    if gap <= 0 or height <= 0 or len(layer) == 0:
-        return cloud.select(np.zeros(len(cloud), dtype=bool))
-    step = max(band * height, _spacing(means)) if step is None else float(step)
-    count = int(np.ceil(gap / max(step, 1e-9)))
-    if count > 200:  # a support far below (or a tiny spacing): step so that at most 200 copies are made
-        step, count = gap / 200.0, 200
-    source = cloud.select(layer)
-    if cap_scales:
-        cap = np.median(np.asarray(cloud.log_scales, np.float64).max(axis=1))
-        source = source.with_fields(log_scales=np.minimum(source.log_scales, cap).astype(source.log_scales.dtype))
-    if mean_colour:
-        w = source.opacities.astype(np.float64)
-        w = w / w.sum() if w.sum() > 0 else np.full(len(source), 1.0 / len(source))
-        dc = np.tensordot(w, source.sh_dc.astype(np.float64), axes=1)
-        source = source.with_fields(sh_dc=np.broadcast_to(dc, source.sh_dc.shape).astype(source.sh_dc.dtype).copy(),
-                                    sh_rest=np.zeros_like(source.sh_rest))
-    # every copy of a band Gaussian has its standard deviation along up, sqrt(u^T Sigma u): computed once
-    spread = np.sqrt(np.maximum(np.einsum("i,nij,j->n", u, source.covariances().astype(np.float64), u), 0.0))
-    copies = []
-    for k in range(1, count + 1):
-        c = source.copy()
-        c.means = (c.means.astype(np.float64) - k * step * u).astype(c.means.dtype)
-        copies.append(c.select(c.means.astype(np.float64) @ u - reach * spread >= float(support)))
-    return GaussianCloud.concatenate(copies)
-
-
-def _vertical_extent(cloud: GaussianCloud, up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """Return the unit up axis, the heights of the cloud's centres along it, its lowest point (the 2% quantile:
-    a stray Gaussian is not the bottom) and its height above that point; :func:`support_height` and
-    :func:`extrude_to_support` measure the object alike."""
-    u = np.asarray(up, np.float64)
-    u = u / np.linalg.norm(u)
-    h = cloud.means.astype(np.float64) @ u
-    lowest = float(np.quantile(h, 0.02))
-    return u, h, lowest, float(h.max() - lowest)
-
-
 class SymmetryInpainter(Inpainter):
     """Mirror-symmetry completion rendered into the views, the rest by a 2D inpainter (module docstring).
 
     What it can do: give the never-seen side of a mirror-symmetric object its shape and the colours of the side that
-    was seen, consistently in all views (it is one 3D copy), and propose the Gaussians that make it so. What it
-    cannot do: complete an object that is not mirror-symmetric about a principal plane (then ``min_agreement``
-    usually fails and the 2D fallback fills alone), or the part whose mirror image was not seen either.
+    was seen, and the part hidden all round below the seen part (a wrap, a box, a bowl) a wall that continues the
+    lowest seen outline down to the support, consistently in all views (it is one 3D completion), and propose the
+    Gaussians that make it so. What it cannot do: guess a shape that the seen part does not continue (a round body
+    hidden below its widest part is completed as a straight wall, narrowed only where the scene's other Gaussians
+    bound it; a handle or a foot that no view saw stays missing), or a colour other than the lower seen part's.
 
     Args:
         fallback: the registered 2D inpainter for the pixels the mirror image does not cover, and for calls without
@@ -324,9 +207,12 @@ class SymmetryInpainter(Inpainter):
         propose: propose the mirrored Gaussians farther than ``new_distance`` (times the median spacing of the
             Gaussians) from every original one.
         new_distance: see ``propose``.
-        mirror: complete by mirror symmetry (off: the extrusion alone).
-        extrude: also carry the object's lowest band down to the surface it stands on
-            (:func:`extrude_to_support`, when the context knows ``support``), after the mirror if one agrees.
+        mirror: complete by mirror symmetry (off: the part below alone).
+        extrude: also complete the part below the object's lowest band down to the surface it stands on (when the
+            context knows ``support``), after the mirror if one agrees.
+        wall: the part below as a wall of new Gaussians (:func:`shell_to_support`); off, or where no wall fits: the
+            band's copies (:func:`extrude_to_support`).
+        min_around: no wall when fewer Gaussians than this, a training-view pixel apart, go round the outline.
         fallback_options: options of the fallback inpainter.
     """
 
@@ -335,7 +221,7 @@ class SymmetryInpainter(Inpainter):
 
     def __init__(self, *, fallback: str = "exemplar", min_agreement: float = 0.35, alpha_threshold: float = 0.5,
                  propose: bool = True, new_distance: float = 2.0, mirror: bool = True, extrude: bool = True,
-                 fallback_options: Optional[dict] = None) -> None:
+                 wall: bool = True, min_around: int = 3, fallback_options: Optional[dict] = None) -> None:
         if fallback == self.name:
             raise ConfigError("symmetry inpainter: the fallback must be another inpainter")
         if not 0 <= min_agreement <= 1 or not 0 < alpha_threshold < 1 or new_distance <= 0:
@@ -346,39 +232,57 @@ class SymmetryInpainter(Inpainter):
         self.alpha_threshold = float(alpha_threshold)
         self.propose = bool(propose)
         self.new_distance = float(new_distance)
-        self.mirror, self.extrude = bool(mirror), bool(extrude)
+        self.mirror, self.extrude, self.wall, self.min_around = bool(mirror), bool(extrude), bool(wall), int(min_around)
         self.last_mirror: Optional[Mirror] = None
         self.last_extruded = 0
+        self._completed: Optional[tuple[FillContext, Optional[GaussianCloud]]] = None
+
+    def complete(self, context: FillContext) -> Optional[GaussianCloud]:
+        """Return the completion's Gaussians (mirror image, then the wall or the copies down to the support), less
+        what a training view sees through, or None when nothing applies (no plane agrees well enough and no support
+        is known) or nothing is left. Needs only the context's object, ``up``, ``support`` and ``seen_empty``."""
+        if self._completed is not None and self._completed[0] is context:
+            return self._completed[1]
+        cloud = context.object_cloud
+        result = None
+        self.last_extruded = 0
+        if len(cloud) >= 4:
+            parts = []
+            if self.mirror:
+                plane = find_mirror(cloud, up=context.up)
+                self.last_mirror = plane
+                if plane.agreement >= self.min_agreement:
+                    parts.append(mirror_cloud(cloud, plane.normal, plane.offset))
+            if self.extrude and context.up is not None and context.support is not None:
+                joined = GaussianCloud.concatenate([cloud, *parts])
+                extruded = joined.select(np.zeros(len(joined), dtype=bool))
+                if self.wall:
+                    extruded = shell_to_support(joined, context.up, context.support, min_spacing=context.pixel or 0.0,
+                                                obstacles=context.obstacles, min_around=self.min_around)
+                if not len(extruded):  # no wall (the object a few pixels wide, or no room left round it): copies
+                    extruded = extrude_to_support(joined, context.up, context.support)
+                self.last_extruded = len(extruded)
+                parts.append(extruded)
+            parts = [p for p in parts if len(p)]
+            if parts:
+                result = GaussianCloud.concatenate(parts)
+                if context.seen_empty is not None:
+                    # what a training view sees through is not part of the object, whatever the completion says
+                    result = result.select(~np.asarray(context.seen_empty(result.means.astype(np.float64)), bool))
+                result = result if len(result) else None
+        self._completed = (context, result)
+        return result
 
     def mirror_views(self, context: FillContext) -> Optional[tuple[Tensor, Tensor, GaussianCloud]]:
-        """Return the object with its completion (mirror image, then extrusion to the support) rendered in the
-        context's views (rgb ``[V, H, W, 3]``, alpha ``[V, H, W]``) and the completion's Gaussians, or None when
-        neither applies (no plane agrees well enough and no support is known)."""
+        """Return the object with its completion (:meth:`complete`, or the context's ``completion`` when the
+        refinement made it first) rendered in the context's views (rgb ``[V, H, W, 3]``, alpha ``[V, H, W]``) and
+        the completion's Gaussians, or None when there is no completion."""
         from ..params import GaussianParams
 
-        cloud = context.object_cloud
-        if len(cloud) < 4:
+        mirrored = context.completion if context.completion is not None else self.complete(context)
+        if mirrored is None:
             return None
-        parts = []
-        if self.mirror:
-            plane = find_mirror(cloud, up=context.up)
-            self.last_mirror = plane
-            if plane.agreement >= self.min_agreement:
-                parts.append(mirror_cloud(cloud, plane.normal, plane.offset))
-        self.last_extruded = 0
-        if self.extrude and context.up is not None and context.support is not None:
-            extruded = extrude_to_support(GaussianCloud.concatenate([cloud, *parts]), context.up, context.support)
-            self.last_extruded = len(extruded)
-            parts.append(extruded)
-        parts = [p for p in parts if len(p)]
-        if not parts:
-            return None
-        mirrored = GaussianCloud.concatenate(parts)
-        if context.seen_empty is not None:
-            # what a training view sees through is not part of the object, whatever the mirror says
-            keep = ~np.asarray(context.seen_empty(mirrored.means.astype(np.float64)), dtype=bool)
-            mirrored = mirrored.select(keep)
-        both = GaussianParams.from_cloud(GaussianCloud.concatenate([cloud, mirrored]))
+        both = GaussianParams.from_cloud(GaussianCloud.concatenate([context.object_cloud, mirrored]))
         bg = torch.as_tensor(context.background, dtype=torch.float32)
         rgb, alpha = [], []
         with torch.no_grad():
@@ -390,6 +294,8 @@ class SymmetryInpainter(Inpainter):
 
     def fill(self, images: Tensor, masks: Tensor, prompt: str,  # type: ignore[override]
              context: Optional[FillContext] = None) -> Tensor:
+        from scipy.ndimage import binary_fill_holes
+
         if context is not None:
             context.proposed = None
         views = None
@@ -404,7 +310,13 @@ class SymmetryInpainter(Inpainter):
             grid_rgb = to_grid(rgb, context.rows, context.cols)[None]
             covered = masks & (to_grid(alpha, context.rows, context.cols)[None] >= self.alpha_threshold)
             out = torch.where(covered[..., None], grid_rgb, out)
-            rest = masks & ~covered
+            # the 2D fallback only where the completed object has a hole or the scene hides it: round the
+            # completed silhouette the background stays (exemplar patches there are not the object's)
+            shown = ~masks | covered
+            inside = torch.from_numpy(np.stack([binary_fill_holes(m) for m in shown.numpy()])) & ~shown
+            if context.occlusion is not None:
+                inside |= to_grid(context.occlusion.occluded, context.rows, context.cols)[None]
+            rest = masks & ~covered & inside
             if self.propose:
                 spacing = _spacing(context.object_cloud.means.astype(np.float64))
                 new = new_gaussians(context.object_cloud, mirrored, self.new_distance * spacing)

@@ -196,6 +196,29 @@ class _Clock:
         self._t = now
 
 
+def run_environment(renderer: Renderer) -> dict[str, Any]:
+    """Return what the figures of a run depend on besides its settings: the renderer, PyTorch's and NumPy's versions,
+    PyTorch's intra-op threads and the CPU instruction set its kernels were chosen for, and the processor.
+
+    A different float summation order (more threads, another instruction set or BLAS path, another PyTorch) changes
+    the trained scene a little, and training amplifies it the way a change of seed does (docs/benchmark.md,
+    "Run to run"); a report with these records says which of them differed.
+    """
+    import platform
+
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    return {"renderer": getattr(renderer, "name", "") or type(renderer).__name__, "torch": torch.__version__,
+            "numpy": np.__version__, "threads": torch.get_num_threads(),
+            "cpu_capability": torch.backends.cpu.get_cpu_capability(), "cpu": cpu}
+
+
 def _alone_masks(scene: Any, cameras: list, target_ids: list[int]) -> dict[int, np.ndarray]:
     """Return per target ``[V, H, W]`` True where it covers the views' pixel centres when rendered alone."""
     from .tracer import render_views
@@ -276,9 +299,9 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     """Return the figures of an extraction on a generated scene, after writing the scene, the object and pictures.
 
     Generates the scene into ``out_dir/data``, extracts the target into ``out_dir/extraction`` (train, distil with
-    the scene's own instance masks, select, prune, occlusion-reasoned ``opencv`` inpainting, fine-tune), scores the
-    object before and after refinement against the target's object-alone test views, and writes ``summary.png`` and
-    ``report.json``.
+    the scene's own instance masks, select, prune, occlusion-reasoned inpainting with ``config.extract.inpainter``,
+    fine-tune), scores the object before and after refinement against the target's object-alone test views, and
+    writes ``summary.png`` and ``report.json`` (with :func:`run_environment`).
 
     Args:
         out_dir: the demo's folder; an existing non-empty one is refused unless ``overwrite`` (then everything is
@@ -387,6 +410,6 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
         "cpu_count": os.cpu_count(), "gaussians": gaussians, "scene_heldout_psnr": scene_psnr,
         "summary_views": {"train": dataset.cameras[k].name, "test": vj.name},
         "scene_settings": asdict(settings), "extract_config": asdict(config.extract),
-        "files": {key: str(p) for key, p in paths.items()}}, paths["report"])
+        "environment": run_environment(renderer), "files": {key: str(p) for key, p in paths.items()}}, paths["report"])
     return ExtractDemoResult(out, object_id, name, paths, evaluation, before, clock.wall, clock.cpu, gaussians,
                              hidden_fraction, scene_psnr, seconds, load)
