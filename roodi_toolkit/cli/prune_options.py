@@ -132,10 +132,11 @@ PROGRESS_MIN_GAUSSIANS = 200_000
 
 
 def prune_with_photos(input_path: str, cloud: Any, config: Any, photos_spec: str, photo_views: int,
-                      quiet: bool) -> Any:
+                      quiet: bool, *, select: bool = True) -> Any:
     """Return :func:`~roodi_toolkit.prune.scene.prune_cloud`'s result for ``cloud`` read from ``input_path``, with
     the photo check of ``--photos`` in the local modes (a note on stderr when ``auto`` finds none). Progress bars
-    show for clouds of at least :data:`PROGRESS_MIN_GAUSSIANS`, and always for the photo check."""
+    show for clouds of at least :data:`PROGRESS_MIN_GAUSSIANS`, and always for the photo check. ``select=False``:
+    the result's cloud may be None (the keep mask says what stays)."""
     from roodi_toolkit.cli.common import progress_factory
     from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos
     from roodi_toolkit.prune.scene import prune_cloud
@@ -147,7 +148,8 @@ def prune_with_photos(input_path: str, cloud: Any, config: Any, photos_spec: str
             photos = find_photos(input_path, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
         except PhotosUnavailable as exc:  # only --photos auto: the cloud alone still decides, as without a model
             click.echo(f"note: no photo check ({exc}); judging from the cloud alone", err=True)
-    return prune_cloud(cloud, config, photos=photos, progress=progress_factory(quiet) if photos else progress)
+    return prune_cloud(cloud, config, photos=photos, progress=progress_factory(quiet) if photos else progress,
+                       select=select)
 
 
 def parse_value_ranges(values: tuple[str, ...]) -> tuple[tuple[str, float, float], ...]:

@@ -384,7 +384,8 @@ def choose_mode(config: "PruneConfig", largest_fraction: float) -> tuple[str, st
 
 
 def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, photos: "Photos | None" = None,
-                renderer: Any = None, progress: ProgressFactory = null_progress, **options: Any) -> "PruneResult":
+                renderer: Any = None, progress: ProgressFactory = null_progress, select: bool = True,
+                **options: Any) -> "PruneResult":
     """Return the cloud without floaters in the config's mode, the keep mask ``[N]`` and a report (mode included).
 
     The default (``mode="auto"``) runs the local tests of this module; ``mode="statistical"`` is
@@ -395,6 +396,9 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     the local modes keep every flagged Gaussian whose removal would make the photos worse
     (:mod:`~roodi_toolkit.prune.photos`); ``renderer`` renders them (default: the built-in one). The statistical
     mode ignores them.
+
+    ``select=False`` leaves the result's cloud None in the local modes (the keep mask says what stays): a caller
+    that writes the kept Gaussians itself (``write_cloud(cloud, path, rows=keep)``) saves a copy of the cloud.
 
     Raises:
         CloudError: NaN/Inf values without ``filter_nan``, or nothing left to evaluate.
@@ -473,9 +477,9 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
     report.stages += [(DETACHED, int(detached.sum())), (OVERSIZED, int(oversized.sum())), (FOG, int(fog.sum()))]
     keep[evaluated[detached | oversized | fog]] = False
     t3 = time.perf_counter()
-    out = cloud.select(keep) if not keep.all() else cloud
+    out = None if not select else cloud.select(keep) if not keep.all() else cloud
     report.timings["select"] = time.perf_counter() - t3
-    report.kept_count = len(out)
+    report.kept_count = int(keep.sum())
     report.timings["total"] = time.perf_counter() - t0
     return PruneResult(out, keep, report)
 
