@@ -135,30 +135,13 @@ TORCH_COMMANDS = frozenset({"benchmark", "demo", "distill", "evaluate", "extract
 
 
 def _torch_threads(args: Sequence[str]) -> None:
-    """Set PyTorch's intra-op threads for the torch commands: ``--threads N`` or ``$ROODI_THREADS``, default 1.
+    """Set PyTorch's intra-op threads for the torch commands (:func:`roodi_toolkit.cli.common.set_torch_threads`:
+    ``--threads N`` or ``$ROODI_THREADS``, default 1). ``prune`` and ``inspect`` load PyTorch only for their photo
+    check and set them there."""
+    from roodi_toolkit.cli.common import set_torch_threads
 
-    The renderer's kernels are many small tensor operations; on a 2-core machine that is also running anything else,
-    PyTorch's OpenMP threads spin against each other: a 64x64 training step took 637 ms with 2 threads and 58 ms with
-    1 (benchmarks/RESULTS.md). One thread is the safe default; raise it on an idle many-core machine.
-    """
-    from roodi_toolkit.errors import ConfigError
-
-    if not any(a in TORCH_COMMANDS for a in args):
-        return
-    value = os.environ.get("ROODI_THREADS", "1")
-    try:
-        n = int(value)
-    except ValueError:
-        raise ConfigError(f"ROODI_THREADS / --threads must be a positive integer, got {value!r}") from None
-    # more threads than cores only makes OpenMP spin, and a huge count makes PyTorch allocate per-thread state until
-    # it crashes (--threads 100000 segfaulted): the machine's core count is the bound
-    cores = os.cpu_count() or 1
-    if not 1 <= n <= cores:
-        raise ConfigError(f"ROODI_THREADS / --threads must be an integer from 1 to {cores} (this machine's cores), "
-                          f"got {value!r}")
-    import torch
-
-    torch.set_num_threads(n)
+    if any(a in TORCH_COMMANDS for a in args):
+        set_torch_threads()
 
 
 def _pop_threads(args: list[str]) -> list[str]:
