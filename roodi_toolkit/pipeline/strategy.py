@@ -268,8 +268,8 @@ def inject_position_noise(params: Params, scale: float,
     """Add Gaussian noise to the means, shaped by each covariance and gated by opacity (3DGS-MCMC, Eq. 10).
 
     The noise is ``Sigma_i n_i`` with ``n_i ~ N(0, 1) * gate(o_i) * scale``; the product with each covariance is
-    one compiled pass (:func:`~roodi_toolkit.pipeline.train_kernels.covariance_noise`; :func:`covariance_noise_reference`
-    is the same in torch)."""
+    one compiled pass (:func:`~roodi_toolkit.pipeline.train_kernels.covariance_noise`;
+    :func:`covariance_noise_reference` is the same in torch)."""
     from .train_kernels import covariance_noise
 
     means = params["means"]
