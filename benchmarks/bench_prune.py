@@ -59,9 +59,9 @@ def build(path: Path, size: int, seed: int = 0) -> None:
     write_ply(cloud.with_fields(sh_rest=rest), path)
 
 
-def timed(cmd: list[str]) -> tuple[float, float]:
+def timed(cmd: list[str], env: dict | None = None) -> tuple[float, float]:
     """Return (seconds, peak RSS in GiB) of one subprocess."""
-    out = subprocess.run([sys.executable, "-c", WRAPPER, *cmd], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", WRAPPER, *cmd], capture_output=True, text=True, check=True, env=env)
     seconds, rss_kib, rc = out.stdout.strip().splitlines()[-1].split()
     if int(rc) != 0:
         raise SystemExit(f"command failed ({rc}): {' '.join(cmd)}\n{out.stderr}")
@@ -74,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--ours-only", action="store_true", help="skip Open3D (the 10M memory check)")
     parser.add_argument("--workdir", default=None, help="folder for the PLY files (default: a temporary folder)")
+    parser.add_argument("--reference", default=None,
+                        help="also time the prune command of this source tree (e.g. `git archive COMMIT` unpacked)")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
         tmp = Path(tmp)
@@ -86,10 +88,16 @@ def main(argv: list[str] | None = None) -> int:
         ours_cmd = [exe, "prune", str(src), str(tmp / "ours.ply"), "-q", "--overwrite",
                     "--report", str(tmp / "report.json")]
         o3d_cmd = [sys.executable, "-c", OPEN3D_SCRIPT, str(src), str(tmp / "o3d.ply")]
-        ours, theirs = [], []
+        ref_cmd = [sys.executable, "-m", "roodi_toolkit.cli.main", "prune", str(src), str(tmp / "ref.ply"), "-q",
+                   "--overwrite"]
+        ref_env = None if args.reference is None else dict(os.environ, PYTHONPATH=str(Path(args.reference).resolve()))
+        ours, theirs, reference = [], [], []
         for r in range(args.repeats):
             ours.append(timed(ours_cmd))
             print(f"  run {r + 1}: ours {ours[-1][0]:.2f} s, {ours[-1][1]:.2f} GiB", flush=True)
+            if ref_env is not None:
+                reference.append(timed(ref_cmd, ref_env))
+                print(f"  run {r + 1}: reference {reference[-1][0]:.2f} s, {reference[-1][1]:.2f} GiB", flush=True)
             if not args.ours_only:
                 theirs.append(timed(o3d_cmd))
                 print(f"  run {r + 1}: Open3D {theirs[-1][0]:.2f} s, {theirs[-1][1]:.2f} GiB", flush=True)
@@ -104,7 +112,12 @@ def main(argv: list[str] | None = None) -> int:
             med_o3d = statistics.median(t for t, _ in theirs)
             print(f"Open3D remove_statistical_outlier(nb_neighbors=17): median {med_o3d:.2f} s, peak RSS "
                   f"{max(m for _, m in theirs):.2f} GiB")
-            print(f"ratio ours / Open3D (medians): {med_ours / med_o3d:.2f}x (target <= 1.2x)")
+            print(f"ratio ours / Open3D (medians): {med_ours / med_o3d:.2f}x")
+            if reference:
+                med_ref = statistics.median(t for t, _ in reference)
+                print(f"reference {args.reference}: median {med_ref:.2f} s, ratio to Open3D {med_ref / med_o3d:.2f}x; "
+                      f"ours / reference {med_ours / med_ref:.2f}x")
+        print(f"load average {os.getloadavg()[0]:.1f} (1 min) at the end")
     return 0
 
 

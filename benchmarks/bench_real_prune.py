@@ -15,7 +15,11 @@ transparent; the figures below were measured so, on PLY decodes made with ``rood
     # larger real scenes: copies of the biker side by side (x shifted by 1.2x its width)
     .venv/bin/python benchmarks/bench_real_prune.py tile /tmp/biker.ply /tmp/biker_x4.ply --copies 4
     # whole command (read, decide, write) against plyfile + Open3D remove_statistical_outlier(16, 2.0) + write
+    # (--reference DIR: also the command of another source tree, alternated with the two)
     .venv/bin/python benchmarks/bench_real_prune.py speed /tmp/biker.ply /tmp/biker_x4.ply --repeats 3
+    # the photo check: prune of a trained model's PLY (it finds its photos), against another source tree
+    .venv/bin/python benchmarks/bench_real_prune.py photos MODEL/point_cloud/iteration_3000/point_cloud.ply \\
+        --reference /tmp/base --repeats 3
 """
 
 from __future__ import annotations
@@ -183,26 +187,103 @@ def _truth_on_white(read_image, data: str, cam) -> np.ndarray:
     return torch.nn.functional.interpolate(t, size=(cam.height, cam.width), mode="area")[0].numpy().transpose(1, 2, 0)
 
 
-def speed(paths: list[str], repeats: int) -> list[dict]:
-    """Median wall time of the whole default prune command and of the Open3D SOR script, alternated per file."""
+def speed(paths: list[str], repeats: int, reference: str | None = None) -> list[dict]:
+    """Median wall and CPU time of the whole default prune command and of the Open3D SOR script, alternated per file
+    (and of the prune command of another source tree, ``reference``, when given: e.g. an export of an earlier
+    commit). CPU time is the child's user + system time (all threads): on a shared machine it moves less than the
+    wall time."""
+    import os
+    import resource
+
     from roodi_toolkit.io.ply import write_ply
+
+    def run(cmd: list[str], env: dict | None = None) -> tuple[float, float]:
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t = time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True, env=env)
+        wall = time.perf_counter() - t
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for path in paths:
             src = Path(tmp) / "in.ply"
             write_ply(load_real(path), src)  # finite opacities, so both read the same finite file
-            ours, o3d = [], []
+            prune = [sys.executable, "-m", "roodi_toolkit.cli.main", "prune", str(src), str(Path(tmp) / "ours.ply"),
+                     "-q", "--overwrite"]
+            commands = {"ours": (prune, None),
+                        "open3d_sor": ([sys.executable, "-c", OPEN3D_SOR, str(src), str(Path(tmp) / "o3d.ply")], None)}
+            if reference:
+                env = dict(os.environ, PYTHONPATH=str(Path(reference).resolve()))
+                commands["reference"] = (prune[:-3] + [str(Path(tmp) / "ref.ply"), "-q", "--overwrite"], env)
+            times: dict[str, list[tuple[float, float]]] = {k: [] for k in commands}
             for _ in range(repeats):
-                for cmd, times in (([str(Path(sys.executable).parent / "roodi-toolkit"), "prune", str(src),
-                                     str(Path(tmp) / "ours.ply"), "-q", "--overwrite"], ours),
-                                   ([sys.executable, "-c", OPEN3D_SOR, str(src), str(Path(tmp) / "o3d.ply")], o3d)):
-                    t = time.perf_counter()
-                    subprocess.run(cmd, check=True, capture_output=True)
-                    times.append(time.perf_counter() - t)
-            row = {"file": path, "gaussians": _count(src), "ours_s": round(statistics.median(ours), 2),
-                   "open3d_sor_s": round(statistics.median(o3d), 2),
-                   "ratio": round(statistics.median(ours) / statistics.median(o3d), 2)}
+                for name, (cmd, env) in commands.items():
+                    times[name].append(run(cmd, env))
+            med = {k: (statistics.median(t[0] for t in v), statistics.median(t[1] for t in v))
+                   for k, v in times.items()}
+            row = {"file": path, "gaussians": _count(src)}
+            for name, (wall, cpu) in med.items():
+                row[f"{name}_s"], row[f"{name}_cpu_s"] = round(wall, 2), round(cpu, 2)
+            row["ratio"] = round(med["ours"][0] / med["open3d_sor"][0], 2)
+            row["cpu_ratio"] = round(med["ours"][1] / med["open3d_sor"][1], 2)
+            if reference:
+                row["ratio_reference"] = round(med["reference"][0] / med["open3d_sor"][0], 2)
+                row["ours_vs_reference"] = round(med["ours"][0] / med["reference"][0], 2)
+                if (Path(tmp) / "ref.ply").read_bytes() != (Path(tmp) / "ours.ply").read_bytes():
+                    row["outputs"] = "DIFFERENT"
+            row["load_average"] = round(os.getloadavg()[0], 1)
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    return rows
+
+
+def photos_speed(models: list[str], repeats: int, reference: str | None = None) -> list[dict]:
+    """Median wall and CPU time of ``prune MODEL.ply OUT.ply`` with its photo check (the PLY in its model folder,
+    whose ``cfg.json`` names the training photos), alternated with the same command of ``reference`` (another source
+    tree) when given; the outputs must be the same bytes (the same keep decisions)."""
+    import os
+    import resource
+
+    def run(cmd: list[str], env: dict | None) -> tuple[float, float, float]:
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t = time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True, env=env)
+        wall = time.perf_counter() - t
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        report = json.loads(Path(cmd[cmd.index("--report") + 1]).read_text())
+        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        return wall, cpu, report["timings_s"].get("photo_check", 0.0)
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for model in models:
+            commands = {}
+            for name, tree in (("ours", None), ("reference", reference)):
+                if name == "reference" and not tree:
+                    continue
+                out, rep = Path(tmp) / f"{name}.ply", Path(tmp) / f"{name}.json"
+                env = None if tree is None else dict(os.environ, PYTHONPATH=str(Path(tree).resolve()))
+                commands[name] = ([sys.executable, "-m", "roodi_toolkit.cli.main", "prune", model, str(out), "-q",
+                                   "--overwrite", "--report", str(rep)], env)
+            times: dict[str, list[tuple[float, float, float]]] = {k: [] for k in commands}
+            for _ in range(repeats):
+                for name, (cmd, env) in commands.items():
+                    times[name].append(run(cmd, env))
+            row = {"model": model}
+            for name, values in times.items():
+                for i, key in enumerate(("s", "cpu_s", "photo_check_s")):
+                    row[f"{name}_{key}"] = round(statistics.median(v[i] for v in values), 2)
+            report = json.loads((Path(tmp) / "ours.json").read_text())
+            row["removed"] = {stage["stage"]: stage["removed"] for stage in report["stages"] if stage["removed"]}
+            row["photo_views"] = report["statistics"].get("photo_views")
+            if reference:
+                row["ours_vs_reference"] = round(row["ours_s"] / row["reference_s"], 2)
+                row["cpu_ours_vs_reference"] = round(row["ours_cpu_s"] / row["reference_cpu_s"], 2)
+                row["outputs"] = ("identical" if (Path(tmp) / "ours.ply").read_bytes()
+                                  == (Path(tmp) / "reference.ply").read_bytes() else "DIFFERENT")
+            row["load_average"] = round(os.getloadavg()[0], 1)
             print(json.dumps(row), flush=True)
             rows.append(row)
     return rows
@@ -248,6 +329,12 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("speed")
     p.add_argument("files", nargs="+")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--reference", default=None,
+                   help="also time the prune command of this source tree (e.g. `git archive COMMIT` unpacked)")
+    q = sub.add_parser("photos")
+    q.add_argument("models", nargs="+", help="PLYs inside their model folders (MODEL/point_cloud/iteration_N/...)")
+    q.add_argument("--repeats", type=int, default=3)
+    q.add_argument("--reference", default=None, help="also time the prune command of this source tree")
     t = sub.add_parser("tile")
     t.add_argument("file")
     t.add_argument("out")
@@ -260,10 +347,12 @@ def main(argv: list[str] | None = None) -> int:
         seeds(args.files, [int(x) for x in args.seeds.split(",")], **options)
     elif args.what == "fog":
         fog(args.model, args.data, args.every, args.downscale, args.photos)
+    elif args.what == "photos":
+        photos_speed(args.models, args.repeats, args.reference)
     elif args.what == "tile":
         tile(args.file, args.out, args.copies)
     else:
-        speed(args.files, args.repeats)
+        speed(args.files, args.repeats, args.reference)
     return 0
 
 

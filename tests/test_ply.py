@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
-from roodi_toolkit import PlyError, ply_info, read_ply, write_ply
+from roodi_toolkit import GaussianCloud, PlyError, ply_info, read_ply, write_ply
 from roodi_toolkit.io.ply import CHUNK_ROWS, detect_variant
 
 from .conftest import make_cloud
@@ -305,3 +305,29 @@ def test_fuzz_reader_never_crashes(tmp_path_factory, data):
         assert "\n" not in str(exc)
     else:
         assert len(cloud) > 0
+
+
+@pytest.mark.parametrize("with_normals", [False, True])
+def test_writing_selected_rows_gives_the_bytes_of_the_selected_cloud(tmp_path, monkeypatch, with_normals):
+    """write_ply(rows=...) gathers the rows while writing: the same file as writing cloud.select(rows), over several
+    chunks, with extras, normals or none, float64 fields, for a mask and an index."""
+    import roodi_toolkit.io.ply as ply_module
+
+    monkeypatch.setattr(ply_module, "CHUNK_ROWS", 7)
+    rng = np.random.default_rng(4)
+    n = 50
+    cloud = GaussianCloud(rng.standard_normal((n, 3)), rng.standard_normal((n, 4)).astype(np.float32),
+                          rng.standard_normal((n, 3)).astype(np.float32), rng.standard_normal(n).astype(np.float32),
+                          rng.standard_normal((n, 3)).astype(np.float32),
+                          rng.standard_normal((n, 8, 3)).astype(np.float32),
+                          {"label": rng.integers(0, 9, n).astype(np.int32)},
+                          rng.standard_normal((n, 3)).astype(np.float32) if with_normals else None)
+    mask = rng.random(n) < 0.6
+    for rows in (mask, np.flatnonzero(mask)[::-1].copy()):
+        write_ply(cloud.select(rows), tmp_path / "selected.ply")
+        write_ply(cloud, tmp_path / "rows.ply", rows=rows)
+        assert (tmp_path / "rows.ply").read_bytes() == (tmp_path / "selected.ply").read_bytes()
+    with pytest.raises(PlyError, match="row mask"):
+        write_ply(cloud, tmp_path / "bad.ply", rows=mask[:-1])
+    with pytest.raises(PlyError, match="no Gaussians"):
+        write_ply(cloud, tmp_path / "none.ply", rows=np.zeros(n, dtype=bool))

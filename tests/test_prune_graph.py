@@ -62,8 +62,8 @@ def test_neighbour_graph_without_pykdtree_says_what_to_install(monkeypatch):
         neighbour_graph(np.zeros((10, 3), dtype=np.float32), 3)
 
 
-@pytest.mark.parametrize("k", [2, 4, 9])
-def test_components_in_two_passes_equal_one_pass(k):
+@pytest.mark.parametrize("k", [2, 4, 9, 16])
+def test_components_in_two_passes_equal_scipys_one_pass(k):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -83,6 +83,25 @@ def test_components_in_two_passes_equal_one_pass(k):
     pairs = np.unique(np.stack([label, ref], 1), axis=0)
     assert len(pairs) == count
     np.testing.assert_array_equal(np.sort(sizes), np.sort(np.bincount(ref)))
+
+
+def test_union_find_on_long_chains_and_stars():
+    """The hooking rounds end on the graphs that need the most of them: a path numbered against its direction, a
+    path in random order, a star, and no links at all."""
+    from roodi_toolkit.prune.scene import _union_find
+
+    n = 5000
+    rng = np.random.default_rng(0)
+    path = np.arange(n)[::-1]
+    shuffled = rng.permutation(n)
+    for order in (path, shuffled):
+        f = _union_find(order[:-1], order[1:], n)
+        assert (f == 0).all()
+    star = _union_find(np.full(n - 1, n - 1), np.arange(n - 1), n)
+    assert (star == 0).all()
+    two = _union_find(np.array([3, 1]), np.array([4, 2]), 6)
+    assert two.tolist() == [0, 1, 1, 3, 3, 5]
+    assert _union_find(np.zeros(0, int), np.zeros(0, int), 4).tolist() == [0, 1, 2, 3]
 
 
 def test_object_mode_keeps_the_first_of_two_equal_pieces():

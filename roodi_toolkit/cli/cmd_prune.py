@@ -100,14 +100,15 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     t_read = time.perf_counter()
     cloud = read_cloud(input_ply)
     read_s = time.perf_counter() - t_read
-    pruned, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet)
+    # the kept Gaussians are gathered while writing (no copy of the pruned cloud first)
+    _, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet, select=False)
 
     t_write = time.perf_counter()
     up_axis = None
     if dry_run:
         up_axis = write_floater_picture(input_ply, cloud, keep, report, picture, quiet, up=up)
     else:
-        write_cloud(pruned, output_ply)
+        write_cloud(cloud, output_ply, rows=None if keep.all() else keep)
     floaters_written = floaters_out is not None and not keep.all()
     if floaters_written:
         write_cloud(cloud.select(~keep), floaters_out)

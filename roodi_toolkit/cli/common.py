@@ -32,6 +32,42 @@ quiet_option = click.option("-q", "--quiet", is_flag=True, callback=_quiet,
                             help="No progress bars (also before the command: roodi-toolkit -q COMMAND ...).")
 
 
+def threads_setting() -> int:
+    """Return ``--threads N`` / ``$ROODI_THREADS`` (default 1), checked against the machine's cores.
+
+    The renderer's kernels are many small tensor operations; on a 2-core machine that is also running anything else,
+    PyTorch's OpenMP threads spin against each other: a 64x64 training step took 637 ms with 2 threads and 58 ms with
+    1 (benchmarks/RESULTS.md). One thread is the safe default; raise it on an idle many-core machine.
+
+    Raises:
+        ConfigError: the value is not an integer from 1 to the machine's core count.
+    """
+    import os
+
+    from roodi_toolkit.errors import ConfigError
+
+    value = os.environ.get("ROODI_THREADS", "1")
+    try:
+        n = int(value)
+    except ValueError:
+        raise ConfigError(f"ROODI_THREADS / --threads must be a positive integer, got {value!r}") from None
+    # more threads than cores only makes OpenMP spin, and a huge count makes PyTorch allocate per-thread state until
+    # it crashes (--threads 100000 segfaulted): the machine's core count is the bound
+    cores = os.cpu_count() or 1
+    if not 1 <= n <= cores:
+        raise ConfigError(f"ROODI_THREADS / --threads must be an integer from 1 to {cores} (this machine's cores), "
+                          f"got {value!r}")
+    return n
+
+
+def set_torch_threads() -> None:
+    """Give PyTorch the threads of :func:`threads_setting` (imports PyTorch)."""
+    n = threads_setting()
+    import torch
+
+    torch.set_num_threads(n)
+
+
 def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:
     """Parse 'a,b,c' into n floats or raise a click.BadParameter naming the option."""
     parts = [p for p in text.replace(" ", "").split(",") if p]

@@ -173,52 +173,20 @@ def _forget_claims() -> None:
 
 # Commands whose work is PyTorch (rendering, training, fine-tuning): they run with ROODI_THREADS intra-op threads.
 TORCH_COMMANDS = frozenset({"benchmark", "demo", "distill", "evaluate", "extract", "render", "select", "train"})
-
-
-def _torch_threads(args: Sequence[str]) -> None:
-    """Set PyTorch's intra-op threads for the torch commands: ``--threads N`` or ``$ROODI_THREADS``, default 1.
-
-    The renderer's kernels are many small tensor operations; on a 2-core machine that is also running anything else,
-    PyTorch's OpenMP threads spin against each other: a 64x64 training step took 637 ms with 2 threads and 58 ms with
-    1 (benchmarks/RESULTS.md). One thread is the safe default; raise it on an idle many-core machine. ``prune`` and
-    ``inspect`` load PyTorch only to render (the photo check, the floater picture): they call
-    :func:`set_torch_threads` then, and the value is checked here first.
-    """
-    if not any(a in TORCH_COMMANDS or a in LAZY_TORCH_COMMANDS for a in args):
-        return
-    n = _threads_setting()
-    if any(a in TORCH_COMMANDS for a in args):
-        import torch
-
-        torch.set_num_threads(n)
-
-
+# Commands that load PyTorch only to render (the photo check, the floater picture): they set the threads then.
 LAZY_TORCH_COMMANDS = frozenset({"prune", "inspect"})
 
 
-def _threads_setting() -> int:
-    """Return ``$ROODI_THREADS`` (``--threads`` goes there), default 1, checked against the machine's cores."""
-    from roodi_toolkit.errors import ConfigError
+def _torch_threads(args: Sequence[str]) -> None:
+    """Set PyTorch's intra-op threads for the torch commands (:func:`roodi_toolkit.cli.common.set_torch_threads`:
+    ``--threads N`` or ``$ROODI_THREADS``, default 1). ``prune`` and ``inspect`` load PyTorch only to render and
+    set them there; the value is checked here first."""
+    from roodi_toolkit.cli.common import set_torch_threads, threads_setting
 
-    value = os.environ.get("ROODI_THREADS", "1")
-    try:
-        n = int(value)
-    except ValueError:
-        raise ConfigError(f"ROODI_THREADS / --threads must be a positive integer, got {value!r}") from None
-    # more threads than cores only makes OpenMP spin, and a huge count makes PyTorch allocate per-thread state until
-    # it crashes (--threads 100000 segfaulted): the machine's core count is the bound
-    cores = os.cpu_count() or 1
-    if not 1 <= n <= cores:
-        raise ConfigError(f"ROODI_THREADS / --threads must be an integer from 1 to {cores} (this machine's cores), "
-                          f"got {value!r}")
-    return n
-
-
-def set_torch_threads() -> None:
-    """Give PyTorch the threads of ``--threads`` / ``$ROODI_THREADS`` (default 1): for commands that load it late."""
-    import torch
-
-    torch.set_num_threads(_threads_setting())
+    if any(a in LAZY_TORCH_COMMANDS for a in args):
+        threads_setting()  # they load PyTorch only to render: a bad value is still refused before any work
+    if any(a in TORCH_COMMANDS for a in args):
+        set_torch_threads()
 
 
 def _pop_threads(args: list[str]) -> list[str]:

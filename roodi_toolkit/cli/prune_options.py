@@ -132,26 +132,29 @@ PROGRESS_MIN_GAUSSIANS = 200_000
 
 
 def prune_with_photos(input_path: str, cloud: Any, config: Any, photos_spec: str, photo_views: int,
-                      quiet: bool) -> Any:
+                      quiet: bool, *, select: bool = True) -> Any:
     """Return :func:`~roodi_toolkit.prune.scene.prune_cloud`'s result for ``cloud`` read from ``input_path``, with
     the photo check of ``--photos`` in the local modes (a note on stderr when ``auto`` finds none). Progress bars
-    show for clouds of at least :data:`PROGRESS_MIN_GAUSSIANS`, and always for the photo check."""
-    from roodi_toolkit.cli.common import progress_factory
-    from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos
+    show for clouds of at least :data:`PROGRESS_MIN_GAUSSIANS`, and always for the photo check. ``select=False``:
+    the result's cloud may be None (the keep mask says what stays)."""
+    from roodi_toolkit.cli.common import progress_factory, set_torch_threads
+    from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos, photo_folders
     from roodi_toolkit.prune.scene import prune_cloud
 
     progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
     photos = None
     if config.mode != "statistical":
+        if photo_folders(input_path, photos_spec):
+            # the photo check is PyTorch work (loading and rendering the photos): on one thread unless --threads
+            # says otherwise, as in every torch command (PyTorch's default of 2 OpenMP threads spin on a busy
+            # machine: benchmarks/RESULTS.md, issue 33); a lone PLY never loads PyTorch
+            set_torch_threads()
         try:
             photos = find_photos(input_path, photos_spec, max_views=photo_views, progress=progress_factory(quiet))
         except PhotosUnavailable as exc:  # only --photos auto: the cloud alone still decides, as without a model
             click.echo(f"note: no photo check ({exc}); judging from the cloud alone", err=True)
-    if photos is not None:
-        from roodi_toolkit.cli.main import set_torch_threads
-
-        set_torch_threads()  # the photo check renders
-    return prune_cloud(cloud, config, photos=photos, progress=progress_factory(quiet) if photos else progress)
+    return prune_cloud(cloud, config, photos=photos, progress=progress_factory(quiet) if photos else progress,
+                       select=select)
 
 
 def parse_value_ranges(values: tuple[str, ...]) -> tuple[tuple[str, float, float], ...]:
@@ -235,7 +238,7 @@ def write_floater_picture(input_path: str, cloud: Any, keep: Any, report: Any, p
     from roodi_toolkit.render.upright import resolve_up
     from roodi_toolkit.viz.floaters import floater_picture
 
-    from roodi_toolkit.cli.main import set_torch_threads
+    from roodi_toolkit.cli.common import set_torch_threads
 
     set_torch_threads()  # the before/after renders
     axis = resolve_up(up, input_path, cloud.means)

@@ -424,24 +424,38 @@ def _ply_type(dtype: np.dtype, name: str) -> str:
     return code
 
 
-def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[str] | tuple[str, ...] = ()) -> Path:
+def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[str] | tuple[str, ...] = (),
+              rows: np.ndarray | None = None) -> Path:
     """Write a cloud as a binary little-endian 3DGS PLY in the Inria order, atomically; return the path.
 
     The order is ``x y z nx ny nz f_dc_0..2 f_rest_0..M-1 opacity scale_0..2 rot_0..3`` (f_rest channel-major),
     then the extra columns in their order. Normals are zero when the cloud has none. float64 fields are written as
     ``double``; everything else as ``float`` except extras, which keep their dtype.
+
+    ``rows`` (a boolean mask ``[N]`` or an integer index) writes only those Gaussians, in that order: the same bytes
+    as ``write_ply(cloud.select(rows), path)`` without the copy of the selected cloud (each chunk of records is
+    gathered straight from the columns; the prune writes its kept Gaussians so).
     """
     cloud.validate()
-    n = len(cloud)
+    if rows is not None:
+        rows = np.asarray(rows)
+        if rows.dtype == np.bool_:
+            if rows.shape != (len(cloud),):
+                raise PlyError(f"{path}: the row mask has shape {list(rows.shape)}, not [{len(cloud)}]")
+            rows = np.flatnonzero(rows)
+        elif rows.dtype.kind not in "iu" or (rows.size and (rows.min() < 0 or rows.max() >= len(cloud))):
+            raise PlyError(f"{path}: rows must be a boolean mask or indices within the {len(cloud)} Gaussians")
+    n = len(cloud) if rows is None else len(rows)
     if n == 0:
         raise PlyError(f"{path}: refusing to write a cloud with no Gaussians")
     rest = cloud.sh_rest
     per_channel = rest.shape[1]
-    fields: list[tuple[str, np.ndarray]] = []
+    fields: list[tuple[str, np.ndarray | None]] = []
 
-    normals = cloud.normals if cloud.normals is not None else np.zeros((n, 3), dtype=np.float32)
+    # no normals: their fields stay as the zero-filled buffer has them (nothing copied)
+    normals = cloud.normals
     for names, arr in ((["x", "y", "z"], cloud.means), (_NORMALS, normals), (_DC, cloud.sh_dc)):
-        fields.extend((name, arr[:, i]) for i, name in enumerate(names))
+        fields.extend((name, None if arr is None else arr[:, i]) for i, name in enumerate(names))
     # channel-major on disk: f_rest_i is coefficient i % per_channel of channel i // per_channel (views, no copy)
     fields.extend((f"f_rest_{i}", rest[:, i % per_channel, i // per_channel]) for i in range(3 * per_channel))
     fields.append(("opacity", cloud.opacity_logits))
@@ -460,7 +474,7 @@ def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[s
         if name in cloud.extras and name not in reserved:
             codes.append(_ply_type(col.dtype, name))
         else:
-            codes.append("f8" if col.dtype == np.float64 else "f4")
+            codes.append("f8" if col is not None and col.dtype == np.float64 else "f4")
     dtype = np.dtype([(name, "<" + code) for (name, _), code in zip(fields, codes)])
     lines = ["ply", "format binary_little_endian 1.0"]
     lines += [f"comment {c}" for c in comments]
@@ -468,14 +482,16 @@ def write_ply(cloud: GaussianCloud, path: str | os.PathLike, *, comments: list[s
     lines += [f"property {_TYPE_NAMES[code]} {name}" for (name, _), code in zip(fields, codes)]
     lines.append("end_header")
     header = ("\n".join(lines) + "\n").encode("ascii")
+    copied = [(name, col) for name, col in fields if col is not None]
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(header)
-            buffer = np.empty(min(n, CHUNK_ROWS), dtype=dtype)  # reused: it stays in the cache (CHUNK_ROWS)
+            buffer = np.zeros(min(n, CHUNK_ROWS), dtype=dtype)  # reused: it stays in the cache (CHUNK_ROWS)
             for start in range(0, n, CHUNK_ROWS):
                 stop = min(n, start + CHUNK_ROWS)
                 chunk = buffer[:stop - start]
-                for name, col in fields:
-                    chunk[name] = col[start:stop]
+                pick = slice(start, stop) if rows is None else rows[start:stop]
+                for name, col in copied:
+                    chunk[name] = col[pick]
                 f.write(chunk.view(np.uint8))  # the buffer itself, no bytes copy
     return Path(path)

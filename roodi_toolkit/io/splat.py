@@ -263,22 +263,28 @@ def output_format(path: str | os.PathLike) -> str:
     raise _fail(path, "cannot write this format; give an output ending in .ply, .compressed.ply or .spz")
 
 
-def write_cloud(cloud: GaussianCloud, path: str | os.PathLike, *, comments: tuple[str, ...] = ()) -> Path:
+def write_cloud(cloud: GaussianCloud, path: str | os.PathLike, *, comments: tuple[str, ...] = (),
+                rows: np.ndarray | None = None) -> Path:
     """Write ``cloud`` atomically in the format its extension names (.ply, .compressed.ply, .spz); return the path.
 
-    The quantised formats cannot hold NaN/Inf values: such rows are refused with a one-line error (drop them first,
-    e.g. ``cloud.select(~cloud.nonfinite_rows())``).
+    ``rows`` (a boolean mask ``[N]`` or an integer index) writes only those Gaussians, as ``cloud.select(rows)``
+    would (a PLY gathers them while writing, without that copy). The quantised formats cannot hold NaN/Inf values:
+    such rows are refused with a one-line error (drop them first, e.g. ``cloud.select(~cloud.nonfinite_rows())``).
 
     Raises:
         FormatError: unknown extension, an empty cloud, or non-finite values in a quantised format.
     """
     fmt = output_format(path)
-    if len(cloud) == 0:
+    picked = None if rows is None else np.asarray(rows)
+    count = len(cloud) if picked is None else int(picked.sum()) if picked.dtype == np.bool_ else len(picked)
+    if count == 0:
         raise _fail(path, "refusing to write a cloud with no Gaussians")
     if fmt == "ply":
         from .ply import write_ply
 
-        return write_ply(cloud, path, comments=comments)
+        return write_ply(cloud, path, comments=comments, rows=rows)
+    if rows is not None:
+        cloud = cloud.select(rows)
     cloud, _, _ = finite_opacity(cloud)
     bad = cloud.nonfinite_rows()
     if bad.any():

@@ -265,11 +265,23 @@ def noise_gate(opacities: Tensor, k: float = 100.0, x0: float = 0.995) -> Tensor
 @torch.no_grad()
 def inject_position_noise(params: Params, scale: float,
                           generator: torch.Generator | None = None) -> None:
-    """Add Gaussian noise to the means, shaped by each covariance and gated by opacity (3DGS-MCMC, Eq. 10)."""
+    """Add Gaussian noise to the means, shaped by each covariance and gated by opacity (3DGS-MCMC, Eq. 10).
+
+    The noise is ``Sigma_i n_i`` with ``n_i ~ N(0, 1) * gate(o_i) * scale``; the product with each covariance is
+    one compiled pass (:func:`~roodi_toolkit.pipeline.train_kernels.covariance_noise`;
+    :func:`covariance_noise_reference` is the same in torch)."""
+    from .train_kernels import covariance_noise
+
     means = params["means"]
     opac = torch.sigmoid(params["opacity_logits"])
-    R = quaternion_to_rotation_matrix(params["quats_wxyz"])  # [N, 3, 3], w,x,y,z, normalised inside
-    s2 = torch.exp(2.0 * params["log_scales"])
-    covars = R @ torch.diag_embed(s2) @ R.transpose(1, 2)
     noise = torch.randn(means.shape, generator=generator, dtype=means.dtype) * noise_gate(opac)[:, None] * scale
-    means.add_(torch.einsum("nij,nj->ni", covars, noise))
+    means.add_(covariance_noise(params["quats_wxyz"], params["log_scales"], noise))
+
+
+def covariance_noise_reference(quats_wxyz: Tensor, log_scales: Tensor, vectors: Tensor) -> Tensor:
+    """Return ``R diag(s^2) R^T v`` ``[N, 3]`` with the ``[N, 3, 3]`` covariances built in torch (the plain version of
+    :func:`~roodi_toolkit.pipeline.train_kernels.covariance_noise`, which the tests compare with it)."""
+    R = quaternion_to_rotation_matrix(quats_wxyz)  # [N, 3, 3], w,x,y,z, normalised inside
+    s2 = torch.exp(2.0 * log_scales)
+    covars = R @ torch.diag_embed(s2) @ R.transpose(1, 2)
+    return torch.einsum("nij,nj->ni", covars, vectors)

@@ -32,6 +32,7 @@ from ..progress import ProgressFactory, null_progress
 from ..params import PARAM_NAMES, GaussianParams
 from ..render.renderer import Renderer, RenderOutput, resolve_renderer
 from .strategy import MCMCStrategy, MCMCState
+from .train_kernels import ssim as ssim_loss
 
 CHECKPOINT_VERSION = 2
 """Version 2: parameters under GaussianParams' names (``log_scales``, ``opacity_logits``, ``sh_dc [N, 3]``)."""
@@ -194,11 +195,13 @@ class Trainer:
         points = lo + u * (hi - lo)
         return points, projected_colors(points, ds, self.train_indices)
 
-    def _make_optimizers(self) -> None:
+    def _make_optimizers(self, fused: bool = True) -> None:
         cfg = self.config
         lrs = {"means": cfg.means_lr * self.scale, "quats_wxyz": cfg.quats_lr, "log_scales": cfg.scales_lr,
                "opacity_logits": cfg.opacities_lr, "sh_dc": cfg.sh0_lr, "sh_rest": cfg.shN_lr}
-        self.optimizers = {name: torch.optim.Adam([self.params[name]], lr=lrs[name], eps=1e-15)
+        # fused: one compiled pass per parameter instead of about ten tensor operations, the same update to float
+        # rounding (fused=False is the reference that tests/test_train_kernels.py and bench_train_step.py compare)
+        self.optimizers = {name: torch.optim.Adam([self.params[name]], lr=lrs[name], eps=1e-15, fused=fused)
                            for name in PARAM_NAMES}
         gamma = cfg.means_lr_final ** (1.0 / max(cfg.iterations, 1))
         self.scheduler = torch.optim.lr_scheduler.ExponentialLR(self.optimizers["means"], gamma=gamma)
@@ -239,7 +242,7 @@ class Trainer:
             weight = self.dataset.valid[view][..., None]
             rgb, gt = rgb * weight, gt * weight
         l1 = torch.abs(rgb - gt).mean()
-        ssim = ssim_value(rgb, gt, cfg.ssim_window)
+        ssim = ssim_loss(rgb, gt, cfg.ssim_window)  # kornia's SSIM, compiled with its backward
         loss = (1 - cfg.ssim_lambda) * l1 + cfg.ssim_lambda * (1 - ssim) + self.strategy.regularization(self.params)
         extra = self._extra_loss(out, view)
         if extra is not None:

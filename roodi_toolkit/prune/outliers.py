@@ -260,9 +260,11 @@ class PruneReport:
 
 
 class PruneResult(NamedTuple):
-    """The pruned cloud, the keep mask ``[N]`` over the input, and the report (unpacks like Open3D's filters)."""
+    """The pruned cloud, the keep mask ``[N]`` over the input, and the report (unpacks like Open3D's filters). The
+    cloud is None where the caller asked for the mask only (:func:`~roodi_toolkit.prune.scene.prune_cloud`'s
+    ``select``)."""
 
-    cloud: GaussianCloud
+    cloud: GaussianCloud | None
     keep_mask: np.ndarray
     report: PruneReport
 
