@@ -42,8 +42,8 @@ from ..cameras import Camera, opengl_c2w_to_w2c
 from ..errors import DatasetError, InputWarning, RoodiError
 from ..progress import ProgressFactory, null_progress
 from .dataset import (LLFF_HOLD, SPLITS, Dataset, _check_background, _check_downscale, _crop_camera,
-                      _downscaled_size, _image_size, _plan_crop, _read_dataset_image, _source_pixels, _ViewStack,
-                      estimate_bounds)
+                      _downscaled_size, _image_size, _plan_crop, _source_pixels, _ViewStack, estimate_bounds)
+from .photos import _read_dataset_image
 
 __all__ = ["NERFSTUDIO_FILE", "NERFSTUDIO_CAMERA_MODELS", "is_nerfstudio_file", "load_nerfstudio",
            "load_nerfstudio_cameras"]
