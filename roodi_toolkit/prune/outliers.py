@@ -579,8 +579,7 @@ def remove_statistical_outliers(cloud: GaussianCloud, config: PruneConfig | None
     n = len(cloud)
     report, keep, evaluated = filtered_report(cloud, config)
     if evaluated.size == 0:
-        raise CloudError("no Gaussians left after the filters; loosen --min-opacity, --filter-box or "
-                         "--filter-sphere")
+        raise CloudError("no Gaussians left after the filters; loosen --min-opacity, --filter-box or --filter-sphere")
     sub = cloud.select(evaluated) if evaluated.size < n else cloud
     t1 = time.perf_counter()
     dist = NeighborDistances(sub, config, progress=progress)
