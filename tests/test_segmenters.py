@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
+from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.io.files import write_image
 from roodi_toolkit.render.renderer import render_cloud
 from roodi_toolkit.imaging import mask_iou
@@ -284,3 +285,48 @@ def test_click_votes_on_a_few_views_and_renders_every_view(scene):
     ref = [mask_iou(every.masks[i] == 1, ds.masks[i] == 1) for i in range(len(ds))]
     assert all(few.masks[i].any() for i in range(len(ds)) if ds.masks[i].eq(1).any())
     assert np.mean(ious) > np.mean(ref) - 0.05
+
+
+def _robot_scene():
+    """A body over a wide ground slab, with a floating hand beside it (a gap, the body's colour), a red ball on the
+    slab, all sampled densely enough to be pieces: what the click's free-standing test must tell apart."""
+    rng = np.random.default_rng(0)
+
+    def box(lo, hi, n):
+        return rng.uniform(lo, hi, size=(n, 3))
+
+    body = box((-0.3, -0.3, 0.3), (0.3, 0.3, 1.5), 6000)
+    hand = box((0.42, -0.08, 0.8), (0.55, 0.08, 0.95), 300)
+    slab = box((-4.0, -4.0, -0.05), (4.0, 4.0, 0.05), 20000)
+    ball = box((1.5, 1.5, 0.1), (1.8, 1.8, 0.4), 800)
+    means = np.concatenate([body, hand, slab, ball])
+    rgb = np.concatenate([np.full((6300, 3), [0.8, 0.8, 0.9]), np.full((20000, 3), [0.3, 0.25, 0.2]),
+                          np.full((800, 3), [0.9, 0.1, 0.1])])
+    cloud = GaussianCloud.from_activated(means, scales=np.full((len(means), 3), 0.01),
+                                         opacities=np.full(len(means), 0.9), rgb=rgb)
+    labels = np.repeat([0, 1, 2, 3], [6000, 300, 20000, 800])
+    return cloud, labels
+
+
+@pytest.mark.parametrize("clicked", [0, 1])
+def test_click_on_a_free_standing_object_or_its_floating_part_takes_both(clicked):
+    """A click on the body takes its floating hand, and a click on the hand takes the body: the same object from
+    anywhere on it; the slab it stands over and the ball on the slab stay out."""
+    cloud, labels = _robot_scene()
+    seeds = np.flatnonzero(labels == clicked)[:40]
+    fg = np.zeros(len(cloud), dtype=bool)
+    fg[seeds] = True
+    centre = cloud.means[seeds].mean(axis=0)
+    radius0 = float(np.linalg.norm(cloud.means[seeds] - centre, axis=1).max())
+    got = ClickSegmenter()._parts(cloud, fg, centre, radius0, limit=20.0)
+    assert got is not None
+    assert got[labels <= 1].all() and not got[labels >= 2].any()
+
+
+def test_click_on_the_ground_finds_no_free_standing_object():
+    cloud, labels = _robot_scene()
+    seeds = np.flatnonzero(labels == 2)[:40]
+    fg = np.zeros(len(cloud), dtype=bool)
+    fg[seeds] = True
+    centre = cloud.means[seeds].mean(axis=0)
+    assert ClickSegmenter()._parts(cloud, fg, centre, 0.05, limit=20.0) is None

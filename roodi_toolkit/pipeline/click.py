@@ -90,6 +90,8 @@ CAPTURE_REGION_RADIUS = 0.5
 """``region_radius`` for captures with SfM points (their box is what SfM reconstructed)."""
 MAX_PART_GAUSSIANS = 4_000_000
 """Above this many Gaussians near the click the free-standing test is skipped (its neighbour graph would not fit)."""
+PART_LOOKOUT = 8.0
+"""A free piece looks this many times as far as the sphere it was found in for a larger free piece it is part of."""
 
 
 @dataclass(frozen=True)
@@ -410,59 +412,97 @@ class ClickSegmenter(Segmenter):
         region's 3D radius and doubles, up to ``limit``, until the piece holding most seeds ends inside it: then it
         stands free (a robot over a ground slab, a vase with a gap under it; a click on its eye finds the whole
         body) and is the object, with the pieces near it (a gap under ``part_gap`` of its radius) that are no larger
-        and mostly of its colours (the robot's floating hands). A piece that still reaches the sphere at ``limit``
-        (a statue on its table: the piece is the table and the room) gives None, and the seeds are grown through
-        colour-weighted links instead; so does a piece that is most of the scene.
+        and mostly of its colours (the robot's floating hands). A free piece that is itself such a part of a larger
+        one (a click on a floating hand) hands the object to that one, the sphere growing until it too ends inside:
+        a click anywhere on the object selects what a click on its body does. A piece that still reaches the sphere
+        at ``limit`` (a statue on its table: the piece is the table and the room) gives None, and the seeds are grown
+        through colour-weighted links instead; so does a piece that is most of the scene.
         """
-        from scipy import sparse
-        from scipy.sparse.csgraph import connected_components
-        from scipy.spatial import cKDTree
-
         s = self.settings
         if not fg.any() or s.part_spacing <= 0:
             return None
         dist = np.linalg.norm(scene.means - centre, axis=1)
         reach = max(2.0 * radius0, 1e-9)
+        anchor = fg  # the Gaussians whose piece is the object: the seeds, then a larger piece they belong to
+        found = None  # the last free piece: the object unless a larger free piece takes it as a part
+        adopt_until = limit  # how far to look for that larger piece (set when a free piece is found)
         while True:
             idx = np.flatnonzero(dist <= reach)
             if len(idx) > MAX_PART_GAUSSIANS:
-                return None
-            if len(idx) >= 3 and fg[idx].any():
+                break
+            if len(idx) >= 3 and anchor[idx].any():
                 pos = scene.means[idx].astype(np.float64)
-                tree = cKDTree(pos)
-                near, nb = tree.query(pos, k=min(17, len(idx)))
-                spacing = float(np.median(near[:, 1]))
-                link = near[:, 1:] <= s.part_spacing * spacing
-                rows = np.repeat(np.arange(len(idx)), link.sum(axis=1))
-                graph = sparse.coo_matrix((np.ones(len(rows)), (rows, nb[:, 1:][link])), shape=(len(idx),) * 2)
-                _, piece = connected_components(graph, directed=False)
-                main = int(np.argmax(np.bincount(piece[fg[idx]], minlength=piece.max() + 1)))
-                inside = piece == main
-                if dist[idx][inside].max() < 0.8 * reach:  # the piece ends inside the sphere
-                    if inside.sum() > s.part_share * len(scene):
-                        return None  # it is most of the scene (the ground, a lone object): nothing stands free
-                    break
+                rgb = np.clip(scene.rgb[idx], 0, 1)
+                piece = self._pieces(pos)
+                main = int(np.argmax(np.bincount(piece[anchor[idx]], minlength=piece.max() + 1)))
+                ends = np.zeros(piece.max() + 1)
+                np.maximum.at(ends, piece, dist[idx])
+                if ends[main] < 0.8 * reach:  # the piece ends inside the sphere: it stands free
+                    if (piece == main).sum() > s.part_share * len(scene):
+                        break  # it is most of the scene (the ground, a lone object): nothing stands free
+                    if found is None:
+                        adopt_until = min(limit, PART_LOOKOUT * reach)
+                    found = (idx, pos, rgb, piece, main)
+                    whole = self._whole(pos, rgb, piece, main, ends < 0.8 * reach)
+                    if whole != main:
+                        # the free piece is a part of a larger free one (a floating hand of its robot): that one is
+                        # the object, so a click anywhere on it selects what a click on its body does
+                        anchor = np.zeros(len(scene), dtype=bool)
+                        anchor[idx[piece == whole]] = True
+                        adopt_until = min(limit, PART_LOOKOUT * reach)
+                        continue
+                    if reach >= adopt_until:
+                        break
             if reach >= limit:
-                return None  # it runs on as far as we look: it touches the rest
+                break  # it runs on as far as we look: it touches the rest (or what stands free was found)
             reach = min(2.0 * reach, limit)
-        body = pos[inside]
-        radius = float(np.linalg.norm(body - body.mean(axis=0), axis=1).max())
-        obj_tree = cKDTree(body)
-        rgb = np.clip(scene.rgb[idx], 0, 1)
-        colours = cKDTree(rgb[inside])
+        if found is None:
+            return None
+        idx, pos, rgb, piece, main = found
+        inside = piece == main
         sizes = np.bincount(piece)
         chosen = inside.copy()
         for other in np.flatnonzero((sizes >= 3) & (sizes <= sizes[main])):
-            if other == main:
-                continue
-            members = piece == other
-            if float(obj_tree.query(pos[members])[0].min()) > s.part_gap * radius:
-                continue
-            if np.mean(colours.query(rgb[members])[0] <= s.part_colour) >= 0.5:
-                chosen |= members
+            if other != main and self._is_part(pos, rgb, piece == other, inside):
+                chosen |= piece == other
         out = np.zeros(len(scene), dtype=bool)
         out[idx[chosen]] = True
         return out
+
+    def _pieces(self, pos: np.ndarray) -> np.ndarray:
+        """Return the connected piece of each position ``[n]``: each linked to those of its 16 nearest within
+        ``part_spacing`` times their median spacing."""
+        from scipy import sparse
+        from scipy.sparse.csgraph import connected_components
+        from scipy.spatial import cKDTree
+
+        near, nb = cKDTree(pos).query(pos, k=min(17, len(pos)))
+        link = near[:, 1:] <= self.settings.part_spacing * float(np.median(near[:, 1]))
+        rows = np.repeat(np.arange(len(pos)), link.sum(axis=1))
+        graph = sparse.coo_matrix((np.ones(len(rows)), (rows, nb[:, 1:][link])), shape=(len(pos),) * 2)
+        return connected_components(graph, directed=False)[1]
+
+    def _is_part(self, pos: np.ndarray, rgb: np.ndarray, part: np.ndarray, body: np.ndarray) -> bool:
+        """Whether the Gaussians ``part`` belong to the object ``body`` (both ``[n]`` bool): nearer to it than
+        ``part_gap`` of its radius and mostly (half their Gaussians) within ``part_colour`` of its colours."""
+        from scipy.spatial import cKDTree
+
+        s = self.settings
+        centre = pos[body].mean(axis=0)
+        radius = float(np.linalg.norm(pos[body] - centre, axis=1).max())
+        if float(cKDTree(pos[body]).query(pos[part])[0].min()) > s.part_gap * radius:
+            return False
+        return bool(np.mean(cKDTree(rgb[body]).query(rgb[part])[0] <= s.part_colour) >= 0.5)
+
+    def _whole(self, pos: np.ndarray, rgb: np.ndarray, piece: np.ndarray, main: int, free: np.ndarray) -> int:
+        """Return the smallest piece larger than ``main`` and standing free (``free[piece]``) that would take ``main``
+        as one of its parts, else ``main``."""
+        sizes = np.bincount(piece)
+        members = piece == main
+        for other in np.argsort(sizes, kind="stable"):
+            if sizes[other] > sizes[main] and free[other] and self._is_part(pos, rgb, members, piece == other):
+                return int(other)
+        return main
 
     def _grow(self, scene: GaussianCloud, fg: np.ndarray, bg: np.ndarray, centre: np.ndarray,
               radius: float) -> np.ndarray:
