@@ -6,7 +6,7 @@ The kinds, and the classes that refine them::
     ├── InputError               a file or option the user gave is wrong
     │   ├── UnsupportedFormatError   a file in a format or variant the toolkit does not read
     │   ├── FormatError              a splat file (compressed PLY, SPZ, SOG, .splat, .ksplat) that is corrupt
-    │   ├── PlyError, CloudError, DatasetError, ConfigError, OutputError
+    │   ├── PlyError, CloudError, DatasetError, ModelError, ConfigError, OutputError
     ├── PluginError              a plugin is unknown, failed to load, or broke its interface
     └── EnvironmentProblemError  the machine is at fault: a missing system library, a read-only folder, a full disk
 
@@ -48,6 +48,11 @@ class CloudError(InputError):
 
 class DatasetError(InputError):
     """A posed-image dataset is missing, malformed or inconsistent."""
+
+
+class ModelError(InputError):
+    """A model or distillation folder is missing, malformed or does not belong to its model (raised by
+    :mod:`roodi_toolkit.io.model` and :mod:`roodi_toolkit.io.other_models`; importable from the first as before)."""
 
 
 class OutputError(InputError):

@@ -2,7 +2,7 @@
 of the true object, and IoU of the rendered alpha against the true alpha.
 
 The extracted object is rendered from the target's test cameras on a white background, as the ground truth views of
-the object alone are. LPIPS needs weights on this machine (:mod:`roodi_toolkit.evaluate.lpips`); without them it is reported
+the object alone are. LPIPS needs weights on this machine (:mod:`roodi_toolkit.lpips`); without them it is reported
 as unavailable (``None``), never replaced by another number.
 
 Where the scene has never-seen masks (``make-scene --occluded`` or ``--never-seen``: the pixels of each test view whose
@@ -323,7 +323,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         data_dir: a scene made by ``roodi-toolkit make-scene``.
         object_id: the target's instance id.
         renderer: draws the object (default: the built-in CPU renderer).
-        lpips_weights: local LPIPS weights (default: found by :meth:`roodi_toolkit.evaluate.lpips.LPIPS.from_local`).
+        lpips_weights: local LPIPS weights (default: found by :meth:`roodi_toolkit.lpips.LPIPS.from_local`).
         max_views: evaluate on the first this many test views only.
         progress: progress factory.
 
@@ -331,7 +331,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         ``(evaluation, renders)`` with renders ``[N, H, W, 3]`` on white.
     """
     from ..io.dataset import load_dataset
-    from .lpips import LPIPS, LPIPSUnavailable
+    from ..lpips import LPIPS, LPIPSUnavailable
     from ..render.renderer import render_cloud, resolve_renderer
 
     folder, name = find_target(data_dir, object_id)

@@ -20,9 +20,10 @@ import torch
 from ..cameras import Camera, opengl_c2w_to_w2c, w2c_to_opengl_c2w
 from ..errors import DatasetError, RoodiError
 from ..progress import ProgressFactory, null_progress
-from .dataset import (SPLITS, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
-                      _image_size, _plan_crop, _read_depth, _source_pixels, _read_mask, _ViewStack, estimate_bounds)
+from .dataset_core import (SPLITS, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
+                           _plan_crop, _source_pixels, estimate_bounds)
 from .files import read_json, write_json
+from .photos import _image_size, _read_depth, _read_mask, _ViewStack
 
 __all__ = ["DEFAULT_BLENDER_BACKGROUND", "load_blender", "load_blender_cameras", "write_blender_transforms"]
 

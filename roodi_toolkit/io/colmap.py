@@ -25,8 +25,9 @@ import numpy as np
 from ..cameras import Camera, qvec_to_rotmat, rotmat_to_qvec
 from ..errors import DatasetError, RoodiError, UnsupportedFormatError
 from ..progress import ProgressFactory, null_progress
-from .dataset import (LLFF_HOLD, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
-                      _find_colmap_sparse, _image_size, _plan_crop, _source_pixels, _ViewStack, estimate_bounds)
+from .dataset_core import (LLFF_HOLD, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
+                           _find_colmap_sparse, _plan_crop, _source_pixels, estimate_bounds)
+from .photos import _image_size, _ViewStack
 from .colmap_files import (COLMAP_CAMERA_MODELS, ColmapCamera, ColmapImage, ColmapModel, ColmapPoints,
                            read_colmap_model, write_colmap_model)
 

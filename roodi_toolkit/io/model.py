@@ -32,7 +32,10 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, InputError, RoodiError
+from ..errors import ConfigError, ModelError, RoodiError  # ModelError: importable from here as before
+from . import other_models as om
+from .other_models import (GSPLAT_CKPT, INRIA_ARGS, INRIA_CAMERAS, inria_settings, load_inria_cameras, read_cfg_args,
+                           read_gsplat_checkpoint, seen_fraction)
 
 if TYPE_CHECKING:
     from ..cameras import Camera
@@ -48,10 +51,6 @@ CLASSIFIER_FILE = "object_classifier.pt"
 DISTILL_RECORD = "distill.json"
 MASKS_DIR = "object_masks"
 DISTILL_PICTURE = "distill.png"
-
-
-class ModelError(InputError):
-    """A model or distillation folder is missing, malformed or does not belong to its model."""
 
 
 def iteration_ply(root: str | Path, iteration: int) -> Path:
@@ -118,7 +117,6 @@ class ModelFolder:
 def read_scene(path: str | Path, to_data: "Similarity | None" = None) -> "GaussianCloud":
     """Return the Gaussians of a model's scene file (a splat file of any readable format, or a gsplat checkpoint),
     moved by ``to_data`` when given."""
-    from .other_models import GSPLAT_CKPT, read_gsplat_checkpoint
     from .splat import read_cloud
 
     p = Path(path)
@@ -204,8 +202,6 @@ def open_model(path: str | Path, data_dir: str | Path | None = None, *,
         ModelError: nothing readable as a model, a record naming no data folder that is here, a model in another
             frame than the data (cameras that disagree, Gaussians the cameras do not see), a malformed file.
     """
-    from . import other_models as om
-
     p = Path(path)
     if not p.exists():
         raise ModelError(f"{p}: model folder not found (give a roodi-toolkit train output folder, an Inria or gsplat "
@@ -249,7 +245,6 @@ def model_record(root: str | Path) -> tuple[dict[str, Any], Path | None]:
         InputError: an unreadable record.
     """
     from .files import read_json
-    from .other_models import INRIA_ARGS, INRIA_CAMERAS, inria_settings, load_inria_cameras, read_cfg_args
 
     root = Path(root)
     if (root / MODEL_RECORD).is_file() or not (root / INRIA_ARGS).is_file():
@@ -283,8 +278,6 @@ def _enclosing_folder(p: Path) -> Path | None:
 
 
 def _check_seen(model: ModelFolder, cameras: "Sequence[Camera]", data_dir: Path, hint: str = "") -> float:
-    from .other_models import seen_fraction
-
     seen = seen_fraction(model.read_cloud(), cameras)
     if seen < SEEN_MIN:
         raise ModelError(f"{model.ply_path}: only {100 * seen:.0f}% of its Gaussians lie in view of the cameras of "
@@ -295,8 +288,6 @@ def _check_seen(model: ModelFolder, cameras: "Sequence[Camera]", data_dir: Path,
 
 def _inria_model(root: Path, ply: Path | None, data_dir: str | Path | None,
                  data_cameras: "Sequence[Camera] | None") -> ModelFolder:
-    from . import other_models as om
-
     args = om.read_cfg_args(root / om.INRIA_ARGS)
     data = _recorded_data(root, args.get("source_path"), root / om.INRIA_ARGS, data_dir)
     found = model_iterations(root)
@@ -322,7 +313,6 @@ def _inria_model(root: Path, ply: Path | None, data_dir: str | Path | None,
 def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path | None,
                   data_cameras: "Sequence[Camera] | None") -> ModelFolder:
     from ..similarity import transform_cloud
-    from . import other_models as om
     from .dataset import _find_colmap_sparse
 
     if len(files) > 1:
@@ -364,7 +354,6 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
 
 def _nerfstudio_model(p: Path, data_dir: str | Path | None, transforms: Path,
                       data_cameras: "Sequence[Camera] | None") -> ModelFolder:
-    from . import other_models as om
     from ..similarity import Similarity
 
     if data_dir is None:
@@ -420,7 +409,6 @@ class Distillation:
         classifier_state: the classifier checkpoint (a dict of tensors and labels).
         model_ply: the scene PLY the features belong to.
     """
-
     root: Path
     record: dict[str, Any]
     features: np.ndarray

@@ -41,9 +41,9 @@ import numpy as np
 from ..cameras import Camera, opengl_c2w_to_w2c
 from ..errors import DatasetError, InputWarning, RoodiError
 from ..progress import ProgressFactory, null_progress
-from .dataset import (LLFF_HOLD, SPLITS, Dataset, _check_background, _check_downscale, _crop_camera,
-                      _downscaled_size, _image_size, _plan_crop, _source_pixels, _ViewStack, estimate_bounds)
-from .photos import _read_dataset_image
+from .dataset_core import (LLFF_HOLD, SPLITS, Dataset, _check_background, _check_downscale, _crop_camera,
+                           _downscaled_size, _plan_crop, _source_pixels, estimate_bounds)
+from .photos import _image_size, _read_dataset_image, _ViewStack
 
 __all__ = ["NERFSTUDIO_FILE", "NERFSTUDIO_CAMERA_MODELS", "is_nerfstudio_file", "load_nerfstudio",
            "load_nerfstudio_cameras"]

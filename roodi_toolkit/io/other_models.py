@@ -40,7 +40,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..cameras import Camera, invert_rigid
-from ..errors import RoodiError
+from ..errors import ModelError, RoodiError
 from ..gaussians import GaussianCloud
 from ..similarity import Similarity
 
@@ -59,8 +59,6 @@ CAMERA_ANGLE_TOLERANCE = 0.1
 
 
 def _model_error(msg: str) -> Exception:
-    from .model import ModelError
-
     return ModelError(msg)
 
 

@@ -16,7 +16,7 @@ from ..errors import DatasetError, RoodiError
 from .files import read_image
 
 if TYPE_CHECKING:
-    from .dataset import _Crop
+    from .dataset_core import _Crop
 
 
 def _to_float_image(arr: np.ndarray, path: Path, grey: bool = False) -> Any:

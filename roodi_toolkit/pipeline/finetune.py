@@ -9,7 +9,7 @@ the paper found it harmful because inpaintings are not always right.
 and the debug images (renders, masks, grids before and after inpainting, the object before and after).
 
 Perceptual loss: LPIPS (Zhang et al. 2018), as in the paper, when its weights are on this machine
-(:meth:`roodi_toolkit.evaluate.lpips.LPIPS.from_local`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream files in
+(:meth:`roodi_toolkit.lpips.LPIPS.from_local`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream files in
 the local caches; nothing is downloaded). Otherwise a
 Laplacian-pyramid L1 ("Lap1", Bojanowski et al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass
 levels of the two images, each level weighted equally, so that edges and texture at every scale count as much as
@@ -32,6 +32,7 @@ from torch import Tensor
 from ..cameras import Camera
 from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
+from ..lpips import LPIPS, LPIPSUnavailable
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
 from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, hidden_part_picture, object_extent,
@@ -134,14 +135,12 @@ class LaplacianLoss(torch.nn.Module):
 
 
 class LPIPSLoss(torch.nn.Module):
-    """Return LPIPS between two ``[H, W, 3]`` images in [0, 1] (:mod:`roodi_toolkit.evaluate.lpips`, local weights only)."""
+    """Return LPIPS between two ``[H, W, 3]`` images in [0, 1] (:mod:`roodi_toolkit.lpips`, local weights only)."""
 
     name = "lpips"
 
     def __init__(self, weights: Optional[str] = None) -> None:
         super().__init__()
-        from ..evaluate.lpips import LPIPS
-
         self.model = LPIPS.from_local(weights)
 
     def forward(self, a: Tensor, b: Tensor) -> Tensor:
@@ -154,8 +153,6 @@ def perceptual_loss(kind: str = "auto", weights: Optional[str] = None) -> torch.
     Raises:
         ConfigError: ``kind="lpips"`` but no local LPIPS weights were found (the message says where it looked).
     """
-    from ..evaluate.lpips import LPIPSUnavailable
-
     if kind == "laplacian":
         return LaplacianLoss()
     try:

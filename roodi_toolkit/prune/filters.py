@@ -5,14 +5,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..gaussians import GaussianCloud
-
-if TYPE_CHECKING:
-    from .outliers import PruneConfig, PruneReport
+from .config import PruneConfig, PruneReport
 
 
 def named_value(cloud: GaussianCloud, name: str) -> np.ndarray:
@@ -74,8 +71,6 @@ def _filter_stages(cloud: GaussianCloud, config: PruneConfig) -> tuple[np.ndarra
 def filtered_report(cloud: GaussianCloud, config: PruneConfig) -> tuple[PruneReport, np.ndarray, np.ndarray]:
     """Return a new report holding the filters' stages and time, the keep mask after the filters ``[N]`` and the
     indices of the Gaussians left to evaluate (the common start of every pruning mode)."""
-    from .outliers import PruneReport
-
     t0 = time.perf_counter()
     report = PruneReport(input_count=len(cloud))
     report.config = {**asdict(config), "alpha": config.effective_alpha}

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -35,10 +35,11 @@ from ..errors import ConfigError, DatasetError
 from ..io.files import prepare_output_dir, write_image, write_json
 from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
 from ..progress import ProgressFactory, null_progress
-from .objects import BUILDERS, MAX_OBJECTS, PRESETS, Light, Part, SceneObject, _environment, _NOT_TARGETS, _rot
+from .objects import BUILDERS, MAX_OBJECTS, PRESETS, Part, SceneObject, _environment, _NOT_TARGETS, _rot
 from .wraps import WRAPPABLE, wrap_parts
 from .tracer import _Tracer, render_views
 from .visibility import NEVER_SEEN_DIR, never_seen_record, write_never_seen
+from .world import Scene
 from .overview import overview_image
 
 __all__ = [
@@ -120,47 +121,6 @@ class SceneSettings:
             raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {self.n_objects}")
         if self.test_framing not in TEST_FRAMINGS:
             raise ConfigError(f"test_framing must be one of {', '.join(TEST_FRAMINGS)}, got {self.test_framing!r}")
-
-
-@dataclass
-class Scene:
-    """A generated scene: objects on a ground, lights and an environment.
-
-    Attributes:
-        preset: the preset's name.
-        seed: the seed it was built from.
-        objects: the objects, ids 1..N in order.
-        ground: the ground part (id 0 in masks).
-        lights: the lights.
-        ambient: linear RGB ambient light.
-        sky: (horizon, zenith) sRGB colours of the environment seen by rays that hit nothing.
-    """
-
-    preset: str
-    seed: int
-    objects: list[SceneObject]
-    ground: Part = field(repr=False)
-    lights: list[Light] = field(repr=False)
-    ambient: tuple[float, float, float]
-    sky: tuple[tuple[float, float, float], tuple[float, float, float]]
-
-    @property
-    def targets(self) -> list[SceneObject]:
-        """The target objects."""
-        return [o for o in self.objects if o.is_target]
-
-    def object(self, object_id: int) -> SceneObject:
-        """Return the object with this id."""
-        for o in self.objects:
-            if o.id == object_id:
-                return o
-        raise ConfigError(f"scene has no object with id {object_id}")
-
-    @property
-    def bounds(self) -> np.ndarray:
-        """``[2, 3]`` box around all objects (not the ground)."""
-        b = np.stack([o.bounds for o in self.objects])
-        return np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
 
 
 # ------------------------------------------------------------------------------------------------------ layout

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -20,9 +20,7 @@ from ..cameras import Camera
 from ..errors import ConfigError
 from ..progress import ProgressFactory, null_progress
 from .objects import Material, Part, _o3d
-
-if TYPE_CHECKING:  # the scene module renders through this one, so the type is imported for annotations only
-    from .scene import Scene
+from .world import Scene
 
 __all__ = ["RenderResult", "render_views"]
 

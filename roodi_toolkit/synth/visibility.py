@@ -84,7 +84,7 @@ def never_seen_masks(scene, object_id: int, test_cameras: Sequence[Camera], test
     """Return per test view the ``[H, W]`` bool mask of the target's pixels that no training camera sees.
 
     Args:
-        scene: the scene (:class:`roodi_toolkit.synth.scene.Scene`).
+        scene: the scene (:class:`roodi_toolkit.synth.world.Scene`).
         object_id: the target's id.
         test_cameras: its object-alone test cameras.
         test_renders: their renders of the object alone (``ids`` and ``depth`` of the pixel-centre rays are used).
