@@ -1,7 +1,10 @@
-"""The pruning options shared by ``prune`` and ``inspect``: one definition, so both commands prune the same way.
+"""The pruning options shared by ``prune``, ``inspect`` and ``batch``: one definition, so the commands prune the same
+way (``tests/test_inspect.py`` checks that ``prune`` and ``inspect`` offer the same options).
 
-They mirror the options ``cmd_prune.py`` defined inline (same names, help, defaults and validation); ``prune``
-should switch to this decorator so the two cannot drift apart.
+:func:`prune_options` adds the statistical rule's options and the filters, :func:`prune_mode_options` the modes
+(``--mode``, the local tests, ``--filter-value``), :func:`photo_options` the photo check (``prune`` and ``inspect``);
+:func:`prune_config_from_options` turns them into a :class:`~roodi_toolkit.prune.config.PruneConfig` and
+:func:`prune_with_photos` runs :func:`~roodi_toolkit.prune.scene.prune_cloud` with them.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 PRUNE_OPTION_NAMES = ("k", "alpha", "distance", "rule", "neighbors", "filter_nan", "min_opacity", "filter_box",
                       "filter_sphere")
-"""Keyword names the decorated command receives for these options."""
+"""Keyword names a command decorated with :func:`prune_options` receives."""
 
 _OPTIONS = [
     click.option("--k", "k", type=click.IntRange(min=1), default=16, show_default=True,
@@ -48,7 +51,8 @@ _MODE_OPTIONS = [
                  help="scene: remove pieces detached from the content and oversized blobs, judged locally (safe on "
                       "real scenes); object: one object, what is detached from it goes (see --max-piece); "
                       "statistical: the global rule of --rule (paper: ROODI 3.2 as published); auto: object or "
-                      "scene, the choice is printed and reported. Giving --rule or --alpha alone implies statistical."),
+                      "scene, the choice is printed and reported. Giving --rule, --alpha, --distance or --neighbors "
+                      "with auto implies statistical."),
     click.option("--reach", type=click.FloatRange(min=0, min_open=True), default=1.5, show_default=True,
                  help="scene/object: two Gaussians are connected when their centres are closer than this many sums "
                       "of their largest scales."),
@@ -84,11 +88,12 @@ _MODE_OPTIONS = [
 
 MODE_OPTION_NAMES = ("mode", "reach", "min_cluster", "max_piece", "blob_score", "blob_colour", "blob_sure",
                      "foreign_size", "background", "filter_values")
-"""Keyword names of the mode options (``prune`` only)."""
+"""Keyword names a command decorated with :func:`prune_mode_options` receives."""
 
 
 def prune_mode_options(func: F) -> F:
-    """Return ``func`` decorated with the mode options of ``prune`` (scene/object/statistical, value filters)."""
+    """Return ``func`` decorated with the mode options (auto/scene/object/statistical, the local tests' settings, value
+    filters)."""
     for option in reversed(_MODE_OPTIONS):
         func = option(func)
     return func
@@ -195,7 +200,7 @@ def prune_config_from_options(*, k: int, alpha: float | None, distance: str, rul
 
     Raises:
         click.BadParameter: a malformed ``--filter-box`` or ``--filter-sphere`` (usage error, exit 2).
-        ConfigError: values :class:`~roodi_toolkit.prune.outliers.PruneConfig` refuses (exit 1 with one line).
+        ConfigError: values :class:`~roodi_toolkit.prune.config.PruneConfig` refuses (exit 1 with one line).
     """
     from roodi_toolkit.prune.outliers import PruneConfig
 
@@ -233,12 +238,10 @@ def write_floater_picture(input_path: str, cloud: Any, keep: Any, report: Any, p
     """Write the floater picture (:func:`roodi_toolkit.viz.floaters.floater_picture`) of a prune of ``cloud``, read
     from ``input_path``, upright on the cloud's up (``up``: ``--up``; :func:`roodi_toolkit.render.upright.resolve_up`);
     return that up axis (the caller says where it came from)."""
-    from roodi_toolkit.cli.common import progress_factory
+    from roodi_toolkit.cli.common import progress_factory, set_torch_threads
     from roodi_toolkit.io.files import write_image
     from roodi_toolkit.render.upright import resolve_up
     from roodi_toolkit.viz.floaters import floater_picture
-
-    from roodi_toolkit.cli.common import set_torch_threads
 
     set_torch_threads()  # the before/after renders
     axis = resolve_up(up, input_path, cloud.means)
