@@ -287,7 +287,7 @@ def test_click_votes_on_a_few_views_and_renders_every_view(scene):
     assert np.mean(ious) > np.mean(ref) - 0.05
 
 
-def _robot_scene():
+def _robot_scene(far_slab: bool = True):
     """A body over a wide ground slab, with a floating hand beside it (a gap, the body's colour), a red ball on the
     slab, all sampled densely enough to be pieces: what the click's free-standing test must tell apart."""
     rng = np.random.default_rng(0)
@@ -299,23 +299,29 @@ def _robot_scene():
     hand = box((0.42, -0.08, 0.8), (0.55, 0.08, 0.95), 300)
     slab = box((-4.0, -4.0, -0.05), (4.0, 4.0, 0.05), 20000)
     ball = box((1.5, 1.5, 0.1), (1.8, 1.8, 0.4), 800)
-    means = np.concatenate([body, hand, slab, ball])
+    # a second slab far away (copies side by side): the first is then no longer most of the scene
+    other = box((10.0, -4.0, -0.05), (18.0, 4.0, 0.05), 20000)
+    means = np.concatenate([body, hand, slab, ball, other])
     rgb = np.concatenate([np.full((6300, 3), [0.8, 0.8, 0.9]), np.full((20000, 3), [0.3, 0.25, 0.2]),
-                          np.full((800, 3), [0.9, 0.1, 0.1])])
+                          np.full((800, 3), [0.9, 0.1, 0.1]), np.full((20000, 3), [0.3, 0.25, 0.2])])
+    rgb[:6000:3] = [0.3, 0.25, 0.2]  # a third of the body is of the ground's dark colour: its joints
     cloud = GaussianCloud.from_activated(means, scales=np.full((len(means), 3), 0.01),
                                          opacities=np.full(len(means), 0.9), rgb=rgb)
-    labels = np.repeat([0, 1, 2, 3], [6000, 300, 20000, 800])
+    labels = np.repeat([0, 1, 2, 3, 4], [6000, 300, 20000, 800, 20000])
+    if not far_slab:
+        return cloud.select(labels < 4), labels[labels < 4]
     return cloud, labels
 
 
 @pytest.mark.parametrize("clicked", [0, 1])
 def test_click_on_a_free_standing_object_or_its_floating_part_takes_both(clicked):
     """A click on the body takes its floating hand, and a click on the hand takes the body: the same object from
-    anywhere on it; the slab it stands over and the ball on the slab stay out."""
+    anywhere on it; the slab it stands over (a third of the body has its colour; it is not most of the scene) and
+    the ball on the slab stay out."""
     cloud, labels = _robot_scene()
     seeds = np.flatnonzero(labels == clicked)[:40]
-    fg = np.zeros(len(cloud), dtype=bool)
-    fg[seeds] = True
+    fg = np.zeros(len(cloud))  # the compositing weight under the click
+    fg[seeds] = 1.0
     centre = cloud.means[seeds].mean(axis=0)
     radius0 = float(np.linalg.norm(cloud.means[seeds] - centre, axis=1).max())
     got = ClickSegmenter()._parts(cloud, fg, centre, radius0, limit=20.0)
@@ -324,9 +330,10 @@ def test_click_on_a_free_standing_object_or_its_floating_part_takes_both(clicked
 
 
 def test_click_on_the_ground_finds_no_free_standing_object():
-    cloud, labels = _robot_scene()
+    """The slab is most of this scene: nothing stands free there (the colour-weighted growth takes over)."""
+    cloud, labels = _robot_scene(far_slab=False)
     seeds = np.flatnonzero(labels == 2)[:40]
-    fg = np.zeros(len(cloud), dtype=bool)
-    fg[seeds] = True
+    fg = np.zeros(len(cloud))  # the compositing weight under the click
+    fg[seeds] = 1.0
     centre = cloud.means[seeds].mean(axis=0)
     assert ClickSegmenter()._parts(cloud, fg, centre, 0.05, limit=20.0) is None

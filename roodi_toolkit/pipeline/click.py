@@ -92,6 +92,8 @@ MAX_PART_GAUSSIANS = 4_000_000
 """Above this many Gaussians near the click the free-standing test is skipped (its neighbour graph would not fit)."""
 PART_LOOKOUT = 8.0
 """A free piece looks this many times as far as the sphere it was found in for a larger free piece it is part of."""
+CLICK_PATCH = 2
+"""The pixels within this many of a click (a 5x5 patch) are the ones it points at."""
 
 
 @dataclass(frozen=True)
@@ -254,13 +256,17 @@ class ClickSegmenter(Segmenter):
         # differentiable renderer, without listing (pixel, Gaussian) weights (gigabytes at 1000 px). The last
         # feature, each Gaussian's camera-space depth, composites the expected depth.
         z = scene.means @ cam0.world_to_camera[2, :3] + cam0.world_to_camera[2, 3]
-        feats = torch.zeros(len(scene), 4, dtype=params.dtype)
+        feats = torch.zeros(len(scene), 5, dtype=params.dtype)
         feats[:, 3] = torch.as_tensor(z, dtype=params.dtype)
         feats.requires_grad_()
         rendered, alpha = render_features(self.renderer, params, feats, cam0)
-        pixel_factors = np.stack([mask0, band0, np.ones_like(mask0), np.zeros_like(mask0)], -1)
+        # the last factor: the pixels under the clicks themselves, whose Gaussians are what the user pointed at
+        at = np.zeros_like(mask0)
+        for r, c in seeds:
+            at[max(r - CLICK_PATCH, 0):r + CLICK_PATCH + 1, max(c - CLICK_PATCH, 0):c + CLICK_PATCH + 1] = True
+        pixel_factors = np.stack([mask0, band0, np.ones_like(mask0), np.zeros_like(mask0), at], -1)
         (rendered * torch.as_tensor(pixel_factors, dtype=params.dtype)).sum().backward()
-        inside, around, total, _ = feats.grad.numpy().T
+        inside, around, total, _, at_click = feats.grad.numpy().T
         seen = total >= s.min_weight
         fg = seen & (inside >= s.seed_fraction * total)
         bg = seen & (around >= s.seed_fraction * total)
@@ -273,7 +279,11 @@ class ClickSegmenter(Segmenter):
         info: dict[str, Any] = {"clicked_view": names[v0], "seed_gaussians": int(fg.sum())}
         # negative clicks say the object touches what they hit: only the growth keeps that out
         diag = float(np.linalg.norm(np.asarray(dataset.bounds[1]) - np.asarray(dataset.bounds[0])))
-        parts = self._parts(scene, fg, centre, radius0, diag) if not not_seeds else None
+        # what the click points at: its pixels' Gaussians that belong to the clicked region (a click at the object's
+        # edge has the ground behind it in its pixels too)
+        pointed = np.maximum(np.where(fg, at_click, 0.0), 0.0)
+        pointed = pointed if pointed.any() else np.maximum(at_click, 0.0)
+        parts = self._parts(scene, pointed, centre, radius0, diag) if not not_seeds else None
         if parts is not None:  # a free-standing object: its connected pieces, whatever their colours
             selected = candidates = parts
             info["free_standing"] = True
@@ -403,13 +413,15 @@ class ClickSegmenter(Segmenter):
             not_region[r, c] = True
         return region, not_region
 
-    def _parts(self, scene: GaussianCloud, fg: np.ndarray, centre: np.ndarray, radius0: float,
+    def _parts(self, scene: GaussianCloud, at_click: np.ndarray, centre: np.ndarray, radius0: float,
                limit: float) -> np.ndarray | None:
         """Return the Gaussians ``[N]`` bool of a free-standing object, or None when the clicked one touches more.
 
         The Gaussians within a sphere around the click are cut into connected pieces (each linked to those of its
         16 nearest within ``part_spacing`` times the median spacing). The sphere starts at twice the clicked
-        region's 3D radius and doubles, up to ``limit``, until the piece holding most seeds ends inside it: then it
+        region's 3D radius and doubles, up to ``limit``, until the piece the click points at ends inside it (the
+        piece with the most compositing weight ``at_click`` ``[N]`` under the clicked pixels: the clicked region
+        may spill onto what the object stands on, the pixel under the click does not): then it
         stands free (a robot over a ground slab, a vase with a gap under it; a click on its eye finds the whole
         body) and is the object, with the pieces near it (a gap under ``part_gap`` of its radius) that are no larger
         and mostly of its colours (the robot's floating hands). A free piece that is itself such a part of a larger
@@ -419,22 +431,22 @@ class ClickSegmenter(Segmenter):
         through colour-weighted links instead; so does a piece that is most of the scene.
         """
         s = self.settings
-        if not fg.any() or s.part_spacing <= 0:
+        if not (at_click > 0).any() or s.part_spacing <= 0:
             return None
         dist = np.linalg.norm(scene.means - centre, axis=1)
         reach = max(2.0 * radius0, 1e-9)
-        anchor = fg  # the Gaussians whose piece is the object: the seeds, then a larger piece they belong to
+        anchor = at_click  # [N] weights: the piece with the most is the object (a larger piece it belongs to later)
         found = None  # the last free piece: the object unless a larger free piece takes it as a part
         adopt_until = limit  # how far to look for that larger piece (set when a free piece is found)
         while True:
             idx = np.flatnonzero(dist <= reach)
             if len(idx) > MAX_PART_GAUSSIANS:
                 break
-            if len(idx) >= 3 and anchor[idx].any():
+            if len(idx) >= 3 and (anchor[idx] > 0).any():
                 pos = scene.means[idx].astype(np.float64)
                 rgb = np.clip(scene.rgb[idx], 0, 1)
                 piece = self._pieces(pos)
-                main = int(np.argmax(np.bincount(piece[anchor[idx]], minlength=piece.max() + 1)))
+                main = int(np.argmax(np.bincount(piece, weights=anchor[idx], minlength=piece.max() + 1)))
                 ends = np.zeros(piece.max() + 1)
                 np.maximum.at(ends, piece, dist[idx])
                 if ends[main] < 0.8 * reach:  # the piece ends inside the sphere: it stands free
@@ -447,8 +459,8 @@ class ClickSegmenter(Segmenter):
                     if whole != main:
                         # the free piece is a part of a larger free one (a floating hand of its robot): that one is
                         # the object, so a click anywhere on it selects what a click on its body does
-                        anchor = np.zeros(len(scene), dtype=bool)
-                        anchor[idx[piece == whole]] = True
+                        anchor = np.zeros(len(scene))
+                        anchor[idx[piece == whole]] = 1.0
                         adopt_until = min(limit, PART_LOOKOUT * reach)
                         continue
                     if reach >= adopt_until:
@@ -496,11 +508,18 @@ class ClickSegmenter(Segmenter):
 
     def _whole(self, pos: np.ndarray, rgb: np.ndarray, piece: np.ndarray, main: int, free: np.ndarray) -> int:
         """Return the smallest piece larger than ``main`` and standing free (``free[piece]``) that would take ``main``
-        as one of its parts, else ``main``."""
+        as one of its parts and whose median colour is within twice ``part_colour`` of ``main``'s (one object: a
+        robot and its hand, orange and orange, not the dark ground under the robot, which has its dark parts among
+        its colours), else ``main``."""
         sizes = np.bincount(piece)
         members = piece == main
+        colour = np.median(rgb[members], axis=0)
         for other in np.argsort(sizes, kind="stable"):
-            if sizes[other] > sizes[main] and free[other] and self._is_part(pos, rgb, members, piece == other):
+            if sizes[other] <= sizes[main] or not free[other]:
+                continue
+            if np.linalg.norm(np.median(rgb[piece == other], axis=0) - colour) > 2 * self.settings.part_colour:
+                continue
+            if self._is_part(pos, rgb, members, piece == other):
                 return int(other)
         return main
 
