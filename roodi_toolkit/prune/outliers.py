@@ -39,9 +39,9 @@ from .wasserstein import gaussian_shapes, w2_sq_neighbors
 EXTRA_CANDIDATES = 8
 """Neighbours kept beyond K, so re-evaluating a Gaussian without its flagged neighbours needs no new search."""
 MAD_TO_SIGMA = 1.4826
+"""Scale factor that makes the median absolute deviation a consistent estimate of a normal's sigma."""
 MEAN_AD_TO_SIGMA = math.sqrt(math.pi / 2)
 """Mean absolute deviation to standard deviation for a normal distribution (1.2533)."""
-"""Scale factor that makes the median absolute deviation a consistent estimate of a normal's sigma."""
 
 
 # ------------------------------------------------------------------------------------------------------ distances
