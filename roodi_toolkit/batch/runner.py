@@ -182,18 +182,20 @@ def _may_replace(item: Item, own: set[tuple[str, Any]]) -> bool:
 
 
 def _init_worker() -> None:
-    # one item per worker on one core: libraries must not each start a thread per core on top of the pool
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    import torch
-
-    torch.set_num_threads(1)
     # SIGTERM / Ctrl-C: the item under way unwinds (its temporary output removed), then the worker exits; an idle
-    # worker exits at once. (The pool would otherwise catch the interruption as the item's error and go on.)
+    # worker exits at once. (The pool would otherwise catch the interruption as the item's error and go on.) First,
+    # before the slow imports below: a worker signalled while importing PyTorch printed the command's own handler's
+    # traceback as "Exception in initializer".
     from ..signals import deferrable
 
     for sig in (signal.SIGTERM, signal.SIGINT, getattr(signal, "SIGHUP", None)):
         if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, deferrable(_worker_signal))  # held while an output is put in place
+    # one item per worker on one core: libraries must not each start a thread per core on top of the pool
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import torch
+
+    torch.set_num_threads(1)
 
 
 _IN_ITEM = False

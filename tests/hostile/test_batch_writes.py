@@ -238,7 +238,10 @@ def test_a_signal_stops_a_batch_at_once_and_keeps_what_finished(how: str, tmp_pa
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     cmd = [sys.executable, "-m", "roodi_toolkit.cli.main", "batch", "prune", str(tmp_path / "in"),
            str(tmp_path / "out"), "--jobs", "2", "-q"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    # Ctrl-C as a terminal sends it: a test run in the background (`cmd &` in a script) has SIGINT ignored, which the
+    # batch would inherit
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 120
     while time.time() < deadline and (not results.is_file() or '"status": "ok"' not in results.read_text()):
         time.sleep(0.02)
