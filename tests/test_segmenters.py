@@ -337,3 +337,25 @@ def test_click_on_the_ground_finds_no_free_standing_object():
     fg[seeds] = 1.0
     centre = cloud.means[seeds].mean(axis=0)
     assert ClickSegmenter()._parts(cloud, fg, centre, 0.05, limit=20.0) is None
+
+
+def test_click_on_a_part_inside_an_object_of_other_colour_takes_the_object():
+    """A black eye inside a light hollow head, apart from it (its own piece, of another median colour): a click on
+    the eye takes the head, since the eye lies in the head's box; the slab under the head stays out."""
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(8000, 3))
+    head = 0.6 * d / np.linalg.norm(d, axis=1, keepdims=True) + [0.0, 0.0, 1.2]
+    eye = rng.uniform(-0.03, 0.03, size=(60, 3)) + [0.42, 0.0, 1.2]
+    slab = rng.uniform((-4.0, -4.0, -0.05), (4.0, 4.0, 0.05), size=(20000, 3))
+    other = rng.uniform((10.0, -4.0, -0.05), (18.0, 4.0, 0.05), size=(20000, 3))
+    means = np.concatenate([head, eye, slab, other])
+    rgb = np.concatenate([np.full((8000, 3), [0.8, 0.8, 0.9]), np.zeros((60, 3)), np.full((40000, 3), [0.3, 0.3, 0.3])])
+    rgb[:8000:4] = 0.05  # the head's dark details: the eye's colour is among the head's, its median is not
+    cloud = GaussianCloud.from_activated(means, scales=np.full((len(means), 3), 0.01),
+                                         opacities=np.full(len(means), 0.9), rgb=rgb)
+    labels = np.repeat([0, 1, 2, 3], [8000, 60, 20000, 20000])
+    weights = (labels == 1).astype(float)
+    # the clicked region: the eye and the face round it
+    got = ClickSegmenter()._parts(cloud, weights, cloud.means[labels == 1].mean(axis=0), 0.2, limit=20.0)
+    assert got is not None
+    assert got[labels <= 1].all() and not got[labels >= 2].any()

@@ -463,10 +463,8 @@ class ClickSegmenter(Segmenter):
                         anchor[idx[piece == whole]] = 1.0
                         adopt_until = min(limit, PART_LOOKOUT * reach)
                         continue
-                    if reach >= adopt_until:
-                        break
-            if reach >= limit:
-                break  # it runs on as far as we look: it touches the rest (or what stands free was found)
+            if reach >= limit or (found is not None and reach >= adopt_until):
+                break  # it runs on as far as we look (it touches the rest), or what stands free was found
             reach = min(2.0 * reach, limit)
         if found is None:
             return None
@@ -508,18 +506,20 @@ class ClickSegmenter(Segmenter):
 
     def _whole(self, pos: np.ndarray, rgb: np.ndarray, piece: np.ndarray, main: int, free: np.ndarray) -> int:
         """Return the smallest piece larger than ``main`` and standing free (``free[piece]``) that would take ``main``
-        as one of its parts and whose median colour is within twice ``part_colour`` of ``main``'s (one object: a
-        robot and its hand, orange and orange, not the dark ground under the robot, which has its dark parts among
-        its colours), else ``main``."""
+        as one of its parts and is of one object with it, else ``main``. One object: their median colours within
+        twice ``part_colour`` (a robot and its floating hand, orange and orange), or ``main`` inside the larger
+        piece's box along its own axes (the robot's black eye in its head); not the dark ground slab under the robot,
+        which has the robot's dark joints among its colours and holds the robot above its box."""
         sizes = np.bincount(piece)
         members = piece == main
         colour = np.median(rgb[members], axis=0)
+        centre = pos[members].mean(axis=0)
         for other in np.argsort(sizes, kind="stable"):
             if sizes[other] <= sizes[main] or not free[other]:
                 continue
-            if np.linalg.norm(np.median(rgb[piece == other], axis=0) - colour) > 2 * self.settings.part_colour:
-                continue
-            if self._is_part(pos, rgb, members, piece == other):
+            body = piece == other
+            same = np.linalg.norm(np.median(rgb[body], axis=0) - colour) <= 2 * self.settings.part_colour
+            if (same or _inside_box(pos[body], centre)) and self._is_part(pos, rgb, members, body):
                 return int(other)
         return main
 
@@ -584,3 +584,11 @@ def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     return ndimage.binary_dilation(mask, structure=_disk(radius)) if radius > 0 else mask.copy()
 
 
+def _inside_box(points: np.ndarray, point: np.ndarray) -> bool:
+    """Whether ``point`` ``[3]`` lies in the box of ``points`` ``[n, 3]`` along their principal axes."""
+    sample = points[:: max(1, len(points) // 20000)]
+    centre = sample.mean(axis=0)
+    _, _, axes = np.linalg.svd(sample - centre, full_matrices=False)
+    coords = (sample - centre) @ axes.T
+    p = (point - centre) @ axes.T
+    return bool(np.all((p >= coords.min(axis=0)) & (p <= coords.max(axis=0))))
