@@ -21,8 +21,8 @@ from ..cameras import Camera, opengl_c2w_to_w2c, w2c_to_opengl_c2w
 from ..errors import DatasetError, RoodiError
 from ..progress import ProgressFactory, null_progress
 from .dataset_core import (SPLITS, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
-                           _plan_crop, _source_pixels, estimate_bounds)
-from .files import read_json, write_json
+                           _plan_crop, _read_frames_json, _source_pixels, estimate_bounds)
+from .files import write_json
 from .photos import _image_size, _read_depth, _read_mask, _ViewStack
 
 __all__ = ["DEFAULT_BLENDER_BACKGROUND", "load_blender", "load_blender_cameras", "write_blender_transforms"]
@@ -49,16 +49,7 @@ def _blender_json_files(path: Path, splits: Sequence[str] | None) -> list[tuple[
 
 
 def _read_transforms(json_path: Path) -> dict[str, Any]:
-    try:
-        meta = read_json(json_path, "Blender transforms file")
-    except DatasetError:
-        raise
-    except RoodiError as exc:
-        raise DatasetError(str(exc)) from None
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{json_path}: expected a JSON object with camera_angle_x and frames")
-    if "frames" not in meta or not isinstance(meta["frames"], list):
-        raise DatasetError(f"{json_path}: missing the 'frames' list")
+    meta = _read_frames_json(json_path, "Blender transforms file", "camera_angle_x and frames")
     if "camera_angle_x" not in meta and "fl_x" not in meta:
         raise DatasetError(f"{json_path}: missing 'camera_angle_x' (or 'fl_x'): the focal length is unknown")
     if "camera_angle_x" in meta:

@@ -18,7 +18,8 @@ import numpy as np
 import torch
 
 from ..cameras import Camera
-from ..errors import ConfigError, DatasetError
+from ..errors import ConfigError, DatasetError, RoodiError
+from .files import read_json
 
 __all__ = [
     "Dataset",
@@ -350,3 +351,19 @@ def split_views(dataset: Dataset, holdout_every: int = 8) -> tuple[list[int], li
         held = train[::holdout_every]
         return [i for i in train if i not in set(held)], held
     return train, []
+
+
+def _read_frames_json(json_path: Path, what: str, expected: str) -> dict[str, Any]:
+    """Return a transforms file's JSON object (Blender, nerfstudio, instant-ngp), its read errors as DatasetError;
+    refuse one that is not an object (``expected`` says what it should hold) or has no ``frames`` list."""
+    try:
+        meta = read_json(json_path, what)
+    except DatasetError:
+        raise
+    except RoodiError as exc:
+        raise DatasetError(str(exc)) from None
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{json_path}: expected a JSON object with {expected}")
+    if not isinstance(meta.get("frames"), list):
+        raise DatasetError(f"{json_path}: missing the 'frames' list")
+    return meta

@@ -42,7 +42,7 @@ from ..cameras import Camera, opengl_c2w_to_w2c
 from ..errors import DatasetError, InputWarning, RoodiError
 from ..progress import ProgressFactory, null_progress
 from .dataset_core import (LLFF_HOLD, SPLITS, Dataset, _check_background, _check_downscale, _crop_camera,
-                           _downscaled_size, _plan_crop, _source_pixels, estimate_bounds)
+                           _downscaled_size, _plan_crop, _read_frames_json, _source_pixels, estimate_bounds)
 from .photos import _image_size, _read_dataset_image, _ViewStack
 
 __all__ = ["NERFSTUDIO_FILE", "NERFSTUDIO_CAMERA_MODELS", "is_nerfstudio_file", "load_nerfstudio",
@@ -82,19 +82,7 @@ def _json_path(path: Path) -> Path:
 
 
 def _read_meta(json_path: Path) -> dict[str, Any]:
-    from .files import read_json
-
-    try:
-        meta = read_json(json_path, "transforms file")
-    except DatasetError:
-        raise
-    except RoodiError as exc:
-        raise DatasetError(str(exc)) from None
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{json_path}: expected a JSON object with a 'frames' list")
-    if not isinstance(meta.get("frames"), list):
-        raise DatasetError(f"{json_path}: missing the 'frames' list")
-    return meta
+    return _read_frames_json(json_path, "transforms file", "a 'frames' list")
 
 
 @dataclass
