@@ -76,13 +76,12 @@ class GsplatRenderer(Renderer):
         Ks = torch.as_tensor(camera.K, dtype=dtype, device=dev)[None]
         colors = torch.cat([g["sh_dc"][:, None, :], g["sh_rest"]], dim=1)  # [N, K, 3]
         degree = params.sh_degree if sh_degree is None else sh_degree
+        # [1, 3]: in "RGB+ED" mode gsplat appends the depth channel's background (zero) itself
         bg = None if background is None else torch.as_tensor(background, dtype=dtype, device=dev).reshape(1, 3)
         common = dict(means=g["means"], quats=g["quats_wxyz"], scales=torch.exp(g["log_scales"]),
                       opacities=torch.sigmoid(g["opacity_logits"]), viewmats=viewmats, Ks=Ks, width=camera.width,
                       height=camera.height, near_plane=camera.near, far_plane=camera.far, eps2d=0.3,
                       packed=self.packed, tile_size=self.tile_size, rasterize_mode="classic")
-        if bg is not None:
-            bg = torch.cat([bg, torch.zeros(1, 1, dtype=dtype, device=dev)], dim=1)  # no background on depth
         render, alpha, meta = gsplat.rasterization(colors=colors, sh_degree=degree, backgrounds=bg,
                                                    render_mode="RGB+ED", **common)
         features = None
