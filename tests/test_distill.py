@@ -64,6 +64,29 @@ def test_cached_and_rasterized_distillation_agree(scene):
     torch.testing.assert_close(a.classifier.weight, b.classifier.weight, atol=1e-5, rtol=1e-4)
 
 
+def test_the_cache_holds_the_views_that_fit_its_budget_and_renders_the_rest(scene):
+    from roodi_toolkit.pipeline.distill import _both_ways, _map_bytes
+
+    ds, cloud, _ = scene
+    masks = ViewMasks(ds.masks.clone(), ds.names, "instances", 3)
+    frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
+    w = compositing_weights(frozen, ds.cameras[1])
+    kept = _both_ways(w)
+    assert kept[0].crow_indices().dtype == torch.int32 and kept[1].shape == (w.shape[1], w.shape[0])
+    one = sum(_map_bytes(m) for m in kept)
+    assert one == _map_bytes(w)  # the estimate before building them is what they hold
+    feats = torch.randn(len(cloud), 4, generator=torch.Generator().manual_seed(1))
+    torch.testing.assert_close(kept[0] @ feats, w @ feats)
+    torch.testing.assert_close(kept[1] @ (w @ feats), w.to_dense().T @ (w @ feats), atol=1e-4, rtol=1e-5)
+    budget = (one + 1) / 2**20  # room for view 1's maps, not view 2's as well
+    a = distill_object_features(cloud, ds, masks, DistillConfig(iterations=4, cache_mb=budget), train_views=[1, 2])
+    assert (a.cached, a.cached_views) == (True, 1) and a.cache_mb * 2**20 == one
+    b = distill_object_features(cloud, ds, masks, DistillConfig(iterations=4, cache_weights=False),
+                                train_views=[1, 2])
+    assert (b.cached, b.cached_views, b.cache_mb) == (False, 0, 0.0)
+    torch.testing.assert_close(a.features, b.features, atol=1e-5, rtol=1e-4)
+
+
 def test_distillation_reaches_the_masks_on_held_out_views(scene, distilled):
     ds, cloud, _ = scene
     masks, result, dcloud = distilled

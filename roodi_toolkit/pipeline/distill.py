@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import re
 import time
+import warnings
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
@@ -32,7 +33,7 @@ from ..io.dataset import Dataset
 from ..io.model import Distillation
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
-from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer, to_csr
+from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer
 from ..render.renderer import render_features as composite_features
 from ..progress import ProgressFactory, null_progress
 from ..imaging import class_map_ious
@@ -62,10 +63,11 @@ class DistillConfig:
         seed: seeds the initial features, the classifier and the view order.
         cache_weights: the geometry is frozen, so rendering features is a fixed sparse linear map per view (the
             compositing weights): compute each view's map once (:func:`compositing_weights`) and render with a
-            sparse product, when all the views' maps fit in ``cache_mb``; otherwise (and with False) every step
-            renders (the same result to float rounding).
-        cache_mb: memory bound of the cached maps (12 bytes a (pixel, Gaussian) pair: a real scene's map is about
-            300 MB per 800 px view, so a real capture renders instead).
+            sparse product, for as many views as fit in ``cache_mb``; the other views (all of them with False)
+            render every step (the same result to float rounding).
+        cache_mb: memory bound of the cached maps, counted in bytes held: a map and its transpose in CSR with
+            32-bit indices, 16 bytes a (pixel, Gaussian) pair (a real scene's 400 px working view holds about
+            5-20M pairs, 80-320 MB).
         max_pixels: segmentation and distillation work on the views scaled down by the smallest integer factor that
             brings them to this many pixels (:mod:`roodi_toolkit.pipeline.resolution`); a selection needs masks of
             the object, not sharp ones (measured: ``benchmarks/RESULTS.md``, "Working resolution").
@@ -78,7 +80,7 @@ class DistillConfig:
     feature_init_std: float = 1e-2
     seed: int = 0
     cache_weights: bool = True
-    cache_mb: int = 1024
+    cache_mb: float = 1024
     max_pixels: int = 512 * 512
 
     def __post_init__(self) -> None:
@@ -154,7 +156,9 @@ class DistillResult:
         history: ``{"step", "loss"}`` every 10 steps.
         seconds: wall time of the optimisation.
         train_views: indices of the views trained on.
-        cached: whether the views' compositing weights were cached (else every step rendered).
+        cached: whether any view's compositing weights were cached (else every step rendered).
+        cached_views: how many of ``train_views`` had theirs cached within ``cache_mb``.
+        cache_mb: the memory the cached maps held.
     """
 
     features: Tensor
@@ -163,6 +167,8 @@ class DistillResult:
     seconds: float
     train_views: list[int]
     cached: bool = False
+    cached_views: int = 0
+    cache_mb: float = 0.0
 
 
 def render_features(params: GaussianParams, features: Tensor, camera: Camera, *,
@@ -199,6 +205,33 @@ def compositing_weights(params: GaussianParams, camera: Camera, *, renderer: Ren
         raise ConfigError(f"the {renderer.name or type(renderer).__name__} renderer cannot list compositing weights; "
                           "render the features instead (DistillConfig(cache_weights=False))")
     return renderer.compositing_weights(params, camera, max_elements=max_elements)
+
+
+def _map_bytes(w: Tensor) -> int:
+    """Bytes a ``[H*W, N]`` map and its transpose hold as :func:`_both_ways` keeps them (16 a pair), or for a map
+    already kept so, its own bytes."""
+    if w.crow_indices().dtype == torch.int32:
+        return sum(t.numel() * t.element_size() for t in (w.crow_indices(), w.col_indices(), w.values()))
+    return 16 * w.values().numel() + 4 * (w.shape[0] + w.shape[1] + 2)
+
+
+def _both_ways(w: Tensor) -> tuple[Tensor, Tensor]:
+    """Return the CSR map ``w`` and its transpose, both with 32-bit indices where they fit (the products take the
+    same time, and the maps half the memory of 64-bit ones); scipy transposes 20x faster than torch's COO route."""
+    import scipy.sparse as sp
+
+    m = sp.csr_matrix((w.values().numpy(), w.col_indices().numpy(), w.crow_indices().numpy()), shape=tuple(w.shape))
+    small = m.nnz < 2**31 - 1 and max(m.shape) < 2**31 - 1
+    index = np.int32 if small else np.int64
+
+    def csr(a) -> Tensor:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta"
+            return torch.sparse_csr_tensor(torch.from_numpy(a.indptr.astype(index)),
+                                           torch.from_numpy(a.indices.astype(index)), torch.from_numpy(a.data),
+                                           a.shape)
+
+    return csr(m), csr(m.T.tocsr())
 
 
 class _SparseRender(torch.autograd.Function):
@@ -257,15 +290,15 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     pos = 0
     t0 = time.perf_counter()
     cache: dict[int, tuple[Tensor, Tensor]] = {}
+    held = 0
     if cached:
         with progress(total=len(views), desc="compositing weights") as bar:
             for v in views:
                 w = compositing_weights(frozen, dataset.cameras[v], renderer=renderer)
-                if w.values().numel() * 12 * len(views) > config.cache_mb * 2**20:  # (two maps of) 12 bytes a pair
-                    cache.clear()
-                    cached = False
-                    break
-                cache[v] = (w, to_csr(w.to_sparse_coo().t()))
+                if held + _map_bytes(w) > config.cache_mb * 2**20:
+                    break  # this view and the rest render every step
+                cache[v] = _both_ways(w)
+                held += sum(_map_bytes(m) for m in cache[v])
                 bar.update(1)
     with progress(total=config.iterations, desc="distill") as bar:
         for step in range(1, config.iterations + 1):
@@ -274,7 +307,7 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
                 pos = 0
             v = views[int(order[pos])]
             pos += 1
-            if cached:
+            if v in cache:
                 rendered = _SparseRender.apply(features, *cache[v])  # [H*W, F]
             else:
                 rendered = render_features(frozen, features, dataset.cameras[v], renderer=renderer).reshape(
@@ -294,7 +327,8 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
             bar.set_postfix_str(f"loss {value:.4f}", refresh=False)
     seconds = time.perf_counter() - t0
     classifier = ObjectClassifier(weight.detach().clone(), bias.detach().clone())
-    return DistillResult(features.detach().clone(), classifier, history, seconds, views, cached)
+    return DistillResult(features.detach().clone(), classifier, history, seconds, views, bool(cache), len(cache),
+                         held / 2**20)
 
 
 # ---------------------------------------------------------------------------------------------------- the cloud
@@ -470,7 +504,8 @@ def distill_scene(cloud: GaussianCloud, dataset: Dataset, *, segmenter: str = "f
                                     progress=progress, renderer=renderer)
     distilled.summary.update({"segmenter": segmenter, "config": asdict(config), "segment_seconds": seg_seconds,
                               "working_downscale": factor, "working_size": [work.width, work.height],
-                              "cached_weights": result.cached})
+                              "cached_weights": result.cached, "cached_views": result.cached_views,
+                              "cache_mb": round(result.cache_mb, 1)})
     return distilled
 
 
