@@ -37,6 +37,7 @@ from ..render.renderer import Renderer, has_compositing_weights, resolve_rendere
 from ..render.renderer import render_features as composite_features
 from ..progress import ProgressFactory, null_progress
 from ..imaging import class_map_ious
+from . import budget
 from .resolution import working_dataset
 from .segment import SegmentPrompt, ViewMasks, resolve_prompt
 
@@ -67,7 +68,8 @@ class DistillConfig:
             render every step (the same result to float rounding).
         cache_mb: memory bound of the cached maps, counted in bytes held: a map and its transpose in CSR with
             32-bit indices, 16 bytes a (pixel, Gaussian) pair (a real scene's 400 px working view holds about
-            5-20M pairs, 80-320 MB).
+            5-20M pairs, 80-320 MB), and never more than half of what the machine has available beyond the rest of
+            the stage (:func:`roodi_toolkit.pipeline.budget.cache_bytes`).
         max_pixels: segmentation and distillation work on the views scaled down by the smallest integer factor that
             brings them to this many pixels (:mod:`roodi_toolkit.pipeline.resolution`); a selection needs masks of
             the object, not sharp ones (measured: ``benchmarks/RESULTS.md``, "Working resolution").
@@ -291,11 +293,14 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     t0 = time.perf_counter()
     cache: dict[int, tuple[Tensor, Tensor]] = {}
     held = 0
+    pixels = dataset.width * dataset.height
+    budget.check_distill(n, config.feature_dim, pixels, len(views))
+    room = budget.cache_bytes(config.cache_mb, budget.distill_fixed_bytes(n, config.feature_dim, pixels))
     if cached:
         with progress(total=len(views), desc="compositing weights") as bar:
             for v in views:
                 w = compositing_weights(frozen, dataset.cameras[v], renderer=renderer)
-                if held + _map_bytes(w) > config.cache_mb * 2**20:
+                if held + _map_bytes(w) > room:
                     break  # this view and the rest render every step
                 cache[v] = _both_ways(w)
                 held += sum(_map_bytes(m) for m in cache[v])
@@ -494,6 +499,8 @@ def distill_scene(cloud: GaussianCloud, dataset: Dataset, *, segmenter: str = "f
     seg = get_segmenter(segmenter, **options)
     work, factor = working_dataset(dataset, config.max_pixels)
     prompt = replace(prompt, clicks=tuple(replace(c, x=c.x / factor, y=c.y / factor) for c in prompt.clicks))
+    if seg.needs_scene:
+        budget.check_click(len(cloud), work.width, work.height, len(work), work.width * work.height)
     t0 = time.perf_counter()
     masks = seg.segment(work, prompt, scene=cloud if seg.needs_scene else None, progress=progress)
     seg_seconds = time.perf_counter() - t0
