@@ -10,9 +10,10 @@ import torch
 
 from roodi_toolkit.io.model import find_model
 from roodi_toolkit.params import GaussianParams
-from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier, compositing_weights,
+from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier,
                                             distill_object_features, evaluate_class_maps, load_distillation,
                                             render_features, with_features)
+from roodi_toolkit.pipeline.weight_cache import compositing_weights
 from roodi_toolkit.pipeline.select import gaussian_probabilities, select_object
 from roodi_toolkit.errors import ConfigError, RoodiError
 from roodi_toolkit.io.ply import read_ply
@@ -65,16 +66,16 @@ def test_cached_and_rasterized_distillation_agree(scene):
 
 
 def test_the_cache_holds_the_views_that_fit_its_budget_and_renders_the_rest(scene):
-    from roodi_toolkit.pipeline.distill import _both_ways, _map_bytes
+    from roodi_toolkit.pipeline.weight_cache import both_ways, map_bytes
 
     ds, cloud, _ = scene
     masks = ViewMasks(ds.masks.clone(), ds.names, "instances", 3)
     frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
     w = compositing_weights(frozen, ds.cameras[1])
-    kept = _both_ways(w)
+    kept = both_ways(w)
     assert kept[0].crow_indices().dtype == torch.int32 and kept[1].shape == (w.shape[1], w.shape[0])
-    one = sum(_map_bytes(m) for m in kept)
-    assert one == _map_bytes(w)  # the estimate before building them is what they hold
+    one = sum(map_bytes(m) for m in kept)
+    assert one == map_bytes(w)  # the estimate before building them is what they hold
     feats = torch.randn(len(cloud), 4, generator=torch.Generator().manual_seed(1))
     torch.testing.assert_close(kept[0] @ feats, w @ feats)
     torch.testing.assert_close(kept[1] @ (w @ feats), w.to_dense().T @ (w @ feats), atol=1e-4, rtol=1e-5)

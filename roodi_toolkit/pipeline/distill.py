@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 import re
 import time
-import warnings
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
@@ -38,6 +37,7 @@ from ..render.renderer import render_features as composite_features
 from ..progress import ProgressFactory, null_progress
 from ..imaging import class_map_ious
 from . import budget
+from .weight_cache import WeightCache
 from .resolution import working_dataset
 from .segment import SegmentPrompt, ViewMasks, resolve_prompt
 
@@ -63,7 +63,7 @@ class DistillConfig:
             class (Gaussian Grouping starts from uniform noise because it trains for 30,000 steps).
         seed: seeds the initial features, the classifier and the view order.
         cache_weights: the geometry is frozen, so rendering features is a fixed sparse linear map per view (the
-            compositing weights): compute each view's map once (:func:`compositing_weights`) and render with a
+            compositing weights): compute each view's map once (:class:`~roodi_toolkit.pipeline.weight_cache.WeightCache`) and render with a
             sparse product, for as many views as fit in ``cache_mb``; the other views (all of them with False)
             render every step (the same result to float rounding).
         cache_mb: memory bound of the cached maps, counted in bytes held: a map and its transpose in CSR with
@@ -193,62 +193,6 @@ def render_features(params: GaussianParams, features: Tensor, camera: Camera, *,
     return composite_features(resolve_renderer(renderer), geometry, features, camera)[0]
 
 
-def compositing_weights(params: GaussianParams, camera: Camera, *, renderer: Renderer | None = None,
-                        max_elements: int = 1 << 22) -> Tensor:
-    """Return the sparse CSR ``[H*W, N]`` matrix of alpha-compositing weights of the Gaussians in ``camera``, from a
-    renderer with that capability (:class:`~roodi_toolkit.render.renderer.CompositingWeights`; default the built-in
-    one): ``W @ features`` is the rendered feature image, to float rounding.
-
-    Raises:
-        ConfigError: the renderer cannot list compositing weights.
-    """
-    renderer = resolve_renderer(renderer)
-    if not has_compositing_weights(renderer):
-        raise ConfigError(f"the {renderer.name or type(renderer).__name__} renderer cannot list compositing weights; "
-                          "render the features instead (DistillConfig(cache_weights=False))")
-    return renderer.compositing_weights(params, camera, max_elements=max_elements)
-
-
-def _map_bytes(w: Tensor) -> int:
-    """Bytes a ``[H*W, N]`` map and its transpose hold as :func:`_both_ways` keeps them (16 a pair), or for a map
-    already kept so, its own bytes."""
-    if w.crow_indices().dtype == torch.int32:
-        return sum(t.numel() * t.element_size() for t in (w.crow_indices(), w.col_indices(), w.values()))
-    return 16 * w.values().numel() + 4 * (w.shape[0] + w.shape[1] + 2)
-
-
-def _both_ways(w: Tensor) -> tuple[Tensor, Tensor]:
-    """Return the CSR map ``w`` and its transpose, both with 32-bit indices where they fit (the products take the
-    same time, and the maps half the memory of 64-bit ones); scipy transposes 20x faster than torch's COO route."""
-    import scipy.sparse as sp
-
-    m = sp.csr_matrix((w.values().numpy(), w.col_indices().numpy(), w.crow_indices().numpy()), shape=tuple(w.shape))
-    small = m.nnz < 2**31 - 1 and max(m.shape) < 2**31 - 1
-    index = np.int32 if small else np.int64
-
-    def csr(a) -> Tensor:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta"
-            return torch.sparse_csr_tensor(torch.from_numpy(a.indptr.astype(index)),
-                                           torch.from_numpy(a.indices.astype(index)), torch.from_numpy(a.data),
-                                           a.shape)
-
-    return csr(m), csr(m.T.tocsr())
-
-
-class _SparseRender(torch.autograd.Function):
-    """``W @ f`` for a fixed sparse ``W`` with its transpose kept for the backward (CSR products both ways)."""
-
-    @staticmethod
-    def forward(ctx, features: Tensor, weights: Tensor, weights_t: Tensor) -> Tensor:  # type: ignore[override]
-        ctx.weights_t = weights_t
-        return weights @ features
-
-    @staticmethod
-    def backward(ctx, grad: Tensor):  # type: ignore[override]
-        return ctx.weights_t @ grad, None, None
-
-
 def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewMasks,
                             config: DistillConfig = DistillConfig(), *, train_views: Sequence[int] | None = None,
                             progress: ProgressFactory = null_progress,
@@ -291,20 +235,11 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     order = torch.empty(0, dtype=torch.long)
     pos = 0
     t0 = time.perf_counter()
-    cache: dict[int, tuple[Tensor, Tensor]] = {}
-    held = 0
     pixels = dataset.width * dataset.height
     budget.check_distill(n, config.feature_dim, pixels, len(views))
     room = budget.cache_bytes(config.cache_mb, budget.distill_fixed_bytes(n, config.feature_dim, pixels))
-    if cached:
-        with progress(total=len(views), desc="compositing weights") as bar:
-            for v in views:
-                w = compositing_weights(frozen, dataset.cameras[v], renderer=renderer)
-                if held + _map_bytes(w) > room:
-                    break  # this view and the rest render every step
-                cache[v] = _both_ways(w)
-                held += sum(_map_bytes(m) for m in cache[v])
-                bar.update(1)
+    cache = WeightCache.build(frozen, {v: dataset.cameras[v] for v in views}, room if cached else 0,
+                              renderer=renderer, progress=progress)
     with progress(total=config.iterations, desc="distill") as bar:
         for step in range(1, config.iterations + 1):
             if pos >= len(order):
@@ -313,7 +248,7 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
             v = views[int(order[pos])]
             pos += 1
             if v in cache:
-                rendered = _SparseRender.apply(features, *cache[v])  # [H*W, F]
+                rendered = cache.render(v, features)  # [H*W, F]
             else:
                 rendered = render_features(frozen, features, dataset.cameras[v], renderer=renderer).reshape(
                     -1, config.feature_dim)
@@ -332,8 +267,8 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
             bar.set_postfix_str(f"loss {value:.4f}", refresh=False)
     seconds = time.perf_counter() - t0
     classifier = ObjectClassifier(weight.detach().clone(), bias.detach().clone())
-    return DistillResult(features.detach().clone(), classifier, history, seconds, views, bool(cache), len(cache),
-                         held / 2**20)
+    return DistillResult(features.detach().clone(), classifier, history, seconds, views, len(cache) > 0, len(cache),
+                         cache.bytes / 2**20)
 
 
 # ---------------------------------------------------------------------------------------------------- the cloud
