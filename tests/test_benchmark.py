@@ -140,3 +140,23 @@ def test_benchmark_never_writes_over_a_foreign_folder(tmp_path, run_cli):
     res = run_cli("benchmark", tmp_path / "r", tmp_path / "o", "--preset", "picnic", "-q")
     assert res.exit_code == 1 and "no scene.json" in res.stderr
     assert (tmp_path / "r" / "picnic" / "notes.txt").read_text() == "mine"
+
+
+def test_a_failed_extraction_scores_as_an_empty_one_with_its_message(tiny_kitchen, tmp_path, monkeypatch):
+    """An extraction that fails (a RoodiError) costs the method that object's score, not the run: the row holds the
+    scores of an empty extraction (a white render, nothing covered) and the message."""
+    from roodi_toolkit.evaluate import benchmark
+
+    def fail(method, data, out, object_id, *args):
+        raise ConfigError(f"object {object_id}: nothing selected")
+
+    monkeypatch.setattr(benchmark, "_extract_one", fail)
+    root = tmp_path / "scenes"
+    root.mkdir()
+    (root / "kitchen").symlink_to(tiny_kitchen)
+    results = benchmark.run_benchmark(root, tmp_path / "bench", presets=["kitchen"], methods=["full"], config=TINY)
+    targets = json.loads((tiny_kitchen / "scene.json").read_text())["targets"]
+    rows = results["scenes"]["kitchen"]["full"]["objects"]
+    assert [r["failed"] for r in rows] == [f"object {t['id']}: nothing selected" for t in targets]
+    assert all(r["iou"] == 0.0 and r["gaussians"] == 0 for r in rows)
+    assert results["mean"]["full"]["iou"] == 0.0

@@ -115,3 +115,39 @@ def test_tiny_selection_skips_pruning_and_says_so(tiny_scene, tmp_path):
     config = replace(config, prune_config=PruneConfig(k=100_000))  # more neighbours than any selection has
     report = extract_objects(scene, tmp_path / "o", [target], config=config)
     assert "prune_skipped" in report["objects"][str(target)]
+
+
+def test_an_unfinished_scene_is_resumed_with_its_settings_and_refused_with_others(tiny_scene, tmp_path, monkeypatch):
+    """A training run stopped after a checkpoint (no final scene PLY): extract resumes it when the settings are the
+    same and, without ``--overwrite``, refuses to train afresh over it when they are not."""
+    import shutil
+    from dataclasses import replace
+
+    from roodi_toolkit.errors import OutputError
+    from roodi_toolkit.io.model import checkpoint_file
+    from roodi_toolkit.pipeline import train as train_module
+    from roodi_toolkit.pipeline.extract import ExtractConfig, prepare_scene
+    from roodi_toolkit.pipeline.train import TrainConfig
+
+    scene, _ = tiny_scene
+    config = ExtractConfig(train=TrainConfig(iterations=20, init="depth", init_num_points=400, eval_every=0,
+                                             checkpoint_every=10, random_background=False))
+    out = tmp_path / "out"
+    train_module.train_scene(scene.resolve(), out / "scene", config.train, downscale=1.0)
+    shutil.rmtree(out / "scene" / "point_cloud" / "iteration_20")  # stopped before writing its final scene
+    assert checkpoint_file(out / "scene").is_file()
+    with pytest.raises(OutputError, match=r"the train there was made with other settings \(iterations changed\) "
+                                          r"and would be replaced; give --overwrite"):
+        prepare_scene(scene, out, config=replace(config, train=replace(config.train, iterations=30)),
+                      replace_changed=False)
+    calls = []
+
+    def stop(*args, **kwargs):
+        calls.append(kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module, "train_scene", stop)
+    for overwrite, resumed in ((False, True), (True, False)):
+        with pytest.raises(KeyboardInterrupt):
+            prepare_scene(scene, out, config=config, replace_changed=False, overwrite=overwrite)
+        assert calls[-1]["resume"] is resumed and calls[-1]["overwrite"] is not resumed

@@ -11,8 +11,9 @@ import torch
 
 from roodi_toolkit.errors import ConfigError
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.pipeline.finetune import (FinetuneConfig, LaplacianLoss, LPIPSLoss, ViewTargets, finetune_object,
-                                    object_view_targets, perceptual_loss, refine_object, seed_hole_gaussians)
+from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,
+                                    refine_object, seed_hole_gaussians)
+from roodi_toolkit.pipeline.perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, OcclusionResult
 

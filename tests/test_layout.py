@@ -1,6 +1,6 @@
-"""The package's layout keeps its promises: small modules, the lower layers know nothing of the pipeline, and no
-import circle between its modules, counting every import a module makes (at its top, inside functions, under
-``if TYPE_CHECKING:``)."""
+"""The package's layout keeps its promises: small modules, functions that read in one screen, the lower layers know
+nothing of the pipeline, and no import circle between its modules, counting every import a module makes (at its top,
+inside functions, under ``if TYPE_CHECKING:``)."""
 
 from __future__ import annotations
 
@@ -54,6 +54,65 @@ def _imports(path: Path, top_level_only: bool) -> set[str]:
 @pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_module_over_600_lines(path):
     assert len(path.read_text().splitlines()) <= 600
+
+
+MAX_FUNCTION_LINES = 80
+LONG_KERNELS = {  # numba kernels: one loop over pixels or Gaussians each, split only at a cost in speed
+    "render/kernels.py:composite_forward", "render/kernels.py:composite_backward",
+    "render/projection_kernels.py:project_forward", "render/projection_kernels.py:project_backward",
+}
+
+
+def _lines_of_code(lines: list[str], node: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
+    """Return a function's lines that are not blank and not comments, less its docstring's lines."""
+    code = [line for line in lines[node.lineno - 1:node.end_lineno] if line.strip()
+            and not line.strip().startswith("#")]
+    doc = ast.get_docstring(node)
+    return len(code) - (len(doc.splitlines()) if doc else 0)
+
+
+def _long_functions(root: Path) -> dict[str, int]:
+    """Return the functions (methods and nested functions too) of the modules under ``root`` over
+    :data:`MAX_FUNCTION_LINES` lines of code, as ``module path:name`` -> lines."""
+    found = {}
+    for path in sorted(p for p in root.rglob("*.py") if "__pycache__" not in p.parts):
+        source = path.read_text()
+        lines = source.splitlines()
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = _lines_of_code(lines, node)
+                if n > MAX_FUNCTION_LINES:
+                    found[f"{path.relative_to(root).as_posix()}:{node.name}"] = n
+    return found
+
+
+def test_the_line_count_skips_blanks_comments_and_the_docstring(tmp_path):
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES - 2))
+    (tmp_path / "m.py").write_text(f'''def short():
+    """One line.
+
+    Two more.
+    """
+    # a comment
+
+{body}
+    return x0
+
+
+def long():
+    """Doc."""
+{body}
+    y = 1
+    return y
+''')
+    assert _long_functions(tmp_path) == {"m.py:long": MAX_FUNCTION_LINES + 1}
+
+
+def test_functions_read_in_one_screen():
+    """At most 80 lines of code a function, but for the numba kernels (issue 35: functions read in one screen)."""
+    long = _long_functions(ROOT)
+    assert set(long) <= LONG_KERNELS, "split along its steps: " + ", ".join(
+        f"{name} ({n} lines)" for name, n in sorted(long.items()) if name not in LONG_KERNELS)
 
 
 def test_lower_layers_know_nothing_of_the_pipeline():

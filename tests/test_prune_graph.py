@@ -10,7 +10,8 @@ import pytest
 
 from roodi_toolkit.errors import EnvironmentProblemError
 from roodi_toolkit.prune.knn import _spread_bits, morton_order
-from roodi_toolkit.prune.scene import components, neighbour_graph, prune_cloud
+from roodi_toolkit.prune.graph import components, neighbour_graph
+from roodi_toolkit.prune.scene import prune_cloud
 from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
 
 
@@ -88,7 +89,7 @@ def test_components_in_two_passes_equal_scipys_one_pass(k):
 def test_union_find_on_long_chains_and_stars():
     """The hooking rounds end on the graphs that need the most of them: a path numbered against its direction, a
     path in random order, a star, and no links at all."""
-    from roodi_toolkit.prune.scene import _union_find
+    from roodi_toolkit.prune.graph import _union_find
 
     n = 5000
     rng = np.random.default_rng(0)

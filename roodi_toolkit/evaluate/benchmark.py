@@ -270,6 +270,71 @@ def _fingerprint(ply: Path, data: Path, renderer: Renderer) -> str:
     return digest.hexdigest()[:32]
 
 
+def _method_order(presets: Sequence[str], methods: Sequence[str]) -> tuple[list[str], list[str]]:
+    """Return the methods to report (``full`` first, then in :data:`METHODS` order, with ``no_two_stage`` added where
+    a method selects from its model) and the order to run them in (a method after the one whose model it starts
+    from).
+
+    Raises:
+        ConfigError: an unknown preset or method.
+    """
+    unknown = [p for p in presets if p not in PRESETS]
+    if unknown:
+        raise ConfigError(f"unknown preset(s) {', '.join(unknown)}; choose from {', '.join(PRESETS)}")
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise ConfigError(f"unknown method(s) {', '.join(bad)}; choose from {', '.join(METHODS)}")
+    if any(MODEL_OF.get(m) == "no_two_stage" for m in methods) and "no_two_stage" not in methods:
+        methods = [*methods, "no_two_stage"]
+    methods = ["full"] + [m for m in METHODS if m in methods and m != "full"]
+    run_order = sorted(methods, key=lambda m: (m not in ("full", "no_two_stage"), methods.index(m)))
+    return methods, run_order
+
+
+def _stale_score(cache: dict[str, Any], key: str, scored: str, target: dict[str, Any]) -> str | None:
+    """Return why the cached score under ``key`` is not this extraction's (None: it is, or there is none)."""
+    if key in cache and cache[key].get("scored") != scored:
+        return "the object or scene differs from the one scored before"  # other settings since
+    if key in cache and "never_seen_share" in target and "ns_iou" not in cache[key]:
+        return "scored before the never-seen region was"
+    return None
+
+
+def _score_target(method: str, key: str, target: dict[str, Any], data: Path, mout: Path, model: Optional[Path],
+                  config: ExtractConfig, cache: dict[str, Any], loaded: dict[str, dict[str, Any]],
+                  recomputed: dict[str, str], progress: ProgressFactory,
+                  renderer: Renderer) -> tuple[dict[str, Any], Optional[np.ndarray]]:
+    """Return one target's scores by one method and the render of its first test view (None where it failed):
+    extracted (or selected, for a baseline) into ``mout`` and scored, or the score ``cache`` holds for the same
+    object, scene and renderer. A failed extraction scores as an empty one, with its message."""
+    from ..io.ply import read_ply
+    from .metrics import evaluate_object
+
+    t = time.perf_counter()
+    try:
+        if method in BASELINES:
+            path, fresh = _baseline_one(method, data, mout, target["id"], model,
+                                        loaded.setdefault(MODEL_OF[method], {}), renderer)
+            if fresh:  # an earlier score belongs to an earlier extraction
+                cache.pop(key, None)
+        else:
+            path = _extract_one(method, data, mout, target["id"], config, model, progress, renderer)
+        cloud = read_ply(path)
+        scored = _fingerprint(path, data, renderer)
+        stale = _stale_score(cache, key, scored, target)
+        if stale is not None:
+            recomputed[key] = stale
+            cache.pop(key)
+        if key in cache:  # scored by an earlier run: render the picture's view only
+            return cache[key], evaluate_object(cloud, data, target["id"], max_views=1, renderer=renderer)[1][0]
+        ev, renders = evaluate_object(cloud, data, target["id"], progress=progress, renderer=renderer)
+        return {**ev.to_dict(per_view=False), "gaussians": len(cloud), "ply": str(path),
+                "seconds": time.perf_counter() - t, "scored": scored}, renders[0]
+    except RoodiError as exc:
+        return cache.get(key) or {**_empty_scores(data, target["id"]), "failed": str(exc), "gaussians": 0,
+                                  "seconds": time.perf_counter() - t}, None
+
+
 def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[str] = PRESETS, seed: int = 0,
                   size: BenchmarkSize = MACHINE_SIZE, methods: Sequence[str] = tuple(METHODS),
                   config: ExtractConfig | None = None, overwrite: bool = False,
@@ -295,20 +360,8 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     """
     from ..io import files
     from ..io.generated import read_scene_record
-    from .metrics import evaluate_object
-    from ..io.ply import read_ply
 
-    unknown = [p for p in presets if p not in PRESETS]
-    if unknown:
-        raise ConfigError(f"unknown preset(s) {', '.join(unknown)}; choose from {', '.join(PRESETS)}")
-    bad = [m for m in methods if m not in METHODS]
-    if bad:
-        raise ConfigError(f"unknown method(s) {', '.join(bad)}; choose from {', '.join(METHODS)}")
-    if any(MODEL_OF.get(m) == "no_two_stage" for m in methods) and "no_two_stage" not in methods:
-        methods = [*methods, "no_two_stage"]
-    methods = ["full"] + [m for m in METHODS if m in methods and m != "full"]
-    # a method runs after the method whose model it starts from
-    run_order = sorted(methods, key=lambda m: (m not in ("full", "no_two_stage"), methods.index(m)))
+    methods, run_order = _method_order(presets, methods)
     root, out = Path(root), files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True)
     root.mkdir(parents=True, exist_ok=True)
     # scores are kept per scene, so that runs of different presets (--preset) can go side by side; an older
@@ -342,37 +395,10 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
             pictures[method] = {}
             for target in _targets(data):
                 key = f"{name}/{method}/{target['id']}"
-                mout = scene_out / method
-                t = time.perf_counter()
-                try:
-                    if method in BASELINES:
-                        path, fresh = _baseline_one(method, data, mout, target["id"], model,
-                                                    loaded.setdefault(MODEL_OF[method], {}), renderer)
-                        if fresh:  # an earlier score belongs to an earlier extraction
-                            cache.pop(key, None)
-                    else:
-                        path = _extract_one(method, data, mout, target["id"], config, model, progress, renderer)
-                    cloud = read_ply(path)
-                    scored = _fingerprint(path, data, renderer)
-                    if key in cache and cache[key].get("scored") != scored:
-                        # the object or the scene changed since (other settings): the old score is not this one's
-                        recomputed[key] = "the object or scene differs from the one scored before"
-                        cache.pop(key)
-                    if key in cache and "never_seen_share" in target and "ns_iou" not in cache[key]:
-                        recomputed[key] = "scored before the never-seen region was"
-                        cache.pop(key)
-                    if key in cache:  # scored by an earlier run: render the picture's view only
-                        row, renders = cache[key], evaluate_object(cloud, data, target["id"], max_views=1,
-                                                                   renderer=renderer)[1]
-                    else:
-                        ev, renders = evaluate_object(cloud, data, target["id"], progress=progress,
-                                                      renderer=renderer)
-                        row = {**ev.to_dict(per_view=False), "gaussians": len(cloud), "ply": str(path),
-                               "seconds": time.perf_counter() - t, "scored": scored}
-                    pictures[method][target["id"]] = renders[0]
-                except RoodiError as exc:
-                    row = cache.get(key) or {**_empty_scores(data, target["id"]), "failed": str(exc), "gaussians": 0,
-                                             "seconds": time.perf_counter() - t}
+                row, picture = _score_target(method, key, target, data, scene_out / method, model, config, cache,
+                                             loaded, recomputed, progress, renderer)
+                if picture is not None:
+                    pictures[method][target["id"]] = picture
                 if "never_seen_share" in target:
                     row["never_seen_share"] = target["never_seen_share"]
                 cache[key] = row

@@ -94,15 +94,12 @@ def _sh_columns(count: int) -> np.ndarray:
     return out
 
 
-def read_ksplat(path: str | os.PathLike) -> GaussianCloud:
-    """Return the Gaussians of a GaussianSplats3D ``.ksplat`` file.
+def _main_header(p: Path, raw: bytes) -> tuple[int, int, int, float, float]:
+    """Return the main header's section count, Gaussian count, compression mode and SH range (mode 2's bytes).
 
     Raises:
-        FormatError: unsupported version or compression mode, sections that run past the end of the file, a
-            Gaussian count that disagrees with the sections.
+        FormatError: a short file, an unsupported version or compression mode, a count of 0.
     """
-    p = Path(path)
-    raw = p.read_bytes()
     if len(raw) < KSPLAT_MAIN_HEADER:
         raise _fail(p, f"a .ksplat file starts with a {KSPLAT_MAIN_HEADER}-byte header, this one has {len(raw)} bytes")
     major, minor = raw[0], raw[1]
@@ -117,7 +114,101 @@ def read_ksplat(path: str | os.PathLike) -> GaussianCloud:
         raise _fail(p, "ksplat file declares 0 Gaussians: there are none to read")
     sh_lo = float(np.frombuffer(raw, "<f4", 1, 36)[0]) or -1.5
     sh_hi = float(np.frombuffer(raw, "<f4", 1, 40)[0]) or 1.5
+    return sections, total, mode, sh_lo, sh_hi
+
+
+def _bucket_indices(n: int, capacity: int, full: int, partial_sizes: np.ndarray) -> np.ndarray:
+    """Return each of a section's ``n`` Gaussians' bucket ``[n]``: ``full`` buckets of ``capacity``, then the
+    partial buckets of the given sizes."""
+    idx = np.arange(n)
+    bucket = np.where(idx < full * capacity, idx // max(capacity, 1), 0)
+    if len(partial_sizes) and n > full * capacity:
+        bounds = full * capacity + np.cumsum(partial_sizes)
+        bucket = np.where(idx < full * capacity, bucket, full + np.searchsorted(bounds, idx, side="right"))
+    return bucket
+
+
+def _decode_records(rec: np.ndarray, mode: int, centres: np.ndarray, bucket: np.ndarray, block: float,
+                    qrange: int, n_sh: int, degree: int, sh_range: tuple[float, float]) -> tuple[np.ndarray, ...]:
+    """Return a section's Gaussians from its records ``[n, bytes]``: positions ``[n, 3]``, log scales ``[n, 3]``,
+    quaternions ``[n, 4]`` wxyz, RGBA bytes ``[n, 4]`` and SH ``[n, coeff * 3 + channel]`` (zero-padded to the file's
+    degree)."""
+    cb, sb, rb = _MODES[mode][:3]
+    hb = _MODES[mode][4]
+    n = len(rec)
+    if mode == 0:
+        pos = rec[:, 0:12].copy().view("<f4").astype(np.float64)
+        sc = rec[:, 12:24].copy().view("<f4").astype(np.float64)
+        rot = rec[:, 24:40].copy().view("<f4").astype(np.float64)
+    else:
+        scale = block / 2.0 / qrange
+        pos = (rec[:, 0:6].copy().view("<u2").astype(np.float64) - qrange) * scale + centres[bucket]
+        sc = rec[:, 6:12].copy().view("<f2").astype(np.float64)
+        rot = rec[:, 12:20].copy().view("<f2").astype(np.float64)
+    c0 = cb + sb + rb
+    rgba = rec[:, c0:c0 + 4]
+    rest = np.zeros((n, _SH_COUNT[degree]), dtype=np.float64)  # [N, coeff * 3 + channel]
+    if n_sh:
+        raw_sh = rec[:, c0 + 4:c0 + 4 + n_sh * hb].copy()
+        if mode == 0:
+            vals = raw_sh.view("<f4").astype(np.float64)
+        elif mode == 1:
+            vals = raw_sh.view("<f2").astype(np.float64)
+        else:
+            sh_lo, sh_hi = sh_range
+            vals = sh_lo + raw_sh.astype(np.float64) / 255.0 * (sh_hi - sh_lo)
+        rest[:, _sh_columns(n_sh)] = vals
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_scales = np.where(sc > 0, np.log(np.where(sc > 0, sc, 1.0)), -10.0)  # splat-transform: -10 if <= 0
+    return pos, log_scales, rot, rgba, rest
+
+
+def _read_section(p: Path, raw: bytes, h: np.ndarray, offset: int, mode: int, degree: int,
+                  sh_range: tuple[float, float]) -> tuple[tuple[np.ndarray, ...] | None, int]:
+    """Return the Gaussians of the section whose header is ``h`` and whose data start at ``offset`` (None for an
+    empty section, else as :func:`_decode_records`), and the offset of the next section's data.
+
+    Raises:
+        FormatError: an SH degree above 3, data past the end of the file, bucket indices past the bucket count.
+    """
     cb, sb, rb, colb, hb, default_range = _MODES[mode]
+    u32 = h[:40].view("<u4")
+    n, max_n, capacity, buckets = (int(v) for v in u32[:4])
+    block = float(h[16:20].view("<f4")[0])
+    bucket_bytes = int(h[20:22].view("<u2")[0])
+    qrange = int(u32[6]) or default_range
+    full, partial = int(u32[8]), int(u32[9])
+    sec_degree = int(h[40:42].view("<u2")[0])
+    if sec_degree > 3:
+        raise _fail(p, f"ksplat SH degree {sec_degree} is not supported (0-3)")
+    n_sh = _SH_COUNT[sec_degree]
+    per = cb + sb + rb + colb + n_sh * hb
+    meta_bytes = bucket_bytes * buckets + partial * 4
+    size = per * max_n
+    if n > max_n or offset + meta_bytes + size > len(raw):
+        raise _fail(p, "ksplat section data run past the end of the file: truncated or corrupt")
+    if n == 0:
+        return None, offset + size + meta_bytes
+    partial_sizes = np.frombuffer(raw, "<u4", partial, offset).astype(np.int64)
+    centres = np.frombuffer(raw, "<f4", buckets * 3, offset + partial * 4).reshape(-1, 3).astype(np.float64)
+    rec = np.frombuffer(raw, np.uint8, per * n, offset + meta_bytes).reshape(n, per)
+    bucket = _bucket_indices(n, capacity, full, partial_sizes)
+    if mode != 0 and (bucket.max() >= buckets):
+        raise _fail(p, "ksplat bucket indices exceed the bucket count: corrupt")
+    return _decode_records(rec, mode, centres, bucket, block, qrange, n_sh, degree, sh_range), \
+        offset + size + meta_bytes
+
+
+def read_ksplat(path: str | os.PathLike) -> GaussianCloud:
+    """Return the Gaussians of a GaussianSplats3D ``.ksplat`` file.
+
+    Raises:
+        FormatError: unsupported version or compression mode, sections that run past the end of the file, a
+            Gaussian count that disagrees with the sections.
+    """
+    p = Path(path)
+    raw = p.read_bytes()
+    sections, total, mode, sh_lo, sh_hi = _main_header(p, raw)
     data_offset = KSPLAT_MAIN_HEADER + sections * KSPLAT_SECTION_HEADER
     if data_offset > len(raw):
         raise _fail(p, f"ksplat declares {sections} sections whose headers run past the end of the file: truncated")
@@ -128,59 +219,9 @@ def read_ksplat(path: str | os.PathLike) -> GaussianCloud:
         raise _fail(p, f"ksplat SH degree {degree} is not supported (0-3)")
     parts = []
     for h in heads:
-        u32 = h[:40].view("<u4")
-        n, max_n, capacity, buckets = (int(v) for v in u32[:4])
-        block = float(h[16:20].view("<f4")[0])
-        bucket_bytes = int(h[20:22].view("<u2")[0])
-        qrange = int(u32[6]) or default_range
-        full, partial = int(u32[8]), int(u32[9])
-        sec_degree = int(h[40:42].view("<u2")[0])
-        if sec_degree > 3:
-            raise _fail(p, f"ksplat SH degree {sec_degree} is not supported (0-3)")
-        n_sh = _SH_COUNT[sec_degree]
-        per = cb + sb + rb + colb + n_sh * hb
-        meta_bytes = bucket_bytes * buckets + partial * 4
-        size = per * max_n
-        if n > max_n or data_offset + meta_bytes + size > len(raw):
-            raise _fail(p, "ksplat section data run past the end of the file: truncated or corrupt")
-        if n == 0:
-            data_offset += size + meta_bytes
-            continue
-        partial_sizes = np.frombuffer(raw, "<u4", partial, data_offset).astype(np.int64)
-        centres = np.frombuffer(raw, "<f4", buckets * 3, data_offset + partial * 4).reshape(-1, 3).astype(np.float64)
-        rec = np.frombuffer(raw, np.uint8, per * n, data_offset + meta_bytes).reshape(n, per)
-        idx = np.arange(n)
-        bucket = np.where(idx < full * capacity, idx // max(capacity, 1), 0)
-        if partial and n > full * capacity:
-            bounds = full * capacity + np.cumsum(partial_sizes)
-            bucket = np.where(idx < full * capacity, bucket, full + np.searchsorted(bounds, idx, side="right"))
-        if mode != 0 and (bucket.max() >= buckets):
-            raise _fail(p, "ksplat bucket indices exceed the bucket count: corrupt")
-        if mode == 0:
-            pos = rec[:, 0:12].copy().view("<f4").astype(np.float64)
-            sc = rec[:, 12:24].copy().view("<f4").astype(np.float64)
-            rot = rec[:, 24:40].copy().view("<f4").astype(np.float64)
-        else:
-            scale = block / 2.0 / qrange
-            pos = (rec[:, 0:6].copy().view("<u2").astype(np.float64) - qrange) * scale + centres[bucket]
-            sc = rec[:, 6:12].copy().view("<f2").astype(np.float64)
-            rot = rec[:, 12:20].copy().view("<f2").astype(np.float64)
-        c0 = cb + sb + rb
-        rgba = rec[:, c0:c0 + 4]
-        rest = np.zeros((n, _SH_COUNT[degree]), dtype=np.float64)  # [N, coeff * 3 + channel]
-        if n_sh:
-            raw_sh = rec[:, c0 + 4:c0 + 4 + n_sh * hb].copy()
-            if mode == 0:
-                vals = raw_sh.view("<f4").astype(np.float64)
-            elif mode == 1:
-                vals = raw_sh.view("<f2").astype(np.float64)
-            else:
-                vals = sh_lo + raw_sh.astype(np.float64) / 255.0 * (sh_hi - sh_lo)
-            rest[:, _sh_columns(n_sh)] = vals
-        with np.errstate(divide="ignore", invalid="ignore"):
-            log_scales = np.where(sc > 0, np.log(np.where(sc > 0, sc, 1.0)), -10.0)  # splat-transform: -10 if <= 0
-        parts.append((pos, log_scales, rot, rgba, rest))
-        data_offset += size + meta_bytes
+        part, data_offset = _read_section(p, raw, h, data_offset, mode, degree, (sh_lo, sh_hi))
+        if part is not None:
+            parts.append(part)
     got = sum(len(x[0]) for x in parts)
     if got != total:
         raise _fail(p, f"ksplat header declares {total} Gaussians but its sections hold {got}: corrupt")

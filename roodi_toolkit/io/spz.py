@@ -116,18 +116,14 @@ def _streams_v4(p: Path, raw: bytes, num_streams: int, toc: int, expected: list[
     return out
 
 
-def read_spz(path: str | os.PathLike) -> GaussianCloud:
-    """Return the Gaussians of an SPZ file (versions 1-4), converted to the 3DGS PLY frame (RDF).
-
-    Alpha bytes 0 and 255 decode to logits -inf and +inf (as the reference does); the caller makes them finite.
+def _open_spz(p: Path, raw: bytes) -> tuple[int, int, int, int, _GzipStream | None, list[bytes] | None]:
+    """Return the header's version, Gaussian count, SH degree and fractional bits, and where the data are: the gzip
+    stream past the header (versions 1-3) or the decompressed streams (version 4; empty when the header's count or
+    degree is out of range, which the caller refuses).
 
     Raises:
-        FormatError: bad magic, unsupported version or SH degree, sizes that do not match the count, truncated or
-            corrupt compressed data.
+        FormatError: no SPZ magic, an unsupported version, a truncated header, corrupt version 4 streams.
     """
-    p = Path(path)
-    raw = p.read_bytes()
-    gz = None
     if raw[:2] == b"\x1f\x8b":
         gz = _GzipStream(p, raw)
         head = gz.read(_HEADER_BYTES)
@@ -138,54 +134,64 @@ def read_spz(path: str | os.PathLike) -> GaussianCloud:
             raise _fail(p, "gzip data is not an SPZ file (no NGSP magic)")
         if version not in (1, 2, 3):
             raise _fail(p, f"gzip SPZ version {version} is not supported (1-3)")
-        streams = None
-    elif len(raw) >= 32 and raw[:4] == b"NGSP":
+        return version, n, degree, frac, gz, None
+    if len(raw) >= 32 and raw[:4] == b"NGSP":
         magic, version, n, degree, frac, flags, num_streams, toc = struct.unpack_from("<IIIBBBBI", raw)
         if version != 4:
             raise _fail(p, f"SPZ version {version} with a plain header is not supported (expected 4)")
+        streams: list[bytes] = []
         if degree <= 3 and 0 < n <= _MAX_POINTS:
             _check_memory(p, n)
             dim4 = (degree + 1) ** 2 - 1
             expected = [9 * n, n, 3 * n, 3 * n, 4 * n] + ([3 * dim4 * n] if dim4 else [])
             streams = _streams_v4(p, raw, num_streams, toc, expected)
-        else:
-            streams = []
-    else:
-        raise _fail(p, "not an SPZ file (neither gzip nor NGSP magic)")
-    if degree > 3:
-        raise _fail(p, f"SPZ SH degree {degree} is not supported (0-3)")
-    if n == 0:
-        raise _fail(p, "SPZ file declares 0 Gaussians: there are none to read")
-    if n > _MAX_POINTS:
-        raise _fail(p, f"SPZ file declares {n} Gaussians, more than this reader accepts ({_MAX_POINTS})")
-    dim = (degree + 1) ** 2 - 1
-    pos_bytes = 6 if version == 1 else 9
-    rot_bytes = 4 if version >= 3 else 3
-    sizes = [n * pos_bytes, n, 3 * n, 3 * n, n * rot_bytes, n * dim * 3]
-    if streams is None:
-        need = sum(sizes)
-        if len(raw) * _DEFLATE_MAX_RATIO < need:
-            raise _fail(p, f"SPZ file holds {len(raw):,} compressed bytes, too few for the {need:,} that {n:,} "
-                           "Gaussians need: truncated or a corrupt count")
-        _check_memory(p, n)
-        body = gz.read(need)  # no further: whatever follows the count's data is never inflated
-        if len(body) < need:
-            raise _fail(p, f"SPZ data holds {len(body)} bytes, {n} Gaussians need {need}: truncated")
-        parts, off = [], 0
-        for s in sizes:
-            parts.append(np.frombuffer(body, dtype=np.uint8, count=s, offset=off))
-            off += s
-    else:
-        if len(streams) < 5 or (dim and len(streams) < 6):
-            raise _fail(p, f"SPZ holds {len(streams)} streams, SH degree {degree} needs {6 if dim else 5}")
-        parts = []
-        for k, s in enumerate(sizes):
-            data = streams[k] if k < len(streams) else b""
-            if len(data) != s:
-                raise _fail(p, f"SPZ stream {k} holds {len(data)} bytes, {n} Gaussians need {s}: corrupt")
-            parts.append(np.frombuffer(data, dtype=np.uint8))
-    pos_b, alpha_b, colour_b, scale_b, rot_b, sh_b = parts
+        return version, n, degree, frac, None, streams
+    raise _fail(p, "not an SPZ file (neither gzip nor NGSP magic)")
 
+
+def _gzip_sections(p: Path, raw: bytes, gz: _GzipStream, n: int, sizes: list[int]) -> list[np.ndarray]:
+    """Return the byte arrays of the sections (positions, alphas, colours, scales, rotations, SH) inflated from a
+    version 1-3 stream, no further than their ``sizes`` need.
+
+    Raises:
+        FormatError: too few compressed bytes for the count, or a stream that ends early.
+    """
+    need = sum(sizes)
+    if len(raw) * _DEFLATE_MAX_RATIO < need:
+        raise _fail(p, f"SPZ file holds {len(raw):,} compressed bytes, too few for the {need:,} that {n:,} "
+                       "Gaussians need: truncated or a corrupt count")
+    _check_memory(p, n)
+    body = gz.read(need)  # no further: whatever follows the count's data is never inflated
+    if len(body) < need:
+        raise _fail(p, f"SPZ data holds {len(body)} bytes, {n} Gaussians need {need}: truncated")
+    parts, off = [], 0
+    for s in sizes:
+        parts.append(np.frombuffer(body, dtype=np.uint8, count=s, offset=off))
+        off += s
+    return parts
+
+
+def _v4_sections(p: Path, streams: list[bytes], n: int, degree: int, sizes: list[int]) -> list[np.ndarray]:
+    """Return the byte arrays of the sections from a version 4 file's streams, one stream each.
+
+    Raises:
+        FormatError: too few streams for the SH degree, or a stream whose size does not match the count.
+    """
+    dim = (degree + 1) ** 2 - 1
+    if len(streams) < 5 or (dim and len(streams) < 6):
+        raise _fail(p, f"SPZ holds {len(streams)} streams, SH degree {degree} needs {6 if dim else 5}")
+    parts = []
+    for k, s in enumerate(sizes):
+        data = streams[k] if k < len(streams) else b""
+        if len(data) != s:
+            raise _fail(p, f"SPZ stream {k} holds {len(data)} bytes, {n} Gaussians need {s}: corrupt")
+        parts.append(np.frombuffer(data, dtype=np.uint8))
+    return parts
+
+
+def _decode_means(pos_b: np.ndarray, n: int, version: int, frac: int) -> np.ndarray:
+    """Return the positions ``[n, 3]`` in the PLY frame: half floats (version 1) or 24-bit fixed point with ``frac``
+    fractional bits."""
     if version == 1:
         means = np.frombuffer(pos_b.tobytes(), dtype="<f2").astype(np.float32).reshape(n, 3)
     else:
@@ -193,13 +199,11 @@ def read_spz(path: str | os.PathLike) -> GaussianCloud:
         fixed = b[:, 0] | (b[:, 1] << 8) | (b[:, 2] << 16)
         fixed = np.where(fixed & 0x800000, fixed - (1 << 24), fixed)
         means = (fixed.astype(np.float32) * np.float32(1.0 / (1 << frac))).reshape(n, 3)
-    means = means * np.array([1.0, -1.0, -1.0], dtype=np.float32)
-    log_scales = scale_b.reshape(n, 3).astype(np.float32) / 16.0 - 10.0
-    with np.errstate(divide="ignore"):
-        a = alpha_b.astype(np.float32) / 255.0
-        opacity = np.log(a) - np.log1p(-a)
-    sh_dc = (colour_b.reshape(n, 3).astype(np.float32) / 255.0 - 0.5) / COLOR_SCALE
+    return means * np.array([1.0, -1.0, -1.0], dtype=np.float32)
 
+
+def _decode_rotations(rot_b: np.ndarray, n: int, version: int) -> np.ndarray:
+    """Return the quaternions ``[n, 4]`` wxyz in the PLY frame: "smallest three" (version 3 on) or "first three"."""
     if version >= 3:
         comp = rot_b.reshape(n, 4).astype(np.uint32)
         comp = comp[:, 0] | (comp[:, 1] << 8) | (comp[:, 2] << 16) | (comp[:, 3] << 24)
@@ -220,13 +224,54 @@ def read_spz(path: str | os.PathLike) -> GaussianCloud:
         w = np.sqrt(np.maximum(0.0, 1.0 - np.sum(xyz * xyz, axis=1)))
         xyzw = np.concatenate([xyz, w[:, None]], axis=1)
     xyzw[:, :3] *= _FLIP_Q
-    quats = xyzw[:, [3, 0, 1, 2]]
+    return xyzw[:, [3, 0, 1, 2]]
 
-    if dim:
-        rest = (sh_b.reshape(n, dim, 3).astype(np.float32) - 128.0) / 128.0
-        rest *= _FLIP_SH[:dim, None]
+
+def _decode_sh_rest(sh_b: np.ndarray, n: int, dim: int) -> np.ndarray:
+    """Return the SH coefficients above degree 0 ``[n, dim, 3]`` in the PLY frame."""
+    if not dim:
+        return np.zeros((n, 0, 3), dtype=np.float32)
+    rest = (sh_b.reshape(n, dim, 3).astype(np.float32) - 128.0) / 128.0
+    rest *= _FLIP_SH[:dim, None]
+    return rest
+
+
+def read_spz(path: str | os.PathLike) -> GaussianCloud:
+    """Return the Gaussians of an SPZ file (versions 1-4), converted to the 3DGS PLY frame (RDF).
+
+    Alpha bytes 0 and 255 decode to logits -inf and +inf (as the reference does); the caller makes them finite.
+
+    Raises:
+        FormatError: bad magic, unsupported version or SH degree, sizes that do not match the count, truncated or
+            corrupt compressed data.
+    """
+    p = Path(path)
+    raw = p.read_bytes()
+    version, n, degree, frac, gz, streams = _open_spz(p, raw)
+    if degree > 3:
+        raise _fail(p, f"SPZ SH degree {degree} is not supported (0-3)")
+    if n == 0:
+        raise _fail(p, "SPZ file declares 0 Gaussians: there are none to read")
+    if n > _MAX_POINTS:
+        raise _fail(p, f"SPZ file declares {n} Gaussians, more than this reader accepts ({_MAX_POINTS})")
+    dim = (degree + 1) ** 2 - 1
+    pos_bytes = 6 if version == 1 else 9
+    rot_bytes = 4 if version >= 3 else 3
+    sizes = [n * pos_bytes, n, 3 * n, 3 * n, n * rot_bytes, n * dim * 3]
+    if streams is None:
+        parts = _gzip_sections(p, raw, gz, n, sizes)
     else:
-        rest = np.zeros((n, 0, 3), dtype=np.float32)
+        parts = _v4_sections(p, streams, n, degree, sizes)
+    pos_b, alpha_b, colour_b, scale_b, rot_b, sh_b = parts
+
+    means = _decode_means(pos_b, n, version, frac)
+    log_scales = scale_b.reshape(n, 3).astype(np.float32) / 16.0 - 10.0
+    with np.errstate(divide="ignore"):
+        a = alpha_b.astype(np.float32) / 255.0
+        opacity = np.log(a) - np.log1p(-a)
+    sh_dc = (colour_b.reshape(n, 3).astype(np.float32) / 255.0 - 0.5) / COLOR_SCALE
+    quats = _decode_rotations(rot_b, n, version)
+    rest = _decode_sh_rest(sh_b, n, dim)
     return GaussianCloud(means=means.astype(np.float32), quats_wxyz=np.ascontiguousarray(quats, dtype=np.float32),
                          log_scales=log_scales, opacity_logits=opacity.astype(np.float32), sh_dc=sh_dc,
                          sh_rest=np.ascontiguousarray(rest))

@@ -1,6 +1,8 @@
 """The ``click`` segmenter: clicks in one view -> the clicked object's Gaussians -> masks of every view.
 
-See :class:`ClickSegmenter` for the method; the interface it implements is :mod:`roodi_toolkit.pipeline.segment`.
+See :class:`ClickSegmenter` for the method; the interface it implements is :mod:`roodi_toolkit.pipeline.segment`. The
+pixel operations on the clicked view (flood fill, GrabCut, holes, components) are in
+:mod:`roodi_toolkit.pipeline.click_regions`.
 """
 
 from __future__ import annotations
@@ -19,69 +21,11 @@ from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
+from .click_regions import _component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
 # ------------------------------------------------------------------------------------------------------ click
-
-
-def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int, seed: int) -> np.ndarray:
-    """Return the foreground ``[H, W]`` bool of OpenCV GrabCut started from ``init`` (cv2.GC_* labels).
-
-    Falls back to the probable/sure foreground of ``init`` when GrabCut cannot model one of the two sides (it needs
-    pixels of both).
-    """
-    import cv2
-
-    fg = (init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)
-    if fg.all() or not fg.any():
-        return fg
-    img8 = (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)[..., ::-1].copy()  # OpenCV wants BGR
-    mask = init.astype(np.uint8).copy()
-    bgd = np.zeros((1, 65), np.float64)
-    fgd = np.zeros((1, 65), np.float64)
-    cv2.setRNGSeed(seed)
-    try:
-        cv2.grabCut(img8, mask, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
-    except cv2.error:
-        return fg
-    return (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)
-
-
-def _depth_flood_fill(depth: np.ndarray, allowed: np.ndarray, seeds: Sequence[tuple[int, int]],
-                      tolerance: float) -> np.ndarray:
-    """Return the pixels reached from ``seeds`` (row, col) through 4-neighbours whose depths differ by less than
-    ``tolerance`` relative, within ``allowed``."""
-    import cv2
-
-    logd = np.log(np.where(allowed, np.maximum(depth, 1e-12), 1.0)).astype(np.float32)
-    H, W = depth.shape
-    region = np.zeros((H, W), bool)
-    for r, c in seeds:
-        if region[r, c] or not allowed[r, c]:
-            continue
-        block = np.ones((H + 2, W + 2), np.uint8)
-        block[1:-1, 1:-1] = ~allowed  # floodFill does not enter non-zero mask pixels
-        diff = float(np.log1p(tolerance))
-        cv2.floodFill(logd.copy(), block, (int(c), int(r)), 0.0, diff, diff,
-                      4 | cv2.FLOODFILL_MASK_ONLY | (2 << 8))
-        region |= (block[1:-1, 1:-1] == 2)
-    return region
-
-
-def _fill_holes(mask: np.ndarray) -> np.ndarray:
-    from scipy import ndimage
-
-    return ndimage.binary_fill_holes(mask)
-
-
-def _component_at(mask: np.ndarray, seeds: Sequence[tuple[int, int]]) -> np.ndarray:
-    """Return the union of the 8-connected components of ``mask`` that contain a seed ``(row, col)``."""
-    from scipy import ndimage
-
-    labels, _ = ndimage.label(mask, structure=np.ones((3, 3), bool))
-    ids = {int(labels[r, c]) for r, c in seeds if labels[r, c] > 0}
-    return np.isin(labels, list(ids)) if ids else np.zeros_like(mask)
 
 
 SCENE_REGION_RADIUS = 0.15
@@ -251,27 +195,7 @@ class ClickSegmenter(Segmenter):
         seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if c.positive]
         not_seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if not c.positive]
         mask0, band0 = self._clicked_region(dataset, v0, scene, seeds, not_seeds)
-        # per Gaussian, the sum over the pixels of its compositing weight times the region, the band and 1 is the
-        # gradient of the rendered feature image times those pixel factors: one rendering and its backward, for any
-        # differentiable renderer, without listing (pixel, Gaussian) weights (gigabytes at 1000 px). The last
-        # feature, each Gaussian's camera-space depth, composites the expected depth.
-        z = scene.means @ cam0.world_to_camera[2, :3] + cam0.world_to_camera[2, 3]
-        feats = torch.zeros(len(scene), 5, dtype=params.dtype)
-        feats[:, 3] = torch.as_tensor(z, dtype=params.dtype)
-        feats.requires_grad_()
-        rendered, alpha = render_features(self.renderer, params, feats, cam0)
-        # the last factor: the pixels under the clicks themselves, whose Gaussians are what the user pointed at
-        at = np.zeros_like(mask0)
-        for r, c in seeds:
-            at[max(r - CLICK_PATCH, 0):r + CLICK_PATCH + 1, max(c - CLICK_PATCH, 0):c + CLICK_PATCH + 1] = True
-        pixel_factors = np.stack([mask0, band0, np.ones_like(mask0), np.zeros_like(mask0), at], -1)
-        (rendered * torch.as_tensor(pixel_factors, dtype=params.dtype)).sum().backward()
-        inside, around, total, _, at_click = feats.grad.numpy().T
-        seen = total >= s.min_weight
-        fg = seen & (inside >= s.seed_fraction * total)
-        bg = seen & (around >= s.seed_fraction * total)
-        a0 = alpha[..., 0].detach().numpy()
-        depth0 = np.where(a0 > 1e-10, rendered[..., 3].detach().numpy() / np.maximum(a0, 1e-10), 0.0)
+        fg, bg, at_click, depth0 = self._seed_gaussians(scene, params, cam0, mask0, band0, seeds)
         rc = np.argwhere(mask0 & (depth0 > 0))
         points = cam0.backproject(rc, depth0[mask0 & (depth0 > 0)])
         centre = points.mean(axis=0)
@@ -293,8 +217,53 @@ class ClickSegmenter(Segmenter):
             candidates = np.linalg.norm(scene.means - centre, axis=1) <= s.grow_radius * radius0
             info["free_standing"] = False
         info["grown_gaussians"] = int(selected.sum())
-        sel = (selected & candidates).astype(np.float32)
-        masks = np.zeros((len(dataset), H, W), np.uint8)
+        masks, sel = self._vote_and_render(dataset, params, (selected & candidates).astype(np.float32), candidates,
+                                           v0, progress)
+        info["selected_gaussians"] = int(sel.sum())
+        if not masks[v0].any():
+            raise SegmentationError(
+                f"the click in {names[v0]} selected no Gaussians of the scene model ({int(fg.sum())} seeds, "
+                f"{int(selected.sum())} after growing, none left after the multi-view vote): click nearer the middle "
+                "of the object, add a second click, or give masks with the files segmenter")
+        return ViewMasks(torch.from_numpy(masks), names, "binary", 2, source=f"click in {names[v0]}", info=info)
+
+    def _seed_gaussians(self, scene: GaussianCloud, params: GaussianParams, cam0: Any, mask0: np.ndarray,
+                        band0: np.ndarray, seeds: Sequence[tuple[int, int]]) -> tuple[np.ndarray, ...]:
+        """Return the seeds of the object and of the rest ``[N]`` bool (most of a Gaussian's weight in the clicked
+        view inside the region, or in the band round it), each Gaussian's weight under the clicks ``[N]`` and the
+        clicked view's expected depth ``[H, W]`` (0 where nothing is rendered)."""
+        s = self.settings
+        # per Gaussian, the sum over the pixels of its compositing weight times the region, the band and 1 is the
+        # gradient of the rendered feature image times those pixel factors: one rendering and its backward, for any
+        # differentiable renderer, without listing (pixel, Gaussian) weights (gigabytes at 1000 px). The last
+        # feature, each Gaussian's camera-space depth, composites the expected depth.
+        z = scene.means @ cam0.world_to_camera[2, :3] + cam0.world_to_camera[2, 3]
+        feats = torch.zeros(len(scene), 5, dtype=params.dtype)
+        feats[:, 3] = torch.as_tensor(z, dtype=params.dtype)
+        feats.requires_grad_()
+        rendered, alpha = render_features(self.renderer, params, feats, cam0)
+        # the last factor: the pixels under the clicks themselves, whose Gaussians are what the user pointed at
+        at = np.zeros_like(mask0)
+        for r, c in seeds:
+            at[max(r - CLICK_PATCH, 0):r + CLICK_PATCH + 1, max(c - CLICK_PATCH, 0):c + CLICK_PATCH + 1] = True
+        pixel_factors = np.stack([mask0, band0, np.ones_like(mask0), np.zeros_like(mask0), at], -1)
+        (rendered * torch.as_tensor(pixel_factors, dtype=params.dtype)).sum().backward()
+        inside, around, total, _, at_click = feats.grad.numpy().T
+        seen = total >= s.min_weight
+        fg = seen & (inside >= s.seed_fraction * total)
+        bg = seen & (around >= s.seed_fraction * total)
+        a0 = alpha[..., 0].detach().numpy()
+        depth0 = np.where(a0 > 1e-10, rendered[..., 3].detach().numpy() / np.maximum(a0, 1e-10), 0.0)
+        return fg, bg, at_click, depth0
+
+    def _vote_and_render(self, dataset: Dataset, params: GaussianParams, sel: np.ndarray, candidates: np.ndarray,
+                         v0: int, progress: ProgressFactory) -> tuple[np.ndarray, np.ndarray]:
+        """Return the masks of every view ``[V, H, W]`` uint8 and the final selection ``[N]``: ``vote_rounds`` times
+        the selection ``sel`` (among the ``candidates``) becomes the Gaussians whose weight over the voting views
+        lies mostly inside their masks, then every view's mask is rendered."""
+        s = self.settings
+        n = len(sel)
+        masks = np.zeros((len(dataset), dataset.height, dataset.width), np.uint8)
         rounds = max(int(s.vote_rounds), 0)
         # the vote is a statistic over views: a few dozen spread round the scene decide it as well as hundreds
         voters = sorted(set(np.linspace(0, len(dataset) - 1, min(len(dataset), s.vote_views)).round().astype(int))
@@ -302,10 +271,10 @@ class ClickSegmenter(Segmenter):
         with progress(total=rounds * len(voters) + len(dataset), desc="render the selection") as bar:
             for r in range(rounds + 1):
                 vote = r < rounds
-                inw = np.zeros(len(scene))
-                tot = np.zeros(len(scene))
+                inw = np.zeros(n)
+                tot = np.zeros(n)
                 for v in voters if vote else range(len(dataset)):
-                    feats = torch.zeros(len(scene), 2, dtype=params.dtype)
+                    feats = torch.zeros(n, 2, dtype=params.dtype)
                     feats[:, 0] = torch.from_numpy(sel)
                     feats.requires_grad_(vote)
                     with torch.set_grad_enabled(vote):
@@ -323,13 +292,7 @@ class ClickSegmenter(Segmenter):
                 if vote:
                     voted = tot >= s.min_weight
                     sel = (np.where(voted, inw > s.threshold * tot, sel > 0) & candidates).astype(np.float32)
-        info["selected_gaussians"] = int(sel.sum())
-        if not masks[v0].any():
-            raise SegmentationError(
-                f"the click in {names[v0]} selected no Gaussians of the scene model ({int(fg.sum())} seeds, "
-                f"{int(selected.sum())} after growing, none left after the multi-view vote): click nearer the middle "
-                "of the object, add a second click, or give masks with the files segmenter")
-        return ViewMasks(torch.from_numpy(masks), names, "binary", 2, source=f"click in {names[v0]}", info=info)
+        return masks, sel
 
     def _clicked_region(self, dataset: Dataset, v0: int, scene: GaussianCloud, seeds: Sequence[tuple[int, int]],
                         not_seeds: Sequence[tuple[int, int]] = ()) -> tuple[np.ndarray, np.ndarray]:
@@ -570,18 +533,6 @@ class ClickSegmenter(Segmenter):
         out[free] = x
         labels[idx] = out
         return labels
-
-
-def _disk(radius: int) -> np.ndarray:
-    r = max(int(radius), 0)
-    y, x = np.mgrid[-r:r + 1, -r:r + 1]
-    return (x * x + y * y) <= r * r
-
-
-def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
-    from scipy import ndimage
-
-    return ndimage.binary_dilation(mask, structure=_disk(radius)) if radius > 0 else mask.copy()
 
 
 def _inside_box(points: np.ndarray, point: np.ndarray) -> bool:

@@ -247,6 +247,117 @@ class PreparedScene:
         return ids
 
 
+def _check_sources(config: ExtractConfig, model_dir: str | Path | None, distill_dir: str | Path | None,
+                   dataparser_transforms: str | Path | None) -> None:
+    """Refuse given stages that cannot go together.
+
+    Raises:
+        ConfigError: ``--model`` or ``--distill`` with single-stage training, ``--distill`` or
+            ``--dataparser-transforms`` without ``--model``.
+    """
+    if config.single_stage and (model_dir is not None or distill_dir is not None):
+        raise ConfigError("single-stage training trains the scene and its features together; it cannot start from "
+                          "--model or --distill")
+    if distill_dir is not None and model_dir is None:
+        raise ConfigError("--distill needs the --model it was distilled from")
+    if dataparser_transforms is not None and model_dir is None:
+        raise ConfigError("--dataparser-transforms goes with the nerfstudio export given as --model")
+
+
+def _data_folder(data_dir: str | Path | None, model: Any) -> Path:
+    """Return the data folder: ``data_dir``, or without it the one the given model's cfg.json names.
+
+    Raises:
+        ConfigError: neither, or the named folder is gone.
+    """
+    if data_dir is None:
+        recorded = model.config.get("data_dir") if model is not None else None
+        if not recorded:
+            raise ConfigError("give the data folder: no --model, or its cfg.json names no data_dir")
+        data_dir = recorded
+        if not Path(data_dir).exists():
+            raise ConfigError(f"{data_dir}: the data folder named in {model.root / 'cfg.json'} is gone; give DATA_DIR")
+    return Path(data_dir)
+
+
+def _train_stage(config: ExtractConfig, data_dir: Path, model_root: Path, dataset: Any, downscale: float,
+                 distill_fresh: bool, stages: _Stages, overwrite: bool, replace_changed: bool,
+                 progress: ProgressFactory, renderer: Any) -> tuple[Any, GaussianCloud, Any]:
+    """Return the scene trained into ``model_root``: its model folder, its cloud and, with single-stage training,
+    its distillation (else None). A finished run of the same settings is reused, an unfinished one resumed from its
+    checkpoint, anything else trained afresh.
+
+    ``distill_fresh``: whether the distillation there can be reused (single-stage training learns it with the scene,
+    so a changed one means training again).
+
+    Raises:
+        OutputError: an unfinished run of other settings, neither ``overwrite`` nor ``replace_changed``.
+    """
+    from ..io import files
+    from ..io.model import checkpoint_file, find_model
+    from ..io.ply import read_ply
+    from .train import train_scene
+
+    train_wanted = _train_wanted(config, data_dir, downscale, dataset.alphas is not None)
+    old = _train_record(model_root)
+    if config.single_stage and old is not None and not distill_fresh:
+        old = None
+    if stages.fresh("train", old, train_wanted, overwrite, model_root):
+        model = find_model(model_root)
+        return model, read_ply(model.ply_path), None
+    record = files.read_json(model_root / "cfg.json", "training record") \
+        if (model_root / "cfg.json").is_file() else None
+    same = isinstance(record, dict) and all(record.get(k) == v for k, v in train_wanted.items())
+    if isinstance(record, dict) and not same and not overwrite and not replace_changed:
+        # an unfinished run of other settings: starting afresh would replace what it wrote
+        raise _changed_error(model_root, "train", sorted(k for k, v in train_wanted.items()
+                                                         if record.get(k) != v))
+    resume = same and checkpoint_file(model_root).is_file() and not overwrite
+    distilled = None
+    if config.single_stage:
+        from .joint import train_joint
+
+        result, distilled = train_joint(data_dir.resolve(), model_root, config.train, config.distill,
+                                        downscale=downscale, resume=resume, overwrite=not resume,
+                                        dataset=dataset, progress=progress, renderer=renderer)
+    else:
+        result = train_scene(data_dir.resolve(), model_root, config.train, downscale=downscale, resume=resume,
+                             overwrite=not resume, dataset=dataset, progress=progress,
+                             renderer=renderer)
+    return find_model(model_root), result.cloud, distilled
+
+
+def _distill_stage(config: ExtractConfig, distill_out: Path, distill_old: dict[str, Any] | None,
+                   distill_wanted: dict[str, Any], distilled: Any, model: Any, scene: GaussianCloud, dataset: Any,
+                   data_dir: Path, downscale: float, prompt: Any, stages: _Stages, overwrite: bool,
+                   report: dict[str, Any], progress: ProgressFactory, renderer: Any) -> tuple[GaussianCloud, Any]:
+    """Return the scene with its object features and their classifier, distilled into ``distill_out`` (or taken
+    from the single-stage training's ``distilled``); a finished distillation of the same settings is reused. A new
+    one's summary goes into ``report``.
+
+    Raises:
+        OutputError: a distillation of other settings there, neither ``overwrite`` nor ``replace_changed``.
+    """
+    from .distill import distill_scene, load_distillation, save_distilled, scene_labels
+
+    wanted = {**distill_wanted, "model_ply": str(model.ply_path.resolve())}
+    if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite, distill_out):
+        _, cloud, classifier = load_distillation(distill_out, scene)
+        return cloud, classifier
+    if distilled is None:
+        distilled = distill_scene(scene, dataset, segmenter=config.segmenter, prompt=prompt,
+                                  segmenter_options=config.segmenter_options, config=config.distill,
+                                  holdout_every=int(model.config.get("holdout_every", 8)),
+                                  labels=scene_labels(data_dir), progress=progress, renderer=renderer)
+    save_distilled(distill_out, distilled, model.ply_path,
+                   {"downscale": downscale, "data_dir": wanted["data_dir"], "prompt": wanted["prompt"],
+                    "segmenter_options": wanted["segmenter_options"],
+                    "single_stage": config.single_stage, "model_dir": str(model.root.resolve()),
+                    **model.record()})
+    report["distill"] = {k: v for k, v in distilled.summary.items() if k != "history"}
+    return distilled.cloud, distilled.classifier
+
+
 def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir: str | Path | None = None,
                   distill_dir: str | Path | None = None, config: ExtractConfig = ExtractConfig(),
                   overwrite: bool = False, progress: ProgressFactory = null_progress,
@@ -259,31 +370,16 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     """
     from ..io import files
     from ..io.dataset import load_dataset
-    from ..io.model import DISTILL_RECORD, checkpoint_file, find_model, open_model
-    from ..io.ply import read_ply
+    from ..io.model import DISTILL_RECORD, open_model
     from ..render.renderer import resolve_renderer
-    from .distill import _without_features, distill_scene, load_distillation, save_distilled, scene_labels
+    from .distill import _without_features, load_distillation
     from .model_frame import settle_model_frame
     from .segment import FilesSegmenter, SegmentPrompt
-    from .train import train_scene
 
-    if config.single_stage and (model_dir is not None or distill_dir is not None):
-        raise ConfigError("single-stage training trains the scene and its features together; it cannot start from "
-                          "--model or --distill")
-    if distill_dir is not None and model_dir is None:
-        raise ConfigError("--distill needs the --model it was distilled from")
-    if dataparser_transforms is not None and model_dir is None:
-        raise ConfigError("--dataparser-transforms goes with the nerfstudio export given as --model")
+    _check_sources(config, model_dir, distill_dir, dataparser_transforms)
     model = open_model(model_dir, data_dir, dataparser_transforms=dataparser_transforms) \
         if model_dir is not None else None
-    if data_dir is None:
-        recorded = model.config.get("data_dir") if model is not None else None
-        if not recorded:
-            raise ConfigError("give the data folder: no --model, or its cfg.json names no data_dir")
-        data_dir = recorded
-        if not Path(data_dir).exists():
-            raise ConfigError(f"{data_dir}: the data folder named in {model.root / 'cfg.json'} is gone; give DATA_DIR")
-    data_dir = Path(data_dir)
+    data_dir = _data_folder(data_dir, model)
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True,
                                    inputs=[data_dir, model_dir, distill_dir, dataparser_transforms,
                                            model.root if model is not None else None])
@@ -312,35 +408,9 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     t = time.perf_counter()
     distilled = None
     if model is None:
-        model_root = out / "scene"
-        train_wanted = _train_wanted(config, data_dir, downscale, dataset.alphas is not None)
-        old = _train_record(model_root)
-        if config.single_stage and old is not None and not _Stages({}).fresh("", distill_old, distill_wanted, False):
-            old = None  # the features are learned with the scene: a changed distillation means training again
-        if stages.fresh("train", old, train_wanted, overwrite, model_root):
-            model = find_model(model_root)
-            scene = read_ply(model.ply_path)
-        else:
-            record = files.read_json(model_root / "cfg.json", "training record") \
-                if (model_root / "cfg.json").is_file() else None
-            same = isinstance(record, dict) and all(record.get(k) == v for k, v in train_wanted.items())
-            if isinstance(record, dict) and not same and not overwrite and not replace_changed:
-                # an unfinished run of other settings: starting afresh would replace what it wrote
-                raise _changed_error(model_root, "train", sorted(k for k, v in train_wanted.items()
-                                                                 if record.get(k) != v))
-            resume = same and checkpoint_file(model_root).is_file() and not overwrite
-            if config.single_stage:
-                from .joint import train_joint
-
-                result, distilled = train_joint(data_dir.resolve(), model_root, config.train, config.distill,
-                                                downscale=downscale, resume=resume, overwrite=not resume,
-                                                dataset=dataset, progress=progress, renderer=renderer)
-            else:
-                result = train_scene(data_dir.resolve(), model_root, config.train, downscale=downscale, resume=resume,
-                                     overwrite=not resume, dataset=dataset, progress=progress,
-                                     renderer=renderer)
-            model = find_model(model_root)
-            scene = result.cloud
+        distill_fresh = _Stages({}).fresh("", distill_old, distill_wanted, False)
+        model, scene, distilled = _train_stage(config, data_dir, out / "scene", dataset, downscale, distill_fresh,
+                                               stages, overwrite, replace_changed, progress, renderer)
     else:
         scene = model.read_cloud()
     scene = _without_features(scene)
@@ -355,22 +425,9 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
                               f"{model.ply_path}")
         distill_out = Path(distill_dir)
     else:
-        wanted = {**distill_wanted, "model_ply": str(model.ply_path.resolve())}
-        if distilled is None and stages.fresh("distill", distill_old, wanted, overwrite, distill_out):
-            _, cloud, classifier = load_distillation(distill_out, scene)
-        else:
-            if distilled is None:
-                distilled = distill_scene(scene, dataset, segmenter=config.segmenter, prompt=prompt,
-                                          segmenter_options=config.segmenter_options, config=config.distill,
-                                          holdout_every=int(model.config.get("holdout_every", 8)),
-                                          labels=scene_labels(data_dir), progress=progress, renderer=renderer)
-            save_distilled(distill_out, distilled, model.ply_path,
-                           {"downscale": downscale, "data_dir": wanted["data_dir"], "prompt": wanted["prompt"],
-                            "segmenter_options": wanted["segmenter_options"],
-                            "single_stage": config.single_stage, "model_dir": str(model.root.resolve()),
-                            **model.record()})
-            report["distill"] = {k: v for k, v in distilled.summary.items() if k != "history"}
-            cloud, classifier = distilled.cloud, distilled.classifier
+        cloud, classifier = _distill_stage(config, distill_out, distill_old, distill_wanted, distilled, model, scene,
+                                           dataset, data_dir, downscale, prompt, stages, overwrite, report,
+                                           progress, renderer)
     report["distill_dir"] = str(distill_out)
     timings["distill_s"] = time.perf_counter() - t
     masks = dataset.masks

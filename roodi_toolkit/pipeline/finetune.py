@@ -8,12 +8,8 @@ the paper found it harmful because inpaintings are not always right.
 :func:`refine_object` is the whole step: occlusion reasoning, inpainting of the four views as one 2x2 grid, fine-tuning,
 and the debug images (renders, masks, grids before and after inpainting, the object before and after).
 
-Perceptual loss: LPIPS (Zhang et al. 2018), as in the paper, when its weights are on this machine
-(:meth:`roodi_toolkit.lpips.LPIPS.from_local`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream files in
-the local caches; nothing is downloaded). Otherwise a
-Laplacian-pyramid L1 ("Lap1", Bojanowski et al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass
-levels of the two images, each level weighted equally, so that edges and texture at every scale count as much as
-flat colour. It needs no weights and is not D-SSIM. :attr:`FinetuneResult.perceptual` says which one ran.
+The perceptual loss is :mod:`roodi_toolkit.pipeline.perceptual`'s (LPIPS with local weights, else a Laplacian-pyramid
+L1; its classes are re-exported here); :attr:`FinetuneResult.perceptual` says which one ran.
 """
 
 from __future__ import annotations
@@ -32,9 +28,9 @@ from torch import Tensor
 from ..cameras import Camera
 from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
-from ..lpips import LPIPS, LPIPSUnavailable
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
+from .perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss  # noqa: F401 (re-exported)
 from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, hidden_part_picture, object_extent,
                         occlusion_masks, seen_through, write_occlusion_images)
 from ..progress import ProgressFactory, null_progress
@@ -101,66 +97,6 @@ class FinetuneConfig:
         if self.seed_stride < 1 or not 0 < self.seed_opacity < 1 or not 0 <= self.seed_min_difference < 1:
             raise ConfigError(f"finetune: need seed_stride >= 1, 0 < seed_opacity < 1, 0 <= seed_min_difference < 1; "
                               f"got {self.seed_stride}, {self.seed_opacity}, {self.seed_min_difference}")
-
-
-# ----------------------------------------------------------------------------------------------- perceptual losses
-
-
-class LaplacianLoss(torch.nn.Module):
-    """Return the mean over pyramid levels of the L1 between Laplacian-pyramid bands of two images.
-
-    Args:
-        levels: band-pass levels (the last one is the low-pass residual).
-
-    Example:
-        >>> a = torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0))
-        >>> loss = LaplacianLoss()
-        >>> float(loss(a, a)), float(loss(a, a.mean() * torch.ones_like(a))) > 0.05
-        (0.0, True)
-    """
-
-    name = "laplacian"
-
-    def __init__(self, levels: int = 4) -> None:
-        super().__init__()
-        self.levels = levels
-
-    def forward(self, a: Tensor, b: Tensor) -> Tensor:
-        import kornia
-
-        x = torch.stack([a, b]).permute(0, 3, 1, 2)
-        levels = max(1, min(self.levels, int(math.log2(max(2, min(x.shape[-2:])))) - 2))
-        pyr = kornia.geometry.transform.build_laplacian_pyramid(x, levels)
-        return torch.stack([(p[0] - p[1]).abs().mean() for p in pyr]).mean()
-
-
-class LPIPSLoss(torch.nn.Module):
-    """Return LPIPS between two ``[H, W, 3]`` images in [0, 1] (:mod:`roodi_toolkit.lpips`, local weights only)."""
-
-    name = "lpips"
-
-    def __init__(self, weights: Optional[str] = None) -> None:
-        super().__init__()
-        self.model = LPIPS.from_local(weights)
-
-    def forward(self, a: Tensor, b: Tensor) -> Tensor:
-        return self.model(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]).mean()
-
-
-def perceptual_loss(kind: str = "auto", weights: Optional[str] = None) -> torch.nn.Module:
-    """Return the perceptual loss module to use: LPIPS from local weights if possible (or required), else Laplacian.
-
-    Raises:
-        ConfigError: ``kind="lpips"`` but no local LPIPS weights were found (the message says where it looked).
-    """
-    if kind == "laplacian":
-        return LaplacianLoss()
-    try:
-        return LPIPSLoss(weights)
-    except LPIPSUnavailable as exc:
-        if kind == "lpips":
-            raise ConfigError(f"perceptual loss 'lpips' unavailable: {exc}") from None
-    return LaplacianLoss()
 
 
 # ------------------------------------------------------------------------------------------------------ fine-tuning
@@ -405,6 +341,108 @@ class RefineResult:
     after_views: Optional[Tensor] = field(default=None, repr=False)
 
 
+def _resolve_inpainter(inpainter: Any, inpainter_options: Optional[dict], occlusion: OcclusionConfig) -> Any:
+    """Return the :class:`~roodi_toolkit.pipeline.inpaint.Inpainter` (made from its registered name with the
+    options).
+
+    Raises:
+        ConfigError: occlusion views other than the grid's 4, or something that is no inpainter.
+    """
+    from .inpaint import Inpainter, get_inpainter
+
+    if occlusion.num_views != 4:
+        raise ConfigError(f"the inpainting grid is 2x2: occlusion.num_views must be 4, got {occlusion.num_views}")
+    if isinstance(inpainter, str):
+        inpainter = get_inpainter(inpainter, **(inpainter_options or {}))
+    if not isinstance(inpainter, Inpainter):
+        raise ConfigError(f"inpainter must be an Inpainter or a registered name, got {type(inpainter).__name__}")
+    return inpainter
+
+
+def _fill_context(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, scene_params: GaussianParams,
+                  cameras: list[Camera], object_masks: Tensor, up: np.ndarray, background: Sequence[float],
+                  occlusion: OcclusionConfig, wants: bool, renderer: Renderer) -> Any:
+    """Return what a 3D-aware inpainter reads (:class:`~roodi_toolkit.pipeline.inpaint.FillContext`): which points
+    the training views see through (empty space), the pixel size and, when it ``wants`` them, the support the
+    object stands on and the other Gaussians; the occlusion fields are filled in later."""
+    from .inpaint import FillContext
+    from .support import other_gaussians, pixel_size, support_height
+
+    masks_np = torch.as_tensor(object_masks).bool().numpy()
+    _, seen_radius = object_extent(object_cloud)
+
+    def empty(points: np.ndarray) -> np.ndarray:
+        return seen_through(points, cameras, masks_np, scene_params, occlusion.depth_tolerance * seen_radius,
+                            renderer=renderer)
+
+    return FillContext(object_cloud, [], renderer, background, None, up=tuple(float(u) for u in up),
+                       seen_empty=empty, support=support_height(object_cloud, scene_cloud, up) if wants else None,
+                       pixel=pixel_size(cameras, object_extent(object_cloud)[0]),
+                       obstacles=other_gaussians(scene_cloud, object_cloud) if wants else None)
+
+
+def _grown_object(object_cloud: GaussianCloud, proposed: Optional[GaussianCloud], occ: OcclusionResult,
+                  inpainted: Tensor, finetune: FinetuneConfig,
+                  occlusion: OcclusionConfig) -> tuple[GaussianCloud, int, int]:
+    """Return the object to fine-tune, with the Gaussians a 3D-aware inpainter ``proposed`` (when adopted) and those
+    seeded in the inpainted holes (when asked), and how many of each were added."""
+    added = 0
+    if finetune.adopt_proposed and proposed is not None and len(proposed):
+        added = len(proposed)
+        object_cloud = GaussianCloud.concatenate([object_cloud, _same_columns(proposed, object_cloud)])
+    seeded = 0
+    if finetune.seed_holes:
+        seeds = seed_hole_gaussians(object_cloud, occ, inpainted, stride=finetune.seed_stride,
+                                    opacity=finetune.seed_opacity, min_difference=finetune.seed_min_difference,
+                                    alpha_threshold=occlusion.alpha_threshold,
+                                    depth_tolerance=occlusion.depth_tolerance, background=finetune.background)
+        seeded = len(seeds)
+        if seeded:
+            object_cloud = GaussianCloud.concatenate([object_cloud, seeds])
+    return object_cloud, added, seeded
+
+
+def _write_debug_images(out_dir: Path, occ: OcclusionResult, grids: dict[str, Tensor], inpainted: Tensor,
+                        after: Tensor, filled: Tensor, object_cloud: GaussianCloud,
+                        completion: Optional[GaussianCloud], renderer: Renderer, background: Sequence[float]) -> None:
+    """Write the refinement's pictures into ``out_dir``: occlusion masks, inpainting grids, each view inpainted and
+    before/after fine-tuning, what the fill added and, with a 3D completion, the part no training view saw."""
+    from ..io.files import write_image
+
+    write_occlusion_images(occ, out_dir)
+    for name, img in grids.items():
+        write_image(img.numpy(), out_dir / f"grid_{name}.png")
+    for k in range(len(occ.cameras)):
+        write_image(inpainted[k].numpy(), out_dir / f"view_{k}_inpainted.png")
+        write_image(torch.cat([occ.object_rgb[k], after[k]], dim=1).numpy(),
+                    out_dir / f"view_{k}_object_before_after.png")
+    write_image(torch.cat([to_row(occ.object_rgb), to_row(after)], dim=0).numpy(),
+                out_dir / "object_before_after.png")
+    write_image(fill_picture(occ.object_rgb, inpainted, filled, occ.occluded), out_dir / "fill_views.png")
+    write_image(fill_picture(occ.object_rgb, after, filled, occ.occluded), out_dir / "fill_before_after.png")
+    if completion is not None:
+        whole = GaussianCloud.concatenate([object_cloud, _same_columns(completion, object_cloud)])
+        write_image(hidden_part_picture(whole, completion, occ, after, renderer, background),
+                    out_dir / "hidden_part.png")
+
+
+def _refine_record(inpainter: Any, result: FinetuneResult, occlusion: OcclusionConfig, finetune: FinetuneConfig,
+                   occ: OcclusionResult, seeded: int, proposed: int, filled: Tensor, support: Any,
+                   completion: Optional[GaussianCloud]) -> dict[str, Any]:
+    """Return the refinement's ``refine.json``: its settings, what it added and the shares of each view it filled."""
+    return {"inpainter": getattr(inpainter, "name", "") or type(inpainter).__name__,
+            "perceptual_loss": result.perceptual, "occlusion": asdict(occlusion),
+            "finetune": asdict(finetune), "object_centre": occ.centre.tolist(), "object_radius": occ.radius,
+            "seeded_gaussians": seeded, "proposed_gaussians": proposed,
+            "filled_fraction": [float(m.float().mean()) for m in filled],
+            "mirror": _mirror_record(inpainter), "support": support,
+            "extruded_gaussians": int(getattr(inpainter, "last_extruded", 0)),
+            "completion_gaussians": 0 if completion is None else len(completion),
+            "occluded_fraction": [float(m.float().mean()) for m in occ.occluded],
+            "mask_fraction": [float(m.float().mean()) for m in occ.mask],
+            "seconds_finetune": result.seconds, "history": result.history}
+
+
 def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, images: Tensor, cameras: Sequence[Camera],
                   object_masks: Tensor, *, inpainter: Any = "opencv", inpainter_options: Optional[dict] = None,
                   occlusion: OcclusionConfig = OcclusionConfig(), finetune: FinetuneConfig = FinetuneConfig(),
@@ -429,16 +467,11 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         progress: progress factory.
         renderer: draws every view of occlusion reasoning and fine-tuning (default: the built-in CPU renderer).
     """
-    from ..io.files import write_image, write_json
-    from .inpaint import FillContext, Inpainter, get_inpainter, inpaint_views
+    from ..io.files import write_json
+    from .inpaint import inpaint_views
     from .occlusion import up_from_cameras
 
-    if occlusion.num_views != 4:
-        raise ConfigError(f"the inpainting grid is 2x2: occlusion.num_views must be 4, got {occlusion.num_views}")
-    if isinstance(inpainter, str):
-        inpainter = get_inpainter(inpainter, **(inpainter_options or {}))
-    if not isinstance(inpainter, Inpainter):
-        raise ConfigError(f"inpainter must be an Inpainter or a registered name, got {type(inpainter).__name__}")
+    inpainter = _resolve_inpainter(inpainter, inpainter_options, occlusion)
     cameras = list(cameras)
     up = up_from_cameras(cameras) if up is None else np.asarray(up, dtype=np.float64)
     bg = finetune.background
@@ -448,21 +481,10 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     scene_params = GaussianParams.from_cloud(scene_cloud)
     with torch.no_grad():
         depths = torch.stack([renderer.render(scene_params, c).depth[..., 0] for c in cameras])
-    masks_np = torch.as_tensor(object_masks).bool().numpy()
-    _, seen_radius = object_extent(object_cloud)
-
-    def empty(points: np.ndarray) -> np.ndarray:
-        return seen_through(points, cameras, masks_np, scene_params, occlusion.depth_tolerance * seen_radius,
-                            renderer=renderer)
-
-    from .support import other_gaussians, pixel_size, support_height
-
     # only a 3D-aware inpainter reads the context: the support is looked for only for one
     wants = getattr(inpainter, "uses_context", False) and len(object_cloud) >= 4
-    context = FillContext(object_cloud, [], renderer, bg, None, up=tuple(float(u) for u in up),
-                          seen_empty=empty, support=support_height(object_cloud, scene_cloud, up) if wants else None,
-                          pixel=pixel_size(cameras, object_extent(object_cloud)[0]),
-                          obstacles=other_gaussians(scene_cloud, object_cloud) if wants else None)
+    context = _fill_context(object_cloud, scene_cloud, scene_params, cameras, object_masks, up, bg, occlusion, wants,
+                            renderer)
     # a 3D completion first, so that the views frame the whole object, the part no training view saw included
     completion = inpainter.complete(context) if wants else None
     frame = None if completion is None else GaussianCloud.concatenate([object_cloud, completion])
@@ -470,25 +492,12 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                           frame=frame)
     context.cameras, context.occlusion, context.completion = occ.cameras, occ, completion
     inpainted, grids = inpaint_views(inpainter, occ.object_rgb, occ.mask, prompt, context=context)
-    object_cloud_in = object_cloud
     filled = occ.mask & ((inpainted - occ.object_rgb).abs().amax(dim=-1) > FILL_CHANGE)
-    proposed = 0
-    if finetune.adopt_proposed and context.proposed is not None and len(context.proposed):
-        proposed = len(context.proposed)
-        object_cloud = GaussianCloud.concatenate([object_cloud, _same_columns(context.proposed, object_cloud)])
-    seeded = 0
-    if finetune.seed_holes:
-        seeds = seed_hole_gaussians(object_cloud, occ, inpainted, stride=finetune.seed_stride,
-                                    opacity=finetune.seed_opacity, min_difference=finetune.seed_min_difference,
-                                    alpha_threshold=occlusion.alpha_threshold,
-                                    depth_tolerance=occlusion.depth_tolerance, background=bg)
-        seeded = len(seeds)
-        if seeded:
-            object_cloud = GaussianCloud.concatenate([object_cloud, seeds])
+    grown, proposed, seeded = _grown_object(object_cloud, context.proposed, occ, inpainted, finetune, occlusion)
     originals = object_view_targets(images, cameras, object_masks, depths=depths, centre=occ.centre,
                                     radius=occ.radius, background=bg)
     inpainted_targets = ViewTargets(occ.cameras, inpainted, torch.ones(inpainted.shape[:3]))
-    result = finetune_object(object_cloud, originals, inpainted_targets, finetune, progress=progress,
+    result = finetune_object(grown, originals, inpainted_targets, finetune, progress=progress,
                              renderer=renderer)
     after_params = GaussianParams.from_cloud(result.cloud)
     with torch.no_grad():
@@ -496,31 +505,9 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     out_dir = None
     if debug_dir is not None:
         out_dir = Path(debug_dir)
-        write_occlusion_images(occ, out_dir)
-        for name, img in grids.items():
-            write_image(img.numpy(), out_dir / f"grid_{name}.png")
-        for k in range(len(occ.cameras)):
-            write_image(inpainted[k].numpy(), out_dir / f"view_{k}_inpainted.png")
-            write_image(torch.cat([occ.object_rgb[k], after[k]], dim=1).numpy(),
-                        out_dir / f"view_{k}_object_before_after.png")
-        write_image(torch.cat([to_row(occ.object_rgb), to_row(after)], dim=0).numpy(),
-                    out_dir / "object_before_after.png")
-        write_image(fill_picture(occ.object_rgb, inpainted, filled, occ.occluded), out_dir / "fill_views.png")
-        write_image(fill_picture(occ.object_rgb, after, filled, occ.occluded), out_dir / "fill_before_after.png")
-        if completion is not None:
-            whole = GaussianCloud.concatenate([object_cloud_in, _same_columns(completion, object_cloud_in)])
-            write_image(hidden_part_picture(whole, completion, occ, after, renderer, bg), out_dir / "hidden_part.png")
-        write_json({"inpainter": getattr(inpainter, "name", "") or type(inpainter).__name__,
-                    "perceptual_loss": result.perceptual, "occlusion": asdict(occlusion),
-                    "finetune": asdict(finetune), "object_centre": occ.centre.tolist(), "object_radius": occ.radius,
-                    "seeded_gaussians": seeded, "proposed_gaussians": proposed,
-                    "filled_fraction": [float(m.float().mean()) for m in filled],
-                    "mirror": _mirror_record(inpainter), "support": context.support,
-                    "extruded_gaussians": int(getattr(inpainter, "last_extruded", 0)),
-                    "completion_gaussians": 0 if completion is None else len(completion),
-                    "occluded_fraction": [float(m.float().mean()) for m in occ.occluded],
-                    "mask_fraction": [float(m.float().mean()) for m in occ.mask],
-                    "seconds_finetune": result.seconds, "history": result.history}, out_dir / "refine.json")
+        _write_debug_images(out_dir, occ, grids, inpainted, after, filled, object_cloud, completion, renderer, bg)
+        write_json(_refine_record(inpainter, result, occlusion, finetune, occ, seeded, proposed, filled,
+                                  context.support, completion), out_dir / "refine.json")
     return RefineResult(result.cloud, occ, inpainted, result,
                         getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir, filled, proposed, after)
 

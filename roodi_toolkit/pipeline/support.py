@@ -172,6 +172,57 @@ MIN_BAND = 6
 """shell_to_support takes at least this many of the object's lowest Gaussians as its band."""
 
 
+def _sectors(xy: np.ndarray, centre: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Return the sector of each point ``[M, 2]`` among ``k`` equal angles round ``centre`` ``[M]``, and its distance
+    from the centre ``[M]``."""
+    edges = 2 * np.pi / k
+    d = xy - centre
+    return np.floor((np.arctan2(d[:, 1], d[:, 0]) % (2 * np.pi)) / edges).astype(int) % k, np.linalg.norm(d, axis=1)
+
+
+def _outline_radii(sector: np.ndarray, distance: np.ndarray, weights: np.ndarray, k: int) -> np.ndarray:
+    """Return the outline's distance from the centre in each of ``k`` sectors ``[k]``: the weighted median of its
+    points', sectors without any interpolated from their neighbours, a little smoothed round the outline."""
+    radius = np.full(k, np.nan)
+    for s in range(k):
+        in_s = sector == s
+        if in_s.any():
+            radius[s] = _weighted_median(distance[in_s], weights[in_s])
+    radius = _circular_fill(radius)
+    return (np.roll(radius, 1) + 2 * radius + np.roll(radius, -1)) / 4
+
+
+def _sector_colours(rgb: np.ndarray, weights: np.ndarray, sector: np.ndarray, k: int) -> np.ndarray:
+    """Return each sector's colour ``[k, 3]``: the weighted median colour of its points (``rgb`` ``[M, 3]``), shrunk
+    towards the median of all of them where a sector has few points."""
+    overall = np.array([_weighted_median(rgb[:, c], weights) for c in range(3)])
+    colours = np.tile(overall, (k, 1))
+    for s in range(k):
+        in_s = sector == s
+        if in_s.any():
+            own = np.array([_weighted_median(rgb[in_s, c], weights[in_s]) for c in range(3)])
+            t = in_s.sum() / (in_s.sum() + 4.0)
+            colours[s] = t * own + (1 - t) * overall
+    return colours
+
+
+def _wall_orientations(ring: np.ndarray, radial: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the quaternion ``[A, 4]`` wxyz of a Gaussian lying in the wall at each point of the ``ring`` ``[A, 3]``
+    (its frame: along the outline, up, across it) and the wall's normal there ``[A, 3]`` (across the outline,
+    outwards like ``radial``)."""
+    from scipy.spatial.transform import Rotation
+
+    tangent = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
+    tangent -= np.outer(tangent @ u, u)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    normal = np.cross(tangent, u)
+    normal *= np.sign(np.sum(normal * radial, axis=1, keepdims=True) + 1e-12)
+    tangent = np.cross(u, normal)  # right-handed frame (tangent, up, normal)
+    frames = np.stack([tangent, np.broadcast_to(u, tangent.shape), normal], axis=2)  # [A, 3, 3], columns
+    xyzw = Rotation.from_matrix(frames).as_quat()
+    return np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1), normal
+
+
 def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, *, band: float = 0.1,
                      colour_band: float = 0.5, sectors: Optional[int] = None, around: int = 40,
                      opacity: float = 0.9, overlap: float = 0.7, thickness: float = 0.2,
@@ -209,8 +260,6 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
         obstacles: positions ``[M, 3]`` of the scene's other Gaussians: the wall stays inside what lies round
             the hidden part (:func:`_inside_obstacles`; a ball in a bowl is narrower near the floor).
     """
-    from scipy.spatial.transform import Rotation
-
     from ..cameras import horizontal_basis
 
     u, h, lowest, height = _vertical_extent(cloud, up)
@@ -228,32 +277,11 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
     centre = _ring_centre(xy[layer], w)
     k = int(np.clip(len(layer) // 4, 6, 48)) if sectors is None else int(sectors)
     edges = 2 * np.pi / k
-
-    def sector_of(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        d = xy[idx] - centre
-        return np.floor((np.arctan2(d[:, 1], d[:, 0]) % (2 * np.pi)) / edges).astype(int) % k, np.linalg.norm(d, axis=1)
-
-    sec, rad = sector_of(layer)
-    radius = np.full(k, np.nan)
-    for s in range(k):
-        in_s = sec == s
-        if in_s.any():
-            radius[s] = _weighted_median(rad[in_s], w[in_s])
-    radius = _circular_fill(radius)
-    radius = (np.roll(radius, 1) + 2 * radius + np.roll(radius, -1)) / 4  # a little smoothing round the outline
+    radius = _outline_radii(*_sectors(xy[layer], centre, k), w, k)
     # colour: the thicker slab, per sector, shrunk towards the median of all of it where a sector has few Gaussians
     slab = np.flatnonzero(h <= lowest + colour_band * height)
-    rgb = np.clip(cloud.rgb[slab].astype(np.float64), 0, 1)
-    ws = w_all[slab]
-    overall = np.array([_weighted_median(rgb[:, c], ws) for c in range(3)])
-    ssec, _ = sector_of(slab)
-    colours = np.tile(overall, (k, 1))
-    for s in range(k):
-        in_s = ssec == s
-        if in_s.any():
-            own = np.array([_weighted_median(rgb[in_s, c], ws[in_s]) for c in range(3)])
-            t = in_s.sum() / (in_s.sum() + 4.0)
-            colours[s] = t * own + (1 - t) * overall
+    colours = _sector_colours(np.clip(cloud.rgb[slab].astype(np.float64), 0, 1), w_all[slab],
+                              _sectors(xy[slab], centre, k)[0], k)
     # the samples: ``around`` angles, rows evenly from just under the band down to the support
     perimeter = float(np.sum(np.hypot(radius * edges, np.diff(np.r_[radius, radius[:1]]))))
     around = int(min(around, np.floor(perimeter / max(min_spacing, 1e-12))))
@@ -278,16 +306,8 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
     keep = r_rows.ravel() > 0
     centre3 = centre[0] * e1 + centre[1] * e2
     pts = (centre3 + r_rows[..., None] * radial[None] + heights[:, None, None] * u).reshape(-1, 3)  # [R * A, 3]
-    # the wall's own normal: across the outline (radial where the outline is round)
-    tangent = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
-    tangent -= np.outer(tangent @ u, u)
-    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
-    normal = np.cross(tangent, u)
-    normal *= np.sign(np.sum(normal * radial, axis=1, keepdims=True) + 1e-12)
-    tangent = np.cross(u, normal)  # right-handed frame (tangent, up, normal)
-    frames = np.stack([tangent, np.broadcast_to(u, tangent.shape), normal], axis=2)  # [A, 3, 3], columns
-    xyzw = Rotation.from_matrix(frames).as_quat()
-    quats = np.tile(np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1), (rows, 1))
+    wxyz, normal = _wall_orientations(ring, radial, u)
+    quats = np.tile(wxyz, (rows, 1))
     along = max(spacing, 1e-9)
     scales = np.tile([overlap * along, overlap * step, thickness * min(along, step)], (len(pts), 1))
     # each new Gaussian takes its columns (SH degree, extras) from the nearest band Gaussian

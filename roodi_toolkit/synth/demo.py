@@ -293,6 +293,59 @@ def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visi
     files.save_figure(fig, path)
 
 
+def _choose_target(scene: Any, dataset: Any, target_ids: list[int],
+                   requested: int | None) -> tuple[int, dict[int, np.ndarray], dict[int, int], float]:
+    """Return the target to extract (``requested``, or the one other objects hide most: its object-alone
+    silhouettes against the scene's instance masks), every target's silhouettes ``[N, H, W]`` and hidden pixels, and
+    the hidden share of the chosen one."""
+    masks = dataset.masks.numpy()
+    alone = _alone_masks(scene, dataset.cameras, target_ids)
+    hidden = {tid: int((a & (masks != tid)).sum()) for tid, a in alone.items()}
+    if requested is None:
+        object_id = max(target_ids, key=lambda t: (hidden[t], int(alone[t].sum())))
+    else:
+        object_id = int(requested)
+    total = int(alone[object_id].sum())
+    return object_id, alone, hidden, hidden[object_id] / total if total else 0.0
+
+
+def _summary_views(evaluation: Any, alone: np.ndarray, visible: np.ndarray) -> tuple[int, int]:
+    """Return the summary's test view (the one of median PSNR, a representative one) and training view (the one
+    hiding most of the target among those that show at least 30% of it; ``alone``, ``visible`` ``[N, H, W]``)."""
+    scored = [i for i, v in enumerate(evaluation.views) if v.psnr is not None] or list(range(len(evaluation.views)))
+    j = sorted(scored, key=lambda i: evaluation.views[i].psnr or 0.0)[len(scored) // 2]
+    seen = visible.sum(axis=(1, 2)) >= 0.3 * np.maximum(alone.sum(axis=(1, 2)), 1)
+    hidden_per_view = np.where(seen, (alone & ~visible).sum(axis=(1, 2)), -1)
+    k = int(np.argmax(hidden_per_view)) if seen.any() else int(np.argmax(visible.sum(axis=(1, 2))))
+    return j, k
+
+
+def _draw_summary(path: Path, config: ExtractDemoConfig, data: Path, dataset: Any, object_id: int, name: str,
+                  alone: np.ndarray, visible: np.ndarray, hidden_fraction: float, evaluation: Any, before: Any,
+                  renders: list, before_renders: list) -> tuple[str, str]:
+    """Write ``summary.png`` (a training view, the target in close-up, the true object, before and after) and
+    return the names of its training and test views."""
+    from ..evaluate.metrics import find_target
+    from ..io.dataset import load_dataset
+
+    settings = config.scene
+    j, k = _summary_views(evaluation, alone, visible)
+    truth = load_dataset(find_target(data, object_id)[0], background=(1.0, 1.0, 1.0))
+    vj = evaluation.views[j]
+    never_seen, what = _never_seen(find_target(data, object_id)[0], vj.name, truth.alphas[j].numpy(),
+                                   np.asarray(before_renders[j]))
+    _summary_figure(path, dataset.images[k].numpy(), alone[k], visible[k], truth.images[j].numpy(),
+                    truth.alphas[j].numpy(), before_renders[j], renders[j],
+                    [f"training view {dataset.cameras[k].name}", f"close-up: {name} outlined,\nits hidden part in red",
+                     f"true {name} alone, test view {vj.name} (zoom)\n{what} outlined in red",
+                     f"selected + pruned (before inpainting){_view_scores(before.views[j])}",
+                     f"extracted (inpainted + fine-tuned){_view_scores(vj)}"],
+                    f"ROODI on a generated {config.preset} scene (seed {config.seed}, "
+                    f"{settings.width}x{settings.height}): {name}, {hidden_fraction:.0%} of it hidden "
+                    "in the training views", never_seen=never_seen)
+    return dataset.cameras[k].name, vj.name
+
+
 def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDemoConfig(), *,
                      overwrite: bool = False, progress: ProgressFactory = null_progress,
                      renderer: Renderer | None = None) -> ExtractDemoResult:
@@ -318,7 +371,7 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     from ..io import files
     from ..io.dataset import load_dataset
     from ..pipeline.extract import extract_objects
-    from ..evaluate.metrics import evaluate_object, find_target
+    from ..evaluate.metrics import evaluate_object
     from ..io.ply import read_ply
     from .scene import build_scene, make_scene
 
@@ -340,18 +393,9 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     make_scene(data, config.preset, config.seed, settings=settings, overwrite=overwrite, progress=progress)
     clock.lap("make_scene")
 
-    # which target other objects hide most: its object-alone silhouette against the scene's instance masks
     dataset = load_dataset(data)
-    masks = dataset.masks.numpy()
-    alone = _alone_masks(scene, dataset.cameras, target_ids)
-    hidden = {tid: int((a & (masks != tid)).sum()) for tid, a in alone.items()}
-    if config.object_id is None:
-        object_id = max(target_ids, key=lambda t: (hidden[t], int(alone[t].sum())))
-    else:
-        object_id = int(config.object_id)
+    object_id, alone, hidden, hidden_fraction = _choose_target(scene, dataset, target_ids, config.object_id)
     name = scene.object(object_id).name
-    total = int(alone[object_id].sum())
-    hidden_fraction = hidden[object_id] / total if total else 0.0
     clock.lap("choose_target")
 
     ex_dir = out / "extraction"
@@ -371,29 +415,12 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     before, before_renders = evaluate_object(selected, data, object_id, progress=progress, renderer=renderer)
     clock.lap("evaluate")
 
-    # the test view of median PSNR (a representative one), and the training view hiding most of the target
-    scored = [i for i, v in enumerate(evaluation.views) if v.psnr is not None] or list(range(len(evaluation.views)))
-    j = sorted(scored, key=lambda i: evaluation.views[i].psnr or 0.0)[len(scored) // 2]
-    a, visible = alone[object_id], masks == object_id
-    seen = visible.sum(axis=(1, 2)) >= 0.3 * np.maximum(a.sum(axis=(1, 2)), 1)
-    hidden_per_view = np.where(seen, (a & ~visible).sum(axis=(1, 2)), -1)
-    k = int(np.argmax(hidden_per_view)) if seen.any() else int(np.argmax(visible.sum(axis=(1, 2))))
-    truth = load_dataset(find_target(data, object_id)[0], background=(1.0, 1.0, 1.0))
-    vj = evaluation.views[j]
     paths = {"object_ply": odir / "object.ply", "summary": out / "summary.png", "object_picture": odir / "object.png",
              "debug": odir / "debug", "selected_ply": odir / "selected.ply", "scene_model": ex_dir / "scene",
              "data": data, "overview": data / "overview.png", "report": out / "report.json"}
-    never_seen, what = _never_seen(find_target(data, object_id)[0], vj.name, truth.alphas[j].numpy(),
-                                   np.asarray(before_renders[j]))
-    _summary_figure(paths["summary"], dataset.images[k].numpy(), a[k], visible[k], truth.images[j].numpy(),
-                    truth.alphas[j].numpy(), before_renders[j], renders[j],
-                    [f"training view {dataset.cameras[k].name}", f"close-up: {name} outlined,\nits hidden part in red",
-                     f"true {name} alone, test view {vj.name} (zoom)\n{what} outlined in red",
-                     f"selected + pruned (before inpainting){_view_scores(before.views[j])}",
-                     f"extracted (inpainted + fine-tuned){_view_scores(vj)}"],
-                    f"ROODI on a generated {config.preset} scene (seed {config.seed}, "
-                    f"{settings.width}x{settings.height}): {name}, {hidden_fraction:.0%} of it hidden "
-                    "in the training views", never_seen=never_seen)
+    train_view, test_view = _draw_summary(paths["summary"], config, data, dataset, object_id, name, alone[object_id],
+                                          dataset.masks.numpy() == object_id, hidden_fraction, evaluation, before,
+                                          renders, before_renders)
     clock.lap("pictures")
 
     trained = files.read_json(ex_dir / "scene" / "metrics.json", "training metrics")
@@ -408,7 +435,7 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
         "metrics": evaluation.to_dict(), "metrics_before_refinement": before.to_dict(),
         "stages_s": clock.wall, "stages_cpu_s": clock.cpu, "seconds": seconds, "load_average_1min": list(load),
         "cpu_count": os.cpu_count(), "gaussians": gaussians, "scene_heldout_psnr": scene_psnr,
-        "summary_views": {"train": dataset.cameras[k].name, "test": vj.name},
+        "summary_views": {"train": train_view, "test": test_view},
         "scene_settings": asdict(settings), "extract_config": asdict(config.extract),
         "environment": run_environment(renderer), "files": {key: str(p) for key, p in paths.items()}}, paths["report"])
     return ExtractDemoResult(out, object_id, name, paths, evaluation, before, clock.wall, clock.cpu, gaussians,

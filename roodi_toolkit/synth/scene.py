@@ -1,9 +1,10 @@
-"""Multi-object benchmark scenes in the Blender format: layout, cameras, and the scene folder written to disk.
+"""Multi-object benchmark scenes in the Blender format: cameras, and the scene folder written to disk.
 
 The paper evaluates on MultiObjectBlender: cluttered scenes of 5 to 20 ShapeNet objects, 3 to 4 of them targets, with
 each target also rendered alone so an extraction can be scored where it was hidden. Neither ShapeNet nor that dataset
 can be fetched here, so this package builds equivalent scenes from procedural meshes
-(:mod:`roodi_toolkit.synth.objects`) and renders them by ray casting (:mod:`roodi_toolkit.synth.tracer`).
+(:mod:`roodi_toolkit.synth.objects`), lays them out (:mod:`roodi_toolkit.synth.layout`, whose :func:`build_scene`
+this module re-exports) and renders them by ray casting (:mod:`roodi_toolkit.synth.tracer`).
 
 Layout of a generated scene (``OUT_DIR``)::
 
@@ -35,8 +36,8 @@ from ..errors import ConfigError, DatasetError
 from ..io.files import prepare_output_dir, write_image, write_json
 from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
 from ..progress import ProgressFactory, null_progress
-from .objects import BUILDERS, MAX_OBJECTS, PRESETS, Part, SceneObject, _environment, _NOT_TARGETS, _rot
-from .wraps import WRAPPABLE, wrap_parts
+from .layout import build_scene
+from .objects import MAX_OBJECTS, PRESETS, SceneObject
 from .tracer import _Tracer, render_views
 from .visibility import NEVER_SEEN_DIR, never_seen_record, write_never_seen
 from .world import Scene
@@ -121,185 +122,6 @@ class SceneSettings:
             raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {self.n_objects}")
         if self.test_framing not in TEST_FRAMINGS:
             raise ConfigError(f"test_framing must be one of {', '.join(TEST_FRAMINGS)}, got {self.test_framing!r}")
-
-
-# ------------------------------------------------------------------------------------------------------ layout
-
-
-def _footprint(parts: list[Part]) -> tuple[float, float]:
-    """Return (radius of the xy footprint around the z axis, height)."""
-    v = np.concatenate([p.vertices for p in parts])
-    return float(np.linalg.norm(v[:, :2], axis=1).max()), float(v[:, 2].max())
-
-
-def _transform(parts: list[Part], yaw: float, at: np.ndarray) -> list[Part]:
-    R = _rot("z", yaw)
-    return [Part(p.vertices @ R.T + at, p.triangles, p.material, p.smooth) for p in parts]
-
-
-def build_scene(preset: str = "bedroom", seed: int = 0, *, n_objects: int | None = None,
-                n_targets: int | None = None, occluded: bool = False) -> Scene:
-    """Return a scene of the preset, laid out from the seed (same arguments -> the same scene).
-
-    Targets are placed near the middle and each gets an occluder right beside it, so that in many views of the
-    hemisphere around the scene part of every target is hidden.
-
-    Args:
-        preset: ``bedroom``, ``kitchen``, ``livingroom`` or ``picnic``.
-        seed: random seed of the layout, shapes, colours and lights.
-        n_objects: object count (5 to 20), default drawn from the preset's range (at least twice the targets when
-            ``occluded``).
-        n_targets: target count (1 to 4), default 3 or 4 (4 when ``occluded``).
-        occluded: the occluded variant: targets are drawn from the compact kinds
-            (:data:`~roodi_toolkit.synth.wraps.WRAPPABLE`) and each stands in a wrap that touches it (a box or
-            sleeve open at the top, or a bowl: :func:`~roodi_toolkit.synth.wraps.wrap_parts`), an object of its
-            own placed right after the targets (ids ``n_targets + 1 ...``), which hides the target's lower part from
-            every training camera. Without it the scene is the same as before the variant existed, bit for bit.
-
-    Raises:
-        ConfigError: unknown preset or counts out of range.
-    """
-    if preset not in PRESETS:
-        raise ConfigError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
-    P = PRESETS[preset]
-    rng = np.random.default_rng([int(seed), sorted(PRESETS).index(preset)])
-    n = int(n_objects) if n_objects is not None else int(rng.integers(P.n_objects[0], P.n_objects[1] + 1))
-    if not 5 <= n <= MAX_OBJECTS:
-        raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {n}")
-    n_t = int(n_targets) if n_targets is not None else (4 if occluded else int(rng.integers(3, 5)))
-    if not 1 <= n_t <= 4:
-        raise ConfigError(f"n_targets must be 1 to 4, got {n_t}")
-    n_wraps = n_t if occluded else 0  # one wrap per target, ids right after the targets'
-    if occluded and n_objects is None:
-        n = max(n, 2 * n_t)
-    if n < n_t + n_wraps:
-        raise ConfigError(f"an occluded scene needs at least two objects per target (the target and its wrap): "
-                              f"n_objects {n} < 2 x {n_t} targets")
-
-    kinds_all = sorted(P.catalog)
-    weights = np.array([P.catalog[k] for k in kinds_all])
-    target_kinds = [k for k in kinds_all if k not in _NOT_TARGETS and (not occluded or k in WRAPPABLE)]
-    t_weights = np.array([P.catalog[k] for k in target_kinds])
-
-    def draw(pool: list[str], w: np.ndarray, used: list[str]) -> str:
-        ok = np.array([not (k in P.at_most_one and k in used) for k in pool], dtype=float) * w
-        return pool[int(rng.choice(len(pool), p=ok / ok.sum()))]
-
-    kinds: list[str] = []
-    for _ in range(n_t):
-        kinds.append(draw(target_kinds, t_weights, kinds))
-    kinds += ["wrap"] * n_wraps  # named once built
-    for _ in range(n - n_t - n_wraps):
-        kinds.append(draw(kinds_all, weights, kinds))
-
-    built = []
-    for k in kinds:
-        if k == "wrap":
-            built.append([])
-            continue
-        glossy = bool(rng.uniform() < P.glossy_fraction)
-        parts = BUILDERS[k](rng, glossy)
-        lowest = min(float(p.vertices[:, 2].min()) for p in parts)
-        for p in parts:  # stand exactly on z = 0 (no part sinks into the ground or floats above it)
-            p.vertices = p.vertices - np.array([0.0, 0.0, lowest])
-        built.append(parts)
-    for j in range(n_wraps):  # the wrap fits its target as built (local coordinates) and moves with it
-        kinds[n_t + j], built[n_t + j] = wrap_parts(kinds[j], built[j], rng)
-
-    def footprint(i: int) -> tuple[float, float]:
-        return _footprint(built[i] + built[n_t + i]) if i < n_wraps else _footprint(built[i])
-
-    # placement: large things first keep the rejection sampling short; targets then occluders near the centre
-    placed: list[dict[str, Any]] = []  # x, y, r, h, z, table
-    order = list(range(n_t))  # targets
-    others = sorted(range(n_t + n_wraps, n), key=lambda i: -_footprint(built[i])[0])
-    big = [i for i in others if _footprint(built[i])[0] > 0.3]
-    small = [i for i in others if i not in big]
-    occluders = small[:n_t] if len(small) >= n_t else small
-    rest = big + [i for i in small if i not in occluders]
-    positions: dict[int, tuple[np.ndarray, float]] = {}
-    infos: dict[int, dict[str, Any]] = {}
-
-    def collides(x: float, y: float, r: float, z: float, h: float) -> bool:
-        for q in placed:
-            if q["z"] + q["h"] <= z + 1e-6 or z + h <= q["z"] + 1e-6:
-                continue  # one stands on something above / below the other
-            if math.hypot(x - q["x"], y - q["y"]) < r + q["r"] + P.gap:
-                return True
-        return False
-
-    def try_table(i: int, r: float, h: float) -> tuple[float, float, float] | None:
-        tables = [q for q in placed if q["kind"] == "table"]
-        if not tables or r > 0.14 or rng.uniform() >= P.on_table_probability:
-            return None
-        q = tables[int(rng.integers(len(tables)))]
-        for _ in range(30):
-            x = q["x"] + rng.uniform(-1, 1) * max(q["top"][0] - r, 0.0)
-            y = q["y"] + rng.uniform(-1, 1) * max(q["top"][1] - r, 0.0)
-            if not collides(x, y, r, q["h"], h):
-                return x, y, q["h"]
-        return None
-
-    def place(i: int, center: tuple[float, float], radius: float, allow_table: bool) -> None:
-        r, h = footprint(i)
-        spot = try_table(i, r, h) if allow_table else None
-        if spot is None:
-            rad = radius
-            for attempt in range(400):
-                a, s = rng.uniform(0, 2 * math.pi), rad * math.sqrt(rng.uniform())
-                x, y = center[0] + s * math.cos(a), center[1] + s * math.sin(a)
-                if not collides(x, y, r, 0.0, h):
-                    spot = (x, y, 0.0)
-                    break
-                if attempt % 40 == 39:
-                    rad *= 1.15  # crowded: widen the disc
-            if spot is None:
-                raise ConfigError(f"could not place object {i} ({kinds[i]}) without collisions; use fewer objects")
-        x, y, z = spot
-        yaw = float(rng.uniform(0, 2 * math.pi))
-        info: dict[str, Any] = {"x": x, "y": y, "z": z, "r": r, "h": h, "kind": kinds[i]}
-        if kinds[i] == "table":
-            v = np.concatenate([p.vertices for p in built[i]])
-            info["top"] = (0.5 * (v[:, 0].max() - v[:, 0].min()) * 0.6, 0.5 * (v[:, 1].max() - v[:, 1].min()) * 0.6)
-            info["r"] = r
-            yaw = float(rng.choice([0.0, math.pi / 2]))  # axis-aligned so the top's free box stays simple
-            info["top"] = info["top"] if yaw == 0.0 else info["top"][::-1]
-        placed.append(info)
-        infos[i] = info
-        positions[i] = (np.array([x, y, z]), yaw)
-
-    R = P.layout_radius
-    # big furniture away from the middle so it frames rather than buries the targets
-    for i in big:
-        if kinds[i] in ("bed", "sofa", "blanket", "umbrella", "bench"):
-            place(i, (0.0, 0.0), R, False)
-    for i in big:
-        if i not in positions:
-            place(i, (0.0, 0.0), R * 0.6, False)
-    for i in order:
-        place(i, (0.0, 0.0), R * 0.45, True)
-    for j, i in enumerate(occluders):
-        tx, ty, _ = positions[order[j % n_t]][0]
-        r_t, r_o = infos[order[j % n_t]]["r"], footprint(i)[0]
-        place(i, (tx, ty), r_t + r_o + 0.15, False)
-    for i in rest:
-        if i not in positions:
-            place(i, (0.0, 0.0), R, True)
-    for j in range(n_wraps):
-        positions[n_t + j] = positions[j]
-
-    objects = []
-    counters: dict[str, int] = {}
-    for i in range(n):
-        counters[kinds[i]] = counters.get(kinds[i], 0) + 1
-        at, yaw = positions[i]
-        name = f"{kinds[i].replace('pyvista_', '')}_{counters[kinds[i]]}"
-        source = f"pyvista:{kinds[i][len('pyvista_'):]}" if kinds[i].startswith("pyvista_") else "procedural"
-        objects.append(SceneObject(i + 1, name, kinds[i], _transform(built[i], yaw, at), is_target=i < n_t,
-                                   source=source))
-
-    ground, lights, ambient, sky = _environment(P, rng)
-    return Scene(preset=preset, seed=int(seed), objects=objects, ground=ground, lights=lights, ambient=ambient, sky=sky)
 
 
 # ------------------------------------------------------------------------------------------------------ cameras

@@ -119,6 +119,109 @@ def _marker_size(count: int) -> float:
     return 42.0 if count <= 500 else 22.0 if count <= 5000 else 9.0
 
 
+def _removal_groups(keep: np.ndarray, report: "PruneReport", n: int) -> tuple[np.ndarray, list[tuple[str, int]]]:
+    """Return each Gaussian's removing stage ``[N]`` (an index into the stages, -1 where it stays) and the stages'
+    (name, count); a report without per-Gaussian stages makes what goes one group, ``removed``.
+
+    Raises:
+        ConfigError: a keep mask that is not ``[N]`` bool.
+    """
+    if keep.shape != (n,) or keep.dtype != np.bool_:
+        raise ConfigError(f"keep must be a bool array [N] = [{n}], got {keep.dtype} {keep.shape}")
+    removed_by = np.asarray(report.removed_by)
+    stage_counts = list(report.stages)
+    if removed_by.shape != (n,):
+        removed_by = np.where(keep, -1, 0).astype(np.int16)
+        stage_counts = [("removed", int((~keep).sum()))]
+    return removed_by, stage_counts
+
+
+class _Sheet:
+    """The picture's matplotlib figure: two rows of three panels of ``pw`` x ``ph`` pixels under a title band, each
+    panel's axes in pixel units (y down, as camera pixels) and a label above it."""
+
+    def __init__(self, pw: int, ph: int) -> None:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        self.pw, self.ph = pw, ph
+        self.width = 3 * pw + 4 * GAP
+        self.height = TITLE_BAND + 2 * (LABEL_BAND + ph) + 3 * GAP // 2
+        self.fig = Figure(figsize=(self.width / DPI, self.height / DPI), dpi=DPI, facecolor="white")
+        FigureCanvasAgg(self.fig)
+        self.panels: dict[str, tuple[int, int]] = {}
+
+    def axes(self, name: str, col: int, row: int, label: str) -> Any:
+        """Return the axes of the panel at ``col``, ``row`` labelled ``label`` (its label text as ``_roodi_label``)."""
+        pw, ph, width, height = self.pw, self.ph, self.width, self.height
+        x0 = GAP + col * (pw + GAP)
+        y0 = TITLE_BAND + row * (LABEL_BAND + ph + GAP // 2) + LABEL_BAND
+        self.panels[name] = (x0, y0)
+        ax = self.fig.add_axes((x0 / width, 1.0 - (y0 + ph) / height, pw / width, ph / height))
+        ax.set_xlim(0, pw)
+        ax.set_ylim(ph, 0)
+        ax.set_axis_off()
+        ax._roodi_label = self.fig.text(x0 / width, 1.0 - (y0 - 6) / height, label, fontsize=13, ha="left",
+                                        va="bottom")
+        return ax
+
+    def text(self, y: float, text: str, **kwargs: Any) -> None:
+        """Write ``text`` across the top band, its top ``y`` pixels down."""
+        self.fig.text(GAP / self.width, 1.0 - y / self.height, text, ha="left", va="top", **kwargs)
+
+    def image(self) -> np.ndarray:
+        """Return the drawn picture ``[H, W, 3]`` uint8."""
+        self.fig.canvas.draw()
+        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()
+
+
+def _draw_view(ax: Any, cam: Camera, shown: GaussianCloud, keep: np.ndarray, removed_by: np.ndarray,
+               stages: list[tuple[int, str, int]], colours: dict[str, str]) -> int:
+    """Draw one view: what stays as a grey density, what goes as markers in its stage's colour (arrows at the
+    border for what lies beyond the frame); return how many lie beyond it."""
+    pw, ph = cam.width, cam.height
+    grey = density_view(shown.means[keep], shown.opacities[keep], cam)
+    ax.imshow(np.repeat(grey[..., None], 3, axis=2), extent=(0, pw, ph, 0), interpolation="nearest")
+    outside = 0
+    for index, stage, count in stages:
+        sel = removed_by == index
+        px, z = cam.project(shown.means[sel])
+        front = z > cam.near
+        px = px[front]
+        inner = (px[:, 0] >= 0) & (px[:, 0] < pw) & (px[:, 1] >= 0) & (px[:, 1] < ph)
+        size = _marker_size(count)
+        ax.scatter(px[inner, 0], px[inner, 1], s=size, c=colours[stage], edgecolors="black", linewidths=0.6,
+                   zorder=3)
+        out = px[~inner]
+        outside += int((~inner).sum() + (~front).sum())
+        if len(out):
+            _border_arrows(ax, out, colours[stage], pw, ph)
+    return outside
+
+
+def _render_before_after(shown: GaussianCloud, keep: np.ndarray, camera: Camera, renderer: Any,
+                         progress: ProgressFactory) -> list[np.ndarray]:
+    """Return the cloud rendered from ``camera`` before and after the prune, ``[H, W, 3]`` in [0, 1] each (black
+    where nothing is left)."""
+    import torch
+
+    from ..params import GaussianParams
+    from ..render.renderer import resolve_renderer
+
+    renderer = resolve_renderer(renderer)
+    with progress(total=2, desc="rendering before and after") as bar:
+        renders = []
+        for part in (shown, shown.select(keep)):
+            if len(part):
+                with torch.no_grad():
+                    out = renderer.render(GaussianParams.from_cloud(part), camera, background=RENDER_BACKGROUND)
+                renders.append(np.clip(out.rgb.detach().cpu().numpy(), 0.0, 1.0))
+            else:
+                renders.append(np.zeros((camera.height, camera.width, 3)))
+            bar.update(1)
+    return renders
+
+
 def floater_picture(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport", up: "UpAxis | Sequence[float]",
                     *, title: str = "", renderer: Any = None, progress: ProgressFactory = null_progress,
                     dry_run: bool = False, panel: tuple[int, int] = PANEL) -> FloaterPicture:
@@ -138,18 +241,11 @@ def floater_picture(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport
     Raises:
         ConfigError: a keep mask or report that does not match the cloud.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from ..prune.summary import mode_line
 
     n = len(cloud)
     keep = np.asarray(keep)
-    if keep.shape != (n,) or keep.dtype != np.bool_:
-        raise ConfigError(f"keep must be a bool array [N] = [{n}], got {keep.dtype} {keep.shape}")
-    removed_by = np.asarray(report.removed_by)
-    stage_counts = list(report.stages)
-    if removed_by.shape != (n,):  # a report without per-Gaussian stages: what goes is one group
-        removed_by = np.where(keep, -1, 0).astype(np.int16)
-        stage_counts = [("removed", int((~keep).sum()))]
+    removed_by, stage_counts = _removal_groups(keep, report, n)
     vector = np.asarray(getattr(up, "vector", up), dtype=np.float64)
     up_source = getattr(up, "source", "given")
     finite = ~cloud.nonfinite_rows()
@@ -159,93 +255,39 @@ def floater_picture(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport
     if pw < 64 or ph < 64:
         raise ConfigError(f"panels must be at least 64x64 pixels, got {pw}x{ph}")
     views = picture_views(shown, keep_f, vector, (pw, ph))
-
-    width = 3 * pw + 4 * GAP
-    height = TITLE_BAND + 2 * (LABEL_BAND + ph) + 3 * GAP // 2
-    fig = Figure(figsize=(width / DPI, height / DPI), dpi=DPI, facecolor="white")
-    FigureCanvasAgg(fig)
-    panels: dict[str, tuple[int, int]] = {}
-
-    def axes(name: str, col: int, row: int, label: str) -> Any:
-        x0 = GAP + col * (pw + GAP)
-        y0 = TITLE_BAND + row * (LABEL_BAND + ph + GAP // 2) + LABEL_BAND
-        panels[name] = (x0, y0)
-        ax = fig.add_axes((x0 / width, 1.0 - (y0 + ph) / height, pw / width, ph / height))
-        ax.set_xlim(0, pw)
-        ax.set_ylim(ph, 0)
-        ax.set_axis_off()
-        ax._roodi_label = fig.text(x0 / width, 1.0 - (y0 - 6) / height, label, fontsize=13, ha="left", va="bottom")
-        return ax
+    sheet = _Sheet(pw, ph)
 
     stages = [(i, name, count) for i, (name, count) in enumerate(stage_counts) if count]
     colours = {name: reason_colour(name) for _, name, _ in stages}
-    kept_points = shown.means[keep_f]
-    kept_weights = shown.opacities[keep_f]
     beyond: dict[str, int] = {}
     for col, (name, label) in enumerate(zip(("front", "side", "above"), VIEW_NAMES)):
-        cam = views[name]
-        ax = axes(name, col, 0, f"{label}: what stays in grey, what goes in colour")
-        grey = density_view(kept_points, kept_weights, cam)
-        ax.imshow(np.repeat(grey[..., None], 3, axis=2), extent=(0, pw, ph, 0), interpolation="nearest")
-        outside = 0
-        for index, stage, count in stages:
-            sel = by_f == index
-            px, z = cam.project(shown.means[sel])
-            front = z > cam.near
-            px = px[front]
-            inner = (px[:, 0] >= 0) & (px[:, 0] < pw) & (px[:, 1] >= 0) & (px[:, 1] < ph)
-            size = _marker_size(count)
-            ax.scatter(px[inner, 0], px[inner, 1], s=size, c=colours[stage], edgecolors="black", linewidths=0.6,
-                       zorder=3)
-            out = px[~inner]
-            outside += int((~inner).sum() + (~front).sum())
-            if len(out):
-                _border_arrows(ax, out, colours[stage], pw, ph)
-        beyond[name] = outside
+        ax = sheet.axes(name, col, 0, f"{label}: what stays in grey, what goes in colour")
+        beyond[name] = outside = _draw_view(ax, views[name], shown, keep_f, by_f, stages, colours)
         if outside:  # said above the panel, where no marker can hide under it
             ax._roodi_label.set_text(f"{label}: {outside:,} going beyond the frame (arrows)")
         ax.add_patch(_frame(pw, ph))
 
-    from ..params import GaussianParams
-    from ..render.renderer import resolve_renderer
-
-    renderer = resolve_renderer(renderer)
     front = views["front"]
-    import torch
-
-    with progress(total=2, desc="rendering before and after") as bar:
-        renders = []
-        for part in (shown, shown.select(keep_f)):
-            if len(part):
-                with torch.no_grad():
-                    out = renderer.render(GaussianParams.from_cloud(part), front, background=RENDER_BACKGROUND)
-                renders.append(np.clip(out.rgb.detach().cpu().numpy(), 0.0, 1.0))
-            else:
-                renders.append(np.zeros((ph, pw, 3)))
-            bar.update(1)
+    renders = _render_before_after(shown, keep_f, front, renderer, progress)
     went, kept = n - int(keep.sum()), int(keep.sum())
     for col, (name, label, img) in enumerate((("before", f"before: all {n:,} Gaussians", renders[0]),
                                                ("after", f"after: the {kept:,} that stay", renders[1]))):
-        ax = axes(name, col, 1, label + " (rendered, side view)")
+        ax = sheet.axes(name, col, 1, label + " (rendered, side view)")
         ax.imshow(img, extent=(0, pw, ph, 0), interpolation="nearest")
 
-    ax = axes("legend", 2, 1, "what goes, by reason")
+    ax = sheet.axes("legend", 2, 1, "what goes, by reason")
     _legend(ax, report, stages, colours, kept, went, up_source, vector, pw, ph, dry_run)
 
     verb = "would go" if dry_run else "go"
     share = went / max(n, 1)
     head = f"{went:,} of {n:,} Gaussians {verb} ({share:.2%}), {kept:,} stay" if went else \
         f"nothing {'would go' if dry_run else 'goes'}: all {n:,} Gaussians stay"
-    fig.text(GAP / width, 1.0 - 16 / height, f"{title}: {head}" if title else head, fontsize=19, weight="bold",
-             ha="left", va="top")
-    from ..prune.summary import mode_line
-
-    fig.text(GAP / width, 1.0 - 52 / height, mode_line(report), fontsize=12, ha="left", va="top", color="#333333")
-    fig.canvas.draw()
-    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    sheet.text(16, f"{title}: {head}" if title else head, fontsize=19, weight="bold")
+    sheet.text(52, mode_line(report), fontsize=12, color="#333333")
+    image = sheet.image()
     cams = dict(views, before=front, after=front)
     rgb = {name: (np.array([int(c[i:i + 2], 16) for i in (1, 3, 5)], dtype=np.uint8)) for name, c in colours.items()}
-    return FloaterPicture(image, cams, panels, rgb, beyond)
+    return FloaterPicture(image, cams, sheet.panels, rgb, beyond)
 
 
 def _frame(pw: int, ph: int) -> Any:

@@ -1,4 +1,5 @@
-"""PyVista views of a Gaussian cloud and of what pruning removes, and the histogram to tune the threshold by eye.
+"""PyVista views of a Gaussian cloud and of what pruning removes (the histogram to tune the threshold by eye is
+:mod:`roodi_toolkit.viz.histogram`'s, re-exported here).
 
 Each Gaussian is drawn with its footprint:
 
@@ -23,16 +24,17 @@ from __future__ import annotations
 import math
 import os
 import sys
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, OutputError
+from ..errors import ConfigError
 from ..gaussians import GaussianCloud
+from .histogram import distance_is_log, distance_label, histogram_figure, save_histogram  # noqa: F401 (re-exported)
 
 if TYPE_CHECKING:  # pragma: no cover
     import pyvista as pv
-    from matplotlib.figure import Figure
 
     from ..prune.outliers import PruneReport
 
@@ -277,6 +279,143 @@ def _scalar(cloud: GaussianCloud, color_by: str, distances: np.ndarray | None,
     return np.where(d > 0, d, np.nan), "mean distance to neighbours", True
 
 
+def _checked_keep(cloud: GaussianCloud, keep_mask: np.ndarray | None, highlight: Any,
+                  window_size: Sequence[int]) -> tuple[np.ndarray, tuple[int, ...]]:
+    """Return the keep mask ``[N]`` bool (all True for None) and the window size, both checked.
+
+    Raises:
+        ConfigError: a mask of the wrong shape or type, a highlight that is no colour, a window size that is no
+            ``(width, height)``.
+    """
+    import pyvista as pv
+
+    n = len(cloud)
+    keep = np.ones(n, dtype=bool) if keep_mask is None else np.asarray(keep_mask)
+    if keep.shape != (n,) or keep.dtype != np.bool_:
+        raise ConfigError(f"keep_mask must be a bool array [N] = [{n}], got {keep.dtype} {keep.shape}")
+    if highlight is not None:
+        try:
+            pv.Color(highlight)
+        except ValueError:
+            raise ConfigError(f"highlight is not a colour: {highlight!r} (use a name such as 'red' or "
+                              "'#ff00ff', or None)") from None
+    size = tuple(int(v) for v in window_size)
+    if len(size) != 2 or min(size) < 1:
+        raise ConfigError(f"window_size must be (width, height) in pixels, got {window_size}")
+    return keep, size
+
+
+def _frame_kept(plotter: "pv.Plotter", cloud: GaussianCloud, keep: np.ndarray, finite: np.ndarray, camera: str,
+                up: Sequence[float] | None) -> None:
+    """Aim the camera at a robust sphere round the kept Gaussians (all of them when none is kept), at least as large
+    as their footprint so that a tiny or single-Gaussian object is framed too."""
+    frame_idx = np.flatnonzero(keep & finite)
+    if frame_idx.size == 0:
+        frame_idx = np.flatnonzero(finite)
+    centre, radius = robust_sphere(cloud.means[frame_idx])
+    radius = max(radius, 3.0 * float(np.median(cloud.scales[frame_idx].max(axis=1))))
+    frame_camera(plotter, centre, radius, camera, up=up)
+
+
+@dataclass
+class _ColourMap:
+    """A quantity drawn through a colour map: its per-Gaussian values ``[N]``, the bar's title, log scale and
+    range (over the Gaussians not highlighted, None when none is finite)."""
+
+    scalars: np.ndarray
+    title: str
+    log: bool
+    clim: list[float] | None
+
+
+def _colour_map(cloud: GaussianCloud, color_by: str, distances: np.ndarray | None, distance_log: bool,
+                distance_label: str | None, groups: list[tuple[np.ndarray, bool]]) -> _ColourMap | None:
+    """Return the colour map of ``color_by`` over the drawn ``groups`` (index arrays, highlighted or not); None for
+    ``rgb``, the Gaussians' own colours."""
+    if color_by == "rgb":
+        return None
+    scalars, title, log_bar = _scalar(cloud, color_by, distances, distance_log)
+    if color_by == "distance" and distance_label:
+        title = distance_label
+    clim = None
+    drawn = np.concatenate([idx for idx, lit in groups if not lit])
+    values = scalars[drawn]
+    values = values[np.isfinite(values)]
+    if values.size:
+        clim = [float(values.min()), float(values.max())]
+        if clim[0] == clim[1]:
+            clim[1] = clim[0] * 1.01 + 1e-12
+    return _ColourMap(scalars, title, log_bar, clim)
+
+
+def _glyph_mesh(sub: GaussianCloud, use_ellipsoids: bool, sigmas: float) -> "pv.PolyData":
+    """Return the Gaussians' glyphs: ellipsoid surfaces, or their centres with the splat sizes as ``footprint``."""
+    import pyvista as pv
+
+    if use_ellipsoids:
+        return ellipsoid_mesh(sub.means, sub.rotations(), sub.scales, sigmas=sigmas)
+    mesh = pv.PolyData(np.ascontiguousarray(sub.means, dtype=np.float32))
+    mesh.point_data["gaussian"] = np.arange(len(sub), dtype=np.int64)
+    mesh.point_data["footprint"] = footprint_scales(sub)
+    return mesh
+
+
+def _colour_glyphs(mesh: "pv.PolyData", sub: GaussianCloud, idx: np.ndarray, is_highlight: bool, highlight: Any,
+                   colours: _ColourMap | None, use_ellipsoids: bool) -> dict[str, Any]:
+    """Colour the glyphs of the Gaussians ``idx`` (``sub``) and return the ``add_mesh`` arguments that draw them:
+    highlighted, through the colour map, or in their own colours."""
+    import pyvista as pv
+
+    kwargs: dict[str, Any] = {}
+    if is_highlight:
+        # the footprint, unlit in the highlight colour without hiding what it covers: ellipsoids as wireframes,
+        # splats with the Gaussian's own opacity (how much it shows in a render)
+        if use_ellipsoids:
+            kwargs.update(color=highlight, lighting=False, style="wireframe",
+                          opacity=HIGHLIGHT_WIREFRAME_OPACITY, line_width=1.0)
+        else:
+            alpha = sub.opacities.astype(np.float32)
+            colour = np.asarray(pv.Color(highlight).int_rgb, dtype=np.uint8)
+            mesh.point_data["rgba"] = np.concatenate(
+                [np.broadcast_to(colour, (len(idx), 3)), (alpha[:, None] * 255 + 0.5).astype(np.uint8)], axis=1)
+            kwargs.update(scalars="rgba", rgb=True, lighting=False)
+    elif colours is not None:
+        mesh.point_data[colours.title] = _per_point(mesh, colours.scalars[idx], use_ellipsoids)
+        kwargs.update(scalars=colours.title, cmap="viridis", clim=colours.clim, log_scale=colours.log,
+                      nan_color="grey", opacity=1.0,
+                      scalar_bar_args={"title": colours.title, "fmt": "%.3g", "color": "white"})
+    else:
+        mesh.point_data["rgba"] = _per_point(mesh, _colors_rgba(sub), use_ellipsoids)
+        kwargs.update(scalars="rgba", rgb=True)
+    return kwargs
+
+
+def _add_group(plotter: "pv.Plotter", cloud: GaussianCloud, idx: np.ndarray, is_highlight: bool, highlight: Any,
+               colours: _ColourMap | None, use_ellipsoids: bool, sigmas: float) -> None:
+    """Draw the Gaussians ``idx`` as ellipsoids or splats; highlighted ones also get an opaque marker at their
+    centres."""
+    sub = cloud.select(idx)
+    mesh = _glyph_mesh(sub, use_ellipsoids, sigmas)
+    kwargs = _colour_glyphs(mesh, sub, idx, is_highlight, highlight, colours, use_ellipsoids)
+    if use_ellipsoids:
+        if not is_highlight:
+            kwargs.update(smooth_shading=True, ambient=0.35, diffuse=0.65, specular=0.0)
+        plotter.add_mesh(mesh, reset_camera=False, **kwargs)
+    else:
+        actor = plotter.add_mesh(mesh, style="points_gaussian", emissive=False, reset_camera=False,
+                                 render_points_as_spheres=False, **kwargs)
+        actor.mapper.scale_array = "footprint"
+        if is_highlight or colours is None:
+            # splats ignore the colour's alpha channel: per-Gaussian opacity goes through the mapper
+            mesh.point_data["alpha"] = sub.opacities.astype(np.float32)
+            actor.mapper.SetOpacityArray("alpha")
+    if is_highlight:
+        # an opaque, unlit square at every removed centre: exactly the highlight colour, seen at any size
+        plotter.add_points(np.ascontiguousarray(sub.means, dtype=np.float32), color=highlight,
+                           point_size=HIGHLIGHT_MARKER_PIXELS, render_points_as_spheres=False, lighting=False,
+                           reset_camera=False)
+
+
 def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, show: str = "both",
                color_by: str = "rgb", distances: np.ndarray | None = None, highlight: Any = "red",
                glyphs: str = "auto", camera: str = "iso", off_screen: bool | None = None,
@@ -318,19 +457,7 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
     _check_choice(color_by, COLOR_BY, "color_by")
     _check_choice(glyphs, GLYPHS, "glyphs")
     _check_choice(camera, CAMERAS, "camera")
-    n = len(cloud)
-    keep = np.ones(n, dtype=bool) if keep_mask is None else np.asarray(keep_mask)
-    if keep.shape != (n,) or keep.dtype != np.bool_:
-        raise ConfigError(f"keep_mask must be a bool array [N] = [{n}], got {keep.dtype} {keep.shape}")
-    if highlight is not None:
-        try:
-            pv.Color(highlight)
-        except ValueError:
-            raise ConfigError(f"highlight is not a colour: {highlight!r} (use a name such as 'red' or "
-                              "'#ff00ff', or None)") from None
-    size = tuple(int(v) for v in window_size)
-    if len(size) != 2 or min(size) < 1:
-        raise ConfigError(f"window_size must be (width, height) in pixels, got {window_size}")
+    keep, size = _checked_keep(cloud, keep_mask, highlight, window_size)
     finite = ~cloud.nonfinite_rows()
     kept_idx = np.flatnonzero(keep & finite) if show in ("both", "kept") else np.zeros(0, dtype=np.int64)
     removed_idx = np.flatnonzero(~keep & finite) if show in ("both", "removed") else np.zeros(0, dtype=np.int64)
@@ -345,83 +472,16 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
         off_screen = bool(pv.OFF_SCREEN) or not display_available()
     plotter = pv.Plotter(off_screen=off_screen, window_size=list(size))
     plotter.set_background(background)
-
     # frame the object (the kept Gaussians); actors are added with reset_camera=False so the framing stays
-    frame_idx = np.flatnonzero(keep & finite)
-    if frame_idx.size == 0:
-        frame_idx = np.flatnonzero(finite)
-    centre, radius = robust_sphere(cloud.means[frame_idx])
-    # a tiny or single-Gaussian object: frame at least its own footprint
-    radius = max(radius, 3.0 * float(np.median(cloud.scales[frame_idx].max(axis=1))))
-    frame_camera(plotter, centre, radius, camera, up=up)
-
-    scalars = colormap = None
-    bar_title, log_bar = "", False
-    if color_by != "rgb":
-        scalars, bar_title, log_bar = _scalar(cloud, color_by, distances, distance_log)
-        if color_by == "distance" and distance_label:
-            bar_title = distance_label
-        colormap = "viridis"
+    _frame_kept(plotter, cloud, keep, finite, camera, up)
 
     groups = [(kept_idx, False), (removed_idx, highlight is not None)]
     if highlight is None:  # removed drawn like the kept: one actor
         groups = [(np.union1d(kept_idx, removed_idx), False)]
-    clim = None
-    if scalars is not None:
-        drawn = np.concatenate([idx for idx, lit in groups if not lit])
-        values = scalars[drawn]
-        values = values[np.isfinite(values)]
-        if values.size:
-            clim = [float(values.min()), float(values.max())]
-            if clim[0] == clim[1]:
-                clim[1] = clim[0] * 1.01 + 1e-12
+    colours = _colour_map(cloud, color_by, distances, distance_log, distance_label, groups)
     for idx, is_highlight in groups:
-        if idx.size == 0:
-            continue
-        sub = cloud.select(idx)
-        if use_ellipsoids:
-            mesh = ellipsoid_mesh(sub.means, sub.rotations(), sub.scales, sigmas=sigmas)
-        else:
-            mesh = pv.PolyData(np.ascontiguousarray(sub.means, dtype=np.float32))
-            mesh.point_data["gaussian"] = np.arange(len(idx), dtype=np.int64)
-            mesh.point_data["footprint"] = footprint_scales(sub)
-        kwargs: dict[str, Any] = {}
-        if is_highlight:
-            # the footprint, unlit in the highlight colour without hiding what it covers: ellipsoids as wireframes,
-            # splats with the Gaussian's own opacity (how much it shows in a render)
-            alpha = sub.opacities.astype(np.float32)
-            if use_ellipsoids:
-                kwargs.update(color=highlight, lighting=False, style="wireframe",
-                              opacity=HIGHLIGHT_WIREFRAME_OPACITY, line_width=1.0)
-            else:
-                colour = np.asarray(pv.Color(highlight).int_rgb, dtype=np.uint8)
-                mesh.point_data["rgba"] = np.concatenate(
-                    [np.broadcast_to(colour, (len(idx), 3)), (alpha[:, None] * 255 + 0.5).astype(np.uint8)], axis=1)
-                kwargs.update(scalars="rgba", rgb=True, lighting=False)
-        elif scalars is not None:
-            mesh.point_data[bar_title] = _per_point(mesh, scalars[idx], use_ellipsoids)
-            kwargs.update(scalars=bar_title, cmap=colormap, clim=clim, log_scale=log_bar, nan_color="grey",
-                          opacity=1.0, scalar_bar_args={"title": bar_title, "fmt": "%.3g", "color": "white"})
-        else:
-            mesh.point_data["rgba"] = _per_point(mesh, _colors_rgba(sub), use_ellipsoids)
-            kwargs.update(scalars="rgba", rgb=True)
-        if use_ellipsoids:
-            if not is_highlight:
-                kwargs.update(smooth_shading=True, ambient=0.35, diffuse=0.65, specular=0.0)
-            plotter.add_mesh(mesh, reset_camera=False, **kwargs)
-        else:
-            actor = plotter.add_mesh(mesh, style="points_gaussian", emissive=False, reset_camera=False,
-                                     render_points_as_spheres=False, **kwargs)
-            actor.mapper.scale_array = "footprint"
-            if is_highlight or color_by == "rgb":
-                # splats ignore the colour's alpha channel: per-Gaussian opacity goes through the mapper
-                mesh.point_data["alpha"] = (alpha if is_highlight else sub.opacities).astype(np.float32)
-                actor.mapper.SetOpacityArray("alpha")
-        if is_highlight:
-            # an opaque, unlit square at every removed centre: exactly the highlight colour, seen at any size
-            plotter.add_points(np.ascontiguousarray(sub.means, dtype=np.float32), color=highlight,
-                               point_size=HIGHLIGHT_MARKER_PIXELS, render_points_as_spheres=False, lighting=False,
-                               reset_camera=False)
+        if idx.size:
+            _add_group(plotter, cloud, idx, is_highlight, highlight, colours, use_ellipsoids, sigmas)
     plotter.renderer.ResetCameraClippingRange()
     return plotter
 
@@ -431,124 +491,3 @@ def screenshot_image(plotter: "pv.Plotter") -> np.ndarray:
     """Return the plotter's current image ``[H, W, 3]`` uint8, rendering it off screen if needed."""
     img = plotter.screenshot(None, return_img=True)
     return np.asarray(img)[..., :3].copy()
-
-
-# ------------------------------------------------------------------------------------------------------ histogram
-def distance_is_log(report: "PruneReport") -> bool:
-    """Return whether the report's per-Gaussian values are the statistical rule's distances (shown on a log scale)
-    rather than the local tests' blob scores (:func:`roodi_toolkit.prune.scene.blob_scores`, already a log ratio,
-    shown on a linear scale), which the scene and object modes report in ``mean_distances``."""
-    return report.mode == "statistical"
-
-
-def distance_label(report: "PruneReport") -> str:
-    """Return what the report's distances are, e.g. ``"mean W2² to the 16 nearest"``, for axis and bar titles."""
-    if not distance_is_log(report):
-        return "blob score (smallest axis over spacing and neighbours' size, log units)"
-    cfg = report.config
-    k = cfg.get("k", "K")
-    if cfg.get("distance", "w2") == "w2":
-        return f"mean W2² to {k} neighbours"
-    return f"mean distance to {k} neighbours"
-
-
-def histogram_figure(report: "PruneReport", *, bins: int = 80, figsize: tuple[float, float] = (7.5, 4.2),
-                     title: str | None = None, keep: np.ndarray | None = None) -> "Figure":
-    """Return a matplotlib figure of the per-Gaussian values the prune judged, with its threshold marked.
-
-    For the statistical rule these are the mean neighbour distances (log x axis); the Gaussians past the threshold
-    (the statistical stage's removals) are shaded and their share annotated, and for iterative rules the
-    first-round threshold is drawn dashed. For the local tests (scene and object modes) they are the blob scores
-    (a log ratio, linear x axis) with the oversized limit; there the Gaussians shaded as removed are those any test
-    removed (detached, oversized, fog, after the photo check) when ``keep`` is given, else those over the limit.
-    The threshold drawn is ``report.threshold``, the one ``prune --report`` writes.
-
-    Args:
-        report: the report of :func:`~roodi_toolkit.prune.scene.prune_cloud` or
-            :func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers`.
-        bins: histogram bins (log-spaced for distances).
-        figsize: figure size in inches.
-        title: figure title (defaults to the rule and its alpha, or the mode and its limit).
-        keep: ``[N]`` the prune's keep mask (local modes: which evaluated Gaussians count as removed).
-
-    Example:
-        >>> from roodi_toolkit.prune.outliers import remove_statistical_outliers
-        >>> from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
-        >>> report = remove_statistical_outliers(planted_floater_cloud(FloaterMix(n_object=2000), 0).cloud).report
-        >>> fig = histogram_figure(report)
-        >>> bool(fig.axes[0].get_xscale() == "log"), fig._roodi_threshold == report.threshold
-        (True, True)
-    """
-    from matplotlib.figure import Figure
-
-    d = np.asarray(report.mean_distances, dtype=np.float64)
-    if d.size == 0:
-        raise ConfigError("the report has no per-Gaussian distances (nothing reached the statistics)")
-    threshold = float(report.threshold)
-    log_x = distance_is_log(report)
-    flagged = d > threshold
-    if not log_x and keep is not None:
-        flagged = ~np.asarray(keep, dtype=bool)[np.asarray(report.evaluated, dtype=np.int64)]
-    shown = (d > 0) if log_x else np.isfinite(d)
-    hidden = int((~shown).sum())
-    cfg = report.config
-
-    fig = Figure(figsize=figsize)
-    ax = fig.add_subplot(1, 1, 1)
-    if shown.any():
-        lo, hi = float(d[shown].min()), float(d[shown].max())
-        if np.isfinite(threshold) and (threshold > 0 or not log_x):
-            lo, hi = min(lo, threshold), max(hi, threshold)
-        if hi <= lo:
-            hi = lo * 1.01 + 1e-30 if log_x else lo + 1.0
-        edges = np.geomspace(lo, hi, bins + 1) if log_x else np.linspace(lo, hi, bins + 1)
-        ax.hist(d[shown & ~flagged], bins=edges, color="#4c78a8", label="kept")
-        if (shown & flagged).any():
-            ax.hist(d[shown & flagged], bins=edges, color="#e45756", label="removed")
-    if log_x:
-        ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel(distance_label(report) + (" (log scale)" if log_x else ""))
-    ax.set_ylabel("Gaussians")
-    if np.isfinite(threshold) and (threshold > 0 or not log_x):
-        name = "threshold" if log_x else "oversized limit"
-        ax.axvline(threshold, color="black", linewidth=1.5, label=f"{name} {threshold:.4g}")
-    first = report.thresholds[0] if report.thresholds else float("nan")
-    if len(report.thresholds) > 1 and np.isfinite(first) and first > 0 and not np.isclose(first, threshold):
-        ax.axvline(first, color="grey", linestyle="--", linewidth=1, label=f"first round {first:.4g}")
-    share = float(flagged.mean())
-    note = f"removed {share:.2%} ({int(flagged.sum()):,} of {d.size:,} evaluated)"
-    if hidden:
-        note += f"\n{hidden:,} at distance 0 not shown" if log_x else f"\n{hidden:,} without a score not shown"
-    ax.text(0.98, 0.95, note, transform=ax.transAxes, ha="right", va="top", fontsize=9,
-            bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "none"})
-    ax.legend(loc="best", fontsize=8, frameon=False)
-    if title is None:
-        title = (f"rule {cfg.get('rule', '?')}, alpha {cfg.get('alpha', float('nan')):g}, K {cfg.get('k', '?')}"
-                 if log_x else f"{report.mode} mode, K {cfg.get('k', '?')}")
-    ax.set_title(title)
-    fig.tight_layout()
-    # what the picture shows, for save_histogram's PNG metadata and for tests
-    fig._roodi_threshold = threshold  # type: ignore[attr-defined]
-    fig._roodi_removed_share = share  # type: ignore[attr-defined]
-    return fig
-
-
-def save_histogram(fig: "Figure", path: str | os.PathLike, dpi: int = 110) -> None:
-    """Write the histogram figure atomically; a PNG carries the threshold and removed share as text metadata.
-
-    The metadata (keys ``roodi:threshold``, ``roodi:removed_share``, full precision) lets a script read back
-    exactly which threshold the picture marks.
-    """
-    from ..io.files import atomic_path
-
-    metadata: dict[str, str] = {}
-    if str(path).lower().endswith(".png"):
-        for key, attr in (("roodi:threshold", "_roodi_threshold"), ("roodi:removed_share", "_roodi_removed_share")):
-            if hasattr(fig, attr):
-                metadata[key] = repr(float(getattr(fig, attr)))
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi, bbox_inches="tight", metadata=metadata or None)
-    except ValueError as exc:  # unknown format from the extension
-        raise OutputError(f"{path}: cannot write the histogram ({exc})") from None

@@ -1,0 +1,79 @@
+"""The perceptual loss of fine-tuning against the inpainted views (paper, Sec. 3.3).
+
+LPIPS (Zhang et al. 2018), as in the paper, when its weights are on this machine
+(:meth:`roodi_toolkit.lpips.LPIPS.from_local`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream files in
+the local caches; nothing is downloaded). Otherwise a
+Laplacian-pyramid L1 ("Lap1", Bojanowski et al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass
+levels of the two images, each level weighted equally, so that edges and texture at every scale count as much as
+flat colour. It needs no weights and is not D-SSIM.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import torch
+from torch import Tensor
+
+from ..errors import ConfigError
+from ..lpips import LPIPS, LPIPSUnavailable
+
+__all__ = ["LaplacianLoss", "LPIPSLoss", "perceptual_loss"]
+
+
+class LaplacianLoss(torch.nn.Module):
+    """Return the mean over pyramid levels of the L1 between Laplacian-pyramid bands of two images.
+
+    Args:
+        levels: band-pass levels (the last one is the low-pass residual).
+
+    Example:
+        >>> a = torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0))
+        >>> loss = LaplacianLoss()
+        >>> float(loss(a, a)), float(loss(a, a.mean() * torch.ones_like(a))) > 0.05
+        (0.0, True)
+    """
+
+    name = "laplacian"
+
+    def __init__(self, levels: int = 4) -> None:
+        super().__init__()
+        self.levels = levels
+
+    def forward(self, a: Tensor, b: Tensor) -> Tensor:
+        import kornia
+
+        x = torch.stack([a, b]).permute(0, 3, 1, 2)
+        levels = max(1, min(self.levels, int(math.log2(max(2, min(x.shape[-2:])))) - 2))
+        pyr = kornia.geometry.transform.build_laplacian_pyramid(x, levels)
+        return torch.stack([(p[0] - p[1]).abs().mean() for p in pyr]).mean()
+
+
+class LPIPSLoss(torch.nn.Module):
+    """Return LPIPS between two ``[H, W, 3]`` images in [0, 1] (:mod:`roodi_toolkit.lpips`, local weights only)."""
+
+    name = "lpips"
+
+    def __init__(self, weights: Optional[str] = None) -> None:
+        super().__init__()
+        self.model = LPIPS.from_local(weights)
+
+    def forward(self, a: Tensor, b: Tensor) -> Tensor:
+        return self.model(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]).mean()
+
+
+def perceptual_loss(kind: str = "auto", weights: Optional[str] = None) -> torch.nn.Module:
+    """Return the perceptual loss module to use: LPIPS from local weights if possible (or required), else Laplacian.
+
+    Raises:
+        ConfigError: ``kind="lpips"`` but no local LPIPS weights were found (the message says where it looked).
+    """
+    if kind == "laplacian":
+        return LaplacianLoss()
+    try:
+        return LPIPSLoss(weights)
+    except LPIPSUnavailable as exc:
+        if kind == "lpips":
+            raise ConfigError(f"perceptual loss 'lpips' unavailable: {exc}") from None
+    return LaplacianLoss()
