@@ -84,11 +84,12 @@ def cache_bytes(requested_mb: float, fixed: float) -> int:
 
 
 def check_refine(scene_gaussians: int, object_gaussians: int, views: int, width: int, height: int) -> None:
-    """Refuse, before it starts, occlusion reasoning and fine-tuning that would not fit: the scene's depth in every
-    training view, the object's masks and targets in every view (colour and weight), and a rendering of the scene
-    and of the object with its backward at full size."""
+    """Refuse, before it starts, occlusion reasoning and fine-tuning that would not fit: for every training view the
+    object's mask, the pixels that may hide it and the clicked masks it came from (a byte a pixel each; targets are
+    made view by view), and a rendering of the scene and of the object with its backward at full size, the object's
+    parameters with their gradients and Adam's moments."""
     pixels = width * height
-    needed = views * pixels * (4 + 1 + 12 + 4) + render_pass_bytes(scene_gaussians, pixels) \
+    needed = views * pixels * 3.0 + render_pass_bytes(scene_gaussians, pixels) \
         + render_pass_bytes(object_gaussians, pixels, sh_coeffs=16) + 4 * 59 * 4.0 * object_gaussians
     check_memory(needed, f"fine-tuning the object ({object_gaussians:,} Gaussians) on {views} views of "
                  f"{width}x{height}", _todo(views), ConfigError)

@@ -33,7 +33,8 @@ import torch
 
 from .distill import DistillConfig
 from ..errors import ConfigError
-from .finetune import FinetuneConfig
+from . import budget
+from .finetune import FinetuneConfig, PerView
 from ..gaussians import GaussianCloud
 from .occlusion import OcclusionConfig
 from .segment import SegmentPrompt, resolve_prompt
@@ -487,7 +488,9 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
     if config.inpaint:
         ds = prepared.dataset
         views = ds.train_indices
-        res = refine_object(selected, prepared.scene, ds.images[views], [ds.cameras[v] for v in views],
+        budget.check_refine(len(prepared.scene), len(selected), len(views), ds.width, ds.height)
+        photos = PerView(len(views), lambda i: ds.images[views[i]])  # read in place, not copied
+        res = refine_object(selected, prepared.scene, photos, [ds.cameras[v] for v in views],
                             _object_masks(prepared.masks, int(object_id), views), inpainter=config.inpainter,
                             inpainter_options=config.inpainter_options,
                             occlusion=config.occlusion, finetune=config.finetune, debug_dir=odir / "debug",

@@ -19,7 +19,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
@@ -102,19 +102,45 @@ class FinetuneConfig:
 # ------------------------------------------------------------------------------------------------------ fine-tuning
 
 
+class PerView:
+    """A sequence of per-view tensors made on demand, for the views of a capture that need not all be held at once:
+    ``seq[i]`` is ``make(i)``, ``seq[a:b]`` their stack, ``len(seq)`` the number of views.
+
+    Example:
+        >>> seq = PerView(3, lambda i: torch.full((2,), float(i)))
+        >>> seq[2].tolist(), seq[:2].shape, len(seq)
+        ([2.0, 2.0], torch.Size([2, 2]), 3)
+    """
+
+    def __init__(self, count: int, make: Callable[[int], Tensor]) -> None:
+        self._count, self._make = int(count), make
+
+    def __len__(self) -> int:
+        return self._count
+
+    def __getitem__(self, index: int | slice) -> Tensor:
+        if isinstance(index, slice):
+            return torch.stack([self._make(i) for i in range(self._count)[index]])
+        if not -self._count <= index < self._count:
+            raise IndexError(f"view {index} of {self._count}")
+        return self._make(index % self._count)
+
+
 @dataclass
 class ViewTargets:
     """Images the object is fitted to, with per-pixel weights.
 
     Attributes:
         cameras: V views.
-        images: targets in [0, 1]. [V, H, W, 3]
-        weights: 1 where a pixel is supervised, 0 where it is not (e.g. the object may be hidden there). [V, H, W]
+        images: targets in [0, 1]: a tensor, or a :class:`PerView` that makes each view's when it is asked for.
+            [V, H, W, 3]
+        weights: 1 where a pixel is supervised, 0 where it is not (e.g. the object may be hidden there), likewise.
+            [V, H, W]
     """
 
     cameras: list[Camera] = field(repr=False)
-    images: Tensor = field(repr=False)
-    weights: Tensor = field(repr=False)
+    images: Tensor | PerView = field(repr=False)
+    weights: Tensor | PerView = field(repr=False)
 
 
 def sphere_outline(camera: Camera, centre: Sequence[float], radius: float) -> tuple[Optional[np.ndarray], float]:
@@ -129,14 +155,19 @@ def sphere_outline(camera: Camera, centre: Sequence[float], radius: float) -> tu
     return (xs + 0.5 - uv[0, 0]) ** 2 + (ys + 0.5 - uv[0, 1]) ** 2 <= r_px ** 2, z
 
 
-def object_view_targets(images: Tensor, cameras: Sequence[Camera], object_masks: Tensor, *,
-                        depths: Optional[Tensor] = None, centre: Optional[np.ndarray] = None, radius: float = 0.0,
-                        background: Sequence[float] = (1.0, 1.0, 1.0)) -> ViewTargets:
+def object_view_targets(images: Tensor | PerView, cameras: Sequence[Camera], object_masks: Tensor, *,
+                        depths: Optional[Tensor | PerView] = None, centre: Optional[np.ndarray] = None,
+                        radius: float = 0.0, background: Sequence[float] = (1.0, 1.0, 1.0)) -> ViewTargets:
     """Return training views restricted to the object: its pixels kept, all others set to the background colour.
 
     A pixel outside the object's mask whose surface lies nearer than the far side of the object's bounding sphere
     (and inside the sphere's outline) may be hiding the object: with ``depths`` (rendered or measured scene depth)
     it gets weight 0 instead of a background target, so that the originals do not undo inpainted hidden parts.
+
+    The targets are made view by view when fine-tuning asks for them: what is held for every view is its mask and
+    which pixels may hide the object (2 bytes a pixel), not its target colours and weights (16), and the photos are
+    read where they are (``images`` may be a :class:`PerView` over the dataset's own tensor, and ``depths`` one that
+    renders each view's depth once, here).
 
     Args:
         images: the views. [N, H, W, 3]
@@ -149,16 +180,16 @@ def object_view_targets(images: Tensor, cameras: Sequence[Camera], object_masks:
     """
     bg = torch.as_tensor(background, dtype=torch.float32)
     masks = torch.as_tensor(object_masks).bool()
-    targets = torch.where(masks[..., None], images.float(), bg)
-    weights = torch.ones(masks.shape)
+    hidden = torch.zeros(masks.shape, dtype=torch.bool)
     if depths is not None and centre is not None and radius > 0:
         for i, cam in enumerate(cameras):
             inside, z = sphere_outline(cam, centre, radius)
             if inside is None:
                 continue
             d = depths[i]
-            may_hide = torch.from_numpy(inside) & (d > 0) & (d < z + radius) & ~masks[i]
-            weights[i][may_hide] = 0.0
+            hidden[i] = torch.from_numpy(inside) & (d > 0) & (d < z + radius) & ~masks[i]
+    targets = PerView(len(masks), lambda i: torch.where(masks[i][..., None], images[i].float(), bg))
+    weights = PerView(len(masks), lambda i: (~hidden[i]).float())
     return ViewTargets(list(cameras), targets, weights)
 
 
@@ -454,7 +485,8 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     Args:
         object_cloud: the object's Gaussians (after selection and pruning).
         scene_cloud: the whole scene's Gaussians.
-        images: the training views. [N, H, W, 3]
+        images: the training views (a tensor, or a :class:`PerView` over them: each is read when its target is
+            made). [N, H, W, 3]
         cameras: their cameras.
         object_masks: the object's 2D masks in the training views. [N, H, W]
         inpainter: an :class:`~roodi_toolkit.pipeline.inpaint.Inpainter` or a registered name (default ``opencv``).
@@ -479,8 +511,12 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     # scene depth in the training views tells where something may hide the object, and where a view looks through
     # empty space (what a 3D completion must not fill)
     scene_params = GaussianParams.from_cloud(scene_cloud)
-    with torch.no_grad():
-        depths = torch.stack([renderer.render(scene_params, c).depth[..., 0] for c in cameras])
+
+    def depth(i: int) -> Tensor:  # rendered once per view, where the targets are made; never all held
+        with torch.no_grad():
+            return renderer.render(scene_params, cameras[i]).depth[..., 0]
+
+    depths = PerView(len(cameras), depth)
     # only a 3D-aware inpainter reads the context: the support is looked for only for one
     wants = getattr(inpainter, "uses_context", False) and len(object_cloud) >= 4
     context = _fill_context(object_cloud, scene_cloud, scene_params, cameras, object_masks, up, bg, occlusion, wants,
