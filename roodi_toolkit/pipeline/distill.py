@@ -82,7 +82,7 @@ class DistillConfig:
     feature_init_std: float = 1e-2
     seed: int = 0
     cache_weights: bool = True
-    cache_mb: float = 1024
+    cache_mb: float = 2048
     max_pixels: int = 512 * 512
 
     def __post_init__(self) -> None:
