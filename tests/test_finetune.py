@@ -46,13 +46,13 @@ def test_perceptual_choice_without_local_lpips(monkeypatch, tmp_path):
 
 def test_lpips_is_used_when_local_weights_exist(monkeypatch, tmp_path):
     """Random weights written in the test stand in for the real file; the local-weights path is the one taken."""
-    from roodi_toolkit.evaluate.lpips import LPIPS, save_combined
+    from roodi_toolkit.evaluate.lpips import LPIPS, write_lpips
 
     torch.manual_seed(0)
     reference = LPIPS()
     for p in reference.parameters():
         p.data.uniform_(0, 0.1)
-    weights = save_combined(reference, tmp_path / "lpips.pt")
+    weights = write_lpips(reference, tmp_path / "lpips.pt")
     monkeypatch.setenv("ROODI_LPIPS_WEIGHTS", str(weights))
     loss = perceptual_loss("auto")
     assert isinstance(loss, LPIPSLoss) and loss.name == "lpips"
