@@ -150,7 +150,7 @@ def test_benchmark_averages_checks_and_tables() -> None:
 def test_benchmark_on_an_occluded_scene(tmp_path: Path) -> None:
     from roodi_toolkit.evaluate.benchmark import BenchmarkSize, run_benchmark
     from roodi_toolkit.synth.scene import make_benchmark_scene
-    from tests.test_benchmark import TINY
+    from tests.evaluate.test_benchmark import TINY
 
     size = BenchmarkSize(size=32, train_views=10, test_views=2, iterations=40, init_points=800, cap_max=1000,
                          supersample=1)

@@ -17,7 +17,7 @@ from roodi_toolkit.pipeline.occlusion import OcclusionConfig
 from roodi_toolkit.pipeline.strategy import MCMCStrategy
 from roodi_toolkit.pipeline.train import TrainConfig
 
-from .conftest import make_cloud
+from ..conftest import make_cloud
 
 
 def test_gaussian_grouping_takes_the_argmax_class():

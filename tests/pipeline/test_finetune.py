@@ -18,6 +18,7 @@ from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, OcclusionResult
 
 from .test_inpaint import tiny_refine_inputs
+from ..paths import REPO
 
 
 def test_laplacian_loss_is_zero_on_equal_images_and_differentiable():
@@ -153,7 +154,7 @@ def test_refine_with_hole_seeding_adds_gaussians_and_records_them(tmp_path):
 @pytest.fixture(scope="module")
 def picnic_refinement():
     """benchmarks/bench_inpaint.py's default run (picnic 0, basket_3): about 20 s on a quiet 2-core machine."""
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1]))
+    sys.path.insert(0, str(REPO))
     from benchmarks.bench_inpaint import run
 
     return run()
