@@ -4,21 +4,12 @@ The network is the reference one (``lpips.LPIPS(net="alex")``, version 0.1): inp
 the scaling layer, AlexNet's five ReLU stages, unit-normalised channels, squared differences weighted by the learned
 1x1 "lin" layers, spatial mean, sum over stages.
 
-Weights never download. :meth:`LPIPS.from_local` looks, in order, at:
-
-1. ``path`` or ``$ROODI_LPIPS_WEIGHTS``: one file holding this module's state dict (``features.*`` and ``lins.*``),
-   as :func:`save_combined` writes it;
-2. the upstream pair: the lpips package's ``weights/v0.1/alex.pth`` (``lin{i}.model.1.weight``) and torchvision's
-   ``alexnet-owt-7be5be79.pth`` (``features.*``) from the torch hub cache (``$TORCH_HOME/hub/checkpoints``).
-
-When neither is there it raises :class:`LPIPSUnavailable`, saying where it looked; callers report LPIPS as
-unavailable rather than substituting another number.
+The network is built from state dicts (:meth:`LPIPS.from_state_dicts`, :meth:`LPIPS.from_combined`); the weight
+files on this machine are found and read by :func:`roodi_toolkit.io.lpips_weights.read_lpips` (nothing downloads).
 """
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
 from typing import Mapping
 
 import torch
@@ -26,8 +17,6 @@ from torch import Tensor, nn
 
 from .errors import EnvironmentProblemError, InputError
 
-ENV_WEIGHTS = "ROODI_LPIPS_WEIGHTS"
-ALEXNET_CHECKPOINT = "alexnet-owt-7be5be79.pth"
 CHANNELS = (64, 192, 384, 256, 256)
 _SLICES = ((0, 2), (2, 5), (5, 8), (8, 10), (10, 12))  # AlexNet feature indices ending at relu1..relu5
 
@@ -59,7 +48,7 @@ class LPIPS(nn.Module):
 
     Example:
         >>> torch.manual_seed(0) and None
-        >>> net = LPIPS()  # random weights: for shapes only; use LPIPS.from_local() for real distances
+        >>> net = LPIPS()  # random weights: for shapes only; real distances need real weights (io.lpips_weights)
         >>> x = torch.rand(2, 3, 64, 64)
         >>> d = net(x, x)
         >>> d.shape, bool(torch.all(d.abs() < 1e-6))
@@ -129,60 +118,3 @@ class LPIPS(nn.Module):
             raise LPIPSUnavailable(f"{source}: LPIPS weights do not fit the AlexNet variant "
                                    f"({' '.join(str(exc).split())[:160]})") from None
         del unexpected
-
-    @classmethod
-    def from_local(cls, path: str | os.PathLike | None = None) -> "LPIPS":
-        """Return LPIPS with weights found on this machine (see the module docstring), never downloading.
-
-        Raises:
-            LPIPSUnavailable: no usable local weights; the message lists where it looked.
-        """
-        looked = []
-        combined = path or os.environ.get(ENV_WEIGHTS)
-        if combined:
-            p = Path(combined)
-            if not p.is_file():
-                raise LPIPSUnavailable(f"{p}: LPIPS weights file not found")
-            return cls.from_combined(_load(p), str(p))
-        looked.append(f"${ENV_WEIGHTS} (unset)")
-        lin_path = _lpips_package_weights()
-        alex_path = Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_CHECKPOINT
-        looked.append(f"lpips package weights ({lin_path or 'package not installed'})")
-        looked.append(str(alex_path))
-        if lin_path is not None and lin_path.is_file() and alex_path.is_file():
-            return cls.from_state_dicts(_load(lin_path), _load(alex_path))
-        raise LPIPSUnavailable("no local LPIPS weights; looked at " + ", ".join(looked))
-
-
-def _lpips_package_weights() -> Path | None:
-    import importlib.util
-
-    spec = importlib.util.find_spec("lpips")
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    return Path(list(spec.submodule_search_locations)[0]) / "weights" / "v0.1" / "alex.pth"
-
-
-def _load(path: Path) -> dict[str, Tensor]:
-    from .io.files import check_torch_archive
-
-    try:
-        check_torch_archive(path, "LPIPS weights")  # a compressed entry would be inflated whole first
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is reported by name
-        from .errors import RoodiError
-
-        reason = str(exc) if isinstance(exc, RoodiError) else f"cannot read LPIPS weights ({type(exc).__name__})"
-        raise LPIPSUnavailable(reason if reason.startswith(str(path)) else f"{path}: {reason}") from None
-    if isinstance(state, dict) and "state_dict" in state:
-        state = state["state_dict"]
-    if not isinstance(state, dict):
-        raise LPIPSUnavailable(f"{path}: not a state dict")
-    return state
-
-
-def save_combined(net: LPIPS, path: str | os.PathLike) -> Path:
-    """Write ``net``'s weights as one file that :meth:`LPIPS.from_local` reads (e.g. after from_state_dicts)."""
-    from .io.files import save_checkpoint
-
-    return save_checkpoint({k: v for k, v in net.state_dict().items() if k not in ("shift", "scale")}, path)

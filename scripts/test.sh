@@ -5,7 +5,7 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 bash scripts/bootstrap.sh
 # The reference reader and writer of the splat formats, PlayCanvas's splat-transform, as an oracle for the format
-# tests (tests/test_formats.py); never a runtime dependency. Without npm those tests skip and say why.
+# tests (tests/io/test_formats.py); never a runtime dependency. Without npm those tests skip and say why.
 if command -v npm >/dev/null 2>&1 && [ ! -x .oracle/node_modules/.bin/splat-transform ]; then
   echo "test: installing @playcanvas/splat-transform 2.7.1 into .oracle/ (the format tests' oracle)" >&2
   npm install --silent --no-audit --no-fund --prefix .oracle @playcanvas/splat-transform@2.7.1 >/dev/null 2>&1 \

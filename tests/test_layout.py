@@ -1,6 +1,6 @@
-"""The package's layout keeps its promises: small modules, functions that read in one screen, the lower layers know
-nothing of the pipeline, and no import circle between its modules, counting every import a module makes (at its top,
-inside functions, under ``if TYPE_CHECKING:``)."""
+"""The package's layout keeps its promises: small modules, functions that read in one screen, floors in one strict
+order (a module imports only its own floor and the floors below) and no import circle between its modules, counting
+every import a module makes (at its top, inside functions, under ``if TYPE_CHECKING:``)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,11 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "roodi_toolkit"
-LOWER = ("io", "render", "prune")  # know nothing of what builds on them
-UPPER = ("pipeline", "evaluate", "viz", "synth", "batch", "cli")
+# DESIGN.md's floors, lowest first ("arrows point down this list"), then the click commands. The top-level modules
+# (errors, gaussians, cameras, params, lpips, ...) are the core. The package's __init__ is the front door a user
+# imports (``import roodi_toolkit as rt``: the public names, re-exported from the core and io), above every floor:
+# no module of the package imports it.
+FLOORS = ("core", "io", "render", "prune", "pipeline", "evaluate", "viz", "synth", "batch", "cli", "front door")
 MODULES = sorted(p for p in ROOT.rglob("*.py") if "__pycache__" not in p.parts)
 
 
@@ -115,16 +118,41 @@ def test_functions_read_in_one_screen():
         f"{name} ({n} lines)" for name, n in sorted(long.items()) if name not in LONG_KERNELS)
 
 
-def test_lower_layers_know_nothing_of_the_pipeline():
-    offenders = []
-    for path in MODULES:
-        name = _name(path)
-        layer = name.split(".")[1] if name.count(".") >= 1 else ""
-        if layer in LOWER or name.count(".") == 1 and layer not in UPPER + LOWER:
-            for imported in _imports(path, top_level_only=False):
-                if imported.split(".")[1:2] and imported.split(".")[1] in UPPER:
-                    offenders.append(f"{name} -> {imported}")
-    assert offenders == []
+def _floor(name: str) -> str:
+    """Return the floor of module ``name`` (one of :data:`FLOORS`)."""
+    parts = name.split(".")
+    if len(parts) == 1:
+        return "front door"
+    return parts[1] if (ROOT / parts[1]).is_dir() else "core"
+
+
+def _arrows_up(graph: dict[str, set[str]]) -> list[str]:
+    """Return ``"a -> b (floor a -> floor b)"`` for each import of a module ``a`` of a floor below ``b``'s."""
+    return sorted(f"{a} -> {b} ({_floor(a)} -> {_floor(b)})" for a, imported in graph.items() for b in imported
+                  if FLOORS.index(_floor(b)) > FLOORS.index(_floor(a)))
+
+
+def test_every_folder_of_the_package_is_a_floor():
+    folders = {p.parent.relative_to(ROOT).parts[0] for p in MODULES if p.parent != ROOT}
+    assert folders <= set(FLOORS), f"give {sorted(folders - set(FLOORS))} a place in FLOORS (and in DESIGN.md's order)"
+
+
+def test_the_floor_finder_places_modules_and_finds_arrows_up():
+    assert [_floor(m) for m in ("roodi_toolkit", "roodi_toolkit.errors", "roodi_toolkit.io", "roodi_toolkit.io.ply",
+                                "roodi_toolkit.cli.main")] == ["front door", "core", "io", "io", "cli"]
+    graph = {"roodi_toolkit.io.ply": {"roodi_toolkit.errors", "roodi_toolkit.io.files"},
+             "roodi_toolkit.evaluate.benchmark": {"roodi_toolkit.pipeline.extract", "roodi_toolkit.synth.scene"},
+             "roodi_toolkit.lpips": {"roodi_toolkit.io.files"}, "roodi_toolkit.cli.cmd_info": {"roodi_toolkit"}}
+    assert _arrows_up(graph) == ["roodi_toolkit.cli.cmd_info -> roodi_toolkit (cli -> front door)",
+                                 "roodi_toolkit.evaluate.benchmark -> roodi_toolkit.synth.scene (evaluate -> synth)",
+                                 "roodi_toolkit.lpips -> roodi_toolkit.io.files (core -> io)"]
+
+
+def test_floors_import_only_their_own_floor_and_the_floors_below():
+    """Every import of the package's modules, made anywhere in them, points down DESIGN.md's order of floors (or
+    stays on its floor): what two floors share lives on the lower one, or the upper caller passes it in."""
+    arrows = _arrows_up(_graph())
+    assert arrows == [], "imports up the floors:\n" + "\n".join(arrows)
 
 
 def _circles(graph: dict[str, set[str]]) -> list[list[str]]:

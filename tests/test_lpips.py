@@ -3,7 +3,8 @@
 import pytest
 import torch
 
-from roodi_toolkit.evaluate.lpips import ALEXNET_CHECKPOINT, ENV_WEIGHTS, LPIPS, LPIPSUnavailable, save_combined
+from roodi_toolkit.evaluate.lpips import (ALEXNET_CHECKPOINT, ENV_WEIGHTS, LPIPS, LPIPSUnavailable, read_lpips,
+                                          write_lpips)
 
 
 def random_upstream_pair(seed=0):
@@ -36,13 +37,13 @@ def test_gradients_flow_to_the_input_not_the_weights():
     assert all(p.grad is None for p in net.parameters())
 
 
-def test_from_local_reads_combined_file_and_upstream_pair(tmp_path, monkeypatch):
+def test_read_lpips_reads_combined_file_and_upstream_pair(tmp_path, monkeypatch):
     lin, alexnet = random_upstream_pair(3)
     reference = LPIPS.from_state_dicts(lin, alexnet)
     x, y = torch.rand(1, 3, 64, 64), torch.rand(1, 3, 64, 64)
-    combined = save_combined(reference, tmp_path / "lpips_alex.pt")
+    combined = write_lpips(reference, tmp_path / "lpips_alex.pt")
     monkeypatch.setenv(ENV_WEIGHTS, str(combined))
-    assert torch.allclose(LPIPS.from_local()(x, y), reference(x, y))
+    assert torch.allclose(read_lpips()(x, y), reference(x, y))
     # the upstream pair from a torch hub cache and an lpips package folder
     monkeypatch.delenv(ENV_WEIGHTS)
     hub = tmp_path / "hub"
@@ -54,18 +55,18 @@ def test_from_local_reads_combined_file_and_upstream_pair(tmp_path, monkeypatch)
     torch.save(lin, pkg / "weights" / "v0.1" / "alex.pth")
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(hub))
     monkeypatch.syspath_prepend(str(tmp_path / "site"))
-    assert torch.allclose(LPIPS.from_local()(x, y), reference(x, y))
+    assert torch.allclose(read_lpips()(x, y), reference(x, y))
 
 
 def test_missing_or_wrong_weights_say_what_is_missing(tmp_path, monkeypatch):
     monkeypatch.delenv(ENV_WEIGHTS, raising=False)
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "empty_hub"))
     with pytest.raises(LPIPSUnavailable, match="no local LPIPS weights; looked at"):
-        LPIPS.from_local()
+        read_lpips()
     with pytest.raises(LPIPSUnavailable, match="not found"):
-        LPIPS.from_local(tmp_path / "nope.pt")
+        read_lpips(tmp_path / "nope.pt")
     torch.save({"features.0.weight": torch.zeros(1)}, tmp_path / "bad.pt")
     with pytest.raises(LPIPSUnavailable, match="incomplete"):
-        LPIPS.from_local(tmp_path / "bad.pt")
+        read_lpips(tmp_path / "bad.pt")
     with pytest.raises(ValueError, match="32x32"):
         LPIPS()(torch.rand(1, 3, 16, 16), torch.rand(1, 3, 16, 16))

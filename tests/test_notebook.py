@@ -20,7 +20,7 @@ FAST = {
     "SCENE_SIZE": 32, "TRAIN_VIEWS": 10, "TEST_VIEWS": 2, "TRAIN_ITERATIONS": 40, "INIT_POINTS": 800,
     "CAP_MAX": 1000, "DISTILL_ITERATIONS": 40, "OCCLUSION_SIZE": 32, "FINETUNE_ITERATIONS": 4,
 }
-"""Sizes known to run fast (tests/conftest.py's ``tiny_kitchen``, tests/test_extract.py)."""
+"""Sizes known to run fast (tests/conftest.py's ``tiny_kitchen``, tests/pipeline/test_extract.py)."""
 
 
 def _cells() -> list[dict]:

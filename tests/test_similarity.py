@@ -15,7 +15,7 @@ from roodi_toolkit.errors import ConfigError
 from roodi_toolkit.similarity import (Similarity, _sh_basis_values, euler_rotation, rotation_between, sh_rotation,
                                       splat_transform_actions, transform_cloud)
 from roodi_toolkit.sh import eval_sh_colors, sh_bases
-from tests.test_formats import _splat_transform, make_cloud
+from tests.io.test_formats import _splat_transform, make_cloud
 
 REAL_SH = Path(__file__).parent / "data" / "real_sh" / "playbot_lod3_1000.ply"
 

@@ -54,6 +54,7 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
 
     from roodi_toolkit.evaluate.benchmark import METHODS, PRESETS, SIZES, extract_config, run_benchmark
     from roodi_toolkit.plugins import load_plugin
+    from roodi_toolkit.synth.scene import make_benchmark_scene
 
     chosen = SIZES[scale]
     if size is not None:
@@ -64,7 +65,8 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
     config = replace(extract_config(chosen, seed), inpainter=inpainter)
     results = run_benchmark(root, out_dir, presets=presets or PRESETS, seed=seed, size=chosen,
                             methods=methods or tuple(METHODS), config=config, overwrite=overwrite,
-                            progress=progress_factory(quiet), renderer=renderer, occluded=occluded)
+                            progress=progress_factory(quiet), renderer=renderer, occluded=occluded,
+                            make_scene=make_benchmark_scene)
     for m, scores in results["mean"].items():
         iou = "n/a" if scores["iou"] is None else f"{scores['iou']:.3f}"
         psnr = "n/a" if scores["psnr"] is None else f"{scores['psnr']:.2f}"

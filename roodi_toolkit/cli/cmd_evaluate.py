@@ -65,10 +65,10 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
         out_dir = files.prepare_output_dir(renders_dir, overwrite=overwrite, inputs=inputs)
     import os
 
-    from roodi_toolkit.evaluate.lpips import ENV_WEIGHTS, LPIPS
+    from roodi_toolkit.io.lpips_weights import ENV_WEIGHTS, read_lpips
 
     if lpips_weights or os.environ.get(ENV_WEIGHTS):  # weights named by the user must load: fail now, naming them
-        LPIPS.from_local(lpips_weights)
+        read_lpips(lpips_weights)
     from pathlib import Path
 
     from roodi_toolkit.io.other_models import GSPLAT_CKPT

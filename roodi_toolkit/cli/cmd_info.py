@@ -20,8 +20,9 @@ def info(ply: str, as_json: bool) -> None:
     """
     import os
 
-    from roodi_toolkit import describe_cloud, ply_info
+    from roodi_toolkit.io.ply import ply_info
     from roodi_toolkit.io.splat import OPACITY_LOGIT_LIMIT, read_cloud_report
+    from roodi_toolkit.stats import describe_cloud
 
     cloud, report = read_cloud_report(ply)
     stats = describe_cloud(cloud)

@@ -1,5 +1,5 @@
 """The pruning options shared by ``prune``, ``inspect`` and ``batch``: one definition, so the commands prune the same
-way (``tests/test_inspect.py`` checks that ``prune`` and ``inspect`` offer the same options).
+way (``tests/viz/test_inspect.py`` checks that ``prune`` and ``inspect`` offer the same options).
 
 :func:`prune_options` adds the statistical rule's options and the filters, :func:`prune_mode_options` the modes
 (``--mode``, the local tests, ``--filter-value``), :func:`photo_options` the photo check (``prune`` and ``inspect``);

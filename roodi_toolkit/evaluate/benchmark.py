@@ -1,6 +1,7 @@
 """The paper's evaluation (Sec. 4, Tables 1-2, Fig. 5) on the generated scenes: ROODI, its baselines and ablations.
 
-For each preset scene (generated into ``ROOT/<preset>`` or reused from there) the full method trains the scene and
+For each preset scene (reused from ``ROOT/<preset>``, or generated there by the ``make_scene`` its caller passes:
+:func:`roodi_toolkit.synth.scene.make_benchmark_scene`, on the floor above) the full method trains the scene and
 distils its masks once, and the ``no_two_stage`` ablation trains a second model whose features are learned with the
 scene (as Gaussian Grouping does); every other method reuses one of these two models, so the methods differ only in
 what the issue or the paper changes:
@@ -43,7 +44,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
@@ -143,6 +144,10 @@ PAPER_SIZE = BenchmarkSize(size=200, train_views=50, test_views=50, iterations=3
 
 SIZES = {"cpu": MACHINE_SIZE, "cpu-large": LARGE_SIZE, "paper": PAPER_SIZE}
 
+# Generates a missing scene: ``make_scene(folder, preset, seed, size, occluded, progress)``; the scene generator is on
+# the floor above this one (roodi_toolkit.synth), so its caller passes it: synth.scene.make_benchmark_scene.
+SceneMaker = Callable[[Path, str, int, BenchmarkSize, bool, ProgressFactory], Any]
+
 
 def extract_config(size: BenchmarkSize, seed: int = 0) -> ExtractConfig:
     """Return the full method's settings at ``size``: every stage's defaults, except that the occlusion views are
@@ -193,19 +198,23 @@ def _targets(data_dir: Path) -> list[dict[str, Any]]:
             for t in record["targets"]]
 
 
-def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: ProgressFactory,
-           occluded: bool = False) -> Path:
-    from ..synth.scene import SceneSettings, make_scene
+def _missing_scenes(root: Path, presets: Sequence[str], occluded: bool) -> list[Path]:
+    """Return the folders of ``presets``' scenes in ``root`` that hold no scene.json (to be generated)."""
+    folders = [root / scene_name(p, occluded) for p in presets]
+    return [f for f in folders if not (f / "scene.json").is_file()]
 
+
+def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: ProgressFactory,
+           occluded: bool = False, make_scene: SceneMaker | None = None) -> Path:
     data = root / scene_name(preset, occluded)
     if (data / "scene.json").is_file():  # reused as it is; its own settings are reported in results["scene_settings"]
         return data
     if data.exists() and any(data.iterdir()):
         raise ConfigError(f"{data} exists but holds no scene.json; remove it or choose another ROOT (the benchmark "
                           "generates its scenes there and never writes over other files)")
-    settings = SceneSettings(width=size.size, height=size.size, train_views=size.train_views,
-                             test_views=size.test_views, supersample=size.supersample, occluded=occluded)
-    make_scene(data, preset, seed, settings=settings, progress=progress)
+    if make_scene is None:
+        raise ConfigError(f"{data}: no scene.json, and no make_scene to generate it")
+    make_scene(data, preset, seed, size, occluded, progress)
     return data
 
 
@@ -339,12 +348,12 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
                   size: BenchmarkSize = MACHINE_SIZE, methods: Sequence[str] = tuple(METHODS),
                   config: ExtractConfig | None = None, overwrite: bool = False,
                   progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
-                  occluded: bool = False) -> dict[str, Any]:
+                  occluded: bool = False, make_scene: SceneMaker | None = None) -> dict[str, Any]:
     """Run every method on every preset scene; write ``results.json``, ``results.md`` and a picture grid per scene
     into ``out_dir``; return the results.
 
     Args:
-        root: where the scenes are generated (or found: a ``ROOT/<preset>/scene.json`` is reused as it is).
+        root: where the scenes are found (a ``ROOT/<preset>/scene.json`` is reused as it is) or generated.
         out_dir: models, extracted objects, scores and the tables; an existing one is reused stage by stage.
         presets: scenes to run.
         seed: the scenes' and trainings' seed.
@@ -357,11 +366,20 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
         renderer: every rendering of every method, training included (default: the built-in CPU renderer).
         occluded: run on the presets' occluded variants (``ROOT/<preset>_occluded``) and score the never-seen
             region too.
+        make_scene: generates a scene missing from ``root`` (:data:`SceneMaker`; the generator's is
+            :func:`roodi_toolkit.synth.scene.make_benchmark_scene`); None: every scene must be in ``root``.
+
+    Raises:
+        ConfigError: a scene is missing from ``root`` and no ``make_scene`` was given (before anything is written).
     """
     from ..io import files
     from ..io.generated import read_scene_record
 
     methods, run_order = _method_order(presets, methods)
+    missing = [] if make_scene is not None else _missing_scenes(Path(root), presets, occluded)
+    if missing:
+        raise ConfigError(f"{missing[0]}: no scene.json; generate the benchmark's scenes into {root} first "
+                          "(roodi-toolkit make-scene) or pass make_scene (synth.scene.make_benchmark_scene)")
     root, out = Path(root), files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True)
     root.mkdir(parents=True, exist_ok=True)
     # scores are kept per scene, so that runs of different presets (--preset) can go side by side; an older
@@ -380,7 +398,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     results["recomputed"] = recomputed
     t_all = time.perf_counter()
     for preset, name in zip(presets, names):
-        data = _scene(root, preset, seed, size, progress, occluded)
+        data = _scene(root, preset, seed, size, progress, occluded, make_scene)
         scene_out = out / name
         scene_out.mkdir(parents=True, exist_ok=True)
         scores_path = scene_out / "scores.json"

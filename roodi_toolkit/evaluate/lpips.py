@@ -1,8 +1,9 @@
-"""LPIPS, importable from here as before: the network lives in :mod:`roodi_toolkit.lpips`, below both the metrics that
-score with it and the fine-tuning (:mod:`roodi_toolkit.pipeline.finetune`) that trains with it."""
+"""LPIPS, importable from here: the network lives in :mod:`roodi_toolkit.lpips`, below both the metrics that score with
+it and the fine-tuning (:mod:`roodi_toolkit.pipeline.finetune`) that trains with it; its weight files are read and
+written by :mod:`roodi_toolkit.io.lpips_weights`."""
 
-from ..lpips import (ALEXNET_CHECKPOINT, CHANNELS, ENV_WEIGHTS, LPIPS, LPIPSInputError, LPIPSUnavailable,  # noqa: F401
-                     save_combined)
+from ..io.lpips_weights import ALEXNET_CHECKPOINT, ENV_WEIGHTS, read_lpips, write_lpips  # noqa: F401
+from ..lpips import CHANNELS, LPIPS, LPIPSInputError, LPIPSUnavailable  # noqa: F401
 
 __all__ = ["ALEXNET_CHECKPOINT", "CHANNELS", "ENV_WEIGHTS", "LPIPS", "LPIPSInputError", "LPIPSUnavailable",
-           "save_combined"]
+           "read_lpips", "write_lpips"]

@@ -323,7 +323,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         data_dir: a scene made by ``roodi-toolkit make-scene``.
         object_id: the target's instance id.
         renderer: draws the object (default: the built-in CPU renderer).
-        lpips_weights: local LPIPS weights (default: found by :meth:`roodi_toolkit.lpips.LPIPS.from_local`).
+        lpips_weights: local LPIPS weights (default: found by :func:`roodi_toolkit.io.lpips_weights.read_lpips`).
         max_views: evaluate on the first this many test views only.
         progress: progress factory.
 
@@ -331,7 +331,8 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         ``(evaluation, renders)`` with renders ``[N, H, W, 3]`` on white.
     """
     from ..io.dataset import load_dataset
-    from ..lpips import LPIPS, LPIPSUnavailable
+    from ..io.lpips_weights import read_lpips
+    from ..lpips import LPIPSUnavailable
     from ..render.renderer import render_cloud, resolve_renderer
 
     folder, name = find_target(data_dir, object_id)
@@ -343,7 +344,7 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         raise CloudError("the extracted object has no Gaussians")
     lpips_model, status = None, "ok"
     try:
-        lpips_model = LPIPS.from_local(lpips_weights)
+        lpips_model = read_lpips(lpips_weights)
     except LPIPSUnavailable as exc:
         status = f"unavailable: {exc}"
     renderer = resolve_renderer(renderer)

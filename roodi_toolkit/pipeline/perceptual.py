@@ -1,7 +1,7 @@
 """The perceptual loss of fine-tuning against the inpainted views (paper, Sec. 3.3).
 
 LPIPS (Zhang et al. 2018), as in the paper, when its weights are on this machine
-(:meth:`roodi_toolkit.lpips.LPIPS.from_local`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream files in
+(:func:`roodi_toolkit.io.lpips_weights.read_lpips`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream files in
 the local caches; nothing is downloaded). Otherwise a
 Laplacian-pyramid L1 ("Lap1", Bojanowski et al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass
 levels of the two images, each level weighted equally, so that edges and texture at every scale count as much as
@@ -17,7 +17,8 @@ import torch
 from torch import Tensor
 
 from ..errors import ConfigError
-from ..lpips import LPIPS, LPIPSUnavailable
+from ..io.lpips_weights import read_lpips
+from ..lpips import LPIPSUnavailable
 
 __all__ = ["LaplacianLoss", "LPIPSLoss", "perceptual_loss"]
 
@@ -57,7 +58,7 @@ class LPIPSLoss(torch.nn.Module):
 
     def __init__(self, weights: Optional[str] = None) -> None:
         super().__init__()
-        self.model = LPIPS.from_local(weights)
+        self.model = read_lpips(weights)
 
     def forward(self, a: Tensor, b: Tensor) -> Tensor:
         return self.model(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]).mean()

@@ -10,9 +10,10 @@ scene's up axis and the horizontal principal axes when the up axis is known, eac
 seen part: the opacity-weighted share of mirrored Gaussians that land within a few Gaussian spacings
 of an original one of a similar colour. On a partly seen object this measure leans a little towards planes through
 the seen part (they map more of it onto itself): the removed cap of an ellipsoid 1.2 long, 37% of its surface,
-puts the plane about 0.05 off its true place (tests/test_fill.py). :func:`mirror_cloud` reflects means, rotations (a
-reflection composed with a flip of one local axis, so that the rotation stays proper and the covariance is the mirror
-image) and keeps the base colour (higher SH bands are dropped: their mirror image is not a rotation of them).
+puts the plane about 0.05 off its true place (tests/pipeline/test_fill.py). :func:`mirror_cloud` reflects means,
+rotations (a reflection composed with a flip of one local axis, so that the rotation stays proper and the covariance
+is the mirror image) and keeps the base colour (higher SH bands are dropped: their mirror image is not a rotation of
+them).
 
 A part hidden on every side (a bottle's lower half in a sleeve, a pot in a box) has no seen mirror image: below the
 lowest seen part the object is completed down to the surface it stands on (:mod:`roodi_toolkit.pipeline.support`:

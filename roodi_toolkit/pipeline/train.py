@@ -200,7 +200,8 @@ class Trainer:
         lrs = {"means": cfg.means_lr * self.scale, "quats_wxyz": cfg.quats_lr, "log_scales": cfg.scales_lr,
                "opacity_logits": cfg.opacities_lr, "sh_dc": cfg.sh0_lr, "sh_rest": cfg.shN_lr}
         # fused: one compiled pass per parameter instead of about ten tensor operations, the same update to float
-        # rounding (fused=False is the reference that tests/test_train_kernels.py and bench_train_step.py compare)
+        # rounding (fused=False is the reference that tests/pipeline/test_train_kernels.py and bench_train_step.py
+        # compare)
         self.optimizers = {name: torch.optim.Adam([self.params[name]], lr=lrs[name], eps=1e-15, fused=fused)
                            for name in PARAM_NAMES}
         gamma = cfg.means_lr_final ** (1.0 / max(cfg.iterations, 1))

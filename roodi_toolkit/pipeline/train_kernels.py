@@ -9,7 +9,8 @@ compiled pass (numba, cached beside this file, as the renderer's kernels):
 - :func:`ssim` is kornia's ``metrics.ssim`` (the same Gaussian window, sigma 1.5, reflect padding, C1, C2 and eps),
   averaged over the image, as a torch autograd function whose backward is written out (the moments' adjoints through
   the transposed separable blur). It matches kornia to float rounding, value and gradient
-  (``tests/test_train_kernels.py``); :func:`roodi_toolkit.imaging.ssim` (kornia) stays the metric every report uses.
+  (``tests/pipeline/test_train_kernels.py``); :func:`roodi_toolkit.imaging.ssim` (kornia) stays the metric every
+  report uses.
 - :func:`covariance_noise` is ``Sigma_i n_i`` of 3DGS-MCMC's position noise without building the ``[N, 3, 3]``
   covariances: ``R (s^2 * (R^T n))`` per Gaussian.
 

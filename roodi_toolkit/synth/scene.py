@@ -26,7 +26,7 @@ import math
 import os
 import time
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,6 +43,9 @@ from .visibility import NEVER_SEEN_DIR, never_seen_record, write_never_seen
 from .world import Scene
 from .overview import overview_image
 
+if TYPE_CHECKING:
+    from ..evaluate.benchmark import BenchmarkSize
+
 __all__ = [
     "Scene",
     "SceneSettings",
@@ -51,6 +54,7 @@ __all__ = [
     "target_cameras",
     "TEST_FRAMINGS",
     "make_scene",
+    "make_benchmark_scene",
     "overview_image",
     "scene_from_record",
 ]
@@ -327,6 +331,16 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
     write_json(record, out / SCENE_FILE)
     record["_seconds"] = time.perf_counter() - t0
     return record
+
+
+def make_benchmark_scene(out_dir: str | os.PathLike, preset: str, seed: int, size: "BenchmarkSize",
+                         occluded: bool = False, progress: ProgressFactory = null_progress) -> dict[str, Any]:
+    """Generate the scene the benchmark runs on at ``size`` (its image side, view counts and anti-aliasing) and
+    return its scene.json record: the ``make_scene`` that :func:`roodi_toolkit.evaluate.benchmark.run_benchmark`
+    is given by its callers (``roodi-toolkit benchmark``), the generator being on the floor above the benchmark's."""
+    settings = SceneSettings(width=size.size, height=size.size, train_views=size.train_views,
+                             test_views=size.test_views, supersample=size.supersample, occluded=occluded)
+    return make_scene(out_dir, preset, seed, settings=settings, progress=progress)
 
 
 def scene_from_record(record: dict[str, Any]) -> Scene:

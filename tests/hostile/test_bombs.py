@@ -82,7 +82,7 @@ def test_spz_count_the_file_cannot_hold_is_refused_before_inflating(count: int, 
 @pytest.fixture
 def sog_files() -> dict[str, bytes]:
     from tests.conftest import make_cloud
-    from tests.test_formats import encode_sog
+    from tests.io.test_formats import encode_sog
 
     return encode_sog(make_cloud(300, seed=4))
 

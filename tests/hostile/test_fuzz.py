@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.errors import RoodiError
-from tests.test_formats import encode_ksplat, encode_sog, encode_splat, encode_spz_v4, make_cloud
+from tests.io.test_formats import encode_ksplat, encode_sog, encode_splat, encode_spz_v4, make_cloud
 
 DEFAULT_CASES = 30
 CASE_SECONDS = 5.0  # a reader that needs more than this on a file of a few KiB is hanging

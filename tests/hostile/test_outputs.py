@@ -148,7 +148,7 @@ def test_batch_bad_options(args, needle: str, world, run_cli, tmp_path: Path) ->
 @pytest.fixture
 def sog_folder(tmp_path: Path) -> Path:
     """A SOG meta.json with its textures, as PlayCanvas and splat-transform write it."""
-    from ..test_formats import encode_sog, make_cloud
+    from ..io.test_formats import encode_sog, make_cloud
 
     folder = tmp_path / "scene_sog"
     folder.mkdir()

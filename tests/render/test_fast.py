@@ -12,7 +12,7 @@ from roodi_toolkit.cameras import intrinsics_from_fov, look_at
 from roodi_toolkit.render.fast import rasterize_fast
 from roodi_toolkit.render.rasterizer import rasterize, rasterize_dense_reference
 
-from ..test_rasterizer import F64, call, grads, random_scene
+from .test_rasterizer import F64, call, grads, random_scene
 
 
 @pytest.mark.parametrize("sh_k, tile_size", [(16, 16), (9, 4), (4, 1), (1, 7), (0, 16)])

@@ -32,7 +32,7 @@ def test_builtin_opencv_is_registered():
 def _test_options(name, tmp_path_factory):
     if name == "sdxl":
         pytest.importorskip("diffusers")
-        from .tiny_sdxl import tiny_pipeline
+        from ..tiny_sdxl import tiny_pipeline
 
         return {"pipeline": tiny_pipeline(tmp_path_factory.mktemp("tiny_sdxl")), "resolution": 32, "steps": 2}
     return {}

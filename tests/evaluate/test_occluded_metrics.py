@@ -149,12 +149,14 @@ def test_benchmark_averages_checks_and_tables() -> None:
 @pytest.mark.slow  # about a minute: trains a scene and extracts four objects
 def test_benchmark_on_an_occluded_scene(tmp_path: Path) -> None:
     from roodi_toolkit.evaluate.benchmark import BenchmarkSize, run_benchmark
-    from tests.test_benchmark import TINY
+    from roodi_toolkit.synth.scene import make_benchmark_scene
+    from tests.evaluate.test_benchmark import TINY
 
     size = BenchmarkSize(size=32, train_views=10, test_views=2, iterations=40, init_points=800, cap_max=1000,
                          supersample=1)
     results = run_benchmark(tmp_path / "scenes", tmp_path / "bench", presets=["picnic"], size=size, config=TINY,
-                            methods=["full", "no_inpaint", "feature_similarity"], occluded=True)
+                            methods=["full", "no_inpaint", "feature_similarity"], occluded=True,
+                            make_scene=make_benchmark_scene)
     assert (tmp_path / "scenes" / "picnic_occluded" / "scene.json").is_file()
     per = results["scenes"]["picnic_occluded"]
     for m in ("full", "no_inpaint", "feature_similarity"):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,9 +14,9 @@ from roodi_toolkit.io.splat import write_cloud
 from roodi_toolkit.render.upright import ground_plane_up, resolve_up
 from roodi_toolkit.render.views import framing_orbit, views_inside
 
-_ROOT = Path(__file__).resolve().parents[1]
-DATA = next((p for p in (_ROOT.parent / "shared" / "data", _ROOT.parent.parent / "shared" / "data") if p.exists()),
-            _ROOT.parent / "shared" / "data")
+from ..paths import SHARED_DATA
+
+DATA = SHARED_DATA  # ../shared/data from the project root, or $ROODI_DATA
 
 
 def cloud_of(means: np.ndarray, scale: float = 0.02) -> GaussianCloud:

@@ -22,18 +22,9 @@ from roodi_toolkit.io.compare import cloud_differences
 from roodi_toolkit.io.compressed_ply import morton_order
 from roodi_toolkit.io.splat import OPACITY_LOGIT_LIMIT, detect_format, read_cloud_report
 
-def _data_dir() -> Path:
-    """The shared real data: $ROODI_DATA, else ../shared/data from the repo root (or from a worktree's parent)."""
-    if os.environ.get("ROODI_DATA"):
-        return Path(os.environ["ROODI_DATA"])
-    root = Path(__file__).resolve().parents[1]
-    for cand in (root.parent / "shared" / "data", root.parent.parent / "shared" / "data"):
-        if cand.is_dir():
-            return cand
-    return root.parent / "shared" / "data"
+from ..paths import REPO, SHARED_DATA
 
-
-DATA = _data_dir()
+DATA = SHARED_DATA  # the shared real data: $ROODI_DATA, else ../shared/data from the repo root
 
 
 def make_cloud(n: int = 700, degree: int = 0, seed: int = 0) -> GaussianCloud:
@@ -426,7 +417,7 @@ def test_real_donut_reads_and_converts(tmp_path: Path) -> None:
 
 # ----------------------------------------------------------------------------------------------- splat-transform oracle
 def _splat_transform() -> str:
-    repo = Path(__file__).resolve().parents[1]
+    repo = REPO
     for cand in (os.environ.get("ROODI_SPLAT_TRANSFORM"), repo / ".oracle" / "node_modules" / ".bin" / "splat-transform",
                  shutil.which("splat-transform")):
         if cand and Path(cand).exists():

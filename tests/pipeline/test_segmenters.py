@@ -16,7 +16,7 @@ from roodi_toolkit.pipeline.click import ClickSegmenter
 from roodi_toolkit.pipeline.segment import (Click, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
                                             ViewMasks, get_segmenter, segmenter_names)
 
-from .object_scene import object_dataset
+from ..object_scene import object_dataset
 
 
 @pytest.fixture(scope="module")

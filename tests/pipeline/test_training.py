@@ -158,7 +158,7 @@ def test_params_from_cloud_copies():
     """Optimizer steps on the parameters must not write into the cloud they came from."""
     from roodi_toolkit.params import GaussianParams
 
-    from .conftest import make_cloud
+    from ..conftest import make_cloud
 
     cloud = make_cloud(10, sh_degree=1)
     before = cloud.means.copy()
@@ -226,7 +226,7 @@ def test_sparse_sfm_points_also_get_points_on_the_views_rays():
     pixel: a background SfM missed (the statue's) gets Gaussians to grow from."""
     from roodi_toolkit.pipeline.init_points import RAY_DEPTH_RANGE, sfm_initial_points
 
-    from .object_scene import object_dataset
+    from ..object_scene import object_dataset
 
     ds, cloud, _ = object_dataset()
     ds.points = cloud.means[::10].astype(np.float64)

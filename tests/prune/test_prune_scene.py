@@ -4,7 +4,6 @@ and the ``prune`` command's --mode, --dry-run and --filter-value."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,10 +15,9 @@ from roodi_toolkit.prune.scene import prune_cloud
 from roodi_toolkit.synth.floaters import (BLOB, FAR, NEAR, OBJECT, SPECK, FloaterMix, plant_floaters,
                                           planted_floater_cloud, scene_extent)
 
-# ../shared/data from the project root; a git worktree under /work/wt/NAME has it one level further up
-_ROOT = Path(__file__).resolve().parents[1]
-DATA = next((p for p in (_ROOT.parent / "shared" / "data", _ROOT.parent.parent / "shared" / "data") if p.exists()),
-            _ROOT.parent / "shared" / "data")
+from ..paths import SHARED_DATA
+
+DATA = SHARED_DATA  # ../shared/data from the project root, or $ROODI_DATA
 DONUT = DATA / "donut" / "point_cloud.ply"
 
 

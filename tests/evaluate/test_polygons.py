@@ -4,7 +4,6 @@ masks, tests/data/statue_masks)."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,14 +12,15 @@ from roodi_toolkit.errors import ConfigError, DatasetError
 from roodi_toolkit.evaluate.polygons import polygon_mask, polygon_masks, read_polygons
 from roodi_toolkit.io.dataset import load_dataset
 
-from .test_formats import DATA
+from ..io.test_formats import DATA
+from ..paths import TEST_DATA
 
-POLYGONS = Path(__file__).parent / "data" / "statue_masks" / "polygons.json"
+POLYGONS = TEST_DATA / "statue_masks" / "polygons.json"
 
 
 @pytest.fixture(scope="module")
 def half(tmp_path_factory):
-    from .object_scene import write_object_scene
+    from ..object_scene import write_object_scene
 
     data, _, _ = write_object_scene(tmp_path_factory.mktemp("scene"), size=64)
     return load_dataset(data, 2)

@@ -9,7 +9,7 @@ from roodi_toolkit import write_ply
 from roodi_toolkit.errors import DatasetError
 from roodi_toolkit.evaluate.metrics import box_around, evaluate_object, iou, psnr, score_views
 
-from .mesh_gaussians import mesh_cloud
+from ..mesh_gaussians import mesh_cloud
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, OcclusionResult
 
 from .test_inpaint import tiny_refine_inputs
+from ..paths import REPO
 
 
 def test_laplacian_loss_is_zero_on_equal_images_and_differentiable():
@@ -46,13 +47,13 @@ def test_perceptual_choice_without_local_lpips(monkeypatch, tmp_path):
 
 def test_lpips_is_used_when_local_weights_exist(monkeypatch, tmp_path):
     """Random weights written in the test stand in for the real file; the local-weights path is the one taken."""
-    from roodi_toolkit.evaluate.lpips import LPIPS, save_combined
+    from roodi_toolkit.evaluate.lpips import LPIPS, write_lpips
 
     torch.manual_seed(0)
     reference = LPIPS()
     for p in reference.parameters():
         p.data.uniform_(0, 0.1)
-    weights = save_combined(reference, tmp_path / "lpips.pt")
+    weights = write_lpips(reference, tmp_path / "lpips.pt")
     monkeypatch.setenv("ROODI_LPIPS_WEIGHTS", str(weights))
     loss = perceptual_loss("auto")
     assert isinstance(loss, LPIPSLoss) and loss.name == "lpips"
@@ -153,7 +154,7 @@ def test_refine_with_hole_seeding_adds_gaussians_and_records_them(tmp_path):
 @pytest.fixture(scope="module")
 def picnic_refinement():
     """benchmarks/bench_inpaint.py's default run (picnic 0, basket_3): about 20 s on a quiet 2-core machine."""
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1]))
+    sys.path.insert(0, str(REPO))
     from benchmarks.bench_inpaint import run
 
     return run()

@@ -19,7 +19,7 @@ roodi_sdxl = pytest.importorskip("roodi_sdxl", reason="the roodi-sdxl plugin is 
 from roodi_toolkit.errors import PluginError  # noqa: E402
 from roodi_toolkit.pipeline.inpaint import get_inpainter, inpaint_views  # noqa: E402
 
-from .tiny_sdxl import tiny_pipeline  # noqa: E402
+from ..tiny_sdxl import tiny_pipeline  # noqa: E402
 
 
 @pytest.fixture(autouse=True)

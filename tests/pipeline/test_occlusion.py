@@ -15,7 +15,7 @@ from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.pipeline.occlusion import (OcclusionConfig, mask_scores, morphological_opening, object_cameras,
                                      object_extent, occlusion_masks, up_from_cameras, write_occlusion_images)
 
-from .mesh_gaussians import hidden_truth, mesh_cloud, nearby
+from ..mesh_gaussians import hidden_truth, mesh_cloud, nearby
 
 
 def blob(centre, n=600, radius=0.5, seed=0, color=(0.8, 0.2, 0.2), flat_axis=None):

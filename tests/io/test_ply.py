@@ -11,7 +11,7 @@ from plyfile import PlyData, PlyElement
 from roodi_toolkit import GaussianCloud, PlyError, ply_info, read_ply, write_ply
 from roodi_toolkit.io.ply import CHUNK_ROWS, detect_variant
 
-from .conftest import make_cloud
+from ..conftest import make_cloud
 
 FIELDS = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 

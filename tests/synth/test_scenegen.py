@@ -13,8 +13,8 @@ from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.errors import ConfigError, OutputError
 from roodi_toolkit.io.files import read_image, read_json
 from roodi_toolkit.synth.objects import PRESETS
-from roodi_toolkit.synth.scene import (SceneSettings, build_scene, make_scene, scene_from_record, target_cameras,
-                                       training_cameras)
+from roodi_toolkit.synth.scene import (SceneSettings, build_scene, make_benchmark_scene, make_scene, scene_from_record,
+                                       target_cameras, training_cameras)
 from roodi_toolkit.synth.tracer import render_views
 
 TINY = SceneSettings(width=48, height=40, train_views=6, test_views=3, supersample=1)
@@ -124,6 +124,20 @@ def test_same_seed_identical_files_other_seed_other_layout(tmp_path: Path, kitch
     centres_a = np.stack([o.center for o in a.objects])
     centres_b = np.stack([o.center for o in b.objects])
     assert len(centres_a) != len(centres_b) or not np.allclose(centres_a, centres_b)
+
+
+def test_the_benchmark_scene_is_the_generators_scene_at_the_benchmarks_size(tmp_path: Path) -> None:
+    """make_benchmark_scene (what `benchmark` passes run_benchmark to generate a missing scene) writes the scene
+    make_scene writes with the size's image side, view counts and anti-aliasing."""
+    from roodi_toolkit.evaluate.benchmark import BenchmarkSize
+
+    size = BenchmarkSize(size=24, train_views=3, test_views=2, iterations=1, init_points=1, cap_max=1, supersample=1)
+    rec = make_benchmark_scene(tmp_path / "bench", "picnic", 2, size, occluded=True)
+    make_scene(tmp_path / "gen", "picnic", 2, settings=SceneSettings(width=24, height=24, train_views=3, test_views=2,
+                                                                      supersample=1, occluded=True))
+    assert rec["settings"] == read_json(tmp_path / "gen" / "scene.json")["settings"]
+    assert rec["settings"]["occluded"] and rec["settings"]["width"] == rec["settings"]["height"] == 24
+    assert _digest(tmp_path / "bench") == _digest(tmp_path / "gen")
 
 
 @pytest.mark.parametrize("preset", sorted(PRESETS))

@@ -18,7 +18,7 @@ from roodi_toolkit.io.model import ModelError, open_model
 from roodi_toolkit.io.ply import read_ply, write_ply
 from roodi_toolkit.similarity import Similarity, euler_rotation, transform_cloud
 
-from .object_scene import object_cloud, tree_digest, write_object_scene
+from ..object_scene import object_cloud, tree_digest, write_object_scene
 
 FAST = ("--no-inpaint", "--distill-iterations", "20", "-q")
 

@@ -19,7 +19,7 @@ def half_model(tmp_path_factory):
     at 32x32 (the ground-truth cloud stands in for training, which these tests are not about)."""
     from roodi_toolkit.io.files import write_json
 
-    from .object_scene import write_object_scene
+    from ..object_scene import write_object_scene
 
     data, model, _ = write_object_scene(tmp_path_factory.mktemp("scene"), size=64)
     write_json({"data_dir": str(data), "downscale": 2.0, "iterations": 7, "holdout_every": 8}, model / "cfg.json")

@@ -1,5 +1,4 @@
 import json
-from pathlib import Path
 import subprocess
 import sys
 
@@ -10,7 +9,8 @@ from plyfile import PlyData
 from roodi_toolkit import write_ply
 from roodi_toolkit.cli.main import COMMANDS, app
 
-from .conftest import make_cloud
+from ..conftest import make_cloud
+from ..paths import REPO
 
 
 def test_version_and_help(run_cli):
@@ -39,7 +39,7 @@ def test_usage_errors_exit_2(run_cli):
 
 
 def test_info_table_and_json_on_gsplat_style_file(tmp_path, run_cli):
-    from .test_ply import reference_columns, write_with_plyfile
+    from ..io.test_ply import reference_columns, write_with_plyfile
 
     cols = reference_columns(40, 3, seed=2, normals=False)
     cols["x"][:] = np.linspace(-1, 2, 40, dtype=np.float32)
@@ -84,7 +84,7 @@ def test_console_script_is_installed(tmp_path):
 def test_the_source_tree_has_no_top_level_cli_module(tmp_path):
     """From the repository's root (where pytest and a user's `python` put it on sys.path) no top-level module but the
     package, the tests and conftest can be imported, whatever the clone's folder is called."""
-    root = Path(__file__).resolve().parents[1]
+    root = REPO
     importable = sorted(p.stem for p in root.iterdir()
                         if p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists()))
     assert importable == ["conftest", "roodi_toolkit", "tests"]
@@ -100,7 +100,7 @@ def test_the_wheel_installs_only_the_package(tmp_path):
     import shutil
     import zipfile
 
-    root = Path(__file__).resolve().parents[1]
+    root = REPO
     src = tmp_path / "roodi-toolkit"  # built from a copy: the build writes build/ and egg-info beside the sources
     shutil.copytree(root / "roodi_toolkit", src / "roodi_toolkit", ignore=shutil.ignore_patterns("__pycache__"))
     for name in ("setup.cfg", "pyproject.toml", "README.md"):

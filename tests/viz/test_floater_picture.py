@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,11 +16,10 @@ from roodi_toolkit.prune.summary import summary_lines
 from roodi_toolkit.synth.floaters import FloaterMix, planted_floater_cloud
 from roodi_toolkit.viz.floaters import floater_picture, reason_colour
 
+from ..paths import SHARED_DATA
+
 PANEL = (192, 144)
-# ../shared/data from the project root; a git worktree under /work/wt/NAME has it one level further up
-_ROOT = Path(__file__).resolve().parents[1]
-DATA = next((p for p in (_ROOT.parent / "shared" / "data", _ROOT.parent.parent / "shared" / "data") if p.exists()),
-            _ROOT.parent / "shared" / "data")
+DATA = SHARED_DATA  # ../shared/data from the project root, or $ROODI_DATA
 DONUT = DATA / "donut" / "point_cloud.ply"
 
 

@@ -6,7 +6,7 @@ import pytest
 
 from roodi_toolkit import read_ply
 
-from .object_scene import tree_digest
+from ..object_scene import tree_digest
 
 
 @pytest.fixture

@@ -19,7 +19,7 @@ from roodi_toolkit.errors import ConfigError, RoodiError
 from roodi_toolkit.io.ply import read_ply
 from roodi_toolkit.pipeline.segment import ViewMasks
 
-from .object_scene import object_dataset, tree_digest, write_object_scene
+from ..object_scene import object_dataset, tree_digest, write_object_scene
 
 HELD_OUT = [0, 4, 8]
 
