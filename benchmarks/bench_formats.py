@@ -100,7 +100,7 @@ def oracle(tool: str, extra: list[str]) -> None:
                    _st(tool, inputs[0], t / "meta" / "meta.json")]
         # splat-transform cannot write .splat / .ksplat: encode the real biker with the spec encoders of the tests
         sys.path.insert(0, str(ROOT))
-        from tests.test_formats import encode_ksplat, encode_splat
+        from tests.io.test_formats import encode_ksplat, encode_splat
 
         biker = read_cloud(inputs[1])
         (t / "biker.splat").write_bytes(encode_splat(biker))

@@ -37,6 +37,7 @@ from roodi_toolkit.evaluate.benchmark import (MACHINE_SIZE, METHODS, PRESETS, SH
                                               extract_config, run_benchmark)
 from roodi_toolkit.io.files import atomic_path, write_json  # noqa: E402
 from roodi_toolkit.plugins import load_plugin  # noqa: E402
+from roodi_toolkit.synth.scene import make_benchmark_scene  # noqa: E402
 
 DEFAULT_METHODS = ("full", "no_inpaint", "feature_similarity", "gaussian_grouping")
 DEFAULT_SEEDS = (0, 1, 2)
@@ -130,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         per_seed[seed] = results = run_benchmark(Path(args.root) / f"seed_{seed}", out,
                                                  presets=args.preset or PRESETS, seed=seed, size=size,
                                                  methods=args.method or DEFAULT_METHODS, config=config,
-                                                 occluded=True)
+                                                 occluded=True, make_scene=make_benchmark_scene)
         print(f"seed {seed}:")
         for scene, per in results["scenes"].items():
             shares = ", ".join(f"{o['object_name']} {100 * o['never_seen_share']:.1f}%"

@@ -43,8 +43,8 @@ def main() -> None:
     from roodi_toolkit.pipeline.model_frame import settle_model_frame
     from roodi_toolkit.pipeline.train import TrainConfig, train_scene
     from roodi_toolkit.similarity import Similarity, transform_cloud
-    from tests.test_nerfstudio import ns_process_data
-    from tests.test_other_models import write_gsplat, write_inria
+    from tests.io.test_nerfstudio import ns_process_data
+    from tests.io.test_other_models import write_gsplat, write_inria
 
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
