@@ -36,6 +36,9 @@ MAX_PART_GAUSSIANS = 4_000_000
 """Above this many Gaussians near the click the free-standing test is skipped (its neighbour graph would not fit)."""
 PART_LOOKOUT = 8.0
 """A free piece looks this many times as far as the sphere it was found in for a larger free piece it is part of."""
+REGION_SHARE = 0.1
+"""The share of the clicked region's Gaussians a piece must hold to be what the click points at (a speck of a real
+capture in front of the object, under the clicked pixel, holds less)."""
 CLICK_PATCH = 2
 """The pixels within this many of a click (a 5x5 patch) are the ones it points at."""
 
@@ -207,7 +210,7 @@ class ClickSegmenter(Segmenter):
         # edge has the ground behind it in its pixels too)
         pointed = np.maximum(np.where(fg, at_click, 0.0), 0.0)
         pointed = pointed if pointed.any() else np.maximum(at_click, 0.0)
-        parts = self._parts(scene, pointed, centre, radius0, diag) if not not_seeds else None
+        parts = self._parts(scene, pointed, centre, radius0, diag, region=fg) if not not_seeds else None
         if parts is not None:  # a free-standing object: its connected pieces, whatever their colours
             selected = candidates = parts
             info["free_standing"] = True
@@ -377,14 +380,16 @@ class ClickSegmenter(Segmenter):
         return region, not_region
 
     def _parts(self, scene: GaussianCloud, at_click: np.ndarray, centre: np.ndarray, radius0: float,
-               limit: float) -> np.ndarray | None:
+               limit: float, region: np.ndarray | None = None) -> np.ndarray | None:
         """Return the Gaussians ``[N]`` bool of a free-standing object, or None when the clicked one touches more.
 
         The Gaussians within a sphere around the click are cut into connected pieces (each linked to those of its
         16 nearest within ``part_spacing`` times the median spacing). The sphere starts at twice the clicked
         region's 3D radius and doubles, up to ``limit``, until the piece the click points at ends inside it (the
-        piece with the most compositing weight ``at_click`` ``[N]`` under the clicked pixels: the clicked region
-        may spill onto what the object stands on, the pixel under the click does not): then it
+        piece with the most compositing weight ``at_click`` ``[N]`` under the clicked pixels, among the pieces that
+        hold at least :data:`REGION_SHARE` of the clicked region's Gaussians ``region`` ``[N]``: the clicked region
+        may spill onto what the object stands on, the pixel under the click does not, and a speck in front of the
+        object on a real capture is under the click too, but holds little of the region): then it
         stands free (a robot over a ground slab, a vase with a gap under it; a click on its eye finds the whole
         body) and is the object, with the pieces near it (a gap under ``part_gap`` of its radius) that are no larger
         and mostly of its colours (the robot's floating hands). A free piece that is itself such a part of a larger
@@ -409,7 +414,18 @@ class ClickSegmenter(Segmenter):
                 pos = scene.means[idx].astype(np.float64)
                 rgb = np.clip(scene.rgb[idx], 0, 1)
                 piece = self._pieces(pos)
-                main = int(np.argmax(np.bincount(piece, weights=anchor[idx], minlength=piece.max() + 1)))
+                weight = np.bincount(piece, weights=anchor[idx], minlength=piece.max() + 1)
+                if region is not None and anchor is at_click:  # a speck under the click is no object
+                    held = np.bincount(piece, weights=region[idx].astype(np.float64), minlength=piece.max() + 1)
+                    eligible = held >= REGION_SHARE * held.sum()
+                    if not eligible.any():
+                        # no piece holds a share of the clicked region: the Gaussians here do not form pieces an
+                        # object is made of (a sparse or noisy model), so none stands free; grow the seeds instead
+                        return None
+                    weight[~eligible] = 0.0
+                    if not weight.any():  # the click's own pixels show only specks: the region's largest piece
+                        weight = np.where(eligible, held, 0.0)
+                main = int(np.argmax(weight))
                 ends = np.zeros(piece.max() + 1)
                 np.maximum.at(ends, piece, dist[idx])
                 if ends[main] < 0.8 * reach:  # the piece ends inside the sphere: it stands free
