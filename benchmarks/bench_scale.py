@@ -41,6 +41,8 @@ class MemorySampler:
     def __init__(self, every: float = 0.02) -> None:
         self.every = every
         self.current = self.peak_all = self._rss()
+        self.peak_time = time.perf_counter()
+        self.spans: list[tuple[str, float, float]] = []  # (stage, start, end), in perf_counter seconds
         self._peak = self.current
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -55,7 +57,8 @@ class MemorySampler:
         while not self._stop.is_set():
             self.current = self._rss()
             self._peak = max(self._peak, self.current)
-            self.peak_all = max(self.peak_all, self.current)
+            if self.current > self.peak_all:
+                self.peak_all, self.peak_time = self.current, time.perf_counter()
             time.sleep(self.every)
 
     @contextmanager
@@ -66,6 +69,7 @@ class MemorySampler:
         try:
             yield
         finally:
+            self.spans.append((name, t0, time.perf_counter()))
             entry = record.setdefault(name, {"s": 0.0, "peak_mb": 0.0})
             entry["s"] += time.perf_counter() - t0
             entry["peak_mb"] = max(entry["peak_mb"], self._peak)
@@ -74,13 +78,25 @@ class MemorySampler:
     def stop(self) -> None:
         self._stop.set()
 
+    def peak_stage(self) -> str:
+        """Name where the process's peak fell: the innermost stage holding it, else the stages it fell between."""
+        at = self.peak_time
+        inner = [(e - b, n) for n, b, e in self.spans if n != "total" and b <= at <= e]
+        if inner:
+            return min(inner)[1]
+        before = [n for n, b, e in sorted(self.spans, key=lambda x: x[2]) if e < at and n != "total"]
+        after = [n for n, b, e in sorted(self.spans, key=lambda x: x[1]) if b > at and n != "total"]
+        return f"between {before[-1] if before else 'start'} and {after[0] if after else 'end'}"
+
 
 STAGES = [  # (module, class or "", function, stage name): what the extraction calls, looked up at call time
     ("roodi_toolkit.io.dataset", "", "load_dataset", "load photos"),
     ("roodi_toolkit.io.ply", "", "read_ply", "read model"),
+    ("roodi_toolkit.pipeline.distill", "", "working_dataset", "working size"),
     ("roodi_toolkit.pipeline.click", "ClickSegmenter", "segment", "click segment"),
     ("roodi_toolkit.pipeline.distill", "", "distill_object_features", "distill"),
     ("roodi_toolkit.pipeline.distill", "", "finish_distillation", "score distillation"),
+    ("roodi_toolkit.pipeline.distill", "", "save_distilled", "save distillation"),
     ("roodi_toolkit.pipeline.select", "", "select_object", "select"),
     ("roodi_toolkit.pipeline.select", "", "prune_selection", "prune"),
     ("roodi_toolkit.pipeline.finetune", "", "refine_object", "occlusion+inpaint+fine-tune"),
@@ -161,7 +177,7 @@ def run(scene: Path, view: str, click: tuple[int, int] | None, out: Path, render
     model = read_ply(find_model(scene / "model").ply_path)
     test = load_cameras(scene / "data", splits=["test"])
     result = {"scene": str(scene), "renderer": renderer or "numba", "gaussians": len(model), "click": [view, x, y], "seconds": total,
-              "peak_mb": sampler.peak_all, "baseline_mb": baseline,
+              "peak_mb": sampler.peak_all, "peak_at": sampler.peak_stage(), "baseline_mb": baseline,
               "stages": {k: {"s": round(v["s"], 1), "peak_mb": round(v["peak_mb"])} for k, v in record.items()},
               "iou_selected": object_iou(read_ply(out / "object_1" / "selected.ply"), model.select(truth), test),
               "iou_object": object_iou(read_ply(out / "object_1" / "object.ply"), model.select(truth), test)}
