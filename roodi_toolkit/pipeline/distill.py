@@ -224,8 +224,9 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     gen = torch.Generator().manual_seed(config.seed)
     renderer = resolve_renderer(renderer)
     cached = config.cache_weights and has_compositing_weights(renderer)
+    n, pixels = len(cloud), dataset.width * dataset.height
+    budget.check_distill(n, config.feature_dim, pixels, len(views))  # before any of it is allocated
     frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
-    n = len(cloud)
     features = torch.nn.Parameter(torch.randn(n, config.feature_dim, generator=gen) * config.feature_init_std)
     weight, bias = (torch.nn.Parameter(t) for t in initial_classifier(C, config.feature_dim, gen))
     opt_features = torch.optim.Adam([features], lr=config.feature_lr, eps=1e-15)
@@ -235,8 +236,6 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     order = torch.empty(0, dtype=torch.long)
     pos = 0
     t0 = time.perf_counter()
-    pixels = dataset.width * dataset.height
-    budget.check_distill(n, config.feature_dim, pixels, len(views))
     room = budget.cache_bytes(config.cache_mb, budget.distill_fixed_bytes(n, config.feature_dim, pixels))
     cache = WeightCache.build(frozen, {v: dataset.cameras[v] for v in views}, room if cached else 0,
                               renderer=renderer, progress=progress)
