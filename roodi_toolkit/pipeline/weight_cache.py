@@ -10,7 +10,6 @@ a (pixel, Gaussian) pair, half of what 64-bit indices hold, for the same product
 
 from __future__ import annotations
 
-import warnings
 from typing import Mapping
 
 import numpy as np
@@ -21,7 +20,7 @@ from ..cameras import Camera
 from ..errors import ConfigError
 from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
-from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer
+from ..render.renderer import Renderer, csr_tensor, has_compositing_weights, resolve_renderer
 
 
 def compositing_weights(params: GaussianParams, camera: Camera, *, renderer: Renderer | None = None,
@@ -54,15 +53,7 @@ def both_ways(w: Tensor) -> tuple[Tensor, Tensor]:
 
     m = sp.csr_matrix((w.values().numpy(), w.col_indices().numpy(), w.crow_indices().numpy()), shape=tuple(w.shape))
     index = np.int32 if m.nnz < 2**31 - 1 and max(m.shape) < 2**31 - 1 else np.int64
-
-    def csr(a) -> Tensor:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta"
-            return torch.sparse_csr_tensor(torch.from_numpy(a.indptr.astype(index)),
-                                           torch.from_numpy(a.indices.astype(index)), torch.from_numpy(a.data),
-                                           a.shape)
-
-    return csr(m), csr(m.T.tocsr())
+    return csr_tensor(m, index), csr_tensor(m.T.tocsr(), index)
 
 
 class _SparseRender(torch.autograd.Function):
