@@ -50,10 +50,12 @@ def _todo(views: int) -> str:
             "views, or run it on a machine with more memory")
 
 
-def check_click(gaussians: int, width: int, height: int, views: int, working_pixels: int) -> None:
-    """Refuse, before it starts, a click segmentation that would not fit: a rendering of the clicked view at its
-    full size and its backward pass, one mask a view at the working size and a few sums a Gaussian."""
-    needed = render_pass_bytes(gaussians, width * height) + views * working_pixels + 64.0 * gaussians
+def check_click(gaussians: int, width: int, height: int, views: int) -> None:
+    """Refuse, before it starts, a click segmentation that would not fit: a rendering of a ``width`` x ``height``
+    view (the working size the click segments at) and its backward pass, one mask a view of that size and a few sums
+    a Gaussian."""
+    pixels = width * height
+    needed = render_pass_bytes(gaussians, pixels) + views * pixels + 64.0 * gaussians
     check_memory(needed, f"the click segmentation of {gaussians:,} Gaussians on {views} views ({width}x{height})",
                  _todo(views), ConfigError)
 

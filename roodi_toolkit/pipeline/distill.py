@@ -434,7 +434,7 @@ def distill_scene(cloud: GaussianCloud, dataset: Dataset, *, segmenter: str = "f
     work, factor = working_dataset(dataset, config.max_pixels)
     prompt = replace(prompt, clicks=tuple(replace(c, x=c.x / factor, y=c.y / factor) for c in prompt.clicks))
     if seg.needs_scene:
-        budget.check_click(len(cloud), work.width, work.height, len(work), work.width * work.height)
+        budget.check_click(len(cloud), work.width, work.height, len(work))
     t0 = time.perf_counter()
     masks = seg.segment(work, prompt, scene=cloud if seg.needs_scene else None, progress=progress)
     seg_seconds = time.perf_counter() - t0

@@ -19,7 +19,7 @@ def test_a_pass_grows_with_gaussians_pixels_and_channels():
 
 
 @pytest.mark.parametrize("check, args", [
-    (budget.check_click, (5_000_000, 500, 500, 300, 250_000)),
+    (budget.check_click, (5_000_000, 500, 500, 300)),
     (budget.check_distill, (5_000_000, 16, 250_000, 300)),
     (budget.check_refine, (5_000_000, 100_000, 300, 1000, 1000)),
 ])
