@@ -197,12 +197,14 @@ def project_forward(means, quats, log_scales, opacity_logits, sh, n_bases, view,
 
 @nb.njit(parallel=True, cache=True, nogil=True)
 def project_backward(means, quats, log_scales, opacity_logits, sh, n_bases, view, center, intr, width, height, near,
-                     far, eps2d, g_means2d, g_conics, g_opacities, g_rgb, g_depths, g_means, g_quats, g_log_scales,
-                     g_logits, g_sh, geometry):  # pragma: no cover - compiled
+                     far, eps2d, ntiles, g_means2d, g_conics, g_opacities, g_rgb, g_depths, g_means, g_quats,
+                     g_log_scales, g_logits, g_sh, geometry):  # pragma: no cover - compiled
     """Write the gradients of the inputs of :func:`project_forward` from those of its outputs.
 
     ``g_rgb`` [N, 3] is used when ``n_bases`` > 0 (then ``g_sh`` [N, K, 3] is written and the direction's gradient
-    reaches the means); ``geometry`` False skips the projection's gradients (only colours are trained).
+    reaches the means); ``geometry`` False skips the projection's gradients (only colours are trained). Gaussians
+    the forward did not draw (``ntiles`` 0) have no gradient from the image: their rows of the outputs, zeroed by
+    the caller, are left as they are.
     """
     n = means.shape[0]
     fx, fy, cx, cy, lxp, lxn, lyp, lyn = _frustum(intr, width, height)
@@ -217,6 +219,8 @@ def project_backward(means, quats, log_scales, opacity_logits, sh, n_bases, view
         gMc = np.empty((3, 3))
         gR = np.empty((3, 3))
         for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+            if ntiles[i] == 0:
+                continue
             mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
             gm0 = 0.0
             gm1 = 0.0
