@@ -4,7 +4,8 @@ start (``roodi_toolkit/pipeline/budget.py``, issue 33 item 6).
 Each case runs in a process of its own: it renders a 50-Gaussian cloud first (compiling the kernels), builds the
 parameters, then measures the rise of the peak resident set size over the resident size just before one rendering and
 its backward (loss = sum of RGB + depth). Cases: random Gaussians (SH 0, scale e^-4 around a unit ball) at
-1M and 2M on a 32x32 view (the per-Gaussian share), 2,000 at 2000x2000 (the per-pixel share), and with ``--splat``
+1M and 2M on a 32x32 view (the per-Gaussian share), 2,000 at 2000x2000 (the per-pixel share), 500k at 800x800 (a deep
+view), the same rendering 16 features of frozen geometry (distillation's pass), and with ``--splat``
 a real splat seen from its orbit camera at 800x800 (tile lists of a real view). Prints the measured rise, the
 estimate (``budget.render_pass_bytes``) and their ratio (estimate / measured: at least 1 is what the checks need).
 
@@ -21,6 +22,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+FEATURES = 16
 
 
 def one(kind: str, n: int, size: int) -> dict:
@@ -28,6 +30,7 @@ def one(kind: str, n: int, size: int) -> dict:
     import resource
 
     import numpy as np
+    import torch
 
     sys.path.insert(0, str(ROOT))
     from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
@@ -43,7 +46,8 @@ def one(kind: str, n: int, size: int) -> dict:
                                             quats_wxyz=rng.normal(size=(m, 4)))
 
     r = get_renderer("numba")
-    if kind == "random":
+    features = kind == "features"  # distillation's pass: 16 features of frozen geometry, their gradient only
+    if kind in ("random", "features"):
         cloud = random_cloud(n)
         cam = Camera(look_at([0, -3, 1], [0, 0, 0]), intrinsics_from_fov(math.radians(50), size, size), size, size)
     else:
@@ -60,11 +64,21 @@ def one(kind: str, n: int, size: int) -> dict:
     gc.collect()
     with open("/proc/self/statm") as fh:
         before = int(fh.read().split()[1]) * 4096
-    out = r.render(g, cam)
-    (out.rgb.sum() + out.depth.sum()).backward()
+    if features:
+        g = GaussianParams.from_cloud(cloud)
+        feats = torch.zeros(len(cloud), FEATURES, requires_grad=True)
+        gc.collect()
+        with open("/proc/self/statm") as fh:
+            before = int(fh.read().split()[1]) * 4096
+        image, _ = r.render_features(g, feats, cam)
+        image.sum().backward()
+    else:
+        out = r.render(g, cam)
+        (out.rgb.sum() + out.depth.sum()).backward()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    estimate = render_pass_bytes(len(cloud), cam.width * cam.height, sh_coeffs=(g.sh_degree + 1) ** 2)
-    return {"case": kind if kind == "random" else Path(kind).parent.name, "gaussians": len(cloud),
+    estimate = render_pass_bytes(len(cloud), cam.width * cam.height, sh_coeffs=(g.sh_degree + 1) ** 2,
+                                 channels=FEATURES if features else 3)
+    return {"case": kind if kind in ("random", "features") else Path(kind).parent.name, "gaussians": len(cloud),
             "size": f"{cam.width}x{cam.height}", "sh_degree": g.sh_degree, "measured_mb": (peak - before) / 2**20,
             "estimate_mb": estimate / 2**20, "ratio": estimate / max(1.0, peak - before)}
 
@@ -77,7 +91,8 @@ def main() -> None:
     if args.one:
         print(json.dumps(one(args.one[0], int(args.one[1]), int(args.one[2]))))
         return
-    cases = [("random", 1_000_000, 32), ("random", 2_000_000, 32), ("random", 2_000, 2000), ("random", 500_000, 800)]
+    cases = [("random", 1_000_000, 32), ("random", 2_000_000, 32), ("random", 2_000, 2000), ("random", 500_000, 800),
+             ("features", 500_000, 800)]
     if args.splat:
         cases.append((args.splat, 0, 800))
     print("| case | Gaussians | view | SH | measured | estimate | estimate / measured |")

@@ -10,12 +10,11 @@ Why numba: it installs as a wheel with LLVM inside (no compiler on the user's ma
 numpy arrays to native code on all cores (``prange``) and caches what it compiled. ``docs/rendering.md`` has the
 figures of what was tried.
 
-Cost of one view: O(N) per-Gaussian work (projection, SH, footprints; ``parallel``), a radix sort of the drawn
-Gaussians by depth (O(N)), a counting sort into tiles (O(pairs), ``parallel``), and O(sum of footprint pixels in front
-of each pixel's cut-off) compositing (``parallel`` over tiles). Memory: a few arrays of N and of (tile, Gaussian)
-pairs (each pair carries a copy of its Gaussian's 6 + C values and box, 56 bytes for RGB + depth in float32, so the
-compositing reads them in order), plus the image; the backward adds a [pairs, 6 + channels] gradient array, reduced
-per Gaussian in pair order, so the gradients do not depend on the number of threads either.
+Cost of one view: O(N) per-Gaussian work (projection, SH, footprints; ``parallel``), a sort of the drawn Gaussians by
+depth (O(N log N), numpy), a counting sort into tiles (O(pairs), serial), and O(sum of footprint pixels in front of
+each pixel's cut-off) compositing (``parallel`` over tiles). Memory: a few arrays of N and of (tile, Gaussian) pairs,
+plus the image; the backward adds a [pairs, 6 + channels] gradient array, reduced per Gaussian in pair order, so
+the gradients do not depend on the number of threads either.
 """
 
 from __future__ import annotations
@@ -95,16 +94,12 @@ class Projected:
 
 @dataclass
 class Bins:
-    """The drawn Gaussians binned to the view's tiles in depth order (what forward and backward walk), each
-    (tile, Gaussian) pair with a copy of the Gaussian's values, in the order the compositing reads them."""
+    """The drawn Gaussians binned to the view's tiles in depth order (what forward and backward walk)."""
 
     lists: np.ndarray  # [M] int32 Gaussian ids, grouped by tile, depth order within a tile
     starts: np.ndarray  # [T] int64
     counts: np.ndarray  # [T] int64
     busy: np.ndarray  # [B] int64 tiles with at least one Gaussian
-    geom: np.ndarray  # [M, 6] mean x, y, conic a, b, c, opacity
-    boxes: np.ndarray  # [M, 4] int32 footprint box x0, x1, y0, y1 (inclusive)
-    chans: np.ndarray  # [M, C] the channels composited ([M, 0] where none are)
 
 
 def _numpy(t: Tensor) -> np.ndarray:
@@ -139,16 +134,11 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
     return out
 
 
-def bin_gaussians(proj: Projected, view: View, channels: Optional[np.ndarray] = None) -> Bins:
-    """Return the drawn Gaussians binned to tiles, in depth order (stable: ties keep index order), with their
-    ``channels`` [N, C] (none by default: what :func:`compositing_pairs` needs)."""
-    if channels is None:
-        channels = np.zeros((len(proj.opacities), 0), proj.opacities.dtype)
+def bin_gaussians(proj: Projected, view: View) -> Bins:
+    """Return the drawn Gaussians binned to tiles, in depth order (stable: ties keep index order)."""
     order = kernels.depth_order(proj.ntiles, proj.depths)
-    lists, starts, counts, geom, boxes, chans = kernels.bin_tiles(
-        order, proj.bounds, proj.means2d, proj.conics, proj.opacities, channels, view.width, view.height, view.tile,
-        _set_workers())
-    return Bins(lists, starts, counts, np.flatnonzero(counts > 0), geom, boxes, chans)
+    lists, starts, counts = kernels.bin_tiles(order, proj.bounds, view.width, view.height, view.tile, _set_workers())
+    return Bins(lists, starts, counts, np.flatnonzero(counts > 0))
 
 
 def _set_workers() -> int:
@@ -157,19 +147,18 @@ def _set_workers() -> int:
     return n
 
 
-def composite(bins: Bins, view: View, *, want_top: bool = False
+def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, want_top: bool = False
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, Optional[np.ndarray]]:
-    """Return (the bins' channels composited [H, W, C] without background, final transmittance [H, W], walked run
-    lengths [H, W] (the backward's starting points), each pixel's largest-weight Gaussian [H, W] (-1: none) or
-    None)."""
-    H, W, C = view.height, view.width, bins.chans.shape[1]
-    out = np.zeros((H, W, C), bins.chans.dtype)
-    t_final = np.ones((H, W), bins.chans.dtype)
+    """Return (channels composited [H, W, C] without background, final transmittance [H, W], walked run lengths
+    [H, W] (the backward's starting points), each pixel's largest-weight Gaussian [H, W] (-1: none) or None)."""
+    H, W, C = view.height, view.width, channels.shape[1]
+    out = np.zeros((H, W, C), channels.dtype)
+    t_final = np.ones((H, W), channels.dtype)
     last = np.zeros((H, W), np.int32)
     top = np.full((H, W) if want_top else (0, 0), -1, np.int32)
     n_workers = _set_workers()
-    kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, bins.geom, bins.boxes, bins.chans, W, H,
-                              view.tile, n_workers, out, t_final, last, top)
+    kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics,
+                              proj.opacities, channels, W, H, view.tile, n_workers, out, t_final, last, top)
     return out, t_final, last, (top if want_top else None)
 
 
@@ -196,8 +185,8 @@ class _Render(torch.autograd.Function):
                        n_bases, view)
         feats = _numpy(features) if features.shape[1] else None
         channels = channels_of(proj, feats, colours)
-        bins = bin_gaussians(proj, view, channels)
-        out, t_final, last, _ = composite(bins, view)
+        bins = bin_gaussians(proj, view)
+        out, t_final, last, _ = composite(bins, proj, channels, view)
         ctx.save_for_backward(background)
         ctx.state = (arrays, proj, channels, bins, t_final, last, view, n_bases, features.shape[1], colours)
         t_t = torch.from_numpy(t_final)
@@ -224,8 +213,9 @@ class _Render(torch.autograd.Function):
         pair_chan = np.zeros((m, C), dtype)
         bg = np.concatenate([_numpy(background).astype(np.float64), np.zeros(C - 3)]) if colours else np.zeros(C)
         g_render = g_render.contiguous()
-        kernels.composite_backward(bins.starts, bins.counts, bins.busy, bins.geom, bins.boxes, bins.chans, view.width,
-                                   view.height, view.tile, n_workers, t_final, last, _numpy(g_render),
+        kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d,
+                                   proj.conics, proj.opacities, channels, view.width, view.height, view.tile,
+                                   n_workers, t_final, last, _numpy(g_render),
                                    np.ascontiguousarray(_numpy(g_alpha)[..., 0]), bg, pair_geom, pair_chan, geometry)
         g_chan = kernels.reduce_pairs(bins.lists, pair_chan, n, n_workers)
         if colours:
@@ -321,8 +311,8 @@ def compositing_pairs(bins: Bins, proj: Projected, view: View) -> tuple[np.ndarr
     n_workers = _set_workers()
     offsets = np.zeros(len(bins.busy) + 1, np.int64)
     empty_i, empty_f = np.zeros(0, np.int64), np.zeros(0, proj.opacities.dtype)
-    args = (bins.lists, bins.starts, bins.counts, bins.busy, bins.geom, bins.boxes, view.width, view.height, view.tile,
-            n_workers, offsets)
+    args = (bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics, proj.opacities,
+            view.width, view.height, view.tile, n_workers, offsets)
     kernels.composite_pairs(*args, empty_i, np.zeros(0, np.int32), empty_f)
     np.cumsum(offsets, out=offsets)
     total = int(offsets[-1])
@@ -338,7 +328,7 @@ def surface_ids(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, op
     Gaussian's camera-space depth ``[N]``: what a depth that does not blend across object edges is made of (the
     click segmenter's flood fill). No colours are evaluated."""
     proj = project(means, quats, log_scales, opacity_logits, np.zeros((len(means), 3), means.dtype), 0, view)
-    _, t_final, _, top = composite(bin_gaussians(proj, view, np.zeros((len(means), 1), means.dtype)), view,
+    _, t_final, _, top = composite(bin_gaussians(proj, view), proj, np.zeros((len(means), 1), means.dtype), view,
                                    want_top=True)
     return top, 1.0 - t_final, proj.depths
 

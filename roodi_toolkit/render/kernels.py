@@ -7,8 +7,7 @@ depth order, alpha clamp and cut-offs); :mod:`roodi_toolkit.render.fast` wraps t
 torch function and the tests compare both with the dense reference.
 
 Layout: the image is cut into square tiles (at most 64 pixels wide: a tile row's stopped pixels are bits of an int64); each tile holds the depth-ordered run of the Gaussians whose footprint
-touches it (``lists[starts[t]:starts[t] + counts[t]]``), each entry with a copy of its Gaussian's values
-(``geom``, ``boxes``, ``chans``), so the compositing reads a stream rather than a cache miss a pair. A worker takes every ``workers``-th busy tile (interleaved,
+touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every ``workers``-th busy tile (interleaved,
 so the busy parts of an image are shared out evenly) and walks the tile's run front to back (forward) or back to
 front (backward), visiting only the pixels of each Gaussian's footprint box inside the tile. Results do not depend on
 timing or on the number of workers: each tile is written by one worker, and the backward writes one gradient per
@@ -119,43 +118,22 @@ def depth_order(ntiles, depths):  # pragma: no cover - compiled
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def bin_tiles(order, bounds, means2d, conics, opacities, channels, width, height, tile,
-              workers):  # pragma: no cover - compiled
+def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover - compiled
     """Return (lists [M] int32 Gaussian ids grouped by tile in ``order``'s order, starts [T] int64, counts [T]
-    int64, geom [M, 6] (mean x, y, conic a, b, c, opacity; the inputs' dtype), boxes [M, 4] int32 (the footprint
-    box), chans [M, C]) for the Gaussians ``order`` (depth-sorted ids of drawn Gaussians): a counting sort by tile,
-    stable, so every tile's run stays in depth order.
-
-    Each pair carries a copy of its Gaussian's values, so that compositing reads them in the order it walks them
-    (a stream the hardware prefetches) rather than by id (a cache miss a pair: at 500k Gaussians and 800x800 the
-    forward's compositing took 1.6x as long, and the backward's 1.4x). The values are gathered in depth order first,
-    so that both passes read them in order too. Each worker counts and places a contiguous stretch of ``order``; a
-    tile's entries from an earlier stretch come first, so the result does not depend on the number of workers."""
+    int64) for the Gaussians ``order`` (depth-sorted ids of drawn Gaussians): a counting sort by tile, stable, so
+    every tile's run stays in depth order. Each worker counts and places a contiguous stretch of ``order``; a tile's
+    entries from an earlier stretch come first, so the result does not depend on the number of workers."""
     tiles_x = (width + tile - 1) // tile
     tiles_y = (height + tile - 1) // tile
     T = tiles_x * tiles_y
     n = order.shape[0]
-    C = channels.shape[1]
     span = (n + workers - 1) // workers
-    r_geom = np.empty((n, 6), means2d.dtype)
-    r_box = np.empty((n, 4), np.int32)
-    r_chan = np.empty((n, C), channels.dtype)
     per = np.zeros((workers, T), np.int64)
     for w in nb.prange(workers):
         for k in range(w * span, min(n, (w + 1) * span)):
             g = order[k]
-            r_geom[k, 0] = means2d[g, 0]
-            r_geom[k, 1] = means2d[g, 1]
-            r_geom[k, 2] = conics[g, 0]
-            r_geom[k, 3] = conics[g, 1]
-            r_geom[k, 4] = conics[g, 2]
-            r_geom[k, 5] = opacities[g]
-            for i in range(4):
-                r_box[k, i] = bounds[g, i]
-            for ch in range(C):
-                r_chan[k, ch] = channels[g, ch]
-            for ty in range(r_box[k, 2] // tile, r_box[k, 3] // tile + 1):
-                for tx in range(r_box[k, 0] // tile, r_box[k, 1] // tile + 1):
+            for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
+                for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
                     per[w, ty * tiles_x + tx] += 1
     counts = np.zeros(T, np.int64)
     starts = np.zeros(T, np.int64)
@@ -168,31 +146,21 @@ def bin_tiles(order, bounds, means2d, conics, opacities, channels, width, height
             total += c
         counts[t] = total - starts[t]
     lists = np.empty(total, np.int32)
-    geom = np.empty((total, 6), means2d.dtype)
-    boxes = np.empty((total, 4), np.int32)
-    chans = np.empty((total, C), channels.dtype)
     for w in nb.prange(workers):
         for k in range(w * span, min(n, (w + 1) * span)):
-            for ty in range(r_box[k, 2] // tile, r_box[k, 3] // tile + 1):
-                for tx in range(r_box[k, 0] // tile, r_box[k, 1] // tile + 1):
+            g = order[k]
+            for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
+                for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
                     t = ty * tiles_x + tx
-                    at = per[w, t]
-                    lists[at] = order[k]
-                    for i in range(6):
-                        geom[at, i] = r_geom[k, i]
-                    for i in range(4):
-                        boxes[at, i] = r_box[k, i]
-                    for ch in range(C):
-                        chans[at, ch] = r_chan[k, ch]
+                    lists[per[w, t]] = g
                     per[w, t] += 1
-    return lists, starts, counts, geom, boxes, chans
+    return lists, starts, counts
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def composite_forward(lists, starts, counts, busy, geom, boxes, chans, width, height, tile, workers, out, t_final,
-                      last, top):  # pragma: no cover - compiled
-    """Composite every busy tile front to back (``lists`` to ``chans``: what :func:`bin_tiles` returns; ``busy``
-    [B] the tiles with at least one Gaussian).
+def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, width, height, tile,
+                      workers, out, t_final, last, top):  # pragma: no cover - compiled
+    """Composite every busy tile front to back.
 
     Writes ``out`` [H, W, C] (colours without the background), ``t_final`` [H, W] (transmittance after the last
     blended Gaussian), ``last`` [H, W] (how many entries of the tile's run the pixel walked up to and including its
@@ -200,7 +168,7 @@ def composite_forward(lists, starts, counts, busy, geom, boxes, chans, width, he
     pixel's largest-weight Gaussian (-1 where none). Pixels of tiles with no Gaussian are left as they are (the
     caller initialises ``out`` to 0, ``t_final`` to 1, ``last`` to 0 and ``top`` to -1).
     """
-    C = chans.shape[1]
+    C = colors.shape[1]
     tiles_x = (width + tile - 1) // tile
     P = tile * tile
     want_top = top.shape[0] > 0
@@ -231,19 +199,19 @@ def composite_forward(lists, starts, counts, busy, geom, boxes, chans, width, he
             s = starts[t]
             for j in range(s, s + counts[t]):
                 g = lists[j]
-                mx = np.float64(geom[j, 0])
-                my = np.float64(geom[j, 1])
-                a = np.float64(geom[j, 2])
-                b = np.float64(geom[j, 3])
-                c = np.float64(geom[j, 4])
-                o = np.float64(geom[j, 5])
+                mx = np.float64(means2d[g, 0])
+                my = np.float64(means2d[g, 1])
+                a = np.float64(conics[g, 0])
+                b = np.float64(conics[g, 1])
+                c = np.float64(conics[g, 2])
+                o = np.float64(opacities[g])
                 for ch in range(C):
-                    col[ch] = chans[j, ch]
-                x0 = max(boxes[j, 0], x_lo)
-                nx = min(boxes[j, 1], x_hi) - x0 + 1
+                    col[ch] = colors[g, ch]
+                x0 = max(bounds[g, 0], x_lo)
+                nx = min(bounds[g, 1], x_hi) - x0 + 1
                 dx0 = x0 + 0.5 - mx
                 cols = ((1 << nx) - 1) << (x0 - x_lo)  # the box's columns as bits of a tile row
-                for py in range(max(boxes[j, 2], y_lo), min(boxes[j, 3], y_hi) + 1):
+                for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
                     if done_rows[py - y_lo] & cols == cols:  # every pixel of the box in this row has stopped
                         continue
                     dy = py + 0.5 - my
@@ -292,8 +260,9 @@ def composite_forward(lists, starts, counts, busy, geom, boxes, chans, width, he
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def composite_backward(starts, counts, busy, geom, boxes, chans, width, height, tile, workers, t_final, last, grad_out,
-                       grad_alpha, background, pair_geom, pair_colors, geometry):  # pragma: no cover - compiled
+def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, width, height, tile,
+                       workers, t_final, last, grad_out, grad_alpha, background, pair_geom, pair_colors,
+                       geometry):  # pragma: no cover - compiled
     """Write each (tile, Gaussian) pair's gradient, summed over the tile's pixels walked back to front.
 
     Args (beyond the forward's):
@@ -301,7 +270,7 @@ def composite_backward(starts, counts, busy, geom, boxes, chans, width, height, 
         grad_out: dL/d(colour image before the background). [H, W, C]
         grad_alpha: dL/d(alpha image). [H, W]
         background: the background per channel (0 for depth and features). [C]
-        pair_geom: per pair of the bins, the gradient of (mx, my, conic a, b, c, opacity), zeroed. [M, 6]
+        pair_geom: per pair of ``lists``, the gradient of (mx, my, conic a, b, c, opacity), zeroed. [M, 6]
         pair_colors: per pair, the gradient of the colours, zeroed. [M, C]
         geometry: whether to compute ``pair_geom`` (False when only colours or features are trained).
 
@@ -312,7 +281,7 @@ def composite_backward(starts, counts, busy, geom, boxes, chans, width, height, 
     ``w_j (c_j . g)``: ``dL/dc_i = alpha_i T_i g``, ``dL/dalpha_i = T_i (c_i . g) - (S_i + T_final (bg . g -
     g_alpha)) / (1 - alpha_i)``; alpha clamped at 0.99 passes no gradient to the opacity and the footprint.
     """
-    C = chans.shape[1]
+    C = colors.shape[1]
     tiles_x = (width + tile - 1) // tile
     P = tile * tile
     for w in nb.prange(workers):
@@ -350,15 +319,16 @@ def composite_backward(starts, counts, busy, geom, boxes, chans, width, height, 
                     deepest = max(deepest, lst[p])
             s = starts[t]
             for j in range(s + deepest - 1, s - 1, -1):
+                g = lists[j]
                 jj = j - s
-                mx = np.float64(geom[j, 0])
-                my = np.float64(geom[j, 1])
-                a = np.float64(geom[j, 2])
-                b = np.float64(geom[j, 3])
-                c = np.float64(geom[j, 4])
-                o = np.float64(geom[j, 5])
+                mx = np.float64(means2d[g, 0])
+                my = np.float64(means2d[g, 1])
+                a = np.float64(conics[g, 0])
+                b = np.float64(conics[g, 1])
+                c = np.float64(conics[g, 2])
+                o = np.float64(opacities[g])
                 for ch in range(C):
-                    col[ch] = chans[j, ch]
+                    col[ch] = colors[g, ch]
                 gcol[:] = 0.0
                 g_mx = 0.0
                 g_my = 0.0
@@ -367,10 +337,10 @@ def composite_backward(starts, counts, busy, geom, boxes, chans, width, height, 
                 g_c = 0.0
                 g_o = 0.0
                 hit = False
-                x0 = max(boxes[j, 0], x_lo)
-                nx = min(boxes[j, 1], x_hi) - x0 + 1
+                x0 = max(bounds[g, 0], x_lo)
+                nx = min(bounds[g, 1], x_hi) - x0 + 1
                 dx0 = x0 + 0.5 - mx
-                for py in range(max(boxes[j, 2], y_lo), min(boxes[j, 3], y_hi) + 1):
+                for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
                     if jj >= row_last[py - y_lo]:  # no pixel of this row walked this far in the forward
                         continue
                     dy = py + 0.5 - my
@@ -449,7 +419,7 @@ def reduce_pairs(lists, pair_values, n, workers):  # pragma: no cover - compiled
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def composite_pairs(lists, starts, counts, busy, geom, boxes, width, height, tile, workers,
+def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacities, width, height, tile, workers,
                     offsets, pixels, ids, weights):  # pragma: no cover - compiled
     """List every blended (pixel, Gaussian, weight ``alpha T``) of the view, walking the tiles as the forward does.
 
@@ -479,17 +449,17 @@ def composite_pairs(lists, starts, counts, busy, geom, boxes, width, height, til
             s = starts[t]
             for j in range(s, s + counts[t]):
                 g = lists[j]
-                mx = np.float64(geom[j, 0])
-                my = np.float64(geom[j, 1])
-                a = np.float64(geom[j, 2])
-                b = np.float64(geom[j, 3])
-                c = np.float64(geom[j, 4])
-                o = np.float64(geom[j, 5])
-                x0 = max(boxes[j, 0], x_lo)
-                nx = min(boxes[j, 1], x_hi) - x0 + 1
+                mx = np.float64(means2d[g, 0])
+                my = np.float64(means2d[g, 1])
+                a = np.float64(conics[g, 0])
+                b = np.float64(conics[g, 1])
+                c = np.float64(conics[g, 2])
+                o = np.float64(opacities[g])
+                x0 = max(bounds[g, 0], x_lo)
+                nx = min(bounds[g, 1], x_hi) - x0 + 1
                 dx0 = x0 + 0.5 - mx
                 cols = ((1 << nx) - 1) << (x0 - x_lo)
-                for py in range(max(boxes[j, 2], y_lo), min(boxes[j, 3], y_hi) + 1):
+                for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
                     if done_rows[py - y_lo] & cols == cols:
                         continue
                     dy = py + 0.5 - my
