@@ -6,8 +6,9 @@ import click
 
 from roodi_toolkit.cli.common import overwrite_option, parse_size, quiet_option
 from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options,
-                                             prune_config_from_options, prune_mode_options, prune_options,
-                                             picture_title, prune_with_photos, write_floater_picture)
+                                             photo_settings_from_options, picture_title, prune_config_from_options,
+                                             prune_mode_options, prune_options, prune_with_photos,
+                                             write_floater_picture)
 
 
 EPILOG = """\b
@@ -71,8 +72,7 @@ CAMERA_HELP = ("View direction of the window and --view-png: iso (from above, di
 @quiet_option
 def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: str, camera: str, window_size: str,
             screenshot: str | None, view_png: str | None, html_path: str | None, histogram: str | None,
-            up: str | None, window: bool | None, overwrite: bool, quiet: bool, mode: str, photos_spec: str,
-            photo_views: int, **prune_kwargs: object) -> None:
+            up: str | None, window: bool | None, overwrite: bool, quiet: bool, **settings: object) -> None:
     """Show what `prune` with the same options would remove from IN (any readable splat format): by default its
     local tests and, for a trained model, the photo check.
 
@@ -87,8 +87,8 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     from roodi_toolkit.prune.summary import summary_lines
     from roodi_toolkit.render.upright import check_up, resolve_up
 
-    mode = effective_mode(mode)
-    config = prune_config_from_options(mode=mode, **prune_kwargs)
+    config = prune_config_from_options(**{**settings, "mode": effective_mode(settings["mode"])})
+    photo = photo_settings_from_options(**settings)
     size = parse_size(window_size, "--window-size")
     if max(size) > MAX_WINDOW:  # VTK allocates the whole window off screen: 16384x16384 is 1 GiB per buffer
         raise click.BadParameter(f"at most {MAX_WINDOW}x{MAX_WINDOW} pixels, got {window_size!r}",
@@ -96,7 +96,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     named = [("--screenshot", screenshot), ("--view-png", view_png), ("--html", html_path), ("--histogram", histogram)]
     outputs = [p for _, p in named if p is not None]
     check_outputs(named, overwrite=overwrite,
-                  inputs=[*input_paths(input_ply), *photo_inputs(input_ply, mode, photos_spec)])
+                  inputs=[*input_paths(input_ply), *photo_inputs(input_ply, config.mode, photo.photos)])
     has_display = insp.display_available()
     if window is None:
         window = has_display and not outputs
@@ -116,7 +116,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
 
     check_up(up)
     cloud = read_cloud(input_ply)
-    _, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet)
+    _, keep, report = prune_with_photos(input_ply, cloud, config, photo, quiet)
     for line in summary_lines(report, dry_run=True):  # inspect prunes nothing: what would go
         click.echo(line)
 
