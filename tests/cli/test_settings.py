@@ -12,14 +12,21 @@ import pytest
 
 from roodi_toolkit.cli.settings import click_type, command_settings, config_from_options, config_options, option_names
 from roodi_toolkit.prune.config import PhotoSettings, PruneConfig
+from roodi_toolkit.render.settings import OrbitSettings
 from roodi_toolkit.settings import declared, setting
 
-# the parameters of the commands that prune which are no pruning setting (their own arguments and outputs)
+# command -> (the config classes its options are made from, its own parameters that are no setting of them)
 OWN = {
-    "prune": {"input_ply", "output_ply", "dry_run", "up", "floaters_out", "report_path", "overwrite", "quiet"},
-    "inspect": {"input_ply", "show", "color_by", "highlight", "glyphs", "camera", "window_size", "screenshot",
-                "view_png", "html_path", "histogram", "up", "window", "overwrite", "quiet"},
-    "batch prune": {"source", "out", "jobs", "ray_address", "results", "rerun", "overwrite", "quiet"},
+    "prune": ((PruneConfig, PhotoSettings),
+              {"input_ply", "output_ply", "dry_run", "up", "floaters_out", "report_path", "overwrite", "quiet"}),
+    "inspect": ((PruneConfig, PhotoSettings),
+                {"input_ply", "show", "color_by", "highlight", "glyphs", "camera", "window_size", "screenshot",
+                 "view_png", "html_path", "histogram", "up", "window", "overwrite", "quiet"}),
+    "batch prune": ((PruneConfig,), {"source", "out", "jobs", "ray_address", "results", "rerun", "overwrite",
+                                     "quiet"}),
+    "render": ((OrbitSettings,), {"ply", "out_dir", "cameras_path", "up", "frame_like", "size_text", "what",
+                                  "background", "renderer_option", "renderer", "filter_nan", "overwrite",
+                                  "quiet"}),
 }
 
 
@@ -32,12 +39,12 @@ def _command(name: str) -> click.Command:
 
 
 @pytest.mark.parametrize("name", sorted(OWN))
-def test_every_prune_setting_is_an_option_and_every_option_a_setting(name):
+def test_every_setting_is_an_option_and_every_option_a_setting(name):
     cmd = _command(name)
-    classes = (PruneConfig, PhotoSettings) if name != "batch prune" else (PruneConfig,)
+    classes, own = OWN[name]
     settings = {d.name: d for d in command_settings(*classes)}
     params = {p.name: p for p in cmd.params}
-    assert set(params) - OWN[name] == set(settings)  # each option of the command is a setting, each setting offered
+    assert set(params) - own == set(settings)  # each option of the command is a setting, each setting offered
     for d in settings.values():
         p = params[d.name]
         assert p.opts == [d.option] and p.help == d.meta.help
@@ -45,6 +52,9 @@ def test_every_prune_setting_is_an_option_and_every_option_a_setting(name):
         assert bool(p.show_default) == (d.default not in (None, False, ()))
         if d.meta.choices is not None:
             assert tuple(p.type.choices) == d.meta.choices
+
+
+def test_library_only_settings_are_no_options():
     assert {d.name for d in declared(PruneConfig) if not d.meta.cli} == {"max_iterations", "compute_dtype",
                                                                          "object_fraction", "fog_tolerance"}
 
@@ -80,6 +90,14 @@ def test_a_parsed_command_line_round_trips_to_the_config():
         [name for name in ("distance", "max_iterations", "compute_dtype", "object_fraction", "fog_tolerance")]
     # no option given: the config's defaults
     assert config_from_options(PruneConfig, cmd.make_context("prune", ["a", "b"]).params) == PruneConfig()
+
+
+def test_render_orbit_options_round_trip_to_the_orbit_settings():
+    values = _command("render").make_context("render", ["in.ply", "out", "--orbit", "3", "--elevation", "-10",
+                                                        "--radius", "2.5", "--fov", "90"]).params
+    orbit = config_from_options(OrbitSettings, values)
+    assert orbit == OrbitSettings(orbit=3, elevation=-10.0, radius=2.5, fov=90.0) and orbit.views == 3
+    assert config_from_options(OrbitSettings, _command("render").make_context("render", ["a", "b"]).params).views == 8
 
 
 @pytest.mark.parametrize("args,code,needle", [
