@@ -21,7 +21,8 @@ class Toy:
     strict: bool = setting(False, "A flag.")
     cap: float | None = setting(None, "An optional cap.", low=0, low_open=True)
     where: tuple[float, float, float] | None = setting(None, "A point.", option="--at", metavar="X,Y,Z")
-    tags: tuple[tuple[str, float], ...] = setting((), "Tags.", parse=lambda t: (t.split(":")[0], float(t.split(":")[1])))
+    tags: tuple[tuple[str, float], ...] = setting((), "Tags.", parse=lambda t: (t.split(":")[0],
+                                                                             float(t.split(":")[1])))
     hidden: int = setting(3, "Library only.", cli=False)
 
     def __post_init__(self) -> None:

@@ -14,14 +14,15 @@ from roodi_toolkit.cli.settings import click_type, command_settings, config_from
 from roodi_toolkit.prune.config import PhotoSettings, PruneConfig
 from roodi_toolkit.render.settings import OrbitSettings
 from roodi_toolkit.settings import declared, setting
+from roodi_toolkit.viz.inspect import InspectView
 
 # command -> (the config classes its options are made from, its own parameters that are no setting of them)
 OWN = {
     "prune": ((PruneConfig, PhotoSettings),
               {"input_ply", "output_ply", "dry_run", "up", "floaters_out", "report_path", "overwrite", "quiet"}),
-    "inspect": ((PruneConfig, PhotoSettings),
-                {"input_ply", "show", "color_by", "highlight", "glyphs", "camera", "window_size", "screenshot",
-                 "view_png", "html_path", "histogram", "up", "window", "overwrite", "quiet"}),
+    "inspect": ((PruneConfig, PhotoSettings, InspectView),
+                {"input_ply", "window_size", "screenshot", "view_png", "html_path", "histogram", "up", "window",
+                 "overwrite", "quiet"}),
     "batch prune": ((PruneConfig,), {"source", "out", "jobs", "ray_address", "results", "rerun", "overwrite",
                                      "quiet"}),
     "render": ((OrbitSettings,), {"ply", "out_dir", "cameras_path", "up", "frame_like", "size_text", "what",
@@ -98,6 +99,14 @@ def test_render_orbit_options_round_trip_to_the_orbit_settings():
     orbit = config_from_options(OrbitSettings, values)
     assert orbit == OrbitSettings(orbit=3, elevation=-10.0, radius=2.5, fov=90.0) and orbit.views == 3
     assert config_from_options(OrbitSettings, _command("render").make_context("render", ["a", "b"]).params).views == 8
+
+
+def test_inspect_view_options_round_trip_to_the_view():
+    args = ["in.ply", "--show", "removed", "--color-by", "distance", "--highlight", "none", "--glyphs", "splats",
+            "--camera", "+z"]
+    values = _command("inspect").make_context("inspect", args).params
+    assert config_from_options(InspectView, values) == InspectView(show="removed", color_by="distance",
+                                                                   highlight="none", glyphs="splats", camera="+z")
 
 
 @pytest.mark.parametrize("args,code,needle", [
