@@ -5,11 +5,11 @@ from __future__ import annotations
 import click
 
 from roodi_toolkit.cli.common import overwrite_option, parse_size, quiet_option
-from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options,
-                                             photo_settings_from_options, picture_title, prune_config_from_options,
-                                             prune_mode_options, prune_options, prune_with_photos,
-                                             write_floater_picture)
+from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options, picture_title,
+                                             prune_config_from_options, prune_mode_options, prune_options,
+                                             prune_with_photos, write_floater_picture)
 from roodi_toolkit.cli.settings import config_from_options, config_options
+from roodi_toolkit.prune.config import PhotoSettings
 from roodi_toolkit.viz.inspect import InspectView
 
 
@@ -72,7 +72,7 @@ def inspect(input_ply: str, window_size: str, screenshot: str | None, view_png: 
     from roodi_toolkit.render.upright import check_up, resolve_up
 
     config = prune_config_from_options(**{**settings, "mode": effective_mode(settings["mode"])})
-    photo = photo_settings_from_options(**settings)
+    photo = config_from_options(PhotoSettings, settings)
     view = config_from_options(InspectView, settings)
     size = parse_size(window_size, "--window-size")
     if max(size) > MAX_WINDOW:  # VTK allocates the whole window off screen: 16384x16384 is 1 GiB per buffer

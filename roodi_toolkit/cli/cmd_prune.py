@@ -6,10 +6,11 @@ from __future__ import annotations
 import click
 
 from roodi_toolkit.cli.common import overwrite_option, quiet_option
-from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options,
-                                             photo_settings_from_options, prune_config_from_options,
+from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options, prune_config_from_options,
                                              prune_mode_options, prune_options, prune_with_photos,
                                              write_floater_picture)
+from roodi_toolkit.cli.settings import config_from_options
+from roodi_toolkit.prune.config import PhotoSettings
 
 
 EPILOG = """\b
@@ -63,7 +64,7 @@ def prune(input_ply: str, output_ply: str, dry_run: bool, up: str | None, floate
     start = time.perf_counter()
     _skip_hugepage_advice()
     config = prune_config_from_options(**{**settings, "mode": effective_mode(settings["mode"])})
-    photo = photo_settings_from_options(**settings)
+    photo = config_from_options(PhotoSettings, settings)
     photo_folders = photo_inputs(input_ply, config.mode, photo.photos)
     if up is not None and not dry_run:
         raise click.BadParameter("--up sets the --dry-run picture's up; the pruned cloud keeps its axes",

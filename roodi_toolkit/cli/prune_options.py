@@ -9,15 +9,13 @@ parsed values and :func:`prune_with_photos` runs :func:`~roodi_toolkit.prune.sce
 
 from __future__ import annotations
 
-from typing import Any, Callable, TypeVar
+from typing import Any
 
 import click
 
 from roodi_toolkit.cli.settings import config_from_options, config_options, option_names
 from roodi_toolkit.prune.config import (FilterSettings, LocalSettings, NeighbourSettings, PhotoSettings, PruneConfig,
                                         StatisticalSettings)
-
-F = TypeVar("F", bound=Callable[..., Any])
 
 prune_options = config_options(NeighbourSettings, StatisticalSettings, FilterSettings)
 """Decorator: the options of the neighbourhood (``--k``), the statistical rule and the filters."""
@@ -37,12 +35,6 @@ def prune_config_from_options(**values: Any) -> PruneConfig:
         ConfigError: values the config refuses (exit 1 with one line).
     """
     return config_from_options(PruneConfig, values)
-
-
-def photo_settings_from_options(**values: Any) -> PhotoSettings:
-    """Return the :class:`~roodi_toolkit.prune.config.PhotoSettings` of a command's parsed options (other keywords
-    are ignored)."""
-    return config_from_options(PhotoSettings, values)
 
 
 def photo_inputs(input_path: str, mode: str, photos_spec: str) -> list[str]:

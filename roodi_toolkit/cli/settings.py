@@ -92,13 +92,11 @@ def option_names(cls: type) -> tuple[str, ...]:
     return tuple(d.name for d in command_settings(cls))
 
 
-def config_from_options(cls: type[C], values: Mapping[str, Any], **overrides: Any) -> C:
+def config_from_options(cls: type[C], values: Mapping[str, Any]) -> C:
     """Return ``cls`` built from a command's parsed values (``values``: the click parameters, which must hold every
-    command-line setting of ``cls``, other keys ignored; ``overrides`` win); settings without an option keep their
-    defaults.
+    command-line setting of ``cls``; other keys are ignored); settings without an option keep their defaults.
 
     Raises:
         ConfigError: values the dataclass refuses (exit 1 with one line).
     """
-    given = {**values, **overrides}
-    return cls(**{name: given[name] for name in option_names(cls)})
+    return cls(**{name: values[name] for name in option_names(cls)})
