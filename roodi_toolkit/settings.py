@@ -206,6 +206,19 @@ def check_settings(config: Any) -> None:
                               f"{value!r}")
 
 
+def documented(cls: type) -> type:
+    """Return the dataclass ``cls`` with its settings listed under ``Attributes:`` in its docstring (name, default,
+    value space, help: from the declarations, so ``help(cls)`` and ``--help`` say the same)."""
+    lines = []
+    for d in declared(cls):
+        space = describe_range(d) + (" or None" if d.optional else "")
+        option = f"; {d.option}" if d.meta.cli else "; library only"
+        lines.append(f"    {d.name}: {d.meta.help} (default {d.default!r}; {space}{option})")
+    cls.__doc__ = (cls.__doc__ or cls.__name__).rstrip() + "\n\n    Attributes:\n" + "\n".join(
+        "    " + line for line in lines) + "\n"
+    return cls
+
+
 def parse_floats(text: str, size: int) -> tuple[float, ...]:
     """Return ``size`` finite numbers from ``'a,b,c'`` (spaces and empty parts ignored).
 

@@ -113,3 +113,15 @@ def test_text_of_tuple_settings_is_read_as_comma_separated_numbers():
         parse_floats("a,b,c", 3)
     with pytest.raises(ValueError, match="expected finite numbers"):
         parse_floats("1,inf,2", 3)
+
+
+def test_documented_lists_every_setting_in_the_docstring():
+    from roodi_toolkit.prune.config import PruneConfig
+    from roodi_toolkit.settings import documented
+
+    doc = documented(type("Copy", (Toy,), {"__doc__": "A toy."})).__doc__
+    assert doc.startswith("A toy.\n\n    Attributes:\n")
+    assert "count: How many. (default 4; a whole number >= 1; --count)" in doc
+    assert "cap: An optional cap. (default None; a finite number > 0 or None; --cap)" in doc
+    assert "hidden: Library only. (default 3; a whole number; library only)" in doc
+    assert all(f"        {d.name}: {d.meta.help}" in PruneConfig.__doc__ for d in declared(PruneConfig))

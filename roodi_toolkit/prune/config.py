@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
-from ..settings import check_settings, parse_floats, setting
+from ..settings import check_settings, documented, parse_floats, setting
 
 DISTANCES = ("w2", "euclidean")
 NEIGHBORS = ("centre", "w2")
@@ -49,6 +49,7 @@ def parse_value_range(text: str) -> tuple[str, float, float]:
     return name, float(low), float(high)
 
 
+@documented
 @dataclass(frozen=True)
 class NeighbourSettings:
     """The neighbourhood both rules judge a Gaussian by."""
@@ -60,6 +61,7 @@ class NeighbourSettings:
         check_settings(self)
 
 
+@documented
 @dataclass(frozen=True)
 class StatisticalSettings(NeighbourSettings):
     """ROODI section 3.2's statistical rule (:func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers`).
@@ -92,6 +94,7 @@ class StatisticalSettings(NeighbourSettings):
         return float(self.alpha) if self.alpha is not None else DEFAULT_ALPHA[self.rule]
 
 
+@documented
 @dataclass(frozen=True)
 class FilterSettings:
     """The filters every mode runs first (:mod:`roodi_toolkit.prune.filters`)."""
@@ -129,6 +132,7 @@ MODE_HELP = ("scene: remove pieces detached from the content and oversized blobs
              "reported. Giving --rule, --alpha, --distance or --neighbors with auto implies statistical.")
 
 
+@documented
 @dataclass(frozen=True)
 class LocalSettings:
     """The mode :func:`~roodi_toolkit.prune.scene.prune_cloud` runs, and the settings of its local tests (scene and
@@ -176,6 +180,7 @@ class LocalSettings:
             raise ConfigError(f"foreign_size must be 0 (off) or a finite number >= 1, got {self.foreign_size}")
 
 
+@documented
 @dataclass(frozen=True)
 class PruneConfig(LocalSettings, FilterSettings, StatisticalSettings):
     """What :func:`~roodi_toolkit.prune.scene.prune_cloud` and
@@ -192,6 +197,7 @@ class PruneConfig(LocalSettings, FilterSettings, StatisticalSettings):
         self._check_local()
 
 
+@documented
 @dataclass(frozen=True)
 class PhotoSettings:
     """The photo check of the local modes (:func:`~roodi_toolkit.prune.photos.find_photos`)."""

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..settings import check_settings, setting
+from ..settings import check_settings, documented, setting
 
 DEFAULT_ORBIT_VIEWS = 8
 """Views of an orbit when neither a number of views nor a dataset's cameras are given."""
 
 
+@documented
 @dataclass(frozen=True)
 class OrbitSettings:
     """Views on a circle around the cloud's centre, looking at it."""

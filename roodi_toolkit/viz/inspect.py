@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
-from ..settings import check_settings, setting
+from ..settings import check_settings, documented, setting
 from .histogram import distance_is_log, distance_label, histogram_figure, save_histogram  # noqa: F401 (re-exported)
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -60,6 +60,7 @@ ROBUST_QUANTILE = 0.005
 """The framed box spans these quantiles of the kept centres, so stray Gaussians do not shrink the object."""
 
 
+@documented
 @dataclass(frozen=True)
 class InspectView:
     """How :func:`plot_cloud` draws the cloud (``roodi-toolkit inspect``'s view options are made from these fields)."""
