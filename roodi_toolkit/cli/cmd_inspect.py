@@ -5,9 +5,12 @@ from __future__ import annotations
 import click
 
 from roodi_toolkit.cli.common import overwrite_option, parse_size, quiet_option
-from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options,
+from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options, picture_title,
                                              prune_config_from_options, prune_mode_options, prune_options,
-                                             picture_title, prune_with_photos, write_floater_picture)
+                                             prune_with_photos, write_floater_picture)
+from roodi_toolkit.cli.settings import config_from_options, config_options
+from roodi_toolkit.prune.config import PhotoSettings
+from roodi_toolkit.viz.inspect import InspectView
 
 
 EPILOG = """\b
@@ -24,30 +27,12 @@ Examples:
 MAX_WINDOW = 4096
 """Largest --window-size side (a 4K screenshot fits; larger ones exceed common off-screen framebuffer limits)."""
 
-CAMERA_HELP = ("View direction of the window and --view-png: iso (from above, diagonally, on the cloud's up), xy "
-               "(from +z), xz (from -y), yz (from +x), or the side the camera sits on: +x, -x, +y, -y, +z, -z. The "
-               "camera frames the kept Gaussians.")
-
-
 @click.command(epilog=EPILOG)
 @click.argument("input_ply", metavar="IN.ply", type=click.Path(path_type=str))
 @prune_options
 @prune_mode_options
 @photo_options
-@click.option("--show", type=click.Choice(["both", "kept", "removed"]), default="both", show_default=True,
-              help="Which Gaussians to draw.")
-@click.option("--color-by", type=click.Choice(["rgb", "opacity", "scale", "distance"]), default="rgb",
-              show_default=True,
-              help="rgb: own colour (SH DC) with opacity as alpha; opacity, scale (largest axis) or distance (what "
-                   "the prune judged: the blob score of the local tests, or the statistical rule's mean distance "
-                   "to the K neighbours on a log colour bar) through a colour map.")
-@click.option("--highlight", default="red", show_default=True, metavar="COLOR",
-              help="Colour of the Gaussians pruning removes (a name or #rrggbb); 'none' draws them like the kept.")
-@click.option("--glyphs", type=click.Choice(["auto", "ellipsoids", "splats"]), default="auto", show_default=True,
-              help="ellipsoids: oriented, scaled ellipsoids (exact footprint, small clouds); splats: Gaussian point "
-                   "splats sized by scale (fast); auto: ellipsoids up to 20,000 drawn Gaussians.")
-@click.option("--camera", type=click.Choice(["iso", "xy", "xz", "yz", "+x", "-x", "+y", "-y", "+z", "-z"]),
-              default="iso", show_default=True, help=CAMERA_HELP)
+@config_options(InspectView)
 @click.option("--window-size", default="1024x768", show_default=True, metavar="WxH",
               help="Window and --view-png size in pixels.")
 @click.option("--screenshot", type=click.Path(path_type=str), default=None,
@@ -69,10 +54,9 @@ CAMERA_HELP = ("View direction of the window and --view-png: iso (from above, di
               help="Open an interactive window. Default: only when a display exists and no file output is asked.")
 @overwrite_option
 @quiet_option
-def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: str, camera: str, window_size: str,
-            screenshot: str | None, view_png: str | None, html_path: str | None, histogram: str | None,
-            up: str | None, window: bool | None, overwrite: bool, quiet: bool, mode: str, photos_spec: str,
-            photo_views: int, **prune_kwargs: object) -> None:
+def inspect(input_ply: str, window_size: str, screenshot: str | None, view_png: str | None, html_path: str | None,
+            histogram: str | None, up: str | None, window: bool | None, overwrite: bool, quiet: bool,
+            **settings: object) -> None:
     """Show what `prune` with the same options would remove from IN (any readable splat format): by default its
     local tests and, for a trained model, the photo check.
 
@@ -87,8 +71,9 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     from roodi_toolkit.prune.summary import summary_lines
     from roodi_toolkit.render.upright import check_up, resolve_up
 
-    mode = effective_mode(mode)
-    config = prune_config_from_options(mode=mode, **prune_kwargs)
+    config = prune_config_from_options(**{**settings, "mode": effective_mode(settings["mode"])})
+    photo = config_from_options(PhotoSettings, settings)
+    view = config_from_options(InspectView, settings)
     size = parse_size(window_size, "--window-size")
     if max(size) > MAX_WINDOW:  # VTK allocates the whole window off screen: 16384x16384 is 1 GiB per buffer
         raise click.BadParameter(f"at most {MAX_WINDOW}x{MAX_WINDOW} pixels, got {window_size!r}",
@@ -96,7 +81,7 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     named = [("--screenshot", screenshot), ("--view-png", view_png), ("--html", html_path), ("--histogram", histogram)]
     outputs = [p for _, p in named if p is not None]
     check_outputs(named, overwrite=overwrite,
-                  inputs=[*input_paths(input_ply), *photo_inputs(input_ply, mode, photos_spec)])
+                  inputs=[*input_paths(input_ply), *photo_inputs(input_ply, config.mode, photo.photos)])
     has_display = insp.display_available()
     if window is None:
         window = has_display and not outputs
@@ -106,17 +91,17 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     if not window and not outputs:
         raise ConfigError("nothing to do: no display for a window and no output; pass --screenshot, --html, "
                           "--view-png or --histogram")
-    highlight_colour = None if highlight.strip().lower() == "none" else highlight
+    highlight_colour = None if view.highlight.strip().lower() == "none" else view.highlight
     if highlight_colour is not None:
         from matplotlib.colors import is_color_like
 
         if not is_color_like(highlight_colour):
-            raise click.BadParameter(f"not a colour: {highlight!r} (use a name such as red or #ff00ff)",
+            raise click.BadParameter(f"not a colour: {view.highlight!r} (use a name such as red or #ff00ff)",
                                      param_hint="--highlight")
 
     check_up(up)
     cloud = read_cloud(input_ply)
-    _, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet)
+    _, keep, report = prune_with_photos(input_ply, cloud, config, photo, quiet)
     for line in summary_lines(report, dry_run=True):  # inspect prunes nothing: what would go
         click.echo(line)
 
@@ -134,14 +119,14 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
         from roodi_toolkit.viz.page import floater_page, write_floater_page
 
         write_floater_page(floater_page(cloud, keep, report, up_axis.vector, title=picture_title(input_ply),
-                                        grey=color_by != "rgb"), html_path)
+                                        grey=view.color_by != "rgb"), html_path)
         click.echo(f"wrote {html_path}")
     if view_png is None and not window:
         return
-    distances = insp.distances_per_gaussian(report, len(cloud)) if color_by == "distance" else None
-    plotter = insp.plot_cloud(cloud, keep, show=show, color_by=color_by, distances=distances,
-                              highlight=highlight_colour, glyphs=glyphs, camera=camera, off_screen=not window,
-                              window_size=size, distance_label=insp.distance_label(report),
+    distances = insp.distances_per_gaussian(report, len(cloud)) if view.color_by == "distance" else None
+    plotter = insp.plot_cloud(cloud, keep, show=view.show, color_by=view.color_by, distances=distances,
+                              highlight=highlight_colour, glyphs=view.glyphs, camera=view.camera,
+                              off_screen=not window, window_size=size, distance_label=insp.distance_label(report),
                               distance_log=insp.distance_is_log(report), up=up_axis.vector)
     try:
         if window:  # the PNG then shows the view the user left the window in

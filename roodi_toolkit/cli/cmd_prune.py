@@ -9,6 +9,8 @@ from roodi_toolkit.cli.common import overwrite_option, quiet_option
 from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options, prune_config_from_options,
                                              prune_mode_options, prune_options, prune_with_photos,
                                              write_floater_picture)
+from roodi_toolkit.cli.settings import config_from_options
+from roodi_toolkit.prune.config import PhotoSettings
 
 
 EPILOG = """\b
@@ -44,14 +46,8 @@ Examples:
               help="Write counts per stage, thresholds and timings as JSON.")
 @overwrite_option
 @quiet_option
-def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance: str, rule: str, neighbors: str,
-          filter_nan: bool, min_opacity: float | None, filter_box: str | None, filter_sphere: str | None,
-          mode: str, reach: float, min_cluster: float, max_piece: int, blob_score: float, blob_colour: float,
-          blob_sure: float, foreign_size: float, background: str,
-          filter_values: tuple[str, ...],
-          photos_spec: str, photo_views: int, dry_run: bool, up: str | None, floaters_out: str | None,
-          report_path: str | None,
-          overwrite: bool, quiet: bool) -> None:
+def prune(input_ply: str, output_ply: str, dry_run: bool, up: str | None, floaters_out: str | None,
+          report_path: str | None, overwrite: bool, quiet: bool, **settings: object) -> None:
     """Remove floaters from IN (any readable splat format) and write the kept Gaussians to OUT (.ply,
     .compressed.ply or .spz, from its extension).
 
@@ -67,14 +63,9 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
 
     start = time.perf_counter()
     _skip_hugepage_advice()
-    mode = effective_mode(mode)
-    config = prune_config_from_options(k=k, alpha=alpha, distance=distance, rule=rule, neighbors=neighbors,
-                                       filter_nan=filter_nan, min_opacity=min_opacity, filter_box=filter_box,
-                                       filter_sphere=filter_sphere, mode=mode, reach=reach,
-                                       min_cluster=min_cluster, max_piece=max_piece, blob_score=blob_score,
-                                       blob_colour=blob_colour, blob_sure=blob_sure,
-                                       foreign_size=foreign_size, background=background, filter_values=filter_values)
-    photo_folders = photo_inputs(input_ply, mode, photos_spec)
+    config = prune_config_from_options(**{**settings, "mode": effective_mode(settings["mode"])})
+    photo = config_from_options(PhotoSettings, settings)
+    photo_folders = photo_inputs(input_ply, config.mode, photo.photos)
     if up is not None and not dry_run:
         raise click.BadParameter("--up sets the --dry-run picture's up; the pruned cloud keeps its axes",
                                  param_hint="--up")
@@ -101,7 +92,7 @@ def prune(input_ply: str, output_ply: str, k: int, alpha: float | None, distance
     cloud = read_cloud(input_ply)
     read_s = time.perf_counter() - t_read
     # the kept Gaussians are gathered while writing (no copy of the pruned cloud first)
-    _, keep, report = prune_with_photos(input_ply, cloud, config, photos_spec, photo_views, quiet, select=False)
+    _, keep, report = prune_with_photos(input_ply, cloud, config, photo, quiet, select=False)
 
     t_write = time.perf_counter()
     up_axis = None

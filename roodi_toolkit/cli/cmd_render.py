@@ -6,8 +6,11 @@ from typing import Any
 
 import click
 
+from roodi_toolkit.render.settings import OrbitSettings
+
 from .common import (check_render_size, overwrite_option, parse_floats, parse_size, progress_factory, quiet_option,
                      renderer_option)
+from .settings import config_from_options, config_options
 
 EPILOG = """Examples:
 
@@ -26,13 +29,7 @@ EPILOG = """Examples:
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=str))
 @click.option("--cameras", "cameras_path", type=click.Path(path_type=str),
               help="Render a dataset's cameras: a Blender transforms_*.json, a Blender folder or a COLMAP folder.")
-@click.option("--orbit", type=click.IntRange(1, 3600), default=None,  # one view per 0.1 degree at most
-              help="Render N views on a circle around the cloud (default 8 when --cameras is not given).")
-@click.option("--elevation", type=float, default=20.0, show_default=True, help="Orbit elevation in degrees.")
-@click.option("--radius", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Orbit radius in scene units (default: frame the central 95% of the cloud).")
-@click.option("--fov", type=click.FloatRange(1, 179), default=50.0, show_default=True,
-              help="Orbit horizontal field of view in degrees.")
+@config_options(OrbitSettings)
 @click.option("--up", default=None,
               help="Orbit up axis: X,Y,Z; a dataset or camera file (its cameras' mean up); or auto (the default): "
               "the training cameras of the model IN belongs to (this toolkit's or the Inria code's), else the "
@@ -52,19 +49,20 @@ EPILOG = """Examples:
                    "fully opaque / transparent and kept).")
 @overwrite_option
 @quiet_option
-def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, elevation: float,
-           radius: float | None, fov: float, up: str | None, frame_like: str | None, size_text: str | None,
-           what: str, background: str, renderer: Any, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
+def render(ply: str, out_dir: str, cameras_path: str | None, up: str | None, frame_like: str | None,
+           size_text: str | None, what: str, background: str, renderer: Any, filter_nan: bool, overwrite: bool,
+           quiet: bool, **settings: Any) -> None:
     """Render IN (any splat format) into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
     from roodi_toolkit.io.files import prepare_output_dir
     from roodi_toolkit.io.splat import input_paths, read_cloud
     from roodi_toolkit.render.views import framing_orbit, render_views, resolve_up
 
+    orbit = config_from_options(OrbitSettings, settings)
     bg = parse_floats(background, 3, "--background")
     if not all(0.0 <= v <= 1.0 for v in bg):
         raise click.BadParameter(f"colour components must be in [0, 1], got {background!r}", param_hint="--background")
     size = parse_size(size_text) if size_text else None
-    if cameras_path and orbit is not None:
+    if cameras_path and orbit.orbit is not None:
         raise click.UsageError("give either --cameras or --orbit, not both")
     if cameras_path and (frame_like or up):
         raise click.UsageError("--frame-like and --up frame an orbit; --cameras renders the dataset's own views")
@@ -91,8 +89,8 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
             frame_cloud = frame_cloud.select(~frame_cloud.nonfinite_rows())
         up_axis, up_from = resolve_up(up, frame_path, frame_cloud.means)
         w, h = size or (512, 512)
-        cams = framing_orbit(frame_cloud, orbit or 8, elevation_deg=elevation, radius=radius, width=w, height=h,
-                             fov_x_deg=fov, up=up_axis)
+        cams = framing_orbit(frame_cloud, orbit.views, elevation_deg=orbit.elevation, radius=orbit.radius, width=w,
+                             height=h, fov_x_deg=orbit.fov, up=up_axis)
         extra = {"orbit": {"framed_on": str(frame_path), "up": up_axis.tolist(), "up_from": up_from}}
         if not quiet:
             click.echo(f"orbit up {', '.join(f'{v:.3g}' for v in up_axis + 0.0)}: {up_from}", err=True)

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import functools
-import math
 import sys
 from typing import Any, Callable
 
 import click
+
+from roodi_toolkit import settings
 
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 
@@ -69,17 +70,12 @@ def set_torch_threads() -> None:
 
 
 def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:
-    """Parse 'a,b,c' into n floats or raise a click.BadParameter naming the option."""
-    parts = [p for p in text.replace(" ", "").split(",") if p]
+    """Parse 'a,b,c' into n finite floats (:func:`roodi_toolkit.settings.parse_floats`) or raise a
+    click.BadParameter naming the option."""
     try:
-        values = tuple(float(p) for p in parts)
-    except ValueError:
-        raise click.BadParameter(f"expected {n} comma-separated numbers, got {text!r}", param_hint=name) from None
-    if len(values) != n:
-        raise click.BadParameter(f"expected {n} comma-separated numbers, got {len(values)}", param_hint=name)
-    if not all(math.isfinite(v) for v in values):
-        raise click.BadParameter(f"expected finite numbers, got {text!r}", param_hint=name)
-    return values
+        return settings.parse_floats(text, n)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint=name) from None
 
 
 def parse_key_values(items: tuple[str, ...], name: str) -> dict[str, str]:

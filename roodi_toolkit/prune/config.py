@@ -1,5 +1,12 @@
 """The settings and the report of outlier removal, which the filters (:mod:`roodi_toolkit.prune.filters`) and the
 statistical rules (:mod:`roodi_toolkit.prune.outliers`, where every name here is importable as before) share.
+
+Each setting is declared once, in its field (:func:`roodi_toolkit.settings.setting`: default, range, help, option
+name); the commands' options are made from these fields (``roodi_toolkit.cli.settings``). The settings are split by
+what uses them: :class:`NeighbourSettings` (both rules), :class:`StatisticalSettings` (ROODI 3.2's rule),
+:class:`FilterSettings` (before every rule), :class:`LocalSettings` (the mode, and the scene and object modes' local
+tests in :mod:`roodi_toolkit.prune.scene`) and :class:`PhotoSettings` (the photo check); :class:`PruneConfig` is all
+but the photo check in one object, as :func:`~roodi_toolkit.prune.scene.prune_cloud` takes them.
 """
 
 from __future__ import annotations
@@ -11,11 +18,13 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
+from ..settings import check_settings, documented, parse_floats, setting
 
 DISTANCES = ("w2", "euclidean")
 NEIGHBORS = ("centre", "w2")
 RULES = ("robust", "paper", "clip")
 MODES = ("auto", "scene", "object", "statistical")
+BACKGROUNDS = ("auto", "white", "black", "none")
 VALUE_NAMES = ("x", "y", "z", "opacity", "scale", "min_scale")
 """Quantities ``value_ranges`` can bound: centre coordinates, linear opacity, largest and smallest linear scale."""
 
@@ -25,131 +34,182 @@ the SOR convention (PCL tutorials, Open3D examples use 2.0; the paper does not p
 clipping."""
 
 
-@dataclass(frozen=True)
-class PruneConfig:
-    """What :func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers` does, with the defaults and where they
-    come from.
+def parse_value_range(text: str) -> tuple[str, float, float]:
+    """Return ``(name, low, high)`` from ``NAME,MIN,MAX`` (``--filter-value``).
 
-    Attributes:
-        k: neighbours per Gaussian (not counting itself). 16: measured on the planted-floater benchmark; the paper
-            does not publish K (docs/pruning.md).
-        alpha: threshold multiplier; None picks the rule's default (:data:`DEFAULT_ALPHA`).
-        distance: ``w2`` (paper) or ``euclidean`` (Open3D's statistical outlier removal).
-        rule: ``robust`` (measured best, default), ``paper`` or ``clip``.
-        neighbors: ``centre`` (paper: K nearest centres) or ``w2`` (exact K nearest under W2^2).
-        max_iterations: re-evaluation rounds of the iterative rules.
-        filter_nan: drop Gaussians with NaN/Inf values first (otherwise they are an error).
-        min_opacity: drop Gaussians with sigmoid(opacity) below this (linear units), before the statistics.
-        box: keep only centres inside (x0, y0, z0, x1, y1, z1), before the statistics.
-        sphere: keep only centres inside (x, y, z, r), before the statistics.
-        compute_dtype: float type of the W2 evaluation; float32 is within 1e-6 relative (wasserstein.py) and faster.
-        mode: what :func:`roodi_toolkit.prune.scene.prune_cloud` runs: ``scene`` (local tests: detached pieces and
-            oversized blobs, safe on real scenes), ``object`` (one object: what is detached from the largest
-            piece goes, plus oversized blobs), ``statistical`` (the rule above: robust, paper or clip) or ``auto``
-            (object when the largest piece holds ``object_fraction`` of the Gaussians, scene otherwise).
-            :func:`remove_statistical_outliers` always runs the statistical rule.
-        reach: link distance of the local tests, in sums of the two Gaussians' largest scales.
-        min_cluster: scene mode removes pieces with fewer than this fraction of the Gaussians.
-        max_piece: without photos, a detached piece goes only when it holds at most this many Gaussians (0: any
-            size). Larger detached pieces have structure: real content that the linking rule split off (the real
-            donut's inner pieces of 6-56 Gaussians, a cropped capture's chunks of 73-379), which only the photos
-            can tell from a floater; with photos every detached piece is put to them.
-        blob_score: oversized limit of the local tests (log units, see scene.py).
-        blob_colour: without photos, an oversized candidate with a score up to ``blob_sure`` stays when one of its
-            K neighbours has its base colour within this RGB distance (0-1 units; 0: colour is not asked); with
-            photos every candidate is put to them. 0.12: measured on real splats (scene.py, docs/pruning.md).
-        blob_sure: oversized candidates scoring above this go whatever their colour (log units).
-        foreign_size: a round Gaussian whose smallest axis is more than this many times the scene's median
-            Gaussian size (geometric mean of the scales), and more than its neighbours' median size, with a colour
-            none of its neighbours has, goes as oversized whatever its score (a blob among large Gaussians scores
-            low; 0: off). 6: planted blobs are 10-20x the median size; measured on real splats (scene.py).
-        object_fraction: auto picks object mode when the largest piece holds at least this fraction.
-        background: the colour the scene was trained on, whose fog the local modes remove: ``auto`` (detected,
-            see scene.py), ``white``, ``black`` or ``none``.
-        fog_tolerance: a Gaussian is background-coloured when every channel is within this of it.
-        value_ranges: ``((name, low, high), ...)`` keep only Gaussians whose value lies in [low, high]; names in
-            :data:`VALUE_NAMES`, before the statistics.
+    Raises:
+        ValueError: an unknown NAME, MIN or MAX not finite numbers, or MIN above MAX.
     """
+    name, _, rest = str(text).partition(",")
+    if name not in VALUE_NAMES:
+        raise ValueError(f"{text!r}: NAME must be one of {', '.join(VALUE_NAMES)}")
+    low, high = parse_floats(rest, 2)
+    if not low <= high:
+        raise ValueError(f"{text!r}: MIN must not exceed MAX")
+    return name, float(low), float(high)
 
-    k: int = 16
-    alpha: float | None = None
-    distance: str = "w2"
-    rule: str = "robust"
-    neighbors: str = "centre"
-    max_iterations: int = 8
-    filter_nan: bool = False
-    min_opacity: float | None = None
-    box: tuple[float, float, float, float, float, float] | None = None
-    sphere: tuple[float, float, float, float] | None = None
-    compute_dtype: str = "float32"
-    mode: str = "auto"
-    reach: float = 1.5
-    min_cluster: float = 0.001
-    max_piece: int = 3
-    blob_score: float = 0.5
-    blob_colour: float = 0.12
-    blob_sure: float = 2.0
-    foreign_size: float = 6.0
-    object_fraction: float = 0.98
-    value_ranges: tuple[tuple[str, float, float], ...] = ()
-    background: str = "auto"
-    fog_tolerance: float = 0.05
+
+@documented
+@dataclass(frozen=True)
+class NeighbourSettings:
+    """The neighbourhood both rules judge a Gaussian by."""
+
+    # 16: measured on the planted-floater benchmark; the paper does not publish K (docs/pruning.md)
+    k: int = setting(16, "Neighbours per Gaussian, not counting itself.", low=1)
 
     def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        if not (np.isfinite(self.foreign_size) and (self.foreign_size == 0 or self.foreign_size >= 1)):
-            raise ConfigError(f"foreign_size must be 0 (off) or a finite number >= 1, got {self.foreign_size}")
-        if not (np.isfinite(self.blob_colour) and self.blob_colour >= 0) or np.isnan(self.blob_sure):
-            raise ConfigError(f"blob_colour must be a finite number >= 0 and blob_sure a number, got "
-                              f"{self.blob_colour} and {self.blob_sure}")
-        for name, value in (("reach", self.reach), ("blob_score", self.blob_score)):
-            if not np.isfinite(value) or (name == "reach" and value <= 0):
-                raise ConfigError(f"{name} must be a {'positive' if name == 'reach' else 'finite'} number, "
-                                  f"got {value}")
-        if isinstance(self.max_piece, bool) or not isinstance(self.max_piece, (int, np.integer)) or self.max_piece < 0:
-            raise ConfigError(f"max_piece must be a whole number >= 0 (0: no limit), got {self.max_piece!r}")
-        if not 0 <= self.min_cluster < 1 or not 0 < self.object_fraction <= 1:
-            raise ConfigError(f"min_cluster must be in [0, 1) and object_fraction in (0, 1], got {self.min_cluster} "
-                              f"and {self.object_fraction}")
-        if self.background not in ("auto", "white", "black", "none") or not 0 <= self.fog_tolerance < 0.5:
-            raise ConfigError(f"background must be auto, white, black or none and fog_tolerance in [0, 0.5), got "
-                              f"{self.background!r} and {self.fog_tolerance}")
-        for entry in self.value_ranges:
-            if len(entry) != 3 or entry[0] not in VALUE_NAMES or not float(entry[1]) <= float(entry[2]):
-                raise ConfigError(f"a value range is (name, low, high) with name in {', '.join(VALUE_NAMES)} and "
-                                  f"low <= high, got {entry}")
-        if self.distance not in DISTANCES:
-            raise ConfigError(f"distance must be one of {', '.join(DISTANCES)}, got {self.distance!r}")
-        if self.rule not in RULES:
-            raise ConfigError(f"rule must be one of {', '.join(RULES)}, got {self.rule!r}")
-        if self.neighbors not in NEIGHBORS:
-            raise ConfigError(f"neighbors must be one of {', '.join(NEIGHBORS)}, got {self.neighbors!r}")
+        check_settings(self)
+
+
+@documented
+@dataclass(frozen=True)
+class StatisticalSettings(NeighbourSettings):
+    """ROODI section 3.2's statistical rule (:func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers`).
+    Giving one of its options on the command line asks for this rule (``--mode auto`` becomes ``statistical``)."""
+
+    alpha: float | None = setting(None, "Threshold multiplier. Default per rule: robust 3.5, paper 2, clip 3.",
+                                  low=0, low_open=True)
+    distance: str = setting("w2", "w2: squared 2-Wasserstein between Gaussians (paper); euclidean: plain centre "
+                            "distance (Open3D).", choices=DISTANCES)
+    rule: str = setting("robust", "robust: median/MAD of log distances, re-evaluated without flagged neighbours; "
+                        "paper: one pass of mean + alpha * std; clip: iterated mean + alpha * std.", choices=RULES)
+    neighbors: str = setting("centre", "centre: K nearest centres (paper); w2: exact K nearest under W2 (slower).",
+                             choices=NEIGHBORS)
+    max_iterations: int = setting(8, "Re-evaluation rounds of the iterative rules.", low=1, cli=False)
+    # float32 is within 1e-6 relative of float64 (wasserstein.py) and faster
+    compute_dtype: str = setting("float32", "Float type of the W2 evaluation.", choices=("float32", "float64"),
+                                 cli=False)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        self._check_statistical()
+
+    def _check_statistical(self) -> None:
         if self.neighbors == "w2" and self.distance != "w2":
             raise ConfigError("neighbors 'w2' needs distance 'w2'")
-        if int(self.k) < 1:
-            raise ConfigError(f"k must be at least 1, got {self.k}")
-        if self.alpha is not None and not (np.isfinite(self.alpha) and self.alpha > 0):
-            raise ConfigError(f"alpha must be a positive number, got {self.alpha}")
-        if self.max_iterations < 1:
-            raise ConfigError(f"max_iterations must be at least 1, got {self.max_iterations}")
-        if self.min_opacity is not None and not (0 <= self.min_opacity < 1):
-            raise ConfigError(f"min_opacity is a linear opacity in [0, 1), got {self.min_opacity}")
-        if self.box is not None:
-            b = tuple(float(v) for v in self.box)
-            if len(b) != 6 or not all(np.isfinite(b)) or any(b[i] > b[i + 3] for i in range(3)):
-                raise ConfigError(f"box must be x0,y0,z0,x1,y1,z1 with x0<=x1, y0<=y1, z0<=z1, got {self.box}")
-        if self.sphere is not None:
-            s = tuple(float(v) for v in self.sphere)
-            if len(s) != 4 or not all(np.isfinite(s)) or s[3] < 0:
-                raise ConfigError(f"sphere must be x,y,z,r with r >= 0, got {self.sphere}")
-        if self.compute_dtype not in ("float32", "float64"):
-            raise ConfigError(f"compute_dtype must be float32 or float64, got {self.compute_dtype!r}")
 
     @property
     def effective_alpha(self) -> float:
         """alpha, or the rule's default when alpha is None."""
         return float(self.alpha) if self.alpha is not None else DEFAULT_ALPHA[self.rule]
+
+
+@documented
+@dataclass(frozen=True)
+class FilterSettings:
+    """The filters every mode runs first (:mod:`roodi_toolkit.prune.filters`)."""
+
+    filter_nan: bool = setting(False, "Drop Gaussians with NaN/Inf values (otherwise they are an error).")
+    min_opacity: float | None = setting(None, "Drop Gaussians whose opacity (linear, after sigmoid) is below this, "
+                                        "e.g. 0.0039 = 1/255.", low=0, high=1, high_open=True)
+    box: tuple[float, float, float, float, float, float] | None = setting(
+        None, "Keep only Gaussians whose centre is inside this axis-aligned box.", option="--filter-box",
+        metavar="X0,Y0,Z0,X1,Y1,Z1")
+    sphere: tuple[float, float, float, float] | None = setting(
+        None, "Keep only Gaussians whose centre is inside this sphere.", option="--filter-sphere", metavar="X,Y,Z,R")
+    value_ranges: tuple[tuple[str, float, float], ...] = setting(
+        (), "Keep only Gaussians with NAME in [MIN, MAX]; NAME is x, y, z, opacity (linear), scale (largest axis) or "
+        "min_scale. Repeatable.", option="--filter-value", metavar="NAME,MIN,MAX", parse=parse_value_range)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        self._check_filters()
+
+    def _check_filters(self) -> None:
+        if self.box is not None and any(float(self.box[i]) > float(self.box[i + 3]) for i in range(3)):
+            raise ConfigError(f"box must be x0,y0,z0,x1,y1,z1 with x0<=x1, y0<=y1, z0<=z1, got {self.box}")
+        if self.sphere is not None and float(self.sphere[3]) < 0:
+            raise ConfigError(f"sphere must be x,y,z,r with r >= 0, got {self.sphere}")
+        for entry in self.value_ranges:
+            if len(entry) != 3 or entry[0] not in VALUE_NAMES or not float(entry[1]) <= float(entry[2]):
+                raise ConfigError(f"a value range is (name, low, high) with name in {', '.join(VALUE_NAMES)} and "
+                                  f"low <= high, got {entry}")
+
+
+MODE_HELP = ("scene: remove pieces detached from the content and oversized blobs, judged locally (safe on real "
+             "scenes); object: one object, what is detached from it goes (see --max-piece); statistical: the global "
+             "rule of --rule (paper: ROODI 3.2 as published); auto: object or scene, the choice is printed and "
+             "reported. Giving --rule, --alpha, --distance or --neighbors with auto implies statistical.")
+
+
+@documented
+@dataclass(frozen=True)
+class LocalSettings:
+    """The mode :func:`~roodi_toolkit.prune.scene.prune_cloud` runs, and the settings of its local tests (scene and
+    object modes: detached pieces and oversized blobs on the neighbour graph, see scene.py and docs/pruning.md)."""
+
+    mode: str = setting("auto", MODE_HELP, choices=MODES)
+    reach: float = setting(1.5, "scene/object: two Gaussians are connected when their centres are closer than this "
+                           "many sums of their largest scales.", low=0, low_open=True)
+    min_cluster: float = setting(0.001, "scene: remove connected pieces with fewer than this fraction of the "
+                                 "Gaussians.", low=0, high=1, high_open=True)
+    # larger detached pieces have structure: real content the linking rule split off (the real donut's inner pieces
+    # of 6-56 Gaussians, a cropped capture's chunks of 73-379), which only the photos can tell from a floater
+    max_piece: int = setting(3, "scene/object without photos: a detached piece goes only when it holds at most this "
+                             "many Gaussians (larger ones are often real content split off); 0: any size. With "
+                             "photos every detached piece is put to them.", low=0)
+    blob_score: float = setting(0.5, "scene/object: remove Gaussians whose smallest axis exceeds the local spacing "
+                                "and size by more than this (log units; higher keeps more).")
+    # 0.12: measured on real splats (scene.py, docs/pruning.md)
+    blob_colour: float = setting(0.12, "scene/object without photos: an oversized Gaussian stays when one of its "
+                                 "neighbours has its base colour within this RGB distance (0-1 units) and it scores "
+                                 "at most --blob-sure; 0: colour is not asked. With photos every oversized Gaussian "
+                                 "is put to them.", low=0)
+    blob_sure: float = setting(2.0, "scene/object without photos: oversized Gaussians scoring above this go "
+                               "whatever their colour.", finite=False)
+    # 6: planted blobs are 10-20x the median size; measured on real splats (scene.py). A blob among large Gaussians
+    # scores low, hence this test beside the score.
+    foreign_size: float = setting(6.0, "scene/object: a round Gaussian whose smallest axis is over this many times "
+                                  "the scene's median Gaussian size (and over its neighbours' median size), with a "
+                                  "colour none of its neighbours has, is oversized whatever its score (a blob among "
+                                  "large Gaussians); 0: off. With photos it is put to them.", low=0)
+    object_fraction: float = setting(0.98, "auto picks object mode when the largest piece holds at least this "
+                                     "fraction of the Gaussians.", low=0, high=1, low_open=True, cli=False)
+    background: str = setting("auto", "scene/object: the solid background the scene was trained on; its colour's "
+                              "faint fog goes. auto: detected (a wide, faint cloud of exactly white or black "
+                              "Gaussians).", choices=BACKGROUNDS)
+    fog_tolerance: float = setting(0.05, "A Gaussian is background-coloured when every channel is within this of "
+                                   "the background.", low=0, high=0.5, high_open=True, cli=False)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        self._check_local()
+
+    def _check_local(self) -> None:
+        if 0 < self.foreign_size < 1:
+            raise ConfigError(f"foreign_size must be 0 (off) or a finite number >= 1, got {self.foreign_size}")
+
+
+@documented
+@dataclass(frozen=True)
+class PruneConfig(LocalSettings, FilterSettings, StatisticalSettings):
+    """What :func:`~roodi_toolkit.prune.scene.prune_cloud` and
+    :func:`~roodi_toolkit.prune.outliers.remove_statistical_outliers` do: the settings of the neighbourhood, the
+    statistical rule, the filters and the local tests in one object (each field's help says what it does, the
+    comments beside the fields where the defaults come from). ``remove_statistical_outliers`` always runs the
+    statistical rule, whatever ``mode``.
+    """
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        self._check_statistical()
+        self._check_filters()
+        self._check_local()
+
+
+@documented
+@dataclass(frozen=True)
+class PhotoSettings:
+    """The photo check of the local modes (:func:`~roodi_toolkit.prune.photos.find_photos`)."""
+
+    photos: str = setting("auto", "scene/object: keep what the posed photos show. auto: the training photos of the "
+                          "model folder IN sits in (its cfg.json), if any; FOLDER: a model folder or a dataset "
+                          "folder (COLMAP, NeRF-synthetic; decoded at 1/4 size); none: judge from the cloud alone.",
+                          metavar="auto|none|FOLDER")
+    photo_views: int = setting(32, "Render at most this many of the photos' views (evenly spaced).", low=1)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
 
 
 @dataclass

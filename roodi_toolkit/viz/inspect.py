@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
+from ..settings import check_settings, documented, setting
 from .histogram import distance_is_log, distance_label, histogram_figure, save_histogram  # noqa: F401 (re-exported)
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -57,6 +58,29 @@ VIEW_ANGLE_DEG = 30.0
 """VTK's default vertical view angle."""
 ROBUST_QUANTILE = 0.005
 """The framed box spans these quantiles of the kept centres, so stray Gaussians do not shrink the object."""
+
+
+@documented
+@dataclass(frozen=True)
+class InspectView:
+    """How :func:`plot_cloud` draws the cloud (``roodi-toolkit inspect``'s view options are made from these fields)."""
+
+    show: str = setting("both", "Which Gaussians to draw.", choices=SHOW)
+    color_by: str = setting("rgb", "rgb: own colour (SH DC) with opacity as alpha; opacity, scale (largest axis) or "
+                            "distance (what the prune judged: the blob score of the local tests, or the statistical "
+                            "rule's mean distance to the K neighbours on a log colour bar) through a colour map.",
+                            choices=COLOR_BY)
+    highlight: str = setting("red", "Colour of the Gaussians pruning removes (a name or #rrggbb); 'none' draws them "
+                             "like the kept.", metavar="COLOR")
+    glyphs: str = setting("auto", "ellipsoids: oriented, scaled ellipsoids (exact footprint, small clouds); splats: "
+                          "Gaussian point splats sized by scale (fast); auto: ellipsoids up to 20,000 drawn "
+                          "Gaussians.", choices=GLYPHS)
+    camera: str = setting("iso", "View direction of the window and --view-png: iso (from above, diagonally, on the "
+                          "cloud's up), xy (from +z), xz (from -y), yz (from +x), or the side the camera sits on: +x, "
+                          "-x, +y, -y, +z, -z. The camera frames the kept Gaussians.", choices=CAMERAS)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
 
 _DIRECTIONS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
     # name: (direction from the focal point to the camera, view up); z is up, as make-scene scenes stand on z=0
@@ -416,9 +440,10 @@ def _add_group(plotter: "pv.Plotter", cloud: GaussianCloud, idx: np.ndarray, is_
                            reset_camera=False)
 
 
-def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, show: str = "both",
-               color_by: str = "rgb", distances: np.ndarray | None = None, highlight: Any = "red",
-               glyphs: str = "auto", camera: str = "iso", off_screen: bool | None = None,
+def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, show: str = InspectView.show,
+               color_by: str = InspectView.color_by, distances: np.ndarray | None = None,
+               highlight: Any = InspectView.highlight, glyphs: str = InspectView.glyphs,
+               camera: str = InspectView.camera, off_screen: bool | None = None,
                window_size: Sequence[int] = DEFAULT_WINDOW_SIZE, background: Any = DEFAULT_BACKGROUND,
                sigmas: float = ELLIPSOID_SIGMAS, distance_label: str | None = None,
                distance_log: bool = True, up: Sequence[float] | None = None) -> "pv.Plotter":

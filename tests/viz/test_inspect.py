@@ -306,17 +306,14 @@ def test_cli_errors(run_cli, planted_ply, tmp_path, monkeypatch):
 
 
 def test_inspect_and_prune_share_the_pruning_options():
-    """``inspect`` prunes exactly as ``prune``: same option names, types, defaults and help, same config."""
-    import click
-
+    """``inspect`` prunes exactly as ``prune``: same option names, types, defaults and help (every command-line
+    setting of PruneConfig and PhotoSettings); the options' round trip to the config is tests/cli/test_settings.py's."""
     from roodi_toolkit.cli.cmd_inspect import inspect as inspect_cmd
     from roodi_toolkit.cli.cmd_prune import prune
-    from roodi_toolkit.cli.prune_options import PRUNE_OPTION_NAMES, prune_config_from_options
-    from roodi_toolkit.prune.outliers import PruneConfig
+    from roodi_toolkit.cli.settings import option_names
+    from roodi_toolkit.prune.config import PhotoSettings, PruneConfig
 
-    from roodi_toolkit.cli.prune_options import MODE_OPTION_NAMES
-
-    shared = (*PRUNE_OPTION_NAMES, *MODE_OPTION_NAMES, "photos_spec", "photo_views")
+    shared = (*option_names(PruneConfig), *option_names(PhotoSettings))
 
     def describe(command):
         return {p.name: (tuple(p.opts), repr(p.type), p.default, p.help, p.is_flag, p.show_default)
@@ -325,14 +322,6 @@ def test_inspect_and_prune_share_the_pruning_options():
     ours, theirs = describe(inspect_cmd), describe(prune)
     assert set(ours) == set(shared)
     assert ours == theirs
-    config = prune_config_from_options(k=8, alpha=2.5, distance="w2", rule="paper", neighbors="centre",
-                                       filter_nan=True, min_opacity=0.1, filter_box="0,0,0,1,2,3",
-                                       filter_sphere="1, 2, 3, 4")
-    assert config == PruneConfig(k=8, alpha=2.5, rule="paper", filter_nan=True, min_opacity=0.1,
-                                 box=(0.0, 0.0, 0.0, 1.0, 2.0, 3.0), sphere=(1.0, 2.0, 3.0, 4.0))
-    with pytest.raises(click.BadParameter, match="4 comma-separated"):
-        prune_config_from_options(k=8, alpha=None, distance="w2", rule="robust", neighbors="centre",
-                                  filter_nan=False, min_opacity=None, filter_box=None, filter_sphere="1,2,3")
 
 
 def test_cli_default_shows_what_the_default_prune_removes(run_cli, planted_ply, tmp_path):

@@ -1,0 +1,249 @@
+"""One home per setting: a config dataclass declares each setting once, in its field, with its default, range or
+choices, help and command-line name; the CLI options (``roodi_toolkit.cli.settings``) and the checks of the
+dataclass (:func:`check_settings`, from its ``__post_init__``) are made from that declaration.
+
+A setting is a dataclass field made by :func:`setting`; its :class:`Setting` sits in the field's metadata. Its value
+space comes from the field's annotation: ``bool`` (a flag), ``int``, ``float``, ``str`` (with ``choices``), ``X |
+None`` (None: unset), ``tuple[float, float, ...]`` (a fixed number of values, written ``a,b,c`` on the command line)
+and ``tuple[X, ...]`` (repeatable, each value read by ``parse``). This module imports no command-line library: the
+library's configs declare their settings without depending on how a command line (or a batch manifest) reads them.
+
+Example:
+    >>> from dataclasses import dataclass
+    >>> @dataclass(frozen=True)
+    ... class Blur:
+    ...     radius: int = setting(3, "Blur radius in pixels.", low=1)
+    ...     def __post_init__(self) -> None:
+    ...         check_settings(self)
+    >>> Blur(radius=0)
+    Traceback (most recent call last):
+    ...
+    roodi_toolkit.errors.ConfigError: radius must be a whole number >= 1, got 0
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+import typing
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from .errors import ConfigError
+
+KEY = "roodi_setting"
+"""The key of a field's metadata that holds its :class:`Setting`."""
+
+
+@dataclass(frozen=True)
+class Setting:
+    """What a setting is, beyond its name and default (which the field holds).
+
+    Attributes:
+        help: one or two sentences for ``--help``: what the setting does, in the user's units.
+        low, high: the range of a number (None: open on that side); ``low_open``/``high_open`` exclude the bound.
+        choices: the values a text setting takes.
+        finite: a float must be finite (False: +-inf allowed, NaN never).
+        option: the command-line flag (default ``--`` + the field's name with ``-`` for ``_``); None with
+            ``cli=False``.
+        cli: whether commands offer it (False: a library-only setting, its default on the command line).
+        metavar: how ``--help`` names the value (default: from the type).
+        parse: turns one command-line or manifest text into the value (one entry of a repeatable setting); raises
+            ValueError with what is wrong.
+        show_default: whether ``--help`` shows the default (never for None, False or an empty tuple).
+    """
+
+    help: str
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple[str, ...] | None = None
+    finite: bool = True
+    option: str | None = None
+    cli: bool = True
+    metavar: str | None = None
+    parse: Callable[[str], Any] | None = None
+    show_default: bool = True
+
+
+def setting(default: Any, help: str, *, low: float | None = None, high: float | None = None, low_open: bool = False,
+            high_open: bool = False, choices: tuple[str, ...] | None = None, finite: bool = True,
+            option: str | None = None, cli: bool = True, metavar: str | None = None,
+            parse: Callable[[str], Any] | None = None, show_default: bool = True) -> Any:
+    """Return a dataclass field declaring a setting: its default and its :class:`Setting` (the other arguments)."""
+    meta = Setting(help=help, low=low, high=high, low_open=low_open, high_open=high_open,
+                   choices=tuple(choices) if choices is not None else None, finite=finite, option=option, cli=cli,
+                   metavar=metavar, parse=parse, show_default=show_default)
+    return dataclasses.field(default=default, metadata={KEY: meta})
+
+
+@dataclass(frozen=True)
+class Declared:
+    """One setting of a config class, as the option makers and the checks read it.
+
+    Attributes:
+        name: the field's name (the click parameter's name too).
+        default: the field's default.
+        kind: the value's type: ``bool``, ``int``, ``float``, ``str`` or ``tuple`` (of ``size`` floats).
+        optional: None is a value (unset).
+        repeated: a ``tuple[X, ...]`` of entries, each read by ``meta.parse``.
+        size: the number of floats of a fixed tuple (0 otherwise).
+        meta: the field's :class:`Setting`.
+    """
+
+    name: str
+    default: Any
+    kind: type
+    optional: bool
+    repeated: bool
+    size: int
+    meta: Setting
+
+    @property
+    def option(self) -> str:
+        """The command-line flag, e.g. ``--min-opacity``."""
+        return self.meta.option or "--" + self.name.replace("_", "-")
+
+
+def declared(cls: type) -> list[Declared]:
+    """Return the settings of the dataclass ``cls`` (an instance works too) in field order, base classes first.
+
+    Raises:
+        TypeError: a field of ``cls`` that is no :func:`setting`, or an annotation outside the supported ones (a
+            mistake in the declaration, not in a user's input).
+    """
+    cls = cls if isinstance(cls, type) else type(cls)
+    hints = typing.get_type_hints(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        meta = f.metadata.get(KEY)
+        if meta is None:
+            raise TypeError(f"{cls.__name__}.{f.name} is not declared with roodi_toolkit.settings.setting()")
+        out.append(_declare(cls.__name__, f, hints[f.name], meta))
+    return out
+
+
+def _declare(owner: str, f: dataclasses.Field, hint: Any, meta: Setting) -> Declared:
+    args = typing.get_args(hint)
+    optional = type(None) in args
+    if optional:
+        inner = [a for a in args if a is not type(None)]
+        hint = inner[0] if len(inner) == 1 else hint
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    repeated, size, kind = False, 0, hint
+    if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+        if meta.parse is None:
+            raise TypeError(f"{owner}.{f.name}: a repeatable setting needs parse=")
+        repeated, kind = True, tuple
+    elif origin is tuple and args and all(a is float for a in args):
+        size, kind = len(args), tuple
+    if kind not in (bool, int, float, str, tuple):
+        raise TypeError(f"{owner}.{f.name}: unsupported setting type {hint!r}")
+    return Declared(f.name, f.default, kind, optional, repeated, size, meta)
+
+
+def describe_range(d: Declared) -> str:
+    """Return the value space of a setting in words, e.g. ``a whole number >= 1`` or ``a number in [0, 1)``."""
+    m = d.meta
+    if m.choices is not None:
+        return "one of " + ", ".join(m.choices)
+    if d.kind is tuple:
+        return f"{d.size} finite numbers" if d.size else "a list"
+    what = {int: "a whole number", float: "a finite number" if m.finite else "a number", bool: "true or false",
+            str: "text"}[d.kind]
+    if m.low is not None and m.high is not None:
+        return f"{what} in {'(' if m.low_open else '['}{m.low:g}, {m.high:g}{')' if m.high_open else ']'}"
+    if m.low is not None:
+        return f"{what} {'>' if m.low_open else '>='} {m.low:g}"
+    if m.high is not None:
+        return f"{what} {'<' if m.high_open else '<='} {m.high:g}"
+    return what
+
+
+def _fits(d: Declared, value: Any) -> bool:
+    """Whether ``value`` lies in the declared value space of ``d`` (None aside)."""
+    m = d.meta
+    if d.kind is bool:
+        return isinstance(value, (bool, np.bool_))
+    if d.kind is str:
+        return isinstance(value, str) and (m.choices is None or value in m.choices)
+    if d.kind is tuple:
+        if d.repeated:
+            return isinstance(value, tuple)
+        try:
+            values = tuple(float(v) for v in value)
+        except (TypeError, ValueError):
+            return False
+        return len(values) == d.size and all(math.isfinite(v) for v in values)
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return False
+    if d.kind is int and not isinstance(value, numbers.Integral):
+        return False
+    v = float(value)
+    if math.isnan(v) or (m.finite and math.isinf(v)):
+        return False
+    if m.low is not None and (v < m.low or (m.low_open and v == m.low)):
+        return False
+    return m.high is None or not (v > m.high or (m.high_open and v == m.high))
+
+
+def check_settings(config: Any) -> None:
+    """Check every setting of the dataclass instance ``config`` against its declaration (type, range, choices).
+
+    Raises:
+        ConfigError: the first setting outside its value space, named with the space and the value.
+    """
+    for d in declared(config):
+        value = getattr(config, d.name)
+        if value is None and d.optional:
+            continue
+        if not _fits(d, value):
+            raise ConfigError(f"{d.name} must be {describe_range(d)}{' or None' if d.optional else ''}, got "
+                              f"{value!r}")
+
+
+def documented(cls: type) -> type:
+    """Return the dataclass ``cls`` with its settings listed under ``Attributes:`` in its docstring (name, default,
+    value space, help: from the declarations, so ``help(cls)`` and ``--help`` say the same)."""
+    lines = []
+    for d in declared(cls):
+        space = describe_range(d) + (" or None" if d.optional else "")
+        option = f"; {d.option}" if d.meta.cli else "; library only"
+        lines.append(f"    {d.name}: {d.meta.help} (default {d.default!r}; {space}{option})")
+    cls.__doc__ = (cls.__doc__ or cls.__name__).rstrip() + "\n\n    Attributes:\n" + "\n".join(
+        "    " + line for line in lines) + "\n"
+    return cls
+
+
+def parse_floats(text: str, size: int) -> tuple[float, ...]:
+    """Return ``size`` finite numbers from ``'a,b,c'`` (spaces and empty parts ignored).
+
+    Raises:
+        ValueError: not numbers, not ``size`` of them, or not finite (the message says which).
+    """
+    parts = [p for p in str(text).replace(" ", "").split(",") if p]
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        raise ValueError(f"expected {size} comma-separated numbers, got {text!r}") from None
+    if len(values) != size:
+        raise ValueError(f"expected {size} comma-separated numbers, got {len(values)}")
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"expected finite numbers, got {text!r}")
+    return values
+
+
+def parse_text(d: Declared, text: str) -> Any:
+    """Return the value of the tuple setting ``d`` written as ``text`` (one entry of a repeatable setting), as a
+    command line writes it (``a,b,c``); its range is checked by the dataclass (:func:`check_settings`).
+
+    Raises:
+        ValueError: text that is not a value of the setting (the message says what was expected).
+    """
+    if d.meta.parse is not None:
+        return d.meta.parse(text)
+    return parse_floats(text, d.size)

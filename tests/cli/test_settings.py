@@ -1,0 +1,162 @@
+"""Options made from config dataclasses (roodi_toolkit.cli.settings): every prune setting is an option of the
+commands that prune, with its field's default, range and help; every pruning option maps back to a field; a parsed
+command line round-trips to the config. A new setting is one field: its option follows."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, fields
+
+import click
+import pytest
+
+from roodi_toolkit.cli.settings import click_type, command_settings, config_from_options, config_options, option_names
+from roodi_toolkit.prune.config import PhotoSettings, PruneConfig
+from roodi_toolkit.render.settings import OrbitSettings
+from roodi_toolkit.settings import declared, setting
+from roodi_toolkit.viz.inspect import InspectView
+
+# command -> (the config classes its options are made from, its own parameters that are no setting of them)
+OWN = {
+    "prune": ((PruneConfig, PhotoSettings),
+              {"input_ply", "output_ply", "dry_run", "up", "floaters_out", "report_path", "overwrite", "quiet"}),
+    "inspect": ((PruneConfig, PhotoSettings, InspectView),
+                {"input_ply", "window_size", "screenshot", "view_png", "html_path", "histogram", "up", "window",
+                 "overwrite", "quiet"}),
+    "batch prune": ((PruneConfig,), {"source", "out", "jobs", "ray_address", "results", "rerun", "overwrite",
+                                     "quiet"}),
+    "render": ((OrbitSettings,), {"ply", "out_dir", "cameras_path", "up", "frame_like", "size_text", "what",
+                                  "background", "renderer_option", "renderer", "filter_nan", "overwrite",
+                                  "quiet"}),
+}
+
+
+def _command(name: str) -> click.Command:
+    from roodi_toolkit.cli.main import app
+
+    ctx = click.Context(app)
+    cmd = app.get_command(ctx, name.split()[0])
+    return cmd.commands[name.split()[1]] if " " in name else cmd
+
+
+@pytest.mark.parametrize("name", sorted(OWN))
+def test_every_setting_is_an_option_and_every_option_a_setting(name):
+    cmd = _command(name)
+    classes, own = OWN[name]
+    settings = {d.name: d for d in command_settings(*classes)}
+    params = {p.name: p for p in cmd.params}
+    assert set(params) - own == set(settings)  # each option of the command is a setting, each setting offered
+    for d in settings.values():
+        p = params[d.name]
+        assert p.opts == [d.option] and p.help == d.meta.help
+        assert p.default == d.default and p.is_flag == (d.kind is bool) and p.multiple == d.repeated
+        assert bool(p.show_default) == (d.default not in (None, False, ()))
+        if d.meta.choices is not None:
+            assert tuple(p.type.choices) == d.meta.choices
+
+
+def test_library_only_settings_are_no_options():
+    assert {d.name for d in declared(PruneConfig) if not d.meta.cli} == {"max_iterations", "compute_dtype",
+                                                                         "object_fraction", "fog_tolerance"}
+
+
+def test_help_shows_defaults_and_ranges_of_the_fields(run_cli):
+    res = run_cli("prune", "--help")
+    text = " ".join(res.stdout.split())
+    for expected in ("--k INTEGER RANGE Neighbours per Gaussian, not counting itself. [default: 16; x>=1]",
+                     "--photo-views INTEGER RANGE", "[default: 32; x>=1]", "--max-piece INTEGER RANGE",
+                     "--distance [w2|euclidean]", "--filter-box X0,Y0,Z0,X1,Y1,Z1 Keep only", "[default: 0.12]"):
+        assert expected in text, expected
+
+
+def test_a_parsed_command_line_round_trips_to_the_config():
+    cmd = _command("prune")
+    args = ["in.ply", "out.ply", "--k", "7", "--alpha", "2.5", "--distance", "w2", "--rule", "clip", "--neighbors",
+            "w2", "--filter-nan", "--min-opacity", "0.01", "--filter-box", "-1,-2,-3, 1,2,3", "--filter-sphere",
+            "0,0,0,5", "--filter-value", "z,-1,1", "--filter-value", "scale,0,0.5", "--mode", "object", "--reach",
+            "2", "--min-cluster", "0.01", "--max-piece", "0", "--blob-score", "0.7", "--blob-colour", "0",
+            "--blob-sure", "3", "--foreign-size", "0", "--background", "white", "--photos", "none",
+            "--photo-views", "4"]
+    values = cmd.make_context("prune", args).params
+    config = config_from_options(PruneConfig, values)
+    assert config == PruneConfig(k=7, alpha=2.5, distance="w2", rule="clip", neighbors="w2", filter_nan=True,
+                                 min_opacity=0.01, box=(-1.0, -2.0, -3.0, 1.0, 2.0, 3.0), sphere=(0.0, 0.0, 0.0, 5.0),
+                                 value_ranges=(("z", -1.0, 1.0), ("scale", 0.0, 0.5)), mode="object", reach=2.0,
+                                 min_cluster=0.01, max_piece=0, blob_score=0.7, blob_colour=0.0, blob_sure=3.0,
+                                 foreign_size=0.0, background="white")
+    assert config_from_options(PhotoSettings, values) == PhotoSettings(photos="none", photo_views=4)
+    # every setting above differs from its default: the round trip proves each option reaches its field
+    default = PruneConfig()
+    assert [f.name for f in fields(PruneConfig) if getattr(config, f.name) == getattr(default, f.name)] == \
+        [name for name in ("distance", "max_iterations", "compute_dtype", "object_fraction", "fog_tolerance")]
+    # no option given: the config's defaults
+    assert config_from_options(PruneConfig, cmd.make_context("prune", ["a", "b"]).params) == PruneConfig()
+
+
+def test_render_orbit_options_round_trip_to_the_orbit_settings():
+    values = _command("render").make_context("render", ["in.ply", "out", "--orbit", "3", "--elevation", "-10",
+                                                        "--radius", "2.5", "--fov", "90"]).params
+    orbit = config_from_options(OrbitSettings, values)
+    assert orbit == OrbitSettings(orbit=3, elevation=-10.0, radius=2.5, fov=90.0) and orbit.views == 3
+    assert config_from_options(OrbitSettings, _command("render").make_context("render", ["a", "b"]).params).views == 8
+
+
+def test_inspect_view_options_round_trip_to_the_view():
+    args = ["in.ply", "--show", "removed", "--color-by", "distance", "--highlight", "none", "--glyphs", "splats",
+            "--camera", "+z"]
+    values = _command("inspect").make_context("inspect", args).params
+    assert config_from_options(InspectView, values) == InspectView(show="removed", color_by="distance",
+                                                                   highlight="none", glyphs="splats", camera="+z")
+
+
+@pytest.mark.parametrize("args,code,needle", [
+    (["--filter-box", "1,2,3"], 2, "--filter-box"),
+    (["--filter-value", "size,0,1"], 2, "--filter-value"),
+    (["--filter-value", "z,1,0"], 2, "MIN must not exceed MAX"),
+    (["--filter-box", "1,1,1,0,0,0"], 1, "box must be x0,y0,z0,x1,y1,z1"),
+    (["--foreign-size", "0.5"], 1, "foreign_size must be 0 (off)"),
+    (["--neighbors", "w2", "--distance", "euclidean"], 1, "neighbors 'w2' needs distance 'w2'"),
+])
+def test_bad_values_are_refused_naming_the_option_or_setting(run_cli, tmp_path, args, code, needle):
+    res = run_cli("prune", tmp_path / "missing.ply", tmp_path / "o.ply", *args)
+    assert res.exit_code == code and needle in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+
+
+@dataclass(frozen=True)
+class Extended(PruneConfig):
+    """PruneConfig with one more setting, as a contributor would add it."""
+
+    knob: float = setting(0.25, "Turn the knob.", low=0, high=1)
+
+
+def test_a_new_setting_is_one_field_its_option_follows():
+    @click.command()
+    @config_options(Extended)
+    def cmd(**values):
+        click.echo(repr(config_from_options(Extended, values)))
+
+    param = next(p for p in cmd.params if p.name == "knob")
+    assert param.opts == ["--knob"] and param.default == 0.25 and param.help == "Turn the knob."
+    assert isinstance(click_type(declared(Extended)[-1]), click.FloatRange)
+    assert option_names(Extended) == (*option_names(PruneConfig), "knob")
+    from click.testing import CliRunner
+
+    out = CliRunner().invoke(cmd, ["--knob", "0.5", "--k", "9"])
+    assert out.exit_code == 0 and out.output.strip() == repr(Extended(knob=0.5, k=9))
+    assert CliRunner().invoke(cmd, ["--knob", "2"]).exit_code == 2  # its range, from the field
+    assert "[default: 0.25; 0<=x<=1]" in " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+
+
+def test_statistical_options_imply_the_statistical_mode(run_cli, tmp_path):
+    """``--mode auto`` with an option of StatisticalSettings runs the statistical rule; --k (both rules) does not."""
+    from roodi_toolkit.io.ply import write_ply
+    from tests.conftest import make_cloud
+
+    src = write_ply(make_cloud(300, seed=1), tmp_path / "c.ply")
+    for extra, mode in ((["--alpha", "3"], "statistical"), (["--neighbors", "centre"], "statistical"),
+                        (["--k", "8"], "auto")):
+        res = run_cli("prune", src, tmp_path / "o.ply", "--report", tmp_path / "r.json", "--overwrite", "-q", *extra)
+        assert res.exit_code == 0, res.stderr
+        report = json.loads((tmp_path / "r.json").read_text())
+        assert (report["mode"] == "statistical") == (mode == "statistical"), (extra, report["mode"])
