@@ -85,6 +85,28 @@ def cache_bytes(requested_mb: float, fixed: float) -> int:
     return int(max(0.0, min(want, 0.5 * (MEMORY_SHARE * room - fixed))))
 
 
+TRAIN_PER_GAUSSIAN = 2 * 59 * 4
+"""Bytes a Gaussian of SH degree 3 holds while it trains beyond its rendering pass (which counts its values and their
+gradients): Adam's two moments of its 59 float32 values. A step at 1M Gaussians on a 32x32 view measured 1,049 MB
+against 1,175 MB estimated (``benchmarks/bench_stage_memory.py --one train 1000000 32``)."""
+
+
+def train_bytes(gaussians: int, pixels: int) -> float:
+    """Return the estimated peak bytes of a training step at ``gaussians`` Gaussians of SH degree 3 on a view of
+    ``pixels`` (parameters, gradients, Adam's moments and a rendering with its backward)."""
+    return TRAIN_PER_GAUSSIAN * float(gaussians) + render_pass_bytes(gaussians, pixels, sh_coeffs=16)
+
+
+def check_train(gaussians: int, width: int, height: int) -> None:
+    """Refuse, before it starts, a training whose model at its largest (``gaussians``: the densification's cap, or
+    the model it starts from when larger) would not fit with one rendering of a ``width`` x ``height`` view (the
+    photos are checked when they are decoded)."""
+    check_memory(train_bytes(gaussians, width * height),
+                 f"training up to {gaussians:,} Gaussians on {width}x{height} views",
+                 "lower the densification's cap (--cap-max), make the photos smaller with --downscale 2 (a quarter "
+                 "of the pixels), or run it on a machine with more memory", ConfigError)
+
+
 def check_refine(scene_gaussians: int, object_gaussians: int, views: int, width: int, height: int) -> None:
     """Refuse, before it starts, occlusion reasoning and fine-tuning that would not fit: for every training view the
     object's mask, the pixels that may hide it and the clicked masks it came from (a byte a pixel each; targets are
