@@ -158,7 +158,8 @@ def run(scene: Path, view: str, click: tuple[int, int] | None, out: Path, render
     from roodi_toolkit.io.dataset import load_cameras
     from roodi_toolkit.io.model import find_model
     from roodi_toolkit.io.ply import read_ply
-    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.run.extract import extract_objects
     from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
 
     sampler = MemorySampler()

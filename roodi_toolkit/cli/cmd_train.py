@@ -55,7 +55,8 @@ def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | No
     from roodi_toolkit.errors import ConfigError
     from roodi_toolkit.io.files import output_group
     from roodi_toolkit.io.model import checkpoint_file
-    from roodi_toolkit.pipeline.train import TrainConfig, config_with, train_scene
+    from roodi_toolkit.pipeline.train import TrainConfig, config_with
+    from roodi_toolkit.run.train import train_scene
 
     if resume and overwrite:
         raise ConfigError("--resume and --overwrite contradict each other; choose one")
