@@ -49,6 +49,7 @@ from ..render.renderer import render_cloud, resolve_renderer
 from ..render.upright import cameras_up
 from ..render.views import framing_orbit
 from .distill import load_distillation, save_distilled
+from .refine import write_refine_debug
 from .records import Stages, changed_error, read_record, scene_labels, settings, train_record
 from .train import train_joint, train_scene
 
@@ -328,7 +329,8 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
     t = time.perf_counter()
     if config.inpaint:
         res = refine_stage(selected, prepared.scene, prepared.dataset, prepared.masks, object_id, config,
-                           renderer=prepared.renderer, progress=progress, debug_dir=odir / "debug")
+                           renderer=prepared.renderer, progress=progress)
+        write_refine_debug(res, odir / "debug", prepared.renderer)
         final = res.cloud
         files.write_image(fill_picture(res.occlusion.object_rgb, res.after_views, res.filled, res.occlusion.occluded),
                           odir / "fill.png")
