@@ -49,9 +49,13 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import CloudError, ConfigError
+from .metrics import Evaluation, score_views
+from ..gaussians import GaussianCloud
+from ..io.dataset import Dataset
 from ..pipeline.extract import ExtractConfig
-from ..progress import ProgressFactory
+from ..progress import ProgressFactory, null_progress
+from ..render.renderer import Renderer, render_cloud, resolve_renderer
 from ..pipeline.strategy import MCMCStrategy
 from ..pipeline.train import TrainConfig
 
@@ -156,6 +160,72 @@ def extract_config(size: BenchmarkSize, seed: int = 0) -> ExtractConfig:
                         eval_every=0, strategy=MCMCStrategy(cap_max=size.cap_max))
     base = ExtractConfig(train=train)
     return replace(base, occlusion=replace(base.occlusion, size=min(base.occlusion.size, 2 * size.size)))
+
+
+@dataclass
+class TargetTruth:
+    """A target's true object-alone test views, read once per scene (:func:`roodi_toolkit.run.benchmark.load_truth`):
+    what every method's extraction of it is scored against.
+
+    Attributes:
+        object_id: the target's instance id.
+        name: its name.
+        dataset: its object-alone test views on white, with alpha.
+        never_seen: ``[N, H, W]`` bool never-seen masks of those views, or None (a scene made without them).
+    """
+
+    object_id: int
+    name: str
+    dataset: Dataset
+    never_seen: Optional[np.ndarray] = None
+
+
+def score_object(cloud: GaussianCloud, truth: TargetTruth, *, lpips_model: Any = None, lpips_status: str = "ok",
+                 renderer: Renderer | None = None, max_views: int | None = None,
+                 progress: ProgressFactory = null_progress) -> tuple[Evaluation, np.ndarray]:
+    """Return the paper's metrics of an extracted object against its true views, and the renders ``[N, H, W, 3]``
+    on white (as :func:`roodi_toolkit.evaluate.metrics.evaluate_object` scores a scene folder's target).
+
+    Args:
+        cloud: the extracted object.
+        truth: the target's true views.
+        lpips_model: an LPIPS module, or None (``lpips_status`` says why).
+        lpips_status: ``"ok"``, or why there is no LPIPS.
+        renderer: draws the object (default: the built-in CPU renderer).
+        max_views: score the first this many test views only.
+        progress: progress factory.
+
+    Raises:
+        CloudError: an object without Gaussians.
+    """
+    views_of = truth.dataset
+    count = len(views_of) if max_views is None else min(max_views, len(views_of))
+    if len(cloud) == 0:
+        raise CloudError("the extracted object has no Gaussians")
+    renderer = resolve_renderer(renderer)
+    renders, alphas = [], []
+    with progress(total=count, desc=f"evaluate {truth.name}") as bar:
+        for i in range(count):
+            out = render_cloud(cloud, views_of.cameras[i], renderer=renderer, background=(1.0, 1.0, 1.0))
+            renders.append(out.rgb.clamp(0, 1).numpy())
+            alphas.append(out.alpha[..., 0].numpy())
+            bar.update(1)
+    never_seen = None if truth.never_seen is None else truth.never_seen[:count]
+    views = score_views(np.stack(renders), np.stack(alphas), views_of.images[:count].numpy(),
+                        views_of.alphas[:count].numpy(), views_of.names[:count], lpips_model, never_seen)
+    return Evaluation.from_views(truth.object_id, truth.name, views, lpips_status=lpips_status,
+                                 never_seen=never_seen is not None), np.stack(renders)
+
+
+def empty_scores(truth: TargetTruth) -> dict[str, Any]:
+    """Return the metrics of an empty extraction of ``truth``'s target (a white render, no coverage)."""
+    views_of = truth.dataset
+    n = len(views_of)
+    white = np.ones((n, views_of.height, views_of.width, 3), np.float32)
+    views = score_views(white, np.zeros((n, views_of.height, views_of.width), np.float32), views_of.images.numpy(),
+                        views_of.alphas.numpy(), views_of.names, never_seen=truth.never_seen)
+    return Evaluation.from_views(truth.object_id, truth.name, views, lpips_status="not computed: empty extraction",
+                                 never_seen=truth.never_seen is not None).to_dict(per_view=False)
 
 
 def method_config(method: str, base: ExtractConfig) -> ExtractConfig:

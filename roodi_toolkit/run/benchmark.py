@@ -13,43 +13,74 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, RoodiError
+from ..errors import ConfigError, DatasetError, RoodiError
 from ..evaluate.baselines import feature_similarity, gaussian_grouping
 from ..evaluate.benchmark import (BASELINES, GG_RULE, MACHINE_SIZE, METHODS, MODEL_OF, PRESETS, SHORT, BenchmarkSize,
-                                  SceneMaker, _average, _method_order, checks, extract_config, method_config,
-                                  results_markdown, scene_name)
-from ..evaluate.metrics import (ALPHA_THRESHOLD, Evaluation, evaluate_object, find_target, load_never_seen,
-                                score_views, zoom_box)
+                                  SceneMaker, TargetTruth, _average, _method_order, checks, empty_scores,
+                                  extract_config, method_config, results_markdown, scene_name, score_object)
+from ..evaluate.metrics import ALPHA_THRESHOLD, find_target, load_never_seen, zoom_box
 from ..io import files
 from ..io.dataset import load_dataset, split_views
 from ..io.generated import read_scene_record
+from ..io.lpips_weights import read_lpips
 from ..io.ply import read_ply, write_ply
 from ..pipeline.extract import ExtractConfig
 from ..pipeline.segment import FilesSegmenter, SegmentPrompt
+from ..lpips import LPIPSUnavailable
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, resolve_renderer
 from .distill import load_distillation
 from .extract import extract_objects
 
 
-def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
-    """Return the metrics of an empty extraction (a white render, no coverage)."""
+def load_truth(data_dir: Path, object_id: int) -> TargetTruth:
+    """Return target ``object_id``'s true object-alone test views and never-seen masks, read from the scene folder.
+
+    Raises:
+        DatasetError: no such target, views without alpha, or never-seen masks of another size than the views.
+    """
     folder, name = find_target(data_dir, object_id)
     truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
-    n = len(truth)
-    white = np.ones((n, truth.height, truth.width, 3), np.float32)
+    if truth.alphas is None:
+        raise DatasetError(f"{folder}: the target's views have no alpha; cannot score IoU")
     never_seen = load_never_seen(data_dir, object_id, truth.names)
-    views = score_views(white, np.zeros((n, truth.height, truth.width), np.float32), truth.images.numpy(),
-                        truth.alphas.numpy(), truth.names, never_seen=never_seen)
-    return Evaluation.from_views(object_id, name, views, lpips_status="not computed: empty extraction",
-                                 never_seen=never_seen is not None).to_dict(per_view=False)
+    if never_seen is not None and never_seen.shape[1:] != (truth.height, truth.width):
+        raise DatasetError(f"{folder}: the never-seen masks are {never_seen.shape[2]}x{never_seen.shape[1]} but the "
+                           f"test views {truth.width}x{truth.height}; regenerate the scene")
+    return TargetTruth(int(object_id), name, truth, never_seen)
 
 
-def _targets(data_dir: Path) -> list[dict[str, Any]]:
-    record = read_scene_record(data_dir)
-    return [{"id": int(t["id"]), "name": str(t["name"]),
-             **({"never_seen_share": float(t["never_seen_share"])} if "never_seen_share" in t else {})}
-            for t in record["targets"]]
+class _Truths:
+    """A scene's record and its targets' true views, each read once for every method and the picture grid."""
+
+    def __init__(self, data: Path) -> None:
+        self.data = data
+        self.record = read_scene_record(data)
+        self.targets = [{"id": int(t["id"]), "name": str(t["name"]),
+                         **({"never_seen_share": float(t["never_seen_share"])} if "never_seen_share" in t else {})}
+                        for t in self.record["targets"]]
+        self._views: dict[int, TargetTruth] = {}
+
+    def __getitem__(self, object_id: int) -> TargetTruth:
+        if object_id not in self._views:
+            self._views[object_id] = load_truth(self.data, object_id)
+        return self._views[object_id]
+
+
+class _LPIPS:
+    """The LPIPS network, read when the run first scores an object and kept for the rest of it."""
+
+    def __init__(self) -> None:
+        self._read: tuple[Any, str] | None = None
+
+    def get(self) -> tuple[Any, str]:
+        """Return the network and ``"ok"``, or None and why it is unavailable."""
+        if self._read is None:
+            try:
+                self._read = read_lpips(), "ok"
+            except LPIPSUnavailable as exc:
+                self._read = None, f"unavailable: {exc}"
+        return self._read
 
 
 def _missing_scenes(root: Path, presets: Sequence[str], occluded: bool) -> list[Path]:
@@ -130,14 +161,15 @@ def _stale_score(cache: dict[str, Any], key: str, scored: str, target: dict[str,
     return None
 
 
-def _score_target(method: str, key: str, target: dict[str, Any], data: Path, mout: Path, model: Optional[Path],
+def _score_target(method: str, key: str, target: dict[str, Any], truths: _Truths, mout: Path, model: Optional[Path],
                   config: ExtractConfig, cache: dict[str, Any], loaded: dict[str, dict[str, Any]],
-                  recomputed: dict[str, str], progress: ProgressFactory,
+                  recomputed: dict[str, str], lpips: _LPIPS, progress: ProgressFactory,
                   renderer: Renderer) -> tuple[dict[str, Any], Optional[np.ndarray]]:
     """Return one target's scores by one method and the render of its first test view (None where it failed):
     extracted (or selected, for a baseline) into ``mout`` and scored, or the score ``cache`` holds for the same
     object, scene and renderer. A failed extraction scores as an empty one, with its message."""
     t = time.perf_counter()
+    data = truths.data
     try:
         if method in BASELINES:
             path, fresh = _baseline_one(method, data, mout, target["id"], model,
@@ -153,12 +185,14 @@ def _score_target(method: str, key: str, target: dict[str, Any], data: Path, mou
             recomputed[key] = stale
             cache.pop(key)
         if key in cache:  # scored by an earlier run: render the picture's view only
-            return cache[key], evaluate_object(cloud, data, target["id"], max_views=1, renderer=renderer)[1][0]
-        ev, renders = evaluate_object(cloud, data, target["id"], progress=progress, renderer=renderer)
+            return cache[key], score_object(cloud, truths[target["id"]], max_views=1, renderer=renderer)[1][0]
+        lpips_model, lpips_status = lpips.get()
+        ev, renders = score_object(cloud, truths[target["id"]], lpips_model=lpips_model, lpips_status=lpips_status,
+                                   progress=progress, renderer=renderer)
         return {**ev.to_dict(per_view=False), "gaussians": len(cloud), "ply": str(path),
                 "seconds": time.perf_counter() - t, "scored": scored}, renders[0]
     except RoodiError as exc:
-        return cache.get(key) or {**_empty_scores(data, target["id"]), "failed": str(exc), "gaussians": 0,
+        return cache.get(key) or {**empty_scores(truths[target["id"]]), "failed": str(exc), "gaussians": 0,
                                   "seconds": time.perf_counter() - t}, None
 
 
@@ -203,6 +237,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     cache: dict[str, Any] = files.read_json(legacy, "scores") if legacy.is_file() and not overwrite else {}
     config = config or extract_config(size, seed)
     renderer = resolve_renderer(renderer)
+    lpips = _LPIPS()
     results: dict[str, Any] = {"root": str(root), "seed": seed, "size": asdict(size), "methods": methods,
                                "iterations": config.train.iterations, "labels": {m: METHODS[m] for m in methods},
                                "scenes": {}, "inpainter": config.inpainter}
@@ -214,6 +249,7 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     t_all = time.perf_counter()
     for preset, name in zip(presets, names):
         data = _scene(root, preset, seed, size, progress, occluded, make_scene)
+        truths = _Truths(data)
         scene_out = out / name
         scene_out.mkdir(parents=True, exist_ok=True)
         scores_path = scene_out / "scores.json"
@@ -226,10 +262,10 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
             model = scene_out / MODEL_OF[method] / "scene" if method in MODEL_OF else None
             rows = []
             pictures[method] = {}
-            for target in _targets(data):
+            for target in truths.targets:
                 key = f"{name}/{method}/{target['id']}"
-                row, picture = _score_target(method, key, target, data, scene_out / method, model, config, cache,
-                                             loaded, recomputed, progress, renderer)
+                row, picture = _score_target(method, key, target, truths, scene_out / method, model, config, cache,
+                                             loaded, recomputed, lpips, progress, renderer)
                 if picture is not None:
                     pictures[method][target["id"]] = picture
                 if "never_seen_share" in target:
@@ -241,8 +277,8 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
             per_method[method] = {"objects": rows, "mean": _average(rows),
                                   "seconds": float(sum(r.get("seconds", 0.0) for r in rows))}
         results["scenes"][name] = {m: per_method[m] for m in methods}
-        results.setdefault("scene_settings", {})[name] = read_scene_record(data)["settings"]
-        results["scenes"][name]["_picture"] = str(_scene_grid(data, name, methods, pictures, out))
+        results.setdefault("scene_settings", {})[name] = truths.record["settings"]
+        results["scenes"][name]["_picture"] = str(_scene_grid(truths, name, methods, pictures, out))
     results["mean"] = {m: _average([results["scenes"][p][m]["mean"] for p in names]) for m in methods}
     results["checks"] = checks(results["mean"])
     results["seconds"] = time.perf_counter() - t_all
@@ -251,19 +287,18 @@ def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[st
     return results
 
 
-def _scene_grid(data: Path, preset: str, methods: Sequence[str], pictures: dict[str, dict[int, np.ndarray]],
+def _scene_grid(truths: _Truths, preset: str, methods: Sequence[str], pictures: dict[str, dict[int, np.ndarray]],
                 out: Path) -> Path:
     """Write the scene's picture grid (paper Fig. 5): per target a training view, then the truth and every method's
     render of the first test view, full frame (floaters anywhere show) and zoomed in on the true object."""
-    scene = load_dataset(data)
-    targets = _targets(data)
+    scene = load_dataset(truths.data)
+    targets = truths.targets
     cols = ["training view", "ground truth", *methods]
     rows = 2 * len(targets)
     fig, axes = files.new_figure(rows, len(cols), figsize=(1.6 * len(cols), 1.7 * rows), squeeze=False)
     for r, target in enumerate(targets):
         areas = [int((m == target["id"]).sum()) for m in scene.masks] if scene.masks is not None else [0]
-        folder, _ = find_target(data, target["id"])
-        truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
+        truth = truths[target["id"]].dataset
         images = [scene.images[int(np.argmax(areas))].numpy(), truth.images[0].numpy()]
         images += [pictures.get(m, {}).get(target["id"], np.ones_like(images[1])) for m in methods]
         y0, y1, x0, x1 = zoom_box(truth.alphas[0].numpy() > ALPHA_THRESHOLD, 2.0)
