@@ -89,7 +89,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
                 progress: ProgressFactory = null_progress, iterations_override: int | None = None,
                 on_step: Callable[[Trainer, dict[str, float]], None] | None = None,
                 make_trainer: Callable[[Dataset, TrainConfig], Trainer] | None = None,
-                dataset: Dataset | None = None, renderer: Renderer | None = None) -> TrainResult:
+                dataset: Dataset | None = None, renderer: Renderer | None = None, atomic: bool = False) -> TrainResult:
     """Train a scene model and write it in the layout other 3DGS tools read (the module's docstring); return where
     it is and its figures.
 
@@ -108,7 +108,31 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
             ablation passes one that also trains object features, with its own renderer).
         dataset: ``data_dir`` already decoded at ``downscale`` (the caller's copy is used, not read again).
         renderer: draws the training views (default: the built-in CPU renderer).
+        atomic: the model folder is never half made (the ``train`` command's): ``cfg.json`` appears with the first
+            checkpoint (together they are a state ``resume`` continues), each checkpoint lands whole, and the model
+            PLY, ``metrics.json``, ``training.png`` and ``renders/`` appear together at the end; a signal or a full
+            disk before the first checkpoint leaves no folder at all.
     """
+    if not atomic:
+        return _train_scene(data_dir, out_dir, config, downscale, resume, overwrite, progress, iterations_override,
+                            on_step, make_trainer, dataset, renderer)
+    with files.output_group() as outputs:
+        def land_checkpoint(trainer: Trainer, info: dict[str, float]) -> None:
+            if outputs.holds(checkpoint_file(out_dir)):
+                outputs.commit()
+            if on_step is not None:
+                on_step(trainer, info)
+
+        return _train_scene(data_dir, out_dir, config, downscale, resume, overwrite, progress, iterations_override,
+                            land_checkpoint, make_trainer, dataset, renderer)
+
+
+def _train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig, downscale: float, resume: bool,
+                 overwrite: bool, progress: ProgressFactory, iterations_override: int | None,
+                 on_step: Callable[[Trainer, dict[str, float]], None] | None,
+                 make_trainer: Callable[[Dataset, TrainConfig], Trainer] | None, dataset: Dataset | None,
+                 renderer: Renderer | None) -> TrainResult:
+    """Train into ``out_dir`` (arguments as :func:`train_scene`)."""
     out = Path(out_dir)
     state = None
     if resume:

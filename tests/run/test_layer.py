@@ -117,3 +117,25 @@ def test_distillation_makes_its_frozen_geometry_once(tiny_kitchen, monkeypatch):
     result = distill_scene(scene, ds, config=DistillConfig(iterations=3), holdout_every=4)
     assert len(calls) == 1
     assert result.summary["held_out"]["pairs"] > 0  # the held-out views were scored (with the same geometry)
+
+
+def test_an_atomic_training_run_leaves_a_whole_model_folder_or_none(tiny_kitchen, tmp_path):
+    """atomic=True (the train command's): stopped before the first checkpoint, no folder; stopped after it, the
+    checkpoint with its cfg.json and nothing else of the model; the library's default writes as it goes."""
+    def stop_at(step):
+        def on_step(trainer, info):
+            if trainer.step == step:
+                raise KeyboardInterrupt
+        return on_step
+
+    with pytest.raises(KeyboardInterrupt):
+        train_scene(tiny_kitchen, tmp_path / "early", _config(), on_step=stop_at(3), atomic=True)
+    assert not (tmp_path / "early").exists()
+    with pytest.raises(KeyboardInterrupt):
+        train_scene(tiny_kitchen, tmp_path / "later", _config(), on_step=stop_at(7), atomic=True)
+    made = sorted(p.relative_to(tmp_path / "later").as_posix() for p in (tmp_path / "later").rglob("*") if p.is_file())
+    assert made == ["cfg.json", "checkpoints/latest.pt"]
+    assert torch.load(tmp_path / "later" / "checkpoints" / "latest.pt", weights_only=False)["step"] == 5
+    with pytest.raises(KeyboardInterrupt):
+        train_scene(tiny_kitchen, tmp_path / "plain", _config(), on_step=stop_at(3))
+    assert (tmp_path / "plain" / "cfg.json").is_file()  # written before the first step
