@@ -40,7 +40,8 @@ def main() -> int:
     from roodi_toolkit.io.model import find_model
     from roodi_toolkit.io.ply import read_ply
     from roodi_toolkit.evaluate.metrics import alpha_iou
-    from roodi_toolkit.pipeline.distill import DistillConfig, load_distillation, run_distill
+    from roodi_toolkit.pipeline.distill import DistillConfig
+    from roodi_toolkit.run.distill import load_distillation, run_distill
     from roodi_toolkit.pipeline.select import select_object
 
     data = Path(args.data_dir)

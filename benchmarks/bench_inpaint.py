@@ -30,6 +30,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object  # noqa: E402
+from roodi_toolkit.run.refine import write_refine_debug  # noqa: E402
 from roodi_toolkit.gaussians import GaussianCloud  # noqa: E402
 from roodi_toolkit.imaging import psnr  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores  # noqa: E402
@@ -125,8 +126,9 @@ def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64,
     images = torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in renders])
     masks = torch.stack([torch.as_tensor(r.ids == target.id) for r in renders])
     res = refine_object(obj, scene_cloud, images, cams, masks, inpainter=inpainter, occlusion=occ_cfg,
-                        finetune=FinetuneConfig(iterations=iterations, **(finetune or {})), up=(0, 0, 1),
-                        debug_dir=debug_dir)
+                        finetune=FinetuneConfig(iterations=iterations, **(finetune or {})), up=(0, 0, 1))
+    if debug_dir is not None:
+        write_refine_debug(res, debug_dir)
     truth, gt, _ = object_view_truth(scene, target, res.occlusion.cameras)
     scores = mask_scores(res.occlusion.occluded.numpy(), truth)
     raw = mask_scores(res.occlusion.occluded_raw.numpy(), truth)

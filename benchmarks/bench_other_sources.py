@@ -41,7 +41,8 @@ def main() -> None:
     from roodi_toolkit.io.other_models import gsplat_frames, seen_fraction
     from roodi_toolkit.io.ply import write_ply
     from roodi_toolkit.pipeline.model_frame import settle_model_frame
-    from roodi_toolkit.pipeline.train import TrainConfig, train_scene
+    from roodi_toolkit.pipeline.train import TrainConfig
+    from roodi_toolkit.run.train import train_scene
     from roodi_toolkit.similarity import Similarity, transform_cloud
     from tests.io.test_nerfstudio import ns_process_data
     from tests.io.test_other_models import write_gsplat, write_inria

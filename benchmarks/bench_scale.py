@@ -89,14 +89,14 @@ class MemorySampler:
         return f"between {before[-1] if before else 'start'} and {after[0] if after else 'end'}"
 
 
-STAGES = [  # (module, class or "", function, stage name): what the extraction calls, looked up at call time
+STAGES = [  # (module defining it, class or "", function, stage name): what the extraction calls
     ("roodi_toolkit.io.dataset", "", "load_dataset", "load photos"),
     ("roodi_toolkit.io.ply", "", "read_ply", "read model"),
-    ("roodi_toolkit.pipeline.distill", "", "working_dataset", "working size"),
+    ("roodi_toolkit.pipeline.resolution", "", "working_dataset", "working size"),
     ("roodi_toolkit.pipeline.click", "ClickSegmenter", "segment", "click segment"),
     ("roodi_toolkit.pipeline.distill", "", "distill_object_features", "distill"),
     ("roodi_toolkit.pipeline.distill", "", "finish_distillation", "score distillation"),
-    ("roodi_toolkit.pipeline.distill", "", "save_distilled", "save distillation"),
+    ("roodi_toolkit.run.distill", "", "save_distilled", "save distillation"),
     ("roodi_toolkit.pipeline.select", "", "select_object", "select"),
     ("roodi_toolkit.pipeline.select", "", "prune_selection", "prune"),
     ("roodi_toolkit.pipeline.finetune", "", "refine_object", "occlusion+inpaint+fine-tune"),
@@ -104,8 +104,12 @@ STAGES = [  # (module, class or "", function, stage name): what the extraction c
 
 
 def instrument(sampler: MemorySampler, record: dict) -> None:
+    """Wrap each stage's function in a timing window, under every name the package's loaded modules know it by
+    (modules import their callees' names at their top, so the defining module's attribute alone is not enough)."""
     import importlib
 
+    importlib.import_module("roodi_toolkit.run.extract")  # the whole chain, so every caller is loaded
+    modules = [m for name, m in list(sys.modules.items()) if name.startswith("roodi_toolkit") and m is not None]
     for module, cls, attr, name in STAGES:
         owner = importlib.import_module(module)
         owner = getattr(owner, cls) if cls else owner
@@ -115,7 +119,12 @@ def instrument(sampler: MemorySampler, record: dict) -> None:
             with sampler.window(record, __n):
                 return __f(*a, **k)
 
-        setattr(owner, attr, wrapped)
+        if cls:
+            setattr(owner, attr, wrapped)
+            continue
+        for m in modules:
+            if getattr(m, attr, None) is original:
+                setattr(m, attr, wrapped)
 
 
 def default_click(scene: Path, view: str) -> tuple[int, int]:
@@ -164,7 +173,8 @@ def run(scene: Path, view: str, click: tuple[int, int] | None, out: Path, render
     from roodi_toolkit.io.model import find_model
     from roodi_toolkit.io.ply import read_ply
     from roodi_toolkit.pipeline.distill import DistillConfig
-    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.run.extract import extract_objects
     from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
 
     sampler = MemorySampler()

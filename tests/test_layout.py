@@ -14,7 +14,10 @@ ROOT = Path(__file__).resolve().parents[1] / "roodi_toolkit"
 # (errors, gaussians, cameras, params, lpips, ...) are the core. The package's __init__ is the front door a user
 # imports (``import roodi_toolkit as rt``: the public names, re-exported from the core and io), above every floor:
 # no module of the package imports it.
-FLOORS = ("core", "io", "render", "prune", "pipeline", "evaluate", "viz", "synth", "batch", "cli", "front door")
+# run: the run layer (output folders, stage records and reuse, resume, checkpoints, pictures) walks the stages of pipeline
+# and evaluate; the demo (synth), batch and cli call it.
+FLOORS = ("core", "io", "render", "prune", "pipeline", "evaluate", "viz", "run", "synth", "batch", "cli",
+          "front door")
 MODULES = sorted(p for p in ROOT.rglob("*.py") if "__pycache__" not in p.parts)
 
 

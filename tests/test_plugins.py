@@ -235,7 +235,7 @@ def test_plugin_options_from_the_command_line_are_converted(monkeypatch, tmp_pat
 def test_every_plugin_kind_takes_its_options_from_the_command_line(monkeypatch, run_cli, tmp_path):
     """extract had --segmenter-option but no inpainter option, and no command took renderer options."""
     from roodi_toolkit.render.renderer import TorchRenderer
-    import roodi_toolkit.pipeline.extract as extract_module
+    import roodi_toolkit.run.extract as extract_module
 
     seen = {}
 

@@ -189,7 +189,7 @@ _PREPARED: dict[tuple[str, str], Any] = {}
 
 
 def _extract(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
-    from ..pipeline.extract import extract_object, prepare_scene
+    from ..run.extract import extract_object, prepare_scene
 
     config = settings["config"]
     key = (item.input, settings["out"])

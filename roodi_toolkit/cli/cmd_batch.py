@@ -160,7 +160,7 @@ def batch_extract(data_dir: str, out: str, object_ids: tuple[str, ...], jobs: in
     --model and --distill), then every object is an item of the batch."""
     from roodi_toolkit.batch.items import Item
     from roodi_toolkit.batch.runner import run_batch
-    from roodi_toolkit.pipeline.extract import prepare_scene
+    from roodi_toolkit.run.extract import prepare_scene
 
     config = extract_config_from_options(**stage_options)
     progress = progress_factory(quiet)

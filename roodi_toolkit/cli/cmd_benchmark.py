@@ -52,7 +52,8 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
     """
     from dataclasses import replace
 
-    from roodi_toolkit.evaluate.benchmark import METHODS, PRESETS, SIZES, extract_config, run_benchmark
+    from roodi_toolkit.evaluate.benchmark import METHODS, PRESETS, SIZES, extract_config
+    from roodi_toolkit.run.benchmark import run_benchmark
     from roodi_toolkit.plugins import load_plugin
     from roodi_toolkit.synth.scene import make_benchmark_scene
 

@@ -63,7 +63,8 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
     distill.json (which model file, settings, loss, held-out IoU) and distill.png (rendered classes next to the masks).
     MODEL_DIR and DATA_DIR are only read. Then take objects out with roodi-toolkit select OUT_DIR.
     """
-    from roodi_toolkit.pipeline.distill import DistillConfig, run_distill
+    from roodi_toolkit.pipeline.distill import DistillConfig
+    from roodi_toolkit.run.distill import run_distill
     from roodi_toolkit.errors import ConfigError
     from roodi_toolkit.pipeline.segment import Click
 

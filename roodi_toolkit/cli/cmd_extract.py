@@ -137,7 +137,7 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     from dataclasses import replace
     from pathlib import Path
 
-    from roodi_toolkit.pipeline.extract import extract_objects
+    from roodi_toolkit.run.extract import extract_objects
     from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
 
     if len(paths) > 2:

@@ -34,7 +34,7 @@ def select(distill_dir: str, output_ply: str, object_id: int, threshold: float, 
            overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Write the Gaussians of object --object of the distillation DISTILL_DIR (a roodi-toolkit distill output) to
     OUT.ply; the scene is read from the model file the distillation names."""
-    from roodi_toolkit.pipeline.select import run_select
+    from roodi_toolkit.run.select import run_select
 
     summary = run_select(distill_dir, object_id, output_ply, threshold=threshold, prune=not no_prune,
                          picture=picture, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)

@@ -53,26 +53,18 @@ def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | No
     metrics.json, training.png and renders/ (held-out views beside the ground truth).
     """
     from roodi_toolkit.errors import ConfigError
-    from roodi_toolkit.io.files import output_group
-    from roodi_toolkit.io.model import checkpoint_file
-    from roodi_toolkit.pipeline.train import TrainConfig, config_with, train_scene
+    from roodi_toolkit.pipeline.train import TrainConfig, config_with
+    from roodi_toolkit.run.train import train_scene
 
     if resume and overwrite:
         raise ConfigError("--resume and --overwrite contradict each other; choose one")
     config = config_with(TrainConfig(), iterations=iterations, cap_max=cap_max, sh_degree=sh_degree, init=init,
                          init_num_points=init_points, random_background=random_background,
                          eval_every=eval_every, checkpoint_every=checkpoint_every, seed=seed)
-    # The model folder is never half made: cfg.json appears with the first checkpoint (together they are a state
-    # --resume continues), each checkpoint lands whole, and the model PLY, metrics.json, training.png and renders/
-    # appear together at the end. A signal or a full disk before the first checkpoint leaves no folder at all.
-    with output_group() as outputs:
-        def land_checkpoint(trainer: Any, info: dict) -> None:
-            if outputs.holds(checkpoint_file(out_dir)):
-                outputs.commit()
-
-        result = train_scene(data_dir, out_dir, config, downscale=downscale, resume=resume, overwrite=overwrite,
-                             progress=progress_factory(quiet), iterations_override=iterations if resume else None,
-                             renderer=renderer, on_step=land_checkpoint)
+    # the model folder is never half made (atomic): a signal or a full disk before the first checkpoint leaves none
+    result = train_scene(data_dir, out_dir, config, downscale=downscale, resume=resume, overwrite=overwrite,
+                         progress=progress_factory(quiet), iterations_override=iterations if resume else None,
+                         renderer=renderer, atomic=True)
     ev = result.metrics
     figures = f", held-out PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}" if ev else ""
     click.echo(f"trained {result.iterations} iterations, {result.num_gaussians:,} Gaussians{figures} "

@@ -1,7 +1,9 @@
 """The paper's evaluation (Sec. 4, Tables 1-2, Fig. 5) on the generated scenes: ROODI, its baselines and ablations.
 
-For each preset scene (reused from ``ROOT/<preset>``, or generated there by the ``make_scene`` its caller passes:
-:func:`roodi_toolkit.synth.scene.make_benchmark_scene`, on the floor above) the full method trains the scene and
+The methods, the sizes, the checks and the tables live here; the run that makes and reuses the folders is
+:func:`roodi_toolkit.run.benchmark.run_benchmark`. For each preset scene (reused from ``ROOT/<preset>``, or generated
+there by the ``make_scene`` its caller passes: :func:`roodi_toolkit.synth.scene.make_benchmark_scene`, on the floor
+above) the full method trains the scene and
 distils its masks once, and the ``no_two_stage`` ablation trains a second model whose features are learned with the
 scene (as Gaussian Grouping does); every other method reuses one of these two models, so the methods differ only in
 what the issue or the paper changes:
@@ -41,17 +43,19 @@ metrics).
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, RoodiError
+from ..errors import CloudError, ConfigError
+from .metrics import Evaluation, score_views
+from ..gaussians import GaussianCloud
+from ..io.dataset import Dataset
 from ..pipeline.extract import ExtractConfig
 from ..progress import ProgressFactory, null_progress
-from ..render.renderer import Renderer, resolve_renderer
+from ..render.renderer import Renderer, render_cloud, resolve_renderer
 from ..pipeline.strategy import MCMCStrategy
 from ..pipeline.train import TrainConfig
 
@@ -158,8 +162,74 @@ def extract_config(size: BenchmarkSize, seed: int = 0) -> ExtractConfig:
     return replace(base, occlusion=replace(base.occlusion, size=min(base.occlusion.size, 2 * size.size)))
 
 
+@dataclass
+class TargetTruth:
+    """A target's true object-alone test views, read once per scene (:func:`roodi_toolkit.run.benchmark.load_truth`):
+    what every method's extraction of it is scored against.
+
+    Attributes:
+        object_id: the target's instance id.
+        name: its name.
+        dataset: its object-alone test views on white, with alpha.
+        never_seen: ``[N, H, W]`` bool never-seen masks of those views, or None (a scene made without them).
+    """
+
+    object_id: int
+    name: str
+    dataset: Dataset
+    never_seen: Optional[np.ndarray] = None
+
+
+def score_object(cloud: GaussianCloud, truth: TargetTruth, *, lpips_model: Any = None, lpips_status: str = "ok",
+                 renderer: Renderer | None = None, max_views: int | None = None,
+                 progress: ProgressFactory = null_progress) -> tuple[Evaluation, np.ndarray]:
+    """Return the paper's metrics of an extracted object against its true views, and the renders ``[N, H, W, 3]``
+    on white (as :func:`roodi_toolkit.evaluate.metrics.evaluate_object` scores a scene folder's target).
+
+    Args:
+        cloud: the extracted object.
+        truth: the target's true views.
+        lpips_model: an LPIPS module, or None (``lpips_status`` says why).
+        lpips_status: ``"ok"``, or why there is no LPIPS.
+        renderer: draws the object (default: the built-in CPU renderer).
+        max_views: score the first this many test views only.
+        progress: progress factory.
+
+    Raises:
+        CloudError: an object without Gaussians.
+    """
+    views_of = truth.dataset
+    count = len(views_of) if max_views is None else min(max_views, len(views_of))
+    if len(cloud) == 0:
+        raise CloudError("the extracted object has no Gaussians")
+    renderer = resolve_renderer(renderer)
+    renders, alphas = [], []
+    with progress(total=count, desc=f"evaluate {truth.name}") as bar:
+        for i in range(count):
+            out = render_cloud(cloud, views_of.cameras[i], renderer=renderer, background=(1.0, 1.0, 1.0))
+            renders.append(out.rgb.clamp(0, 1).numpy())
+            alphas.append(out.alpha[..., 0].numpy())
+            bar.update(1)
+    never_seen = None if truth.never_seen is None else truth.never_seen[:count]
+    views = score_views(np.stack(renders), np.stack(alphas), views_of.images[:count].numpy(),
+                        views_of.alphas[:count].numpy(), views_of.names[:count], lpips_model, never_seen)
+    return Evaluation.from_views(truth.object_id, truth.name, views, lpips_status=lpips_status,
+                                 never_seen=never_seen is not None), np.stack(renders)
+
+
+def empty_scores(truth: TargetTruth) -> dict[str, Any]:
+    """Return the metrics of an empty extraction of ``truth``'s target (a white render, no coverage)."""
+    views_of = truth.dataset
+    n = len(views_of)
+    white = np.ones((n, views_of.height, views_of.width, 3), np.float32)
+    views = score_views(white, np.zeros((n, views_of.height, views_of.width), np.float32), views_of.images.numpy(),
+                        views_of.alphas.numpy(), views_of.names, never_seen=truth.never_seen)
+    return Evaluation.from_views(truth.object_id, truth.name, views, lpips_status="not computed: empty extraction",
+                                 never_seen=truth.never_seen is not None).to_dict(per_view=False)
+
+
 def method_config(method: str, base: ExtractConfig) -> ExtractConfig:
-    """Return the extraction settings of a method run through :func:`~roodi_toolkit.pipeline.extract.extract_objects`."""
+    """Return the extraction settings of a method run through :func:`~roodi_toolkit.run.extract.extract_objects`."""
     changes: dict[str, dict[str, Any]] = {
         "full": {},
         "no_two_stage": {"single_stage": True},
@@ -171,112 +241,6 @@ def method_config(method: str, base: ExtractConfig) -> ExtractConfig:
     if method not in changes:
         raise ConfigError(f"{method!r} is not an extraction method")
     return replace(base, **changes[method])
-
-
-def _empty_scores(data_dir: Path, object_id: int) -> dict[str, Any]:
-    """Return the metrics of an empty extraction (a white render, no coverage)."""
-    from ..io.dataset import load_dataset
-    from .metrics import Evaluation, find_target, load_never_seen, score_views
-
-    folder, name = find_target(data_dir, object_id)
-    truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
-    n = len(truth)
-    white = np.ones((n, truth.height, truth.width, 3), np.float32)
-    never_seen = load_never_seen(data_dir, object_id, truth.names)
-    views = score_views(white, np.zeros((n, truth.height, truth.width), np.float32), truth.images.numpy(),
-                        truth.alphas.numpy(), truth.names, never_seen=never_seen)
-    return Evaluation.from_views(object_id, name, views, lpips_status="not computed: empty extraction",
-                                 never_seen=never_seen is not None).to_dict(per_view=False)
-
-
-def _targets(data_dir: Path) -> list[dict[str, Any]]:
-    from ..io.generated import read_scene_record
-
-    record = read_scene_record(data_dir)
-    return [{"id": int(t["id"]), "name": str(t["name"]),
-             **({"never_seen_share": float(t["never_seen_share"])} if "never_seen_share" in t else {})}
-            for t in record["targets"]]
-
-
-def _missing_scenes(root: Path, presets: Sequence[str], occluded: bool) -> list[Path]:
-    """Return the folders of ``presets``' scenes in ``root`` that hold no scene.json (to be generated)."""
-    folders = [root / scene_name(p, occluded) for p in presets]
-    return [f for f in folders if not (f / "scene.json").is_file()]
-
-
-def _scene(root: Path, preset: str, seed: int, size: BenchmarkSize, progress: ProgressFactory,
-           occluded: bool = False, make_scene: SceneMaker | None = None) -> Path:
-    data = root / scene_name(preset, occluded)
-    if (data / "scene.json").is_file():  # reused as it is; its own settings are reported in results["scene_settings"]
-        return data
-    if data.exists() and any(data.iterdir()):
-        raise ConfigError(f"{data} exists but holds no scene.json; remove it or choose another ROOT (the benchmark "
-                          "generates its scenes there and never writes over other files)")
-    if make_scene is None:
-        raise ConfigError(f"{data}: no scene.json, and no make_scene to generate it")
-    make_scene(data, preset, seed, size, occluded, progress)
-    return data
-
-
-def _extract_one(method: str, data: Path, out: Path, object_id: int, config: ExtractConfig, model: Optional[Path],
-                 progress: ProgressFactory, renderer: Renderer) -> Path:
-    """Extract one object; a method that starts from another's run reuses its scene and distillation (read only)."""
-    from ..pipeline.extract import extract_objects
-
-    distill = None if model is None else model.parent / "distill"
-    extract_objects(data, out, [object_id], model_dir=model, distill_dir=distill,
-                    config=method_config(method, config), progress=progress, renderer=renderer)
-    return out / f"object_{object_id}" / "object.ply"
-
-
-def _baseline_one(method: str, data: Path, out: Path, object_id: int, model: Path,
-                  loaded: dict[str, Any], renderer: Renderer) -> tuple[Path, bool]:
-    """Write one baseline extraction and return its path and whether it was made now (False: an earlier run's,
-    made with the same selection rule, is reused); ``loaded`` keeps the scene's distillation, dataset and masks for
-    the next target of the same scene."""
-    from .baselines import feature_similarity, gaussian_grouping
-    from ..io.dataset import load_dataset
-    from ..pipeline.distill import load_distillation
-    from ..io.files import read_json, write_json
-    from ..io.ply import write_ply
-    from ..pipeline.segment import FilesSegmenter, SegmentPrompt
-    from ..pipeline.train import split_views
-
-    path = out / f"object_{object_id}" / "object.ply"
-    record = path.parent / "selection.json"
-    if path.is_file() and record.is_file():
-        if method not in GG_RULE or read_json(record, "baseline selection").get("rule") == GG_RULE[method]:
-            return path, False
-    if "cloud" not in loaded:
-        loaded["distillation"], loaded["cloud"], loaded["classifier"] = load_distillation(model.parent / "distill")
-    settings, cloud = loaded["distillation"].record, loaded["cloud"]
-    if method in GG_RULE:
-        sel = gaussian_grouping(cloud, loaded["classifier"], object_id, rule=GG_RULE[method])
-    else:
-        if "dataset" not in loaded:
-            loaded["dataset"] = load_dataset(data, float(settings.get("downscale", 1) or 1))
-            loaded["masks"] = FilesSegmenter().segment(loaded["dataset"], SegmentPrompt()).masks
-            loaded["views"] = split_views(loaded["dataset"], int(settings.get("holdout_every", 8)))[0]
-        sel = feature_similarity(cloud, loaded["dataset"], loaded["masks"], object_id, views=loaded["views"],
-                                 renderer=renderer)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_ply(sel.cloud, path)
-    write_json({**sel.details, "model": str(model)}, record)  # last: it marks the extraction as complete
-    return path, True
-
-
-def _fingerprint(ply: Path, data: Path, renderer: Renderer) -> str:
-    """Return what a score depends on, as a digest: the object PLY's bytes, the scene record and the renderer; a
-    cached score is reused only for an equal one."""
-    import hashlib
-
-    digest = hashlib.sha256()
-    for part in (ply, data / "scene.json"):
-        with open(part, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                digest.update(block)
-    digest.update(type(renderer).__qualname__.encode())
-    return digest.hexdigest()[:32]
 
 
 def _method_order(presets: Sequence[str], methods: Sequence[str]) -> tuple[list[str], list[str]]:
@@ -298,142 +262,6 @@ def _method_order(presets: Sequence[str], methods: Sequence[str]) -> tuple[list[
     methods = ["full"] + [m for m in METHODS if m in methods and m != "full"]
     run_order = sorted(methods, key=lambda m: (m not in ("full", "no_two_stage"), methods.index(m)))
     return methods, run_order
-
-
-def _stale_score(cache: dict[str, Any], key: str, scored: str, target: dict[str, Any]) -> str | None:
-    """Return why the cached score under ``key`` is not this extraction's (None: it is, or there is none)."""
-    if key in cache and cache[key].get("scored") != scored:
-        return "the object or scene differs from the one scored before"  # other settings since
-    if key in cache and "never_seen_share" in target and "ns_iou" not in cache[key]:
-        return "scored before the never-seen region was"
-    return None
-
-
-def _score_target(method: str, key: str, target: dict[str, Any], data: Path, mout: Path, model: Optional[Path],
-                  config: ExtractConfig, cache: dict[str, Any], loaded: dict[str, dict[str, Any]],
-                  recomputed: dict[str, str], progress: ProgressFactory,
-                  renderer: Renderer) -> tuple[dict[str, Any], Optional[np.ndarray]]:
-    """Return one target's scores by one method and the render of its first test view (None where it failed):
-    extracted (or selected, for a baseline) into ``mout`` and scored, or the score ``cache`` holds for the same
-    object, scene and renderer. A failed extraction scores as an empty one, with its message."""
-    from ..io.ply import read_ply
-    from .metrics import evaluate_object
-
-    t = time.perf_counter()
-    try:
-        if method in BASELINES:
-            path, fresh = _baseline_one(method, data, mout, target["id"], model,
-                                        loaded.setdefault(MODEL_OF[method], {}), renderer)
-            if fresh:  # an earlier score belongs to an earlier extraction
-                cache.pop(key, None)
-        else:
-            path = _extract_one(method, data, mout, target["id"], config, model, progress, renderer)
-        cloud = read_ply(path)
-        scored = _fingerprint(path, data, renderer)
-        stale = _stale_score(cache, key, scored, target)
-        if stale is not None:
-            recomputed[key] = stale
-            cache.pop(key)
-        if key in cache:  # scored by an earlier run: render the picture's view only
-            return cache[key], evaluate_object(cloud, data, target["id"], max_views=1, renderer=renderer)[1][0]
-        ev, renders = evaluate_object(cloud, data, target["id"], progress=progress, renderer=renderer)
-        return {**ev.to_dict(per_view=False), "gaussians": len(cloud), "ply": str(path),
-                "seconds": time.perf_counter() - t, "scored": scored}, renders[0]
-    except RoodiError as exc:
-        return cache.get(key) or {**_empty_scores(data, target["id"]), "failed": str(exc), "gaussians": 0,
-                                  "seconds": time.perf_counter() - t}, None
-
-
-def run_benchmark(root: str | Path, out_dir: str | Path, *, presets: Sequence[str] = PRESETS, seed: int = 0,
-                  size: BenchmarkSize = MACHINE_SIZE, methods: Sequence[str] = tuple(METHODS),
-                  config: ExtractConfig | None = None, overwrite: bool = False,
-                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
-                  occluded: bool = False, make_scene: SceneMaker | None = None) -> dict[str, Any]:
-    """Run every method on every preset scene; write ``results.json``, ``results.md`` and a picture grid per scene
-    into ``out_dir``; return the results.
-
-    Args:
-        root: where the scenes are found (a ``ROOT/<preset>/scene.json`` is reused as it is) or generated.
-        out_dir: models, extracted objects, scores and the tables; an existing one is reused stage by stage.
-        presets: scenes to run.
-        seed: the scenes' and trainings' seed.
-        size: scene and training size (:data:`MACHINE_SIZE` by default, :data:`PAPER_SIZE` for paper-sized runs).
-        methods: which of :data:`METHODS` to run (``full`` is always run: the others start from its model;
-            ``gaussian_grouping`` also runs ``no_two_stage``, whose jointly trained model it selects from).
-        config: the full method's settings (default :func:`extract_config` at ``size``); the methods change it.
-        overwrite: start afresh in ``out_dir``.
-        progress: progress factory.
-        renderer: every rendering of every method, training included (default: the built-in CPU renderer).
-        occluded: run on the presets' occluded variants (``ROOT/<preset>_occluded``) and score the never-seen
-            region too.
-        make_scene: generates a scene missing from ``root`` (:data:`SceneMaker`; the generator's is
-            :func:`roodi_toolkit.synth.scene.make_benchmark_scene`); None: every scene must be in ``root``.
-
-    Raises:
-        ConfigError: a scene is missing from ``root`` and no ``make_scene`` was given (before anything is written).
-    """
-    from ..io import files
-    from ..io.generated import read_scene_record
-
-    methods, run_order = _method_order(presets, methods)
-    missing = [] if make_scene is not None else _missing_scenes(Path(root), presets, occluded)
-    if missing:
-        raise ConfigError(f"{missing[0]}: no scene.json; generate the benchmark's scenes into {root} first "
-                          "(roodi-toolkit make-scene) or pass make_scene (synth.scene.make_benchmark_scene)")
-    root, out = Path(root), files.prepare_output_dir(out_dir, overwrite=overwrite, allow_existing=True)
-    root.mkdir(parents=True, exist_ok=True)
-    # scores are kept per scene, so that runs of different presets (--preset) can go side by side; an older
-    # OUT_DIR/scores.json (one file for all scenes) is still read
-    legacy = out / "scores.json"
-    cache: dict[str, Any] = files.read_json(legacy, "scores") if legacy.is_file() and not overwrite else {}
-    config = config or extract_config(size, seed)
-    renderer = resolve_renderer(renderer)
-    results: dict[str, Any] = {"root": str(root), "seed": seed, "size": asdict(size), "methods": methods,
-                               "iterations": config.train.iterations, "labels": {m: METHODS[m] for m in methods},
-                               "scenes": {}, "inpainter": config.inpainter}
-    if occluded:
-        results["occluded"] = True
-    names = [scene_name(p, occluded) for p in presets]
-    recomputed: dict[str, str] = {}
-    results["recomputed"] = recomputed
-    t_all = time.perf_counter()
-    for preset, name in zip(presets, names):
-        data = _scene(root, preset, seed, size, progress, occluded, make_scene)
-        scene_out = out / name
-        scene_out.mkdir(parents=True, exist_ok=True)
-        scores_path = scene_out / "scores.json"
-        if scores_path.is_file() and not overwrite:
-            cache.update(files.read_json(scores_path, "scores"))
-        per_method: dict[str, Any] = {}
-        loaded: dict[str, dict[str, Any]] = {}  # per model: its distillation, read once for the scene's baselines
-        pictures: dict[str, dict[int, np.ndarray]] = {}
-        for method in run_order:
-            model = scene_out / MODEL_OF[method] / "scene" if method in MODEL_OF else None
-            rows = []
-            pictures[method] = {}
-            for target in _targets(data):
-                key = f"{name}/{method}/{target['id']}"
-                row, picture = _score_target(method, key, target, data, scene_out / method, model, config, cache,
-                                             loaded, recomputed, progress, renderer)
-                if picture is not None:
-                    pictures[method][target["id"]] = picture
-                if "never_seen_share" in target:
-                    row["never_seen_share"] = target["never_seen_share"]
-                cache[key] = row
-                rows.append(row)
-                files.write_json({k: v for k, v in cache.items() if k.startswith(f"{name}/")}, scores_path)
-            # seconds of the first run that computed each object (training included where the method trains)
-            per_method[method] = {"objects": rows, "mean": _average(rows),
-                                  "seconds": float(sum(r.get("seconds", 0.0) for r in rows))}
-        results["scenes"][name] = {m: per_method[m] for m in methods}
-        results.setdefault("scene_settings", {})[name] = read_scene_record(data)["settings"]
-        results["scenes"][name]["_picture"] = str(_scene_grid(data, name, methods, pictures, out))
-    results["mean"] = {m: _average([results["scenes"][p][m]["mean"] for p in names]) for m in methods}
-    results["checks"] = checks(results["mean"])
-    results["seconds"] = time.perf_counter() - t_all
-    files.write_json(results, out / "results.json")
-    (out / "results.md").write_text(results_markdown(results))
-    return results
 
 
 def _average(rows: Sequence[dict[str, Any]]) -> dict[str, Optional[float]]:
@@ -560,40 +388,3 @@ def results_markdown(results: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _scene_grid(data: Path, preset: str, methods: Sequence[str], pictures: dict[str, dict[int, np.ndarray]],
-                out: Path) -> Path:
-    """Write the scene's picture grid (paper Fig. 5): per target a training view, then the truth and every method's
-    render of the first test view, full frame (floaters anywhere show) and zoomed in on the true object."""
-    from ..io.dataset import load_dataset
-    from ..io.files import new_figure, save_figure
-    from .metrics import ALPHA_THRESHOLD, find_target, zoom_box
-
-    scene = load_dataset(data)
-    targets = _targets(data)
-    cols = ["training view", "ground truth", *methods]
-    rows = 2 * len(targets)
-    fig, axes = new_figure(rows, len(cols), figsize=(1.6 * len(cols), 1.7 * rows), squeeze=False)
-    for r, target in enumerate(targets):
-        areas = [int((m == target["id"]).sum()) for m in scene.masks] if scene.masks is not None else [0]
-        folder, _ = find_target(data, target["id"])
-        truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
-        images = [scene.images[int(np.argmax(areas))].numpy(), truth.images[0].numpy()]
-        images += [pictures.get(m, {}).get(target["id"], np.ones_like(images[1])) for m in methods]
-        y0, y1, x0, x1 = zoom_box(truth.alphas[0].numpy() > ALPHA_THRESHOLD, 2.0)
-        for c, (img, title) in enumerate(zip(images, cols)):
-            for k, view in enumerate((img, img[y0:y1, x0:x1] if c else None)):
-                ax = axes[2 * r + k, c]
-                ax.set_xticks([])
-                ax.set_yticks([])
-                if view is None:
-                    ax.axis("off")
-                    continue
-                ax.imshow(np.clip(view, 0, 1), interpolation="nearest")
-                if r == 0 and k == 0:
-                    ax.set_title(SHORT.get(title, title), fontsize=7)
-                if c == 1:
-                    ax.set_ylabel("zoom" if k else "full view", fontsize=6)
-            if c == 0:
-                axes[2 * r, 0].set_ylabel(target["name"], fontsize=7)
-    fig.tight_layout()
-    return save_figure(fig, out / f"{preset}.png", dpi=130)

@@ -8,8 +8,9 @@ iterations, one training view each (paper).
 
 In memory a distilled scene is the scene's :class:`~roodi_toolkit.gaussians.GaussianCloud` with extra columns
 ``object_feature_0..15`` plus its :class:`ObjectClassifier`; on disk it is a distillation folder of its own
-(:mod:`roodi_toolkit.io.model`) that names the model file it belongs to, so the model folder is never written and any
-number of objects can be selected (:mod:`roodi_toolkit.pipeline.select`) from one distillation.
+(:mod:`roodi_toolkit.io.model`, written and read by :mod:`roodi_toolkit.run.distill`) that names the model file it
+belongs to, so the model folder is never written and any number of objects can be selected
+(:mod:`roodi_toolkit.pipeline.select`) from one distillation. Nothing here opens a file.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ import math
 import re
 import time
 from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -28,8 +28,7 @@ from torch import Tensor
 
 from ..cameras import Camera
 from ..errors import CloudError, ConfigError, InputError
-from ..io.dataset import Dataset
-from ..io.model import Distillation
+from ..io.dataset import Dataset, split_views
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer
@@ -39,7 +38,8 @@ from ..imaging import class_map_ious
 from . import budget
 from .weight_cache import WeightCache
 from .resolution import working_dataset
-from .segment import SegmentPrompt, ViewMasks, resolve_prompt
+from ..render.pictures import colorize_ids, heat, probability_grid
+from .segment import SegmentPrompt, ViewMasks, get_segmenter
 
 FEATURE_PREFIX = "object_feature_"
 CLASSIFIER_FORMAT = "roodi-object-classifier"
@@ -161,6 +161,8 @@ class DistillResult:
         cached: whether any view's compositing weights were cached (else every step rendered).
         cached_views: how many of ``train_views`` had theirs cached within ``cache_mb``.
         cache_mb: the memory the cached maps held.
+        geometry: the frozen Gaussians the features were rendered with (what scoring and the picture render with
+            too, made once; None: the caller makes it).
     """
 
     features: Tensor
@@ -171,6 +173,7 @@ class DistillResult:
     cached: bool = False
     cached_views: int = 0
     cache_mb: float = 0.0
+    geometry: GaussianParams | None = field(default=None, repr=False)
 
 
 def render_features(params: GaussianParams, features: Tensor, camera: Camera, *,
@@ -267,7 +270,7 @@ def distill_object_features(cloud: GaussianCloud, dataset: Dataset, masks: ViewM
     seconds = time.perf_counter() - t0
     classifier = ObjectClassifier(weight.detach().clone(), bias.detach().clone())
     return DistillResult(features.detach().clone(), classifier, history, seconds, views, len(cache) > 0, len(cache),
-                         cache.bytes / 2**20)
+                         cache.bytes / 2**20, frozen)
 
 
 # ---------------------------------------------------------------------------------------------------- the cloud
@@ -328,14 +331,16 @@ def initial_classifier(num_classes: int, feature_dim: int, generator: torch.Gene
 
 def evaluate_class_maps(cloud: GaussianCloud, classifier: ObjectClassifier, dataset: Dataset, masks: ViewMasks,
                         views: Sequence[int], *, object_ids: Sequence[int] | None = None,
-                        progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> dict[str, Any]:
+                        progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
+                        geometry: GaussianParams | None = None) -> dict[str, Any]:
     """Return IoUs of the rendered class map (argmax) against ``masks`` on ``views``.
 
     ``mean_iou`` is the mean over (view, object) pairs of the objects present in the view's mask (background
-    excluded); ``per_object`` averages each object over the views it appears in.
+    excluded); ``per_object`` averages each object over the views it appears in. ``geometry``: the cloud's frozen
+    Gaussians when the caller has them (default: made from ``cloud``).
     """
     feats = cloud_features(cloud)
-    frozen = GaussianParams.from_cloud(cloud, sh_degree=0)
+    frozen = GaussianParams.from_cloud(cloud, sh_degree=0) if geometry is None else geometry
     renderer = resolve_renderer(renderer)
     pairs: list[tuple[int, int, float]] = []
     with progress(total=len(views), desc="evaluate") as bar, torch.no_grad():
@@ -359,20 +364,7 @@ def evaluate_class_maps(cloud: GaussianCloud, classifier: ObjectClassifier, data
 # ---------------------------------------------------------------------------------------------------- commands
 
 
-def scene_labels(data_dir: str | Path) -> dict[int, str]:
-    """Return object names by id from a generated scene's ``scene.json`` (empty for other datasets)."""
-    from ..io.generated import is_generated_scene, read_scene_record
-
-    if not is_generated_scene(data_dir):
-        return {}
-    record = read_scene_record(data_dir)
-    try:
-        return {0: "background", **{int(o["id"]): str(o["name"]) for o in record.get("objects", [])}}
-    except (KeyError, TypeError, ValueError, AttributeError):
-        return {}
-
-
-def _picture_views(eval_views: Sequence[int], train_views: Sequence[int], n: int = 4) -> list[int]:
+def picture_views(eval_views: Sequence[int], train_views: Sequence[int], n: int = 4) -> list[int]:
     views = list(eval_views)[:n]
     rest = [v for v in train_views if v not in views]
     step = max(1, len(rest) // max(1, n - len(views)))
@@ -422,10 +414,7 @@ def distill_scene(cloud: GaussianCloud, dataset: Dataset, *, segmenter: str = "f
         progress: progress factory.
         renderer: draws every view, the click segmenter's included (default: the built-in CPU renderer).
     """
-    from .segment import get_segmenter
-    from .train import split_views
-
-    cloud = _without_features(cloud)
+    cloud = without_features(cloud)
     renderer = resolve_renderer(renderer)
     options = dict(segmenter_options or {})
     if segmenter == "click":
@@ -455,23 +444,21 @@ def finish_distillation(cloud: GaussianCloud, result: DistillResult, dataset: Da
                         progress: ProgressFactory = null_progress,
                         renderer: Renderer | None = None) -> DistilledScene:
     """Return the distilled scene of features learned from ``masks``: class labels set, the held-out views scored
-    and the picture made (shared by the two-stage distillation and single-stage training)."""
-    from ..render.pictures import colorize_ids, heat, probability_grid
-    from .train import split_views
-
+    and the picture made (shared by the two-stage distillation and single-stage training), both rendered with the
+    geometry the features were learned with (made here once when ``result`` has none)."""
     train_views, eval_views = split_views(dataset, holdout_every)
     renderer = resolve_renderer(renderer)
     if masks.kind != "instances" or labels is None:
         labels = {0: "rest", 1: "target"} if masks.kind != "instances" else {}
     result.classifier.labels = {i: n for i, n in labels.items() if i < masks.num_classes}
     distilled = with_features(cloud, result.features)
+    frozen = GaussianParams.from_cloud(cloud, sh_degree=0) if result.geometry is None else result.geometry
     held = evaluate_class_maps(distilled, result.classifier, dataset, masks, eval_views, progress=progress,
-                               renderer=renderer) \
+                               renderer=renderer, geometry=frozen) \
         if eval_views else {"views": [], "mean_iou": float("nan"), "per_object": {}, "pairs": 0}
     rows = []
-    frozen = GaussianParams.from_cloud(distilled, sh_degree=0)
     with torch.no_grad():
-        for v in _picture_views(eval_views, train_views):
+        for v in picture_views(eval_views, train_views):
             prob = result.classifier.probabilities(render_features(frozen, result.features, dataset.cameras[v],
                                                                    renderer=renderer))
             pred = prob.argmax(-1).numpy()
@@ -489,85 +476,10 @@ def finish_distillation(cloud: GaussianCloud, result: DistillResult, dataset: Da
     return DistilledScene(distilled, result.classifier, masks, probability_grid(rows), summary)
 
 
-def _without_features(cloud: GaussianCloud) -> GaussianCloud:
+def without_features(cloud: GaussianCloud) -> GaussianCloud:
     """Return the cloud without object feature columns (the scene as trained)."""
     if not any(k.startswith(FEATURE_PREFIX) for k in cloud.extras):
         return cloud
     out = cloud.copy()
     out.extras = {k: v for k, v in out.extras.items() if not k.startswith(FEATURE_PREFIX)}
     return out
-
-
-def save_distilled(out_dir: str | Path, distilled: DistilledScene, model_ply: str | Path,
-                   record: dict[str, Any] | None = None) -> Path:
-    """Write a distilled scene as a distillation folder of its own (features, classifier, masks, picture, record);
-    return the record's path. ``model_ply`` is the scene file the features belong to (never written)."""
-    from ..io.model import write_distillation
-
-    masks = distilled.masks
-    dtype = np.uint8 if masks.num_classes <= 256 else np.uint16
-    return write_distillation(
-        out_dir, model_ply=Path(model_ply), features=cloud_features(distilled.cloud).numpy(),
-        classifier_state=distilled.classifier.state_dict(), record={**distilled.summary, **(record or {})},
-        masks={name: m.astype(dtype) for name, m in zip(masks.names, masks.masks.numpy())},
-        picture=distilled.picture)
-
-
-def load_distillation(distill_dir: str | Path, scene: GaussianCloud | None = None,
-                      ) -> tuple[Distillation, GaussianCloud, ObjectClassifier]:
-    """Return a distillation folder, its scene with the object features as columns, and its classifier.
-
-    ``scene``: the model file's cloud when the caller has read it already (the file is still checked by its digest).
-
-    Raises:
-        ModelError: not a distillation folder, or its model file changed or is gone.
-    """
-    from ..io.model import read_distillation
-
-    distillation = read_distillation(distill_dir)
-    cloud = distillation.read_scene() if scene is None else scene
-    if len(cloud) != len(distillation.features):
-        raise ConfigError(f"{distillation.root}: {len(distillation.features)} features for the "
-                          f"{len(cloud)} Gaussians of {distillation.model_ply}; run roodi-toolkit distill again")
-    classifier = ObjectClassifier.from_state_dict(distillation.classifier_state, str(distillation.root))
-    return distillation, with_features(_without_features(cloud), distillation.features), classifier
-
-
-def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, *, segmenter: str = "files",
-                clicks: Sequence[Any] = (), mask_dir: str | Path | None = None,
-                segmenter_options: dict[str, Any] | None = None, config: DistillConfig = DistillConfig(),
-                downscale: float | None = None, overwrite: bool = False,
-                progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
-                dataparser_transforms: str | Path | None = None) -> dict[str, Any]:
-    """Segment and distil a trained model folder into a distillation folder ``out_dir``; return its record
-    (``renderer``: draws every view, the click segmenter's included; default the built-in CPU renderer).
-
-    Reads ``MODEL_DIR`` as :func:`~roodi_toolkit.io.model.open_model` does (``point_cloud/iteration_N``, ``cfg.json``
-    with the downscale and held-out views, also scored here; or another tool's model, checked against the photos
-    by :func:`~roodi_toolkit.pipeline.model_frame.settle_model_frame`). Writes into ``out_dir`` only (see
-    :mod:`roodi_toolkit.io.model`): ``features.npy``, ``object_classifier.pt``, ``object_masks/<view>.png``,
-    ``distill.png`` (per view: image, masks, rendered classes, rendered probability of the predicted class) and
-    ``distill.json``. The model folder and the data folder are inputs and are never written.
-    """
-    from ..io import files
-    from ..io.dataset import load_dataset
-    from ..io.model import DISTILL_RECORD, open_model
-    from .model_frame import settle_model_frame
-
-    model = open_model(model_dir, data_dir, dataparser_transforms=dataparser_transforms)
-    inputs = [model.root, model_dir, data_dir, dataparser_transforms]
-    files.check_output_dir(out_dir, overwrite=overwrite, inputs=inputs)
-    ds_scale = float(downscale if downscale is not None else model.config.get("downscale", 1) or 1)
-    dataset = load_dataset(data_dir, ds_scale, progress=progress)
-    settle_model_frame(model, dataset, renderer)  # another tool's scene: does it fit the photos?
-    # clicks come in the photos' own pixels, whatever the downscale (as extract takes them)
-    _, prompt = resolve_prompt(SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)), dataset)
-    out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=inputs)
-    distilled = distill_scene(model.read_cloud(), dataset, segmenter=segmenter, prompt=prompt,
-                              segmenter_options=segmenter_options, config=config,
-                              holdout_every=int(model.config.get("holdout_every", 8)), labels=scene_labels(data_dir),
-                              progress=progress, renderer=renderer)
-    save_distilled(out, distilled, model.ply_path, {"data_dir": str(Path(data_dir).resolve()), "downscale": ds_scale,
-                                                    "model_dir": str(model.root.resolve()), **model.record()})
-    return {**distilled.summary, "model": str(model.ply_path), "data_dir": str(data_dir), "downscale": ds_scale,
-            "out_dir": str(out), "record": str(out / DISTILL_RECORD), "picture": str(out / "distill.png")}

@@ -6,7 +6,9 @@ in addition, ``l1_inpaint_weight * L1 + perceptual_weight * perceptual`` against
 the paper found it harmful because inpaintings are not always right.
 
 :func:`refine_object` is the whole step: occlusion reasoning, inpainting of the four views as one 2x2 grid, fine-tuning,
-and the debug images (renders, masks, grids before and after inpainting, the object before and after).
+returning what the debug images are made of (renders, masks, grids before and after inpainting, the object before
+and after; :func:`roodi_toolkit.run.refine.write_refine_debug` writes them and ``refine.json``). Nothing here opens a
+file.
 
 The perceptual loss is :mod:`roodi_toolkit.pipeline.perceptual`'s (LPIPS with local weights, else a Laplacian-pyramid
 L1; its classes are re-exported here); :attr:`FinetuneResult.perceptual` says which one ran.
@@ -15,10 +17,8 @@ L1; its classes are re-exported here); :attr:`FinetuneResult.perceptual` says wh
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
@@ -31,8 +31,9 @@ from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.renderer import Renderer, resolve_renderer
 from .perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss  # noqa: F401 (re-exported)
-from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, hidden_part_picture, object_extent,
-                        occlusion_masks, seen_through, write_occlusion_images)
+from .inpaint import inpaint_views
+from .occlusion import (OcclusionConfig, OcclusionResult, object_extent, occlusion_masks, seen_through,
+                        up_from_cameras)
 from ..progress import ProgressFactory, null_progress
 
 
@@ -355,10 +356,14 @@ class RefineResult:
         inpainted: the inpainted views. [V, H, W, 3]
         finetune: the fine-tuning run.
         inpainter: the inpainter's name.
-        debug_dir: where the debug images are (None if not written).
         filled: the masked pixels the inpainter changed (what the fill added). [V, H, W] bool
         proposed: Gaussians a 3D-aware inpainter proposed and the refinement added before fine-tuning.
         after_views: the refined object rendered in the occlusion views. [V, H, W, 3]
+        record: the refinement's settings, what it added and the shares of each view it filled (``refine.json``).
+        grids: the inpainting's 2x2 grids by name (``before``, ``mask``, ``after``). [2H, 2W, 3]
+        object_cloud: the object as it came in (after selection and pruning).
+        completion: the Gaussians a 3D completion added before the views were framed, or None.
+        background: RGB behind the object's renders.
     """
 
     cloud: GaussianCloud
@@ -366,10 +371,14 @@ class RefineResult:
     inpainted: Tensor
     finetune: FinetuneResult
     inpainter: str
-    debug_dir: Optional[Path]
     filled: Optional[Tensor] = None
     proposed: int = 0
     after_views: Optional[Tensor] = field(default=None, repr=False)
+    record: dict[str, Any] = field(default_factory=dict, repr=False)
+    grids: dict[str, Tensor] = field(default_factory=dict, repr=False)
+    object_cloud: Optional[GaussianCloud] = field(default=None, repr=False)
+    completion: Optional[GaussianCloud] = field(default=None, repr=False)
+    background: Sequence[float] = (1.0, 1.0, 1.0)
 
 
 def _resolve_inpainter(inpainter: Any, inpainter_options: Optional[dict], occlusion: OcclusionConfig) -> Any:
@@ -420,7 +429,7 @@ def _grown_object(object_cloud: GaussianCloud, proposed: Optional[GaussianCloud]
     added = 0
     if finetune.adopt_proposed and proposed is not None and len(proposed):
         added = len(proposed)
-        object_cloud = GaussianCloud.concatenate([object_cloud, _same_columns(proposed, object_cloud)])
+        object_cloud = GaussianCloud.concatenate([object_cloud, same_columns(proposed, object_cloud)])
     seeded = 0
     if finetune.seed_holes:
         seeds = seed_hole_gaussians(object_cloud, occ, inpainted, stride=finetune.seed_stride,
@@ -431,30 +440,6 @@ def _grown_object(object_cloud: GaussianCloud, proposed: Optional[GaussianCloud]
         if seeded:
             object_cloud = GaussianCloud.concatenate([object_cloud, seeds])
     return object_cloud, added, seeded
-
-
-def _write_debug_images(out_dir: Path, occ: OcclusionResult, grids: dict[str, Tensor], inpainted: Tensor,
-                        after: Tensor, filled: Tensor, object_cloud: GaussianCloud,
-                        completion: Optional[GaussianCloud], renderer: Renderer, background: Sequence[float]) -> None:
-    """Write the refinement's pictures into ``out_dir``: occlusion masks, inpainting grids, each view inpainted and
-    before/after fine-tuning, what the fill added and, with a 3D completion, the part no training view saw."""
-    from ..io.files import write_image
-
-    write_occlusion_images(occ, out_dir)
-    for name, img in grids.items():
-        write_image(img.numpy(), out_dir / f"grid_{name}.png")
-    for k in range(len(occ.cameras)):
-        write_image(inpainted[k].numpy(), out_dir / f"view_{k}_inpainted.png")
-        write_image(torch.cat([occ.object_rgb[k], after[k]], dim=1).numpy(),
-                    out_dir / f"view_{k}_object_before_after.png")
-    write_image(torch.cat([to_row(occ.object_rgb), to_row(after)], dim=0).numpy(),
-                out_dir / "object_before_after.png")
-    write_image(fill_picture(occ.object_rgb, inpainted, filled, occ.occluded), out_dir / "fill_views.png")
-    write_image(fill_picture(occ.object_rgb, after, filled, occ.occluded), out_dir / "fill_before_after.png")
-    if completion is not None:
-        whole = GaussianCloud.concatenate([object_cloud, _same_columns(completion, object_cloud)])
-        write_image(hidden_part_picture(whole, completion, occ, after, renderer, background),
-                    out_dir / "hidden_part.png")
 
 
 def _refine_record(inpainter: Any, result: FinetuneResult, occlusion: OcclusionConfig, finetune: FinetuneConfig,
@@ -478,7 +463,6 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                   object_masks: Tensor, *, inpainter: Any = "opencv", inpainter_options: Optional[dict] = None,
                   occlusion: OcclusionConfig = OcclusionConfig(), finetune: FinetuneConfig = FinetuneConfig(),
                   up: Optional[Sequence[float]] = None, prompt: Optional[str] = None,
-                  debug_dir: Optional[str | os.PathLike] = None,
                   progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> RefineResult:
     """Return the object model after occlusion reasoning, inpainting (one 2x2 grid) and fine-tuning.
 
@@ -495,14 +479,9 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         finetune: fine-tuning settings.
         up: the scene's up axis (default: estimated from ``cameras``).
         prompt: inpainting prompt (the paper uses none).
-        debug_dir: write the debug images here (renders, masks, grids, before/after).
         progress: progress factory.
         renderer: draws every view of occlusion reasoning and fine-tuning (default: the built-in CPU renderer).
     """
-    from ..io.files import write_json
-    from .inpaint import inpaint_views
-    from .occlusion import up_from_cameras
-
     inpainter = _resolve_inpainter(inpainter, inpainter_options, occlusion)
     cameras = list(cameras)
     up = up_from_cameras(cameras) if up is None else np.asarray(up, dtype=np.float64)
@@ -538,21 +517,17 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
     after_params = GaussianParams.from_cloud(result.cloud)
     with torch.no_grad():
         after = torch.stack([renderer.render(after_params, c, background=bg).rgb.clamp(0, 1) for c in occ.cameras])
-    out_dir = None
-    if debug_dir is not None:
-        out_dir = Path(debug_dir)
-        _write_debug_images(out_dir, occ, grids, inpainted, after, filled, object_cloud, completion, renderer, bg)
-        write_json(_refine_record(inpainter, result, occlusion, finetune, occ, seeded, proposed, filled,
-                                  context.support, completion), out_dir / "refine.json")
-    return RefineResult(result.cloud, occ, inpainted, result,
-                        getattr(inpainter, "name", "") or type(inpainter).__name__, out_dir, filled, proposed, after)
+    record = _refine_record(inpainter, result, occlusion, finetune, occ, seeded, proposed, filled, context.support,
+                            completion)
+    return RefineResult(result.cloud, occ, inpainted, result, getattr(inpainter, "name", "") or type(inpainter).__name__,
+                        filled, proposed, after, record, grids, object_cloud, completion, bg)
 
 
 #: a masked pixel counts as filled when the inpainter changed it by more than this (max over channels)
 FILL_CHANGE = 0.02
 
 
-def _same_columns(cloud: GaussianCloud, like: GaussianCloud) -> GaussianCloud:
+def same_columns(cloud: GaussianCloud, like: GaussianCloud) -> GaussianCloud:
     """Return ``cloud`` with ``like``'s SH degree, extras (zeros where missing) and normals, ready to concatenate."""
     k = like.sh_rest.shape[1]
     rest = np.zeros((len(cloud), k, 3), np.float32)

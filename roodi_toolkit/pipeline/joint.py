@@ -6,15 +6,14 @@ every training step renders the features beside the colour, and the classifier's
 mask, divided by log(C), is added to the photometric loss with weight 1 (Gaussian Grouping's ``loss_obj``), so the
 object loss also moves the geometry. Relocation and growth of the MCMC strategy copy the features with the other
 per-Gaussian parameters. The result is a trained model folder plus a distilled scene in memory, saved like any
-distillation, so selection and everything after it run unchanged.
+distillation, so selection and everything after it run unchanged (the model folder and the training run:
+:func:`roodi_toolkit.run.train.train_joint`).
 """
 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import asdict
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -22,12 +21,13 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..io.dataset import Dataset
-from .distill import DistillConfig, DistilledScene, DistillResult, ObjectClassifier, initial_classifier
+from .distill import (DistillConfig, DistilledScene, DistillResult, ObjectClassifier, finish_distillation,
+                      initial_classifier)
 from ..errors import ConfigError
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, RenderOutput
 from .segment import ViewMasks
-from .train import TrainConfig, Trainer, TrainResult
+from .train import TrainConfig, Trainer
 
 
 class JointTrainer(Trainer):
@@ -92,38 +92,16 @@ class JointTrainer(Trainer):
         super().load_state_dict(state)
 
 
-def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(),
-                distill: DistillConfig = DistillConfig(), *, downscale: float = 1, resume: bool = False,
-                overwrite: bool = False, dataset: Dataset | None = None, progress: ProgressFactory = null_progress,
-                renderer: Renderer | None = None) -> tuple[TrainResult, DistilledScene]:
-    """Train a scene and its object features together from the dataset's own instance masks; return the training
-    result (the model folder written as :func:`~roodi_toolkit.pipeline.train.train_scene` does) and the distilled
-    scene (for :func:`~roodi_toolkit.pipeline.distill.save_distilled`).
-
-    Raises:
-        RoodiError: no masks in the dataset, or what training raises.
-    """
-    from .distill import finish_distillation, scene_labels
-    from .segment import FilesSegmenter, SegmentPrompt
-    from .train import train_scene
-
-    trainers: list[JointTrainer] = []
-
-    def make(ds: Dataset, cfg: TrainConfig) -> JointTrainer:
-        trainers.append(JointTrainer(ds, cfg, FilesSegmenter().segment(ds, SegmentPrompt()), distill,
-                                     renderer=renderer))
-        return trainers[-1]
-
-    t0 = time.perf_counter()
-    result = train_scene(data_dir, out_dir, config, downscale=downscale, resume=resume, overwrite=overwrite,
-                         progress=progress, make_trainer=make, dataset=dataset)
-    trainer = trainers[-1]
+def finish_joint(trainer: JointTrainer, distill: DistillConfig, seconds: float, *, holdout_every: int = 8,
+                 labels: dict[int, str] | None = None, progress: ProgressFactory = null_progress,
+                 renderer: Renderer | None = None) -> DistilledScene:
+    """Return the distilled scene a finished single-stage training learned (its features, classifier and masks),
+    scored and pictured as a two-stage distillation is; ``seconds``: the training's time."""
     cloud = trainer.to_cloud()
     cloud.extras = {}
     features = trainer.params.features.detach().clone()
-    learned = DistillResult(features, trainer.classifier(), [], time.perf_counter() - t0, list(trainer.train_indices))
-    distilled = finish_distillation(cloud, learned, trainer.dataset, trainer.masks,
-                                    holdout_every=config.holdout_every, labels=scene_labels(data_dir),
-                                    progress=progress, renderer=renderer)
+    learned = DistillResult(features, trainer.classifier(), [], seconds, list(trainer.train_indices))
+    distilled = finish_distillation(cloud, learned, trainer.dataset, trainer.masks, holdout_every=holdout_every,
+                                    labels=labels, progress=progress, renderer=renderer)
     distilled.summary.update({"segmenter": "files", "config": asdict(distill), "single_stage": True})
-    return result, distilled
+    return distilled

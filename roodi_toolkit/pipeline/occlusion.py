@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
@@ -269,34 +268,6 @@ def mask_scores(predicted: Tensor | np.ndarray, truth: Tensor | np.ndarray) -> d
     nan = float("nan")
     return {"precision": tp / n_p if n_p else nan, "recall": tp / n_t if n_t else nan,
             "iou": tp / union if union else nan, "predicted": n_p, "true": n_t}
-
-
-def write_occlusion_images(result: OcclusionResult, folder: str | Path) -> list[Path]:
-    """Write the four renders, depths and masks of ``result`` as PNGs into ``folder``; return the paths.
-
-    Per view ``k``: ``view_k_object.png``, ``view_k_scene.png``, ``view_k_occluded.png`` (after the opening),
-    ``view_k_occluded_raw.png``, ``view_k_mask.png`` (white = to inpaint) and ``view_k_depths.png`` (object | scene,
-    near = bright, on one scale).
-    """
-    from ..io.files import write_image
-
-    out = Path(folder)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for k in range(len(result.cameras)):
-        od, sd = result.object_depth[k], result.scene_depth[k]
-        valid = torch.cat([od[od > 0], sd[sd > 0]])
-        lo, hi = (float(valid.min()), float(valid.max())) if len(valid) else (0.0, 1.0)
-
-        def shade(d: Tensor) -> np.ndarray:
-            return torch.where(d > 0, 1 - (d - lo) / max(hi - lo, 1e-9) * 0.8, torch.zeros_like(d)).numpy()
-
-        items = {"object": result.object_rgb[k].numpy(), "scene": result.scene_rgb[k].numpy(),
-                 "occluded": result.occluded[k].numpy(), "occluded_raw": result.occluded_raw[k].numpy(),
-                 "mask": result.mask[k].numpy(), "depths": np.concatenate([shade(od), shade(sd)], axis=1)}
-        for name, img in items.items():
-            paths.append(write_image(img, out / f"view_{k}_{name}.png"))
-    return paths
 
 
 def outline(mask: np.ndarray | Tensor, width: int = 1) -> np.ndarray:

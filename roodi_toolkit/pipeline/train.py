@@ -15,11 +15,11 @@ import copy
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch import Tensor
 
 from ..cameras import Camera
@@ -122,8 +122,6 @@ def scene_scale(cameras: list[Camera]) -> float:
 def initial_params(points: np.ndarray, colors: np.ndarray | None, config: TrainConfig,
                    generator: torch.Generator) -> GaussianParams:
     """Return the initial trainable Gaussians at ``points`` [P, 3] (3DGS-MCMC: scales from the 3 nearest neighbours)."""
-    from scipy.spatial import cKDTree
-
     pts = torch.as_tensor(np.asarray(points), dtype=torch.float32)
     n = len(pts)
     if n < 4:
@@ -324,102 +322,44 @@ class Trainer:
             raise InputError(f"checkpoint does not match this training run ({type(exc).__name__}: {exc})") from None
 
 
-# ---------------------------------------------------------------------------------------------------- full runs
+# ---------------------------------------------------------------------------------------------------- the loop
 @dataclass
-class TrainResult:
-    """What :func:`train_scene` produced."""
+class Trained:
+    """What :func:`train` hands back: the trained scene and its figures (nothing of it is on disk).
 
-    ply_path: Path
-    iterations: int
-    num_gaussians: int
+    Attributes:
+        cloud: the trained parameters as a cloud.
+        metrics: mean PSNR and SSIM of the held-out views at the end (empty without held-out views).
+        history: loss, PSNR and count every 10 steps, held-out figures every ``eval_every`` steps and at the end.
+        seconds: wall time of the steps run by this call.
+        steps_run: steps run by this call (fewer than the iterations when it continued a restored state).
+    """
+
+    cloud: GaussianCloud
     metrics: dict[str, float]
-    seconds: float
-    seconds_per_iteration: float
     history: list[dict[str, float]]
-    cloud: GaussianCloud | None = None
+    seconds: float
+    steps_run: int
+
+    @property
+    def seconds_per_iteration(self) -> float:
+        return self.seconds / self.steps_run if self.steps_run else 0.0
 
 
-def _check_resume_matches(out: Path, data_dir: str | Path, downscale: float) -> None:
-    """Refuse to resume a run on another dataset or downscale than the one its checkpoint was trained on (its
-    ``cfg.json`` records them): the views would silently change mid-training."""
-    from ..io import files
-
-    cfg_file = out / "cfg.json"
-    if not cfg_file.is_file():
-        return
-    cfg = files.read_json(cfg_file, "training settings")
-    if not isinstance(cfg, dict):
-        raise InputError(f"{cfg_file}: not a roodi-toolkit training settings file")
-    was_dir, was_down = cfg.get("data_dir"), cfg.get("downscale")
-    if was_dir is not None and Path(was_dir).exists() and not files.same_file(was_dir, data_dir):
-        raise ConfigError(f"{out}: the checkpoint was trained on {was_dir}, not {data_dir}; resume with that "
-                          "DATA_DIR or start afresh with --overwrite")
-    if isinstance(was_down, (int, float)) and float(was_down) != float(downscale):
-        raise ConfigError(f"{out}: the checkpoint was trained at --downscale {was_down:g}, not {downscale:g}; resume "
-                          "with that --downscale or start afresh with --overwrite")
-
-
-def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(), *,
-                downscale: float = 1, resume: bool = False, overwrite: bool = False,
-                progress: ProgressFactory = null_progress, iterations_override: int | None = None,
-                on_step: Callable[[Trainer, dict[str, float]], None] | None = None,
-                make_trainer: Callable[[Dataset, TrainConfig], Trainer] | None = None,
-                dataset: Dataset | None = None, renderer: Renderer | None = None) -> TrainResult:
-    """Train a scene model and write it in the layout other 3DGS tools read; return where it is and its figures.
-
-    Writes ``out_dir/point_cloud/iteration_N/point_cloud.ply`` (Inria PLY), ``checkpoints/latest.pt`` (every
-    ``checkpoint_every`` steps, atomically), ``cfg.json``, ``metrics.json``, ``training.png`` (loss and PSNR curves)
-    and ``renders/`` (test renders beside the ground truth).
+def train(trainer: Trainer, *, progress: ProgressFactory = null_progress,
+          on_step: Callable[[Trainer, dict[str, float]], None] | None = None,
+          on_checkpoint: Callable[[Trainer], None] | None = None) -> Trained:
+    """Return the scene trained from the trainer's state (its dataset, parameters, renderer and config) to
+    ``config.iterations`` steps; the trainer holds the final state.
 
     Args:
-        data_dir: a Blender or COLMAP dataset folder.
-        out_dir: the output folder; refused if non-empty unless ``resume`` or ``overwrite``.
-        config: hyperparameters (ignored on resume: the checkpoint's own are used).
-        downscale: image downscale factor.
-        resume: continue from ``out_dir/checkpoints/latest.pt``.
-        overwrite: start afresh in a non-empty ``out_dir``.
+        trainer: a fresh :class:`Trainer`, or one whose :meth:`Trainer.load_state_dict` restored a checkpoint.
         progress: progress factory (the bar shows loss, PSNR and Gaussian count).
-        iterations_override: on resume, train to this many iterations instead of the checkpoint's (the position
-            learning-rate decay keeps the original schedule).
         on_step: called after every step (tests use it to interrupt a run).
-        make_trainer: builds the trainer from the dataset and config (default :class:`Trainer`; the single-stage
-            ablation passes one that also trains object features, with its own renderer).
-        dataset: ``data_dir`` already decoded at ``downscale`` (the caller's copy is used, not read again).
-        renderer: draws the training views (default: the built-in CPU renderer).
+        on_checkpoint: called every ``checkpoint_every`` steps and after the last one, with the trainer whose
+            :meth:`Trainer.state_dict` is the resumable state (the run layer writes it; the loop names no file).
     """
-    from ..io import files
-    from ..io.dataset import load_dataset
-    from ..io.model import checkpoint_file, iteration_ply
-    from ..io.ply import write_ply
-
-    out = Path(out_dir)
-    if resume:
-        ckpt_file = checkpoint_file(out)
-        if not ckpt_file.is_file():
-            raise ConfigError(f"{out}: nothing to resume (no {ckpt_file.relative_to(out)}); run without --resume")
-        state = files.load_checkpoint(ckpt_file)
-        if not isinstance(state, dict) or "config" not in state:
-            raise InputError(f"{ckpt_file}: not a roodi-toolkit training checkpoint")
-        config = TrainConfig.from_dict(state["config"])
-        if iterations_override is not None:
-            config = replace(config, iterations=iterations_override)
-        files.refuse_inside_inputs(out, [data_dir])
-        _check_resume_matches(out, data_dir, downscale)
-    else:
-        files.refuse_inside_inputs(out, [data_dir])
-        state = None
-    if dataset is None:
-        dataset = load_dataset(data_dir, downscale)
-    if not resume:
-        # after the dataset is read, so that a bad dataset leaves nothing behind, not even an empty folder
-        files.prepare_output_dir(out, overwrite=overwrite, inputs=[data_dir])
-    trainer = make_trainer(dataset, config) if make_trainer else Trainer(dataset, config, renderer=renderer)
-    if state is not None:
-        trainer.load_state_dict(state)
-    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
-    files.write_json({"data_dir": str(Path(data_dir).resolve()), "downscale": downscale, "scene_scale": trainer.scale,
-                      "train_views": len(trainer.train_indices), "eval_views": len(trainer.eval_indices),
-                      "dataset_has_alpha": dataset.alphas is not None, **trainer.config.to_dict()}, out / "cfg.json")
+    config = trainer.config
     start_step = trainer.step
     t0 = time.perf_counter()
     with progress(total=config.iterations, desc="train", initial=start_step) as bar:
@@ -432,8 +372,9 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
                 if ev:
                     trainer.history.append({"step": float(trainer.step), "eval_psnr": ev["psnr"],
                                             "eval_ssim": ev["ssim"]})
-            if trainer.step % config.checkpoint_every == 0 or trainer.step == config.iterations:
-                files.save_checkpoint(trainer.state_dict(), checkpoint_file(out))
+            if on_checkpoint is not None and (trainer.step % config.checkpoint_every == 0
+                                              or trainer.step == config.iterations):
+                on_checkpoint(trainer)
             bar.update(1)
             bar.set_postfix_str(f"loss {info['loss']:.4f} psnr {info['psnr']:.2f} n {info['count']}", refresh=False)
             if on_step is not None:
@@ -443,48 +384,7 @@ def train_scene(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     if metrics:
         trainer.history.append({"step": float(trainer.step), "eval_psnr": metrics["psnr"],
                                 "eval_ssim": metrics["ssim"]})
-    ply_path = iteration_ply(out, trainer.step)
-    ply_path.parent.mkdir(parents=True, exist_ok=True)
-    cloud = trainer.to_cloud()
-    write_ply(cloud, ply_path)
-    steps_run = trainer.step - start_step
-    result = TrainResult(ply_path, trainer.step, trainer.num_gaussians, metrics, seconds,
-                         seconds / steps_run if steps_run else 0.0, trainer.history, cloud)
-    files.write_json({"iterations": trainer.step, "num_gaussians": trainer.num_gaussians, "eval": metrics,
-                      "eval_views": [dataset.cameras[i].name for i in trainer.eval_indices],
-                      "seconds_this_run": seconds, "seconds_per_iteration": result.seconds_per_iteration,
-                      "history": trainer.history}, out / "metrics.json")
-    write_training_pictures(trainer, out)
-    return result
-
-
-def write_training_pictures(trainer: Trainer, out: Path, max_renders: int = 4) -> None:
-    """Write the loss/PSNR plot and a few held-out renders beside their ground truth."""
-    from ..io import files
-
-    hist = trainer.history
-    train = [h for h in hist if "loss" in h]
-    evals = [h for h in hist if "eval_psnr" in h]
-    fig, (ax1, ax2) = files.new_figure(1, 2, figsize=(10, 3.5))
-    if train:
-        ax1.plot([h["step"] for h in train], [h["loss"] for h in train], lw=1)
-        ax2.plot([h["step"] for h in train], [h["psnr"] for h in train], lw=1, alpha=0.6, label="train view")
-    if evals:
-        ax2.plot([h["step"] for h in evals], [h["eval_psnr"] for h in evals], "o-", label="held-out views")
-    ax1.set(xlabel="iteration", ylabel="loss", yscale="log", title="training loss")
-    ax2.set(xlabel="iteration", ylabel="PSNR (dB)", title="PSNR")
-    ax2.legend()
-    files.save_figure(fig, out / "training.png")
-    renders = out / "renders"
-    renders.mkdir(exist_ok=True)
-    background = torch.tensor(trainer.dataset.background, dtype=torch.float32)
-    colour_only = trainer.params.with_features(None)
-    with torch.no_grad():
-        for i in (trainer.eval_indices or trainer.train_indices)[:max_renders]:
-            cam = trainer.dataset.cameras[i]
-            img = trainer.renderer.render(colour_only, cam, sh_degree=trainer.sh_degree, background=background).rgb
-            pair = torch.cat([img.clamp(0, 1), trainer.dataset.images[i]], dim=1).numpy()
-            files.write_image(pair, renders / f"{cam.name or i}_render_vs_gt.png")
+    return Trained(trainer.to_cloud(), metrics, trainer.history, seconds, trainer.step - start_step)
 
 
 def config_with(config: TrainConfig, **changes: Any) -> TrainConfig:

@@ -3,7 +3,7 @@ downloads, no input files), and the earlier planted-floater pruning demo.
 
 :func:`run_extract_demo` generates a multi-object scene (:mod:`roodi_toolkit.synth.scene`), trains it, distils its
 instance masks, extracts one partly hidden target with the offline defaults
-(:func:`roodi_toolkit.pipeline.extract.extract_objects`: ``files`` masks, the weight-free ``symmetry`` inpainter) in
+(:func:`roodi_toolkit.run.extract.extract_objects`: ``files`` masks, the weight-free ``symmetry`` inpainter) in
 the preset's occluded variant, where part of the target is never seen in training, and scores it with the paper's
 metrics against the target's object-alone views.
 :func:`run_prune_demo` plants floaters around a generated surface and prunes them (:mod:`roodi_toolkit.synth.floaters`).
@@ -370,7 +370,7 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
     """
     from ..io import files
     from ..io.dataset import load_dataset
-    from ..pipeline.extract import extract_objects
+    from ..run.extract import extract_objects
     from ..evaluate.metrics import evaluate_object
     from ..io.ply import read_ply
     from .scene import build_scene, make_scene

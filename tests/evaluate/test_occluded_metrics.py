@@ -148,7 +148,8 @@ def test_benchmark_averages_checks_and_tables() -> None:
 
 @pytest.mark.slow  # about a minute: trains a scene and extracts four objects
 def test_benchmark_on_an_occluded_scene(tmp_path: Path) -> None:
-    from roodi_toolkit.evaluate.benchmark import BenchmarkSize, run_benchmark
+    from roodi_toolkit.evaluate.benchmark import BenchmarkSize
+    from roodi_toolkit.run.benchmark import run_benchmark
     from roodi_toolkit.synth.scene import make_benchmark_scene
     from tests.evaluate.test_benchmark import TINY
 

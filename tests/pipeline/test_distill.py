@@ -10,9 +10,9 @@ import torch
 
 from roodi_toolkit.io.model import find_model
 from roodi_toolkit.params import GaussianParams
-from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier,
-                                            distill_object_features, evaluate_class_maps, load_distillation,
-                                            render_features, with_features)
+from roodi_toolkit.pipeline.distill import (DistillConfig, ObjectClassifier, distill_object_features,
+                                            evaluate_class_maps, render_features, with_features)
+from roodi_toolkit.run.distill import load_distillation
 from roodi_toolkit.pipeline.weight_cache import compositing_weights
 from roodi_toolkit.pipeline.select import gaussian_probabilities, select_object
 from roodi_toolkit.errors import ConfigError, RoodiError
@@ -223,10 +223,11 @@ def test_generated_scene_end_to_end(tmp_path):
     a smaller size (48x48, 600 training steps), so the thresholds here are looser than the issue's."""
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.evaluate.metrics import alpha_iou
-    from roodi_toolkit.pipeline.distill import run_distill
+    from roodi_toolkit.run.distill import run_distill
     from roodi_toolkit.synth.scene import SceneSettings, make_scene
     from roodi_toolkit.pipeline.strategy import MCMCStrategy
-    from roodi_toolkit.pipeline.train import TrainConfig, train_scene
+    from roodi_toolkit.pipeline.train import TrainConfig
+    from roodi_toolkit.run.train import train_scene
 
     data = tmp_path / "scene"
     record = make_scene(data, "bedroom", seed=0, settings=SceneSettings(width=48, height=48, train_views=24,

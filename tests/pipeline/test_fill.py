@@ -229,6 +229,7 @@ def test_seen_empty_and_fill_picture():
 
 def test_refine_with_symmetry_adopts_the_proposed_gaussians_and_draws_the_fill(tmp_path):
     from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object
+    from roodi_toolkit.run.refine import write_refine_debug
 
     cloud, removed = symmetric_object(1500)
     cut = cloud.select(~removed)
@@ -243,7 +244,8 @@ def test_refine_with_symmetry_adopts_the_proposed_gaussians_and_draws_the_fill(t
     images = torch.stack([o.rgb.clamp(0, 1) for o in outs])
     masks = torch.stack([o.alpha[..., 0] > 0.5 for o in outs])
     res = refine_object(cut, cut, images, cams, masks, inpainter="symmetry", occlusion=OcclusionConfig(size=24),
-                        finetune=FinetuneConfig(iterations=2), debug_dir=tmp_path, up=(0, 0, 1))
+                        finetune=FinetuneConfig(iterations=2), up=(0, 0, 1))
+    write_refine_debug(res, tmp_path)
     record = json.loads((tmp_path / "refine.json").read_text())
     assert record["proposed_gaussians"] == res.proposed and record["mirror"]["agreement"] > 0.5
     assert len(res.cloud) == len(cut) + res.proposed

@@ -14,6 +14,7 @@ from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,
                                     refine_object, seed_hole_gaussians)
 from roodi_toolkit.pipeline.perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss
+from roodi_toolkit.run.refine import write_refine_debug
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, OcclusionResult
 
@@ -102,7 +103,8 @@ def test_finetune_fits_targets_follows_the_schedule_and_leaves_the_input_alone()
 def test_refine_writes_the_debug_images(tmp_path):
     obj, scene, images, cams, masks = tiny_refine_inputs()
     res = refine_object(obj, scene, images, cams, masks, occlusion=OcclusionConfig(size=24),
-                        finetune=FinetuneConfig(iterations=2), debug_dir=tmp_path)
+                        finetune=FinetuneConfig(iterations=2))
+    write_refine_debug(res, tmp_path)
     names = {p.name for p in tmp_path.iterdir()}
     for k in range(4):
         assert {f"view_{k}_object.png", f"view_{k}_scene.png", f"view_{k}_mask.png", f"view_{k}_inpainted.png",
@@ -144,7 +146,8 @@ def test_hole_seeds_go_where_an_occluder_hides_a_filled_hole():
 def test_refine_with_hole_seeding_adds_gaussians_and_records_them(tmp_path):
     obj, scene, images, cams, masks = tiny_refine_inputs()
     res = refine_object(obj, scene, images, cams, masks, occlusion=OcclusionConfig(size=24),
-                        finetune=FinetuneConfig(iterations=2, seed_holes=True, seed_stride=1), debug_dir=tmp_path)
+                        finetune=FinetuneConfig(iterations=2, seed_holes=True, seed_stride=1))
+    write_refine_debug(res, tmp_path)
     record = __import__("json").loads((tmp_path / "refine.json").read_text())
     assert record["seeded_gaussians"] > 0 and len(res.cloud) == len(obj) + record["seeded_gaussians"]
     with pytest.raises(ConfigError, match="seed_stride"):

@@ -128,6 +128,7 @@ def test_seen_through_counts_the_alpha_in_front_where_the_expected_depth_looks_p
 
 def test_refine_frames_the_completed_object_and_draws_its_hidden_part(tmp_path):
     from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object
+    from roodi_toolkit.run.refine import write_refine_debug
 
     seen, whole, scene = sleeve_scene()
     cams = training_views()
@@ -139,7 +140,8 @@ def test_refine_frames_the_completed_object_and_draws_its_hidden_part(tmp_path):
     masks = torch.stack([o.features[..., 0] > 0.5 for o in outs])
     res = refine_object(seen, scene, images, cams, masks, inpainter="symmetry",
                         occlusion=OcclusionConfig(size=32), finetune=FinetuneConfig(iterations=2),
-                        debug_dir=tmp_path, up=(0, 0, 1))
+                        up=(0, 0, 1))
+    write_refine_debug(res, tmp_path)
     record = json.loads((tmp_path / "refine.json").read_text())
     assert abs(record["support"]) < 0.05 and record["completion_gaussians"] > 100 and res.proposed > 100
     # the views frame the object with its completion, not the seen top alone

@@ -191,11 +191,13 @@ def tiny_refine_inputs():
 
 def _run_refine_with(name, tmp_path):
     from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object
+    from roodi_toolkit.run.refine import write_refine_debug
     from roodi_toolkit.pipeline.occlusion import OcclusionConfig
 
     obj, scene, images, cams, masks = tiny_refine_inputs()
     res = refine_object(obj, scene, images, cams, masks, inpainter=name, occlusion=OcclusionConfig(size=24),
-                        finetune=FinetuneConfig(iterations=4), debug_dir=tmp_path / "debug")
+                        finetune=FinetuneConfig(iterations=4))
+    write_refine_debug(res, tmp_path / "debug")
     assert res.inpainter == "mean"
     # the mean inpainter's signature: every masked pixel of the grid has one colour
     grid_mask = to_grid(res.occlusion.mask)

@@ -60,7 +60,7 @@ def test_state_round_trip_continues_identically(tiny_kitchen):
 def test_train_joint_writes_a_distilled_model(tiny_kitchen, tmp_path):
     import json
 
-    from roodi_toolkit.pipeline.joint import train_joint
+    from roodi_toolkit.run.train import train_joint
 
     _, distilled = train_joint(tiny_kitchen, tmp_path / "m", CONFIG)
     cloud, classifier = distilled.cloud, distilled.classifier
@@ -74,7 +74,8 @@ def test_extract_single_stage(tiny_kitchen, tmp_path, run_cli):
     import json
 
     from roodi_toolkit import read_ply
-    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.run.extract import extract_objects
 
     target = json.loads((tiny_kitchen / "scene.json").read_text())["targets"][0]["id"]
     config = ExtractConfig(train=CONFIG, distill=DistillConfig(iterations=1), inpaint=False, prune=False,

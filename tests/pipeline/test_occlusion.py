@@ -13,7 +13,8 @@ from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.errors import CloudError, ConfigError
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.pipeline.occlusion import (OcclusionConfig, mask_scores, morphological_opening, object_cameras,
-                                     object_extent, occlusion_masks, up_from_cameras, write_occlusion_images)
+                                     object_extent, occlusion_masks, up_from_cameras)
+from roodi_toolkit.run.refine import write_occlusion_images
 
 from ..mesh_gaussians import hidden_truth, mesh_cloud, nearby
 

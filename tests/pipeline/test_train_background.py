@@ -12,7 +12,8 @@ from roodi_toolkit.cameras import orbit_cameras
 from roodi_toolkit.io.blender import write_blender_transforms
 from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.io.files import write_image
-from roodi_toolkit.pipeline.train import TrainConfig, Trainer, train_scene
+from roodi_toolkit.pipeline.train import TrainConfig, Trainer
+from roodi_toolkit.run.train import train_scene
 
 TINY = dict(iterations=2, init="random", init_num_points=40, eval_every=0, checkpoint_every=1, sh_degree=0)
 

@@ -17,7 +17,8 @@ from roodi_toolkit import read_ply
 from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.errors import RoodiError
 from roodi_toolkit.pipeline.strategy import MCMCStrategy
-from roodi_toolkit.pipeline.train import TrainConfig, Trainer, split_views, train_scene
+from roodi_toolkit.pipeline.train import TrainConfig, Trainer, split_views
+from roodi_toolkit.run.train import train_scene
 
 
 @pytest.fixture

@@ -142,7 +142,7 @@ def test_no_orbit_view_starts_inside_the_content():
 def test_extracts_object_picture_stands_on_the_training_cameras_up(tmp_path):
     """object.png of an extraction from a y-down capture came out sideways (the orbit assumed z up)."""
     from roodi_toolkit.io.files import read_image
-    from roodi_toolkit.pipeline.extract import _picture
+    from roodi_toolkit.run.extract import _picture
 
     rng = np.random.default_rng(5)
     n = 1500

@@ -19,7 +19,8 @@ def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cl
     from dataclasses import replace
 
     from roodi_toolkit.pipeline.distill import DistillConfig
-    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.run.extract import extract_objects
     from roodi_toolkit.pipeline.finetune import FinetuneConfig
     from roodi_toolkit.pipeline.occlusion import OcclusionConfig
     from roodi_toolkit.pipeline.strategy import MCMCStrategy
@@ -105,7 +106,8 @@ def test_tiny_selection_skips_pruning_and_says_so(tiny_scene, tmp_path):
     from dataclasses import replace
 
     from roodi_toolkit.pipeline.distill import DistillConfig
-    from roodi_toolkit.pipeline.extract import ExtractConfig, extract_objects
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.run.extract import extract_objects
     from roodi_toolkit.prune.outliers import PruneConfig
     from roodi_toolkit.pipeline.train import TrainConfig
 
@@ -125,15 +127,17 @@ def test_an_unfinished_scene_is_resumed_with_its_settings_and_refused_with_other
 
     from roodi_toolkit.errors import OutputError
     from roodi_toolkit.io.model import checkpoint_file
-    from roodi_toolkit.pipeline import train as train_module
-    from roodi_toolkit.pipeline.extract import ExtractConfig, prepare_scene
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.run import extract as extract_run
+    from roodi_toolkit.run.extract import prepare_scene
+    from roodi_toolkit.run.train import train_scene
     from roodi_toolkit.pipeline.train import TrainConfig
 
     scene, _ = tiny_scene
     config = ExtractConfig(train=TrainConfig(iterations=20, init="depth", init_num_points=400, eval_every=0,
                                              checkpoint_every=10, random_background=False))
     out = tmp_path / "out"
-    train_module.train_scene(scene.resolve(), out / "scene", config.train, downscale=1.0)
+    train_scene(scene.resolve(), out / "scene", config.train, downscale=1.0)
     shutil.rmtree(out / "scene" / "point_cloud" / "iteration_20")  # stopped before writing its final scene
     assert checkpoint_file(out / "scene").is_file()
     with pytest.raises(OutputError, match=r"the train there was made with other settings \(iterations changed\) "
@@ -146,7 +150,7 @@ def test_an_unfinished_scene_is_resumed_with_its_settings_and_refused_with_other
         calls.append(kwargs)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(train_module, "train_scene", stop)
+    monkeypatch.setattr(extract_run, "train_scene", stop)
     for overwrite, resumed in ((False, True), (True, False)):
         with pytest.raises(KeyboardInterrupt):
             prepare_scene(scene, out, config=config, replace_changed=False, overwrite=overwrite)
