@@ -24,6 +24,7 @@ from torch import Tensor
 
 from ..cameras import Camera
 from ..io.dataset import Dataset, split_views  # split_views: importable from here as before
+from .budget import check_train
 from .init_points import depth_points, projected_colors, rgb_to_sh0, sfm_initial_points
 from ..errors import ConfigError, DatasetError, InputError
 from ..gaussians import GaussianCloud
@@ -167,6 +168,9 @@ class Trainer:
             self.train_indices = list(train_indices)
         if not self.train_indices:
             raise DatasetError("the dataset has no training views")
+        largest = max(dataset.cameras, key=lambda cam: cam.width * cam.height)
+        # the model grows to the densification's cap: refuse now what would not fit then, not hours into the run
+        check_train(max(config.strategy.cap_max, config.init_num_points), largest.width, largest.height)
         self.generator = torch.Generator().manual_seed(config.seed)
         self.scale = scene_scale([dataset.cameras[i] for i in self.train_indices])
         self.strategy = config.strategy

@@ -70,3 +70,22 @@ def test_distillation_refuses_before_any_work_when_its_features_do_not_fit(monke
     monkeypatch.setattr("roodi_toolkit.limits.available_memory", lambda: 1000)
     with pytest.raises(ConfigError, match="distilling 16 features into 50 Gaussians"):
         distill_object_features(cloud, ds, masks, DistillConfig(iterations=1))
+
+
+def test_training_refuses_before_its_first_step_a_cap_that_would_not_fit(monkeypatch):
+    import numpy as np
+    import torch
+
+    from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
+    from roodi_toolkit.io.dataset import Dataset
+    from roodi_toolkit.pipeline.strategy import MCMCStrategy
+    from roodi_toolkit.pipeline.train import TrainConfig, Trainer
+
+    cam = Camera(look_at([0, -3, 1], [0, 0, 0]), intrinsics_from_fov(0.9, 16, 16), 16, 16)
+    ds = Dataset(images=torch.zeros(2, 16, 16, 3), cameras=[cam, cam], splits=["train", "train"],
+                 background=(0.0, 0.0, 0.0), bounds=np.array([[-1.0, -1, -1], [1, 1, 1]]))
+    monkeypatch.setattr("roodi_toolkit.limits.available_memory", lambda: 2 * 2**30)
+    config = TrainConfig(init_num_points=100, holdout_every=0, strategy=MCMCStrategy(cap_max=3_000_000))
+    with pytest.raises(ConfigError, match="--cap-max"):
+        Trainer(ds, config)
+    Trainer(ds, TrainConfig(init_num_points=100, holdout_every=0, strategy=MCMCStrategy(cap_max=1000)))
