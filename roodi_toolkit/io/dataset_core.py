@@ -10,6 +10,7 @@ build on this module, and :mod:`roodi_toolkit.io.dataset` (format detection,
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
@@ -206,8 +207,6 @@ def _plan_crop(paths: Sequence[Path], sizes: Sequence[tuple[int, int]],
     h0 = min(h for _, h in sizes)
     too_far = [i for i, (w, h) in enumerate(sizes) if (w - w0) > max_fraction * w or (h - h0) > max_fraction * h]
     if too_far:
-        from collections import Counter
-
         counts = Counter((int(w), int(h)) for w, h in sizes).most_common()
         common = counts[0][0] if len(counts) == 1 or counts[0][1] > counts[1][1] else None
         rule = (f"images of one dataset may differ in size by at most {max_fraction:.0%} (they are cropped to the "

@@ -14,12 +14,17 @@ import contextlib
 import json
 import math
 import os
+import pickle
+import sys
+import warnings
+import zipfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
 from ..errors import InputError, OutputError
+from ..limits import check_memory
 from .atomic import (NAME_MAX, PATH_MAX, OutputGroup, atomic_path, check_name_lengths,  # noqa: F401
                      forget_claims, output_group)
 from .atomic import _CLAIMS, _FOLDER_CLAIMS, _claim_key, _note_created, _raise_environment_problem
@@ -239,11 +244,7 @@ def open_image(path: str | os.PathLike, what: str = "image") -> Iterator[Any]:
     Pillow's own decompression-bomb guard (a warning on stderr above 89 M pixels, an error above 179 M) is
     replaced by that memory bound, which says what the image needs and what there is.
     """
-    import warnings
-
     from PIL import Image, UnidentifiedImageError
-
-    from ..limits import check_memory
 
     p = Path(path)
     limit = Image.MAX_IMAGE_PIXELS
@@ -319,8 +320,6 @@ def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 110) -> Path:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
     finally:
-        import sys
-
         if "matplotlib.pyplot" in sys.modules:
             sys.modules["matplotlib.pyplot"].close(fig)
     return Path(path)
@@ -346,8 +345,6 @@ def check_torch_archive(path: str | os.PathLike, what: str = "checkpoint") -> No
     Raises:
         InputError: naming the file and the entry.
     """
-    import zipfile
-
     p = Path(path)
     try:
         if not zipfile.is_zipfile(p):
@@ -365,8 +362,6 @@ def check_torch_archive(path: str | os.PathLike, what: str = "checkpoint") -> No
 def load_checkpoint(path: str | os.PathLike) -> Any:
     """Read a checkpoint written by :func:`save_checkpoint` with ``torch.load(weights_only=True)`` (no code runs;
     a compressed entry is refused first, :func:`check_torch_archive`)."""
-    import pickle
-
     import torch
 
     p = Path(path)

@@ -32,15 +32,19 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, ModelError, RoodiError  # ModelError: importable from here as before
+from ..errors import ConfigError, InputWarning, ModelError, RoodiError  # ModelError: importable from here as before
+from ..similarity import Similarity, transform_cloud
 from . import other_models as om
+from .dataset import _find_colmap_sparse, detect_format, load_cameras
+from .files import atomic_path, load_checkpoint, read_json, save_checkpoint, write_image, write_json
+from .nerfstudio import _applied_transform as applied, _json_path, _read_meta
 from .other_models import (GSPLAT_CKPT, INRIA_ARGS, INRIA_CAMERAS, inria_settings, load_inria_cameras, read_cfg_args,
                            read_gsplat_checkpoint, seen_fraction)
+from .splat import read_cloud
 
 if TYPE_CHECKING:
     from ..cameras import Camera
     from ..gaussians import GaussianCloud
-    from ..similarity import Similarity
 
 MODEL_PLY = "point_cloud.ply"
 CHECKPOINT = Path("checkpoints") / "latest.pt"
@@ -117,13 +121,9 @@ class ModelFolder:
 def read_scene(path: str | Path, to_data: "Similarity | None" = None) -> "GaussianCloud":
     """Return the Gaussians of a model's scene file (a splat file of any readable format, or a gsplat checkpoint),
     moved by ``to_data`` when given."""
-    from .splat import read_cloud
-
     p = Path(path)
     cloud = read_gsplat_checkpoint([p]) if GSPLAT_CKPT.fullmatch(p.name) else read_cloud(p)
     if to_data is not None and not to_data.is_identity():
-        from ..similarity import transform_cloud
-
         cloud = transform_cloud(cloud, to_data)
     return cloud
 
@@ -146,8 +146,6 @@ def find_model(model_dir: str | Path) -> ModelFolder:
     Raises:
         ModelError: not a folder, or no ``point_cloud/iteration_N/point_cloud.ply`` in it.
     """
-    from .files import read_json
-
     root = Path(model_dir)
     if not root.is_dir():
         raise ModelError(f"{root}: model folder not found (give a roodi-toolkit train output folder)")
@@ -166,9 +164,6 @@ def find_model(model_dir: str | Path) -> ModelFolder:
 def _quiet_cameras(data_dir: Path) -> "list[Camera]":
     """Return a dataset's cameras for checking a model against, without repeating the loader's warnings (the dataset
     itself is loaded and warns later)."""
-    from ..errors import InputWarning
-    from .dataset import load_cameras
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InputWarning)
         return load_cameras(data_dir)
@@ -244,8 +239,6 @@ def model_record(root: str | Path) -> tuple[dict[str, Any], Path | None]:
     Raises:
         InputError: an unreadable record.
     """
-    from .files import read_json
-
     root = Path(root)
     if (root / MODEL_RECORD).is_file() or not (root / INRIA_ARGS).is_file():
         record = read_json(root / MODEL_RECORD, "training record")
@@ -312,9 +305,6 @@ def _inria_model(root: Path, ply: Path | None, data_dir: str | Path | None,
 
 def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path | None,
                   data_cameras: "Sequence[Camera] | None") -> ModelFolder:
-    from ..similarity import transform_cloud
-    from .dataset import _find_colmap_sparse
-
     if len(files) > 1:
         raise ModelError(f"{root}: step {step} is split over {len(files)} ranks' checkpoints ({files[0].name}, ...); "
                          "this reads a single-GPU run's ckpt_N_rank0.pt")
@@ -354,8 +344,6 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
 
 def _nerfstudio_model(p: Path, data_dir: str | Path | None, transforms: Path,
                       data_cameras: "Sequence[Camera] | None") -> ModelFolder:
-    from ..similarity import Similarity
-
     if data_dir is None:
         raise ModelError(f"{p}: a nerfstudio export needs the data folder it was trained on; give DATA_DIR")
     data = Path(data_dir)
@@ -374,9 +362,6 @@ def _nerfstudio_model(p: Path, data_dir: str | Path | None, transforms: Path,
 
 def _applied_transform(data: Path) -> list | None:
     """Return the ``applied_transform`` of a nerfstudio capture (as its data parser takes it), None for other data."""
-    from .dataset import detect_format
-    from .nerfstudio import _applied_transform as applied, _json_path, _read_meta
-
     if detect_format(data) != "nerfstudio":
         return None
     json_path = _json_path(data)
@@ -422,8 +407,6 @@ class Distillation:
     def read_scene(self) -> "GaussianCloud":
         """Return the scene the features belong to, in the data's frame (a model from another tool is moved as it
         was when distilled)."""
-        from ..similarity import Similarity
-
         matrix = self.record.get("model_to_data")
         move = None
         if matrix is not None:
@@ -439,8 +422,6 @@ def write_distillation(out_dir: str | Path, *, model_ply: Path, features: np.nda
                        masks: dict[str, np.ndarray] | None = None, picture: np.ndarray | None = None) -> Path:
     """Write a distillation folder (every file atomically, the record last: it marks the folder complete); return
     the record's path. ``record`` gains the model file's path, size and SHA-256."""
-    from .files import save_checkpoint, write_image, write_json
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     features = np.ascontiguousarray(features, dtype=np.float32)
@@ -466,8 +447,6 @@ def read_distillation(distill_dir: str | Path) -> Distillation:
     Raises:
         ModelError: not a distillation folder, a missing or changed model file, or features of the wrong size.
     """
-    from .files import load_checkpoint, read_json
-
     root = Path(distill_dir)
     rec_path = root / DISTILL_RECORD
     if not rec_path.is_file():
@@ -493,8 +472,6 @@ def read_distillation(distill_dir: str | Path) -> Distillation:
 
 
 def _save_npy(array: np.ndarray, path: Path) -> None:
-    from .files import atomic_path
-
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.save(f, array, allow_pickle=False)
 

@@ -41,6 +41,7 @@ import numpy as np
 from ..cameras import Camera, opengl_c2w_to_w2c
 from ..errors import DatasetError, InputWarning, RoodiError
 from ..progress import ProgressFactory, null_progress
+from ..similarity import Similarity
 from .dataset_core import (LLFF_HOLD, SPLITS, Dataset, _check_background, _check_downscale, _crop_camera,
                            _downscaled_size, _plan_crop, _read_frames_json, _source_pixels, estimate_bounds)
 from .photos import _image_size, _read_dataset_image, _ViewStack
@@ -525,8 +526,6 @@ def _mask_weights(stack: _ViewStack, index: int, path: Path, size: tuple[int, in
 def _applied_transform(json_path: Path, meta: dict[str, Any]) -> list[list[float]] | None:
     """Return ``applied_transform`` ``[3, 4]`` as nerfstudio takes it (its fallback for old COLMAP captures)."""
     if "applied_transform" in meta:
-        from ..similarity import Similarity
-
         value = meta["applied_transform"]
         try:
             Similarity.from_matrix(value, f"{json_path}: 'applied_transform'")

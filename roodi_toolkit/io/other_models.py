@@ -32,7 +32,9 @@ re-applied when the data is a ``transforms.json`` capture.
 from __future__ import annotations
 
 import ast
+import json
 import math
+import pickle
 import re
 from pathlib import Path
 from typing import Any, Sequence
@@ -41,8 +43,10 @@ import numpy as np
 
 from ..cameras import Camera, invert_rigid
 from ..errors import ModelError, RoodiError
-from ..gaussians import GaussianCloud
+from ..gaussians import SH_C0, GaussianCloud, sigmoid
 from ..similarity import Similarity
+from .colmap import read_colmap_model
+from .files import read_json
 
 INRIA_ARGS = "cfg_args"
 INRIA_CAMERAS = "cameras.json"
@@ -95,8 +99,6 @@ def read_cfg_args(path: Path) -> dict[str, Any]:
 
 def is_inria_cameras_file(path: Path) -> bool:
     """Whether ``path`` is an Inria ``cameras.json`` (a JSON list whose entries have ``img_name`` and ``position``)."""
-    import json
-
     try:
         with open(path, "rb") as f:
             head = f.read(4096).lstrip()
@@ -126,8 +128,6 @@ def load_inria_cameras(path: Path) -> list[Camera]:
     Raises:
         ModelError: not a list of cameras, or a camera with a missing or malformed field (named).
     """
-    from .files import read_json
-
     try:
         data = read_json(path, "Inria cameras file")
     except RoodiError as exc:
@@ -258,8 +258,6 @@ def read_gsplat_checkpoint(files: Sequence[Path]) -> GaussianCloud:
         ModelError: not a checkpoint that loads as plain tensors, no ``splats``, or tensors of the wrong shapes (the
             message names the file and the tensor).
     """
-    import pickle
-
     import torch
 
     parts = []
@@ -300,8 +298,6 @@ def _splats_cloud(f: Path, splats: dict[str, Any]) -> GaussianCloud:
         rest = get("shN", tuple(rest_t.shape[1:])) if isinstance(rest_t, torch.Tensor) and rest_t.ndim == 3 \
             else np.zeros((n, 0, 3), np.float32)
     elif "colors" in splats:  # appearance optimisation: per-Gaussian logit colours (+ a network this reader skips)
-        from ..gaussians import SH_C0, sigmoid
-
         sh0 = ((sigmoid(get("colors", (3,))) - 0.5) / SH_C0).astype(np.float32)
         rest = np.zeros((n, 0, 3), np.float32)
     else:
@@ -416,8 +412,6 @@ def gsplat_frames(sparse_dir: Path) -> list[Similarity]:
     Raises:
         ModelError: the model has too few images or points to normalise.
     """
-    from .colmap import read_colmap_model
-
     model = read_colmap_model(sparse_dir)
     if len(model.images) < 2 or len(model.points.ids) < 4:
         raise _model_error(f"{sparse_dir}: gsplat's normalisation needs the COLMAP model's images and points, and "
@@ -444,8 +438,6 @@ def read_dataparser_transforms(path: Path) -> Similarity:
     Raises:
         ModelError: not that file (the message names the missing or malformed field).
     """
-    from .files import read_json
-
     try:
         data = read_json(path, "nerfstudio dataparser transforms file")
     except RoodiError as exc:

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..gaussians import GaussianCloud, sigmoid
+from ..limits import check_memory
 from .files import atomic_path
 
 MAGIC = 0x5053474E  # "NGSP" little-endian
@@ -46,8 +47,6 @@ _DEFLATE_MAX_RATIO = 1100  # deflate's best is 1032:1: fewer compressed bytes th
 
 
 def _check_memory(p: Path, n: int) -> None:
-    from ..limits import check_memory
-
     check_memory(_BYTES_PER_GAUSSIAN * n, f"{p}: reading its {n:,} Gaussians", "convert it on a larger machine",
                  FormatError)
 

@@ -152,7 +152,7 @@ def test_sigterm_mid_write_leaves_no_partial_file(tmp_path, run_cli, monkeypatch
             tmp.write_bytes(b"ply\nhalf")
             os.kill(os.getpid(), signal.SIGTERM)
 
-    monkeypatch.setattr("roodi_toolkit.io.ply.write_ply", killed_writer)
+    monkeypatch.setattr("roodi_toolkit.io.splat.write_ply", killed_writer)  # the name write_cloud calls
     before = signal.getsignal(signal.SIGTERM)
     res = run_cli("prune", src, tmp_path / "out.ply", "-q")
     assert res.exit_code == 143 and "terminated" in res.stderr
