@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 import torch
 
@@ -258,8 +259,6 @@ def to_loaded_pixel(dataset: "Dataset", view: str, x: float, y: float) -> tuple[
         raise ConfigError(f"click {x:g},{y:g} is outside the {pw}x{ph} image {view}")
     ux, uy = x, y
     if "undistort" in m:  # a distorted photo (COLMAP OPENCV ...): where its pixel lies in the undistorted image
-        import cv2
-
         u = m["undistort"]
         shift = np.diag([1.0, 1.0, 1.0])
         shift[:2, 2] = -0.5  # OpenCV puts pixel centres at integers, we at +0.5

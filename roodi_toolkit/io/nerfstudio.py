@@ -36,7 +36,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
+import torch
+from plyfile import PlyData
 
 from ..cameras import Camera, opengl_c2w_to_w2c
 from ..errors import DatasetError, InputWarning, RoodiError
@@ -250,8 +253,6 @@ class _Lens:
     at whatever size they are read (a reduced ``images_N`` copy scales both intrinsics)."""
 
     def __init__(self, K: np.ndarray, dist: np.ndarray, size: tuple[int, int], fisheye: bool, where: Path) -> None:
-        import cv2
-
         self.K, self.dist, self.size, self.fisheye = K, dist, size, fisheye
         cv_k = self._cv(K)
         try:
@@ -278,8 +279,6 @@ class _Lens:
         return out
 
     def __call__(self, img: np.ndarray) -> np.ndarray:
-        import cv2
-
         h, w = img.shape[:2]
         if (w, h) not in self._maps:
             scale = np.diag([w / self.size[0], h / self.size[1], 1.0])
@@ -367,8 +366,6 @@ def _read_points(json_path: Path, meta: dict[str, Any]) -> tuple[np.ndarray | No
     path = json_path.parent / rel
     if not path.is_file():
         raise DatasetError(f"{json_path}: 'ply_file_path' {rel!r} not found ({path})")
-    from plyfile import PlyData
-
     try:
         vertex = PlyData.read(str(path))["vertex"]
         names = vertex.data.dtype.names or ()
@@ -448,8 +445,6 @@ def load_nerfstudio(path: str | os.PathLike, downscale: float = 1, *, background
     stack = _ViewStack(crop, (out_w, out_h), bg)
     valid = None
     if any(m is not None for m in mask_paths):
-        import torch
-
         valid = torch.ones(len(frames), out_h, out_w, dtype=torch.float32)
     cameras: list[Camera] = []
     lenses: dict[str, _Lens] = {}
@@ -512,8 +507,6 @@ def _mask_weights(stack: _ViewStack, index: int, path: Path, size: tuple[int, in
         arr = arr[..., 0]  # an RGB(A) mask: nerfstudio's masks are one channel, black = ignore
     keep = (arr > 0).astype(np.float32)
     if keep.shape != (size[1], size[0]):
-        import cv2
-
         if abs(keep.shape[1] * size[1] / size[0] - keep.shape[0]) > 1:
             raise DatasetError(f"{path}: mask is {keep.shape[1]}x{keep.shape[0]} but its image {frame.image.name} is "
                                f"{size[0]}x{size[1]}")

@@ -40,6 +40,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+import torch
+import yaml
 
 from ..cameras import Camera, invert_rigid
 from ..errors import ModelError, RoodiError
@@ -258,8 +260,6 @@ def read_gsplat_checkpoint(files: Sequence[Path]) -> GaussianCloud:
         ModelError: not a checkpoint that loads as plain tensors, no ``splats``, or tensors of the wrong shapes (the
             message names the file and the tensor).
     """
-    import torch
-
     parts = []
     for f in files:
         try:
@@ -276,8 +276,6 @@ def read_gsplat_checkpoint(files: Sequence[Path]) -> GaussianCloud:
 
 
 def _splats_cloud(f: Path, splats: dict[str, Any]) -> GaussianCloud:
-    import torch
-
     def get(name: str, shape_tail: tuple[int, ...]) -> np.ndarray:
         t = splats.get(name)
         if not isinstance(t, torch.Tensor):
@@ -320,8 +318,6 @@ def read_gsplat_config(root: Path) -> dict[str, Any]:
     path = Path(root) / GSPLAT_CONFIG
     if not path.is_file():
         return {}
-    import yaml
-
     class _Loader(yaml.SafeLoader):
         """A safe loader that reads ``!!python/...`` tagged nodes as plain values instead of building objects."""
 

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import FormatError, InputError
 from ..gaussians import GaussianCloud
 from ..limits import check_memory
-from .files import parse_json
+from .files import parse_json, pil_image
 
 _MAX_COUNT = 1 << 28
 _BYTES_PER_GAUSSIAN = 600  # peak memory of decoding one Gaussian (int64 texels, float64 steps, the cloud)
@@ -148,8 +148,7 @@ def _webp_size(data: bytes) -> tuple[int, int] | None:
 
 def _open_webp(p: Path, name: str, data: bytes, max_pixels: int) -> Any:
     """Return Pillow's (not yet decoded) image of a WebP texture whose size is at most ``max_pixels``."""
-    from PIL import Image, UnidentifiedImageError
-
+    Image = pil_image()
     size = _webp_size(data)
     if size is not None and size[0] * size[1] > max_pixels:
         raise _fail(p, f"SOG texture {name!r} claims {size[0]}x{size[1]} pixels, more than the count in meta.json can "
@@ -160,7 +159,7 @@ def _open_webp(p: Path, name: str, data: bytes, max_pixels: int) -> Any:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             im = Image.open(io.BytesIO(data))
-    except UnidentifiedImageError:
+    except Image.UnidentifiedImageError:
         raise _fail(p, f"SOG texture {name!r} is not a readable image") from None
     except (OSError, SyntaxError, ValueError) as exc:
         raise _fail(p, f"SOG texture {name!r} is not a readable WebP image ({' '.join(str(exc).split())[:160]})") \

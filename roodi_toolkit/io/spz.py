@@ -82,7 +82,7 @@ class _GzipStream:
 
 def _streams_v4(p: Path, raw: bytes, num_streams: int, toc: int, expected: list[int]) -> list[bytes]:
     try:
-        import zstandard
+        import zstandard  # lazy: every import of the package reads splat files; only SPZ version 4 needs it
     except ImportError:  # pragma: no cover - a dependency of the package
         raise _fail(p, "SPZ version 4 needs the zstandard package: pip install zstandard") from None
     if toc < 32 or toc + 16 * num_streams > len(raw):
