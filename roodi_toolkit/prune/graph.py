@@ -62,7 +62,7 @@ def neighbour_graph(means: np.ndarray, k: int, progress: ProgressFactory = null_
         progress: progress factory.
     """
     try:
-        from pykdtree.kdtree import KDTree
+        from pykdtree.kdtree import KDTree  # lazy: a broken install is named with what to install
     except ImportError as exc:  # a dependency of the package; only a broken install lacks it
         raise EnvironmentProblemError("the default prune needs pykdtree (a dependency of roodi-toolkit); install it "
                                       "with `pip install pykdtree`") from exc

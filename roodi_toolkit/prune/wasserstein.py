@@ -258,7 +258,7 @@ def w2_sq_covariances(means_a: np.ndarray, covs_a: np.ndarray, means_b: np.ndarr
 
 def w2_sq_reference(means_a: np.ndarray, covs_a: np.ndarray, means_b: np.ndarray, covs_b: np.ndarray) -> np.ndarray:
     """Return W2^2 per pair with ``scipy.linalg.sqrtm`` in float64, ``[M]``: the slow reference for tests."""
-    from scipy.linalg import sqrtm
+    from scipy.linalg import sqrtm  # lazy: scipy takes 1 s to import; only this reference (tests) needs it
 
     ma = np.asarray(means_a, dtype=np.float64).reshape(-1, 3)
     mb = np.asarray(means_b, dtype=np.float64).reshape(-1, 3)
