@@ -34,12 +34,13 @@ import numpy as np
 
 from ..errors import ConfigError, InputWarning, ModelError, RoodiError  # ModelError: importable from here as before
 from ..similarity import Similarity, transform_cloud
-from . import other_models as om
+from . import gsplat, other_models as om
 from .dataset import _find_colmap_sparse, detect_format, load_cameras
 from .files import atomic_path, load_checkpoint, read_json, save_checkpoint, write_image, write_json
+from .gsplat import read_gsplat_checkpoint
 from .nerfstudio import _applied_transform as applied, _json_path, _read_meta
-from .other_models import (GSPLAT_CKPT, INRIA_ARGS, INRIA_CAMERAS, inria_settings, load_inria_cameras, read_cfg_args,
-                           read_gsplat_checkpoint, seen_fraction)
+from .other_models import GSPLAT_CKPT, seen_fraction
+from .records import MODEL_RECORD, model_record  # noqa: F401 (importable from here as before)
 from .splat import read_cloud
 
 if TYPE_CHECKING:
@@ -48,7 +49,6 @@ if TYPE_CHECKING:
 
 MODEL_PLY = "point_cloud.ply"
 CHECKPOINT = Path("checkpoints") / "latest.pt"
-MODEL_RECORD = "cfg.json"
 
 FEATURES_FILE = "features.npy"
 CLASSIFIER_FILE = "object_classifier.pt"
@@ -217,7 +217,7 @@ def open_model(path: str | Path, data_dir: str | Path | None = None, *,
         if data_dir is not None:
             model.config = {**model.config, "data_dir": str(data_dir)}
         return model
-    ckpts = om.find_gsplat_checkpoints(p)
+    ckpts = gsplat.find_gsplat_checkpoints(p)
     if ckpts is not None:
         return _gsplat_model(*ckpts, data_dir, data_cameras)
     if p.is_dir():
@@ -229,35 +229,6 @@ def open_model(path: str | Path, data_dir: str | Path | None = None, *,
                         notes=[f"{p.name}: a splat file, taken to be in {data_dir}'s frame"])
     _check_seen(model, data_cameras if data_cameras is not None else _quiet_cameras(Path(data_dir)), Path(data_dir))
     return model
-
-
-def model_record(root: str | Path) -> tuple[dict[str, Any], Path | None]:
-    """Return a model folder's record in this toolkit's keys and the data folder it names (None if it names none),
-    reading only the record: ``cfg.json``, or an Inria folder's ``cfg_args`` (its ``cameras.json`` gives the photos'
-    width for its resolution). Nothing is checked against the data (:func:`open_model` does that).
-
-    Raises:
-        InputError: an unreadable record.
-    """
-    root = Path(root)
-    if (root / MODEL_RECORD).is_file() or not (root / INRIA_ARGS).is_file():
-        record = read_json(root / MODEL_RECORD, "training record")
-        record = record if isinstance(record, dict) else {}
-        value = record.get("data_dir")
-    else:
-        args = read_cfg_args(root / INRIA_ARGS)
-        width = None
-        if (root / INRIA_CAMERAS).is_file():
-            width = max(c.width for c in load_inria_cameras(root / INRIA_CAMERAS))
-        value = args.get("source_path")
-        record = inria_settings(root, args, width)
-    if not value:
-        return record, None
-    data = Path(str(value))
-    for cand in (data, root / data):
-        if cand.exists():
-            return record, cand
-    return record, data
 
 
 def _enclosing_folder(p: Path) -> Path | None:
@@ -308,12 +279,12 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
     if len(files) > 1:
         raise ModelError(f"{root}: step {step} is split over {len(files)} ranks' checkpoints ({files[0].name}, ...); "
                          "this reads a single-GPU run's ckpt_N_rank0.pt")
-    cfg = om.read_gsplat_config(root)
+    cfg = gsplat.read_gsplat_config(root)
     record = root / om.GSPLAT_CONFIG
     data = _recorded_data(root, cfg.get("data_dir"), record, data_dir) if data_dir is not None or cfg else None
     if data is None:
         raise ModelError(f"{files[0]}: no {om.GSPLAT_CONFIG} beside its ckpts folder names the data; give DATA_DIR")
-    settings = om.gsplat_settings(cfg, record)
+    settings = gsplat.gsplat_settings(cfg, record)
     normalize = settings.pop("normalize")
     config = {"data_dir": str(data), **settings}
     notes = [f"gsplat checkpoint, step {step}" + ("" if cfg else f" (no {om.GSPLAT_CONFIG}: gsplat's defaults "
@@ -326,7 +297,7 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
         if sparse is None:
             raise ModelError(f"{files[0]}: gsplat normalised its world from a COLMAP capture, but {data} has no "
                              "sparse/0; give the COLMAP data folder it was trained on")
-        frames = [f.inverse() for f in om.gsplat_frames(sparse)]
+        frames = [f.inverse() for f in gsplat.gsplat_frames(sparse)]
         seen = [om.seen_fraction(transform_cloud(cloud, f), cams) for f in frames]
         keep = [f for f, s in zip(frames, seen) if s >= SEEN_MIN]
         if not keep:

@@ -42,6 +42,7 @@ import numpy as np
 
 from ..errors import ConfigError, RoodiError
 from ..io.files import read_json
+from ..io.records import model_record
 from ..progress import ProgressFactory, null_progress
 
 if TYPE_CHECKING:  # torch and the renderer load only when there are photos: `prune` on a lone PLY never needs them
@@ -122,8 +123,6 @@ def _record(root: Path) -> tuple[dict, Path | None]:
         InputError: ``cfg.json`` is not readable JSON.
     """
     if not (root / "cfg.json").is_file():  # an Inria folder: its cfg_args in this toolkit's keys
-        from ..io.model import model_record  # lazy: the model reader imports the dataset readers (torch)
-
         return model_record(root)
     record = read_json(root / "cfg.json", "training record")
     record = record if isinstance(record, dict) else {}

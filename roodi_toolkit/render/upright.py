@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import ConfigError, RoodiError
 from ..io.files import read_json
+from ..io.other_models import load_inria_cameras
 from ..io.ply import ply_info
 from ..io.splat import detect_format
 
@@ -117,8 +118,6 @@ def _dataset_cameras(data_dir: str | os.PathLike) -> list[Any]:
 
 
 def _inria_cameras(path: Path) -> list[Any] | None:
-    from ..io.other_models import load_inria_cameras  # lazy: the other tools' readers import torch (gsplat)
-
     try:
         return load_inria_cameras(path)
     except RoodiError:  # not the file we know: no cameras then
