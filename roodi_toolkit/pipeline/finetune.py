@@ -23,17 +23,22 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
+from scipy import ndimage
 from torch import Tensor
 
 from ..cameras import Camera
 from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
+from ..io.files import write_image, write_json
 from ..params import GaussianParams
+from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, resolve_renderer
-from .perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss  # noqa: F401 (re-exported)
+from .inpaint import FillContext, Inpainter, get_inpainter, inpaint_views
 from .occlusion import (OcclusionConfig, OcclusionResult, fill_picture, hidden_part_picture, object_extent,
                         occlusion_masks, seen_through, write_occlusion_images)
-from ..progress import ProgressFactory, null_progress
+from .occlusion import up_from_cameras
+from .perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss  # noqa: F401 (re-exported)
+from .support import other_gaussians, pixel_size, support_height
 
 
 
@@ -297,8 +302,6 @@ def seed_hole_gaussians(object_cloud: GaussianCloud, occlusion: OcclusionResult,
         depth_tolerance: how much nearer (times the object's radius) the scene must be than the seed.
         background: the views' background colour.
     """
-    from scipy import ndimage
-
     bg = np.asarray(background, dtype=np.float32)
     means, colours, sizes = [], [], []
     for k, cam in enumerate(occlusion.cameras):
@@ -379,8 +382,6 @@ def _resolve_inpainter(inpainter: Any, inpainter_options: Optional[dict], occlus
     Raises:
         ConfigError: occlusion views other than the grid's 4, or something that is no inpainter.
     """
-    from .inpaint import Inpainter, get_inpainter
-
     if occlusion.num_views != 4:
         raise ConfigError(f"the inpainting grid is 2x2: occlusion.num_views must be 4, got {occlusion.num_views}")
     if isinstance(inpainter, str):
@@ -396,9 +397,6 @@ def _fill_context(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, scene
     """Return what a 3D-aware inpainter reads (:class:`~roodi_toolkit.pipeline.inpaint.FillContext`): which points
     the training views see through (empty space), the pixel size and, when it ``wants`` them, the support the
     object stands on and the other Gaussians; the occlusion fields are filled in later."""
-    from .inpaint import FillContext
-    from .support import other_gaussians, pixel_size, support_height
-
     masks_np = torch.as_tensor(object_masks).bool().numpy()
     _, seen_radius = object_extent(object_cloud)
 
@@ -438,8 +436,6 @@ def _write_debug_images(out_dir: Path, occ: OcclusionResult, grids: dict[str, Te
                         completion: Optional[GaussianCloud], renderer: Renderer, background: Sequence[float]) -> None:
     """Write the refinement's pictures into ``out_dir``: occlusion masks, inpainting grids, each view inpainted and
     before/after fine-tuning, what the fill added and, with a 3D completion, the part no training view saw."""
-    from ..io.files import write_image
-
     write_occlusion_images(occ, out_dir)
     for name, img in grids.items():
         write_image(img.numpy(), out_dir / f"grid_{name}.png")
@@ -499,10 +495,6 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         progress: progress factory.
         renderer: draws every view of occlusion reasoning and fine-tuning (default: the built-in CPU renderer).
     """
-    from ..io.files import write_json
-    from .inpaint import inpaint_views
-    from .occlusion import up_from_cameras
-
     inpainter = _resolve_inpainter(inpainter, inpainter_options, occlusion)
     cameras = list(cameras)
     up = up_from_cameras(cameras) if up is None else np.asarray(up, dtype=np.float64)

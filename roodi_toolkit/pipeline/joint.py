@@ -21,13 +21,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..io.dataset import Dataset
-from .distill import DistillConfig, DistilledScene, DistillResult, ObjectClassifier, initial_classifier
 from ..errors import ConfigError
+from ..io.dataset import Dataset
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, RenderOutput
-from .segment import ViewMasks
-from .train import TrainConfig, Trainer, TrainResult
+from .distill import DistillConfig, DistilledScene, DistillResult, ObjectClassifier, initial_classifier
+from .distill import finish_distillation, scene_labels
+from .segment import FilesSegmenter, SegmentPrompt, ViewMasks
+from .train import TrainConfig, Trainer, TrainResult, train_scene
 
 
 class JointTrainer(Trainer):
@@ -103,10 +104,6 @@ def train_joint(data_dir: str | Path, out_dir: str | Path, config: TrainConfig =
     Raises:
         RoodiError: no masks in the dataset, or what training raises.
     """
-    from .distill import finish_distillation, scene_labels
-    from .segment import FilesSegmenter, SegmentPrompt
-    from .train import train_scene
-
     trainers: list[JointTrainer] = []
 
     def make(ds: Dataset, cfg: TrainConfig) -> JointTrainer:
