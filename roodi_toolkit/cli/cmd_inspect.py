@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import click
+from matplotlib.colors import is_color_like
 
 from roodi_toolkit.cli.common import overwrite_option, parse_size, quiet_option
 from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options,
                                              prune_config_from_options, prune_mode_options, prune_options,
                                              picture_title, prune_with_photos, write_floater_picture)
+from roodi_toolkit.errors import ConfigError, EnvironmentProblemError
+from roodi_toolkit.io.files import check_outputs, write_image
+from roodi_toolkit.io.splat import input_paths, read_cloud
+from roodi_toolkit.prune.summary import summary_lines
+from roodi_toolkit.render.upright import check_up, resolve_up
+from roodi_toolkit.viz import inspect as insp
+from roodi_toolkit.viz.page import floater_page, write_floater_page
 
 
 EPILOG = """\b
@@ -80,13 +88,6 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
     and the window the PyVista view, where each Gaussian is drawn with its footprint (oriented, scaled ellipsoids for
     small clouds, Gaussian splats sized by scale for large ones). Without a display, ask for a file.
     """
-    from roodi_toolkit.viz import inspect as insp
-    from roodi_toolkit.errors import ConfigError, EnvironmentProblemError
-    from roodi_toolkit.io.files import check_outputs, write_image
-    from roodi_toolkit.io.splat import input_paths, read_cloud
-    from roodi_toolkit.prune.summary import summary_lines
-    from roodi_toolkit.render.upright import check_up, resolve_up
-
     mode = effective_mode(mode)
     config = prune_config_from_options(mode=mode, **prune_kwargs)
     size = parse_size(window_size, "--window-size")
@@ -108,8 +109,6 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
                           "--view-png or --histogram")
     highlight_colour = None if highlight.strip().lower() == "none" else highlight
     if highlight_colour is not None:
-        from matplotlib.colors import is_color_like
-
         if not is_color_like(highlight_colour):
             raise click.BadParameter(f"not a colour: {highlight!r} (use a name such as red or #ff00ff)",
                                      param_hint="--highlight")
@@ -131,8 +130,6 @@ def inspect(input_ply: str, show: str, color_by: str, highlight: str, glyphs: st
         write_floater_picture(input_ply, cloud, keep, report, screenshot, quiet, up=up)
         click.echo(f"wrote {screenshot}")
     if html_path is not None:
-        from roodi_toolkit.viz.page import floater_page, write_floater_page
-
         write_floater_page(floater_page(cloud, keep, report, up_axis.vector, title=picture_title(input_ply),
                                         grey=color_by != "rgb"), html_path)
         click.echo(f"wrote {html_path}")

@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import click
 
-from .common import (check_render_size, overwrite_option, parse_floats, parse_size, progress_factory, quiet_option,
-                     renderer_option)
+from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.io.dataset import load_cameras
+from roodi_toolkit.io.files import prepare_output_dir
+from roodi_toolkit.io.splat import input_paths, read_cloud
+from roodi_toolkit.render.views import framing_orbit, render_views, resolve_up
+
+from .common import check_render_size, overwrite_option, parse_floats, parse_size, progress_factory, quiet_option
+from .renderer_option import renderer_option
 
 EPILOG = """Examples:
 
@@ -56,10 +63,6 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
            radius: float | None, fov: float, up: str | None, frame_like: str | None, size_text: str | None,
            what: str, background: str, renderer: Any, filter_nan: bool, overwrite: bool, quiet: bool) -> None:
     """Render IN (any splat format) into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
-    from roodi_toolkit.io.files import prepare_output_dir
-    from roodi_toolkit.io.splat import input_paths, read_cloud
-    from roodi_toolkit.render.views import framing_orbit, render_views, resolve_up
-
     bg = parse_floats(background, 3, "--background")
     if not all(0.0 <= v <= 1.0 for v in bg):
         raise click.BadParameter(f"colour components must be in [0, 1], got {background!r}", param_hint="--background")
@@ -75,9 +78,6 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
     cloud.require_finite(ply)
     extra = {}
     if cameras_path:
-        from roodi_toolkit.errors import ConfigError
-        from roodi_toolkit.io.dataset import load_cameras
-
         cams = load_cameras(cameras_path)
         if not cams:
             raise ConfigError(f"{cameras_path}: holds no cameras (no frames); give a dataset with views")
@@ -99,8 +99,6 @@ def render(ply: str, out_dir: str, cameras_path: str | None, orbit: int | None, 
     big = max(cams, key=lambda c: c.width * c.height)
     check_render_size(big.width, big.height, f"--size {size_text}" if size_text else cameras_path or "--size")
     # a transforms_*.json stands for its whole dataset folder: rendering into its images/ would overwrite them
-    from pathlib import Path
-
     camera_folder = str(Path(cameras_path).parent) if cameras_path and Path(cameras_path).is_file() else None
     out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[*input_paths(ply), cameras_path, camera_folder,
                                                                  *(input_paths(frame_like) if frame_like else [])])

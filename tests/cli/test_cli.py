@@ -24,6 +24,21 @@ def test_version_and_help(run_cli):
         assert name in res.stdout
 
 
+def test_the_command_list_reads_as_click_makes_it_and_imports_no_command():
+    """``roodi-toolkit --help`` lists each command's short help from its module's source (issue 35: a command's
+    module imports what it runs at its top, ``train`` torch): the rows click makes from the imported commands, and
+    no command module imported for them."""
+    code = ("import sys, click\n"
+            "from roodi_toolkit.cli.main import app\n"
+            "ctx = click.Context(app, info_name='roodi-toolkit')\n"
+            "ours = ctx.make_formatter(); app.format_commands(ctx, ours)\n"
+            "print(sorted(m for m in sys.modules if m.startswith('roodi_toolkit.cli.cmd_')))\n"
+            "clicks = ctx.make_formatter(); click.Group.format_commands(app, ctx, clicks)\n"
+            "print(ours.getvalue() == clicks.getvalue(), len(ours.getvalue().splitlines()))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines() == ["[]", f"True {len(COMMANDS) + 1}"], out
+
+
 @pytest.mark.parametrize("name", sorted(COMMANDS))
 def test_every_command_help_shows_an_example(run_cli, name):
     res = run_cli(name, "--help")
