@@ -202,3 +202,19 @@ def test_quiet_and_threads_wherever_they_stand(run_cli, monkeypatch, tmp_path):
         assert res.exit_code == 1 and "--threads" in res.stderr  # checked for prune too, which renders late
     finally:
         torch.set_num_threads(before)
+
+
+HEAVY_LIBRARIES = ("torch", "scipy", "cv2", "open3d", "pyvista", "matplotlib", "kornia", "numba", "PIL")
+
+
+def test_commands_on_splat_files_import_no_heavy_library(tmp_path):
+    """``info``, ``convert`` and ``prune`` of a lone splat file import none of the heavy libraries (issue 35: imports
+    at the top of modules must not put torch, 2-5 s, in front of a prune that takes seconds)."""
+    src = tmp_path / "in.ply"
+    write_ply(make_cloud(300, seed=3), src)
+    code = ("import sys; from roodi_toolkit.cli.main import main; "
+            f"codes = [main(['info', {str(src)!r}]), main(['convert', {str(src)!r}, {str(tmp_path / 'c.spz')!r}]), "
+            f"main(['prune', {str(src)!r}, {str(tmp_path / 'p.ply')!r}, '-q'])]; "
+            f"print(codes, sorted(set({HEAVY_LIBRARIES!r}) & {{m.split('.')[0] for m in sys.modules}}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines()[-1] == "[0, 0, 0] []", out
