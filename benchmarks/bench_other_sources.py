@@ -38,7 +38,8 @@ def main() -> None:
     from roodi_toolkit.errors import RoodiError
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.io.model import ModelFolder, find_model, open_model
-    from roodi_toolkit.io.other_models import gsplat_frames, seen_fraction
+    from roodi_toolkit.io.gsplat import gsplat_frames
+    from roodi_toolkit.io.other_models import seen_fraction
     from roodi_toolkit.io.ply import write_ply
     from roodi_toolkit.pipeline.model_frame import settle_model_frame
     from roodi_toolkit.pipeline.train import TrainConfig

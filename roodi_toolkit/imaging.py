@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
+import kornia
 import numpy as np
 import torch
 from torch import Tensor
@@ -56,8 +57,6 @@ def ssim(a: np.ndarray | Tensor, b: np.ndarray | Tensor, window: int = 11) -> Te
         >>> float(ssim(x, x))
         1.0
     """
-    import kornia
-
     x = a if isinstance(a, Tensor) else torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)
     y = b if isinstance(b, Tensor) else torch.as_tensor(np.ascontiguousarray(b), dtype=torch.float32)
     win = min(window, min(x.shape[:2]))

@@ -12,6 +12,7 @@ Example:
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from .errors import InputError
@@ -73,8 +74,6 @@ def available_memory() -> int | None:
     except (OSError, ValueError, IndexError):
         pass
     if found is None:
-        import os
-
         try:
             found = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
         except (ValueError, OSError, AttributeError):

@@ -24,11 +24,14 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import inspect
 import math
 import os
+import sys
 import threading
 from dataclasses import dataclass
 from importlib import metadata
+from pathlib import Path
 from typing import Any
 
 from .errors import PluginError
@@ -98,9 +101,6 @@ class PluginSpec:
 
 def _import_module(name: str, *, from_env: bool) -> Any:
     """Import a plugin's module; a ``$ROODI_PLUGINS`` one may be a ``.py`` file's path or sit in the current folder."""
-    import sys
-    from pathlib import Path
-
     if from_env and name.endswith(".py"):
         path = Path(name).expanduser()
         if not path.is_file():
@@ -300,8 +300,6 @@ def coerce_options(cls: type, options: dict[str, Any], kind: str, name: str) -> 
     Raises:
         PluginError: a value that is not of its keyword's type.
     """
-    import inspect
-
     try:
         params = inspect.signature(cls).parameters
     except (TypeError, ValueError):

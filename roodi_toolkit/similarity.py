@@ -18,6 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .cameras import rotmat_to_qvec
 from .errors import ConfigError
 from .gaussians import SH_C0, SH_C1, SH_C2, SH_C3, GaussianCloud
 
@@ -284,8 +285,6 @@ def transform_cloud(cloud: GaussianCloud, similarity: Similarity) -> GaussianClo
         >>> np.round(moved.means, 5).tolist(), np.round(moved.scales.astype(float), 5).tolist()
         ([[0.0, 2.0, 0.0]], [[0.2, 0.2, 0.2]])
     """
-    from .cameras import rotmat_to_qvec
-
     if similarity.is_identity():
         return cloud.copy()
     R, s = similarity.rotation, similarity.scale

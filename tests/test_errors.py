@@ -65,8 +65,7 @@ def test_cli_reports_a_full_disk_as_an_environment_problem(tmp_path, run_cli, mo
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr("roodi_toolkit.io.ply.write_ply", full)
-    monkeypatch.setattr("roodi_toolkit.write_ply", full)
+    monkeypatch.setattr("roodi_toolkit.io.splat.write_ply", full)  # the name write_cloud calls
     res = run_cli("prune", src, tmp_path / "out.ply")
     assert res.exit_code == 1
     assert "environment problem" in res.stderr and "disk is full" in res.stderr
@@ -80,8 +79,7 @@ def test_cli_reports_a_missing_system_library(tmp_path, run_cli, monkeypatch):
     def no_lib(*args, **kwargs):
         raise ImportError("libgomp.so.1: cannot open shared object file: No such file or directory")
 
-    monkeypatch.setattr("roodi_toolkit.io.ply.read_ply", no_lib)
-    monkeypatch.setattr("roodi_toolkit.read_ply", no_lib)
+    monkeypatch.setattr("roodi_toolkit.io.splat.read_ply", no_lib)  # the name read_cloud calls
     res = run_cli("info", src)
     assert res.exit_code == 1
     assert "environment problem" in res.stderr and "apt-get install libgomp1" in res.stderr

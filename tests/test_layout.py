@@ -229,12 +229,79 @@ def test_the_circle_finder_names_a_circle():
 
 
 def test_imports_inside_functions_count():
-    model = ROOT / "io" / "model.py"  # imports the dataset module only inside a function (_quiet_cameras)
-    assert "roodi_toolkit.io.dataset" in _imports(model, top_level_only=False)
-    assert "roodi_toolkit.io.dataset" not in _imports(model, top_level_only=True)
+    upright = ROOT / "render" / "upright.py"  # imports the dataset readers only inside a function (_dataset_cameras)
+    assert "roodi_toolkit.io.dataset" in _imports(upright, top_level_only=False)
+    assert "roodi_toolkit.io.dataset" not in _imports(upright, top_level_only=True)
 
 
 def test_no_import_cycle():
     """No module of the package imports, through any chain of imports made anywhere in the modules, itself."""
     circles = _circles(_graph())
     assert circles == [], "import circles:\n" + "\n".join(" -> ".join(c) for c in circles)
+
+
+MAX_LAZY_IMPORTS = 20
+LAZY_REASON = "# lazy:"
+PENDING = {  # in-function imports not yet moved (issue 35): at most this many each, none may be added
+    # rewritten by other helpers now (pure stages, settings from config dataclasses): left to them
+    "pipeline/extract.py": 30, "pipeline/train.py": 7, "pipeline/distill.py": 11, "pipeline/select.py": 10,
+    "evaluate/benchmark.py": 19, "cli/prune_options.py": 11,
+}
+
+
+def _lazy_imports(source: str) -> list[tuple[int, bool]]:
+    """Return ``(line, has a reason)`` for each import made inside a function of ``source`` (once, however deeply
+    nested): the reason is a ``# lazy: why`` comment on the import's lines or on the line just above it."""
+    lines = source.splitlines()
+
+    def says_why(line: str) -> bool:
+        return LAZY_REASON in line and bool(line.split(LAZY_REASON, 1)[1].strip())
+
+    found: dict[int, bool] = {}
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for sub in ast.walk(node):
+                if isinstance(sub, (ast.Import, ast.ImportFrom)):
+                    above = lines[sub.lineno - 2] if sub.lineno > 1 else ""
+                    found[sub.lineno] = (any(says_why(line) for line in lines[sub.lineno - 1:sub.end_lineno])
+                                         or (above.strip().startswith("#") and says_why(above)))
+    return sorted(found.items())
+
+
+def test_the_lazy_import_finder_counts_and_reads_reasons():
+    source = """import os
+
+
+def a():
+    import json
+    from . import b  # lazy: b imports torch
+    # lazy: an optional plugin, loaded only when asked for
+    import c
+
+    def inner():
+        import d  # lazy:
+    return json, b, c, inner
+
+
+x = 1  # lazy: not an import
+"""
+    assert _lazy_imports(source) == [(5, False), (6, True), (8, True), (11, False)]
+
+
+def test_imports_inside_functions_are_few_and_say_why():
+    """Imports inside functions only for optional heavy dependencies and plugins, each with a ``# lazy:`` reason, at
+    most :data:`MAX_LAZY_IMPORTS` in the package (issue 35); everything else at the top, where readers and tools see
+    the real graph."""
+    lazy, unsaid, over = 0, [], []
+    for path in MODULES:
+        rel = path.relative_to(ROOT).as_posix()
+        found = _lazy_imports(path.read_text())
+        if rel in PENDING:
+            if len(found) > PENDING[rel]:
+                over.append(f"{rel}: {len(found)} > {PENDING[rel]}")
+            continue
+        lazy += len(found)
+        unsaid += [f"{rel}:{line}" for line, said in found if not said]
+    assert not over, "imports added inside functions: " + ", ".join(over)
+    assert not unsaid, "move to the module's top, or say why it must wait (# lazy: reason): " + ", ".join(unsaid)
+    assert lazy <= MAX_LAZY_IMPORTS, f"{lazy} imports inside functions (at most {MAX_LAZY_IMPORTS})"

@@ -235,7 +235,7 @@ def test_plugin_options_from_the_command_line_are_converted(monkeypatch, tmp_pat
 def test_every_plugin_kind_takes_its_options_from_the_command_line(monkeypatch, run_cli, tmp_path):
     """extract had --segmenter-option but no inpainter option, and no command took renderer options."""
     from roodi_toolkit.render.renderer import TorchRenderer
-    import roodi_toolkit.run.extract as extract_module
+    import roodi_toolkit.cli.cmd_extract as extract_command
 
     seen = {}
 
@@ -267,7 +267,7 @@ def test_every_plugin_kind_takes_its_options_from_the_command_line(monkeypatch, 
         captured.update(kwargs)
         return {"reused": [], "recomputed": [], "objects": {}}
 
-    monkeypatch.setattr(extract_module, "extract_objects", fake_extract)
+    monkeypatch.setattr(extract_command, "extract_objects", fake_extract)  # the name the command calls
     res = run_cli("extract", tmp_path, tmp_path / "o", "--object", "1", "--inpainter", "mean",
                   "--inpainter-option", "strength=0.25", "--inpainter-option", "passes=2")
     assert res.exit_code == 0, res.stderr

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, OutputError
+from ..io.files import parse_json
 
 SPLAT_SUFFIXES = (".compressed.ply", ".ply", ".spz", ".splat", ".ksplat", ".sog")
 """File names a folder is searched for (besides ``meta.json`` of an unpacked SOG)."""
@@ -131,8 +132,6 @@ def _manifest_items(path: Path, out_root: str | None, suffix: str | None) -> lis
         for number, line in enumerate(text.splitlines(), 1):
             if not line.strip():
                 continue
-            from ..io.files import parse_json
-
             row = parse_json(line, f"{path}:{number}", "manifest line")
             if not isinstance(row, dict) or not isinstance(row.get("input"), str) or not row["input"].strip():
                 raise InputError(f"{path}:{number}: each line needs an 'input' string")
@@ -183,8 +182,6 @@ def _file_key(path: str) -> tuple[int, int] | str:
 def _unique(items: Sequence[Item]) -> list[Item]:
     """Refuse two items that write one file, or an item that writes over an item's input (a manifest's ``output``
     column may name any file): compared as files, not spellings."""
-    from ..errors import OutputError
-
     inputs = {_file_key(item.input): item.name for item in items}
     seen: dict[Any, str] = {}
     for item in items:

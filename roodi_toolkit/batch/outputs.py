@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Callable
 
 from ..errors import EnvironmentProblemError, OutputError
+from ..io.files import atomic_path
 
 
 def is_url(path: str) -> bool:
@@ -24,7 +25,7 @@ def is_url(path: str) -> bool:
 
 def _filesystem(url: str):
     try:
-        import fsspec
+        import fsspec  # lazy: optional (not a dependency); only outputs at URLs need it
     except ImportError:
         raise EnvironmentProblemError(f"{url}: writing to URLs needs fsspec (pip install fsspec)") from None
     try:
@@ -63,8 +64,6 @@ def write_output(dest: str, write: Callable[[Path], None], *, replace: bool = Fa
     ``ready`` is called with the finished local temporary file before it is put in place.
     """
     if not is_url(dest):
-        from ..io.files import atomic_path
-
         Path(dest).parent.mkdir(parents=True, exist_ok=True)
         suffix = "".join(Path(dest).suffixes[-2:]) if dest.lower().endswith(".compressed.ply") else None
         with atomic_path(dest, suffix=suffix, replace=replace, ready=ready) as tmp:

@@ -31,8 +31,9 @@ from typing import Any, Callable, Iterator, Sequence
 
 from .._version import __version__
 from ..errors import ConfigError, EnvironmentProblemError, OutputError
-from ..io.files import json_text
+from ..io.files import check_name_lengths, json_text, refuse_inside_inputs, same_file
 from ..progress import ProgressFactory, null_progress
+from ..signals import deferrable
 from .items import Item
 from .outputs import file_id, output_exists
 from .tasks import TASKS, run_item
@@ -106,8 +107,6 @@ def check_results_file(path: str | Path, items: Sequence[Item], inputs: Sequence
     Raises:
         OutputError: naming the file and what it is.
     """
-    from ..io.files import check_name_lengths, refuse_inside_inputs, same_file
-
     p = check_name_lengths(path)
     if p.is_dir():
         raise OutputError(f"{p}: --results is a folder; give a file path (results are JSON lines)")
@@ -186,14 +185,12 @@ def _init_worker() -> None:
     # worker exits at once. (The pool would otherwise catch the interruption as the item's error and go on.) First,
     # before the slow imports below: a worker signalled while importing PyTorch printed the command's own handler's
     # traceback as "Exception in initializer".
-    from ..signals import deferrable
-
     for sig in (signal.SIGTERM, signal.SIGINT, getattr(signal, "SIGHUP", None)):
         if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, deferrable(_worker_signal))  # held while an output is put in place
     # one item per worker on one core: libraries must not each start a thread per core on top of the pool
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    import torch
+    import torch  # lazy: in the workers only; the parent that hands out items never needs torch
 
     torch.set_num_threads(1)
 
@@ -295,7 +292,7 @@ def _ray_lines(task: str, items: Sequence[Item], settings: dict[str, Any], addre
                jobs: int) -> Iterator[dict[str, Any]]:
     """Yield result lines as Ray tasks finish (``address``: a cluster's, or ``local`` to start one here)."""
     try:
-        import ray
+        import ray  # lazy: optional (the [ray] extra), for --ray only
     except ImportError:
         raise EnvironmentProblemError("--ray needs Ray: pip install 'roodi-toolkit[ray]'") from None
     started = not ray.is_initialized()

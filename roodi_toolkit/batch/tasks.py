@@ -8,39 +8,40 @@ caught here and becomes the item's error line; the other items go on.
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 import traceback
+import typing
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from ..errors import ConfigError, RoodiError
+from ..io.files import json_text
+from ..io.splat import read_cloud, write_cloud
+from ..run.extract import extract_object, prepare_scene
+from ..prune.outliers import PruneConfig
+from ..prune.scene import prune_cloud
+from ..stats import describe_cloud
 from .items import Item
-from .outputs import write_output
+from .outputs import file_id, write_output
 
 TASK_SUFFIX = {"prune": ".ply", "info": ".json"}
 """Default output extension per task (convert takes it from ``--to``)."""
 
 
 def _read(path: str):
-    from ..io.splat import read_cloud
-
     return read_cloud(path)
 
 
 def _write(cloud, path: Path) -> None:
     """Write in the format of the path's extension (``.ply``, ``.compressed.ply``, ``.spz``)."""
-    from ..io.splat import write_cloud
-
     write_cloud(cloud, path)
 
 
 def _coerce(name: str, value: Any, hint: Any) -> Any:
     """Return an item option's value as its PruneConfig field's type, or raise ConfigError naming the option."""
-    import math
-    import typing
-
     args = [a for a in typing.get_args(hint) if a is not type(None)]
     optional = type(None) in typing.get_args(hint)
     kind = args[0] if optional and len(args) == 1 else hint
@@ -94,10 +95,6 @@ def prune_config(settings: dict[str, Any], options: dict[str, Any]):
     Raises:
         ConfigError: an option that is no pruning setting, a value of the wrong type, or out of range.
     """
-    import typing
-
-    from ..prune.outliers import PruneConfig
-
     known = {f.name for f in fields(PruneConfig)}
     unknown = sorted(set(options) - known)
     if unknown:
@@ -140,8 +137,6 @@ def _recorder(item: Item, settings: dict[str, Any]) -> Callable[[Path], None] | 
         return None
 
     def ready(tmp: Path) -> None:
-        from .outputs import file_id
-
         line = {"item": item.name, "output": item.output, "status": "writing", "output_id": file_id(tmp)}
         fd = os.open(record, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
         try:
@@ -154,8 +149,6 @@ def _recorder(item: Item, settings: dict[str, Any]) -> Callable[[Path], None] | 
 
 
 def _prune(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
-    from ..prune.scene import prune_cloud
-
     config = prune_config(settings.get("prune", {}), item.options)
     cloud = _read(item.input)
     pruned, keep, report = prune_cloud(cloud, config)  # what `roodi-toolkit prune` runs
@@ -173,9 +166,6 @@ def _convert(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
 
 
 def _info(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
-    from ..io.files import json_text
-    from ..stats import describe_cloud
-
     cloud = _read(item.input)
     stats = describe_cloud(cloud)
     if item.output is not None:
@@ -189,8 +179,6 @@ _PREPARED: dict[tuple[str, str], Any] = {}
 
 
 def _extract(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
-    from ..run.extract import extract_object, prepare_scene
-
     config = settings["config"]
     key = (item.input, settings["out"])
     if key not in _PREPARED:
@@ -214,8 +202,6 @@ def run_item(task: str, item: Item, settings: dict[str, Any]) -> dict[str, Any]:
     try:
         line.update(status="ok", **TASKS[task](item, settings))
         if item.output is not None and "://" not in item.output and task != "extract":
-            from .outputs import file_id
-
             line["output_id"] = file_id(item.output)  # what a later run recognises as its own output
     except RoodiError as exc:
         line.update(status="failed", error=str(exc).splitlines()[0] if str(exc) else type(exc).__name__)

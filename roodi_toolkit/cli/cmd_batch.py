@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import glob
+from pathlib import Path
 from typing import Any
 
 import click
 
+from roodi_toolkit.batch.items import Item, collect_items, join_output
+from roodi_toolkit.batch.outputs import is_url
+from roodi_toolkit.batch.runner import run_batch
+from roodi_toolkit.batch.tasks import check_items, settings_for
 from roodi_toolkit.cli.cmd_extract import extract_config_from_options, extract_options
 from roodi_toolkit.cli.common import progress_factory, quiet_option
 from roodi_toolkit.cli.prune_options import (effective_mode, prune_config_from_options, prune_mode_options,
                                              prune_options)
+from roodi_toolkit.errors import InputError
+from roodi_toolkit.io.files import check_output_dir
+from roodi_toolkit.run.extract import prepare_scene
 
 EPILOG = """\b
 SOURCE is a folder (every .ply, .compressed.ply, .spz, .splat, .ksplat, .sog and meta.json in it, recursively), a
@@ -62,12 +71,6 @@ def batch() -> None:
 
 def _run(task: str, source: str, out: str, suffix: str | None, settings: dict[str, Any], jobs: int,
          ray_address: str | None, results: str | None, rerun: bool, overwrite: bool, quiet: bool) -> None:
-    from roodi_toolkit.batch.items import collect_items, join_output
-    from roodi_toolkit.batch.outputs import is_url
-    from roodi_toolkit.batch.runner import run_batch
-    from roodi_toolkit.batch.tasks import check_items
-    from roodi_toolkit.io.files import check_output_dir
-
     if not is_url(out):  # a folder (made if missing, added to if not), never a file nor inside the source
         check_output_dir(out, overwrite=True, inputs=[source])
     items = collect_items(source, out, suffix=suffix)
@@ -86,9 +89,6 @@ def _run(task: str, source: str, out: str, suffix: str | None, settings: dict[st
 
 def glob_pattern(source: str) -> bool:
     """Whether SOURCE is a glob pattern rather than a folder or a file."""
-    import glob
-    from pathlib import Path
-
     return not Path(source).exists() and glob.has_magic(source)
 
 
@@ -102,8 +102,6 @@ def _report(task: str, summary: Any, results: str) -> None:
     click.echo(f"{task}: {summary.ok} done, {summary.skipped} unchanged and skipped, {summary.failed} failed of "
                f"{summary.total} items in {summary.seconds:.1f} s; results in {results}")
     if failed:
-        from roodi_toolkit.errors import InputError
-
         raise InputError(f"{len(failed)} of {summary.total} items failed; their lines in {results} say why")
 
 
@@ -114,8 +112,6 @@ def _report(task: str, summary: Any, results: str) -> None:
 def batch_prune(source: str, out: str, jobs: int, ray_address: str | None, results: str | None, rerun: bool,
                 overwrite: bool, quiet: bool, mode: str, **prune_kw: Any) -> None:
     """Prune every splat of SOURCE into OUT (as PLY), with the prune command's options (per item from a manifest)."""
-    from roodi_toolkit.batch.tasks import settings_for
-
     config = prune_config_from_options(mode=effective_mode(mode), **prune_kw)
     _run("prune", source, out, ".ply", settings_for("prune", prune_config=config), jobs, ray_address, results, rerun,
          overwrite, quiet)
@@ -158,10 +154,6 @@ def batch_extract(data_dir: str, out: str, object_ids: tuple[str, ...], jobs: in
                   **stage_options: Any) -> None:
     """Extract objects of DATA_DIR into OUT/object_<ID>/: the scene is trained and distilled once (or taken from
     --model and --distill), then every object is an item of the batch."""
-    from roodi_toolkit.batch.items import Item
-    from roodi_toolkit.batch.runner import run_batch
-    from roodi_toolkit.run.extract import prepare_scene
-
     config = extract_config_from_options(**stage_options)
     progress = progress_factory(quiet)
     prepared = prepare_scene(data_dir, out, model_dir=model_dir, distill_dir=distill_dir, config=config,

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option, renderer_option
+from roodi_toolkit.evaluate.benchmark import METHODS, PRESETS, SIZES, extract_config
+from roodi_toolkit.run.benchmark import run_benchmark
+from roodi_toolkit.plugins import load_plugin
+from roodi_toolkit.synth.scene import make_benchmark_scene
+
+from .common import overwrite_option, progress_factory, quiet_option
+from .renderer_option import renderer_option
 
 EXAMPLE = """Example:
 
@@ -50,13 +57,6 @@ def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[
     Every stage is kept in OUT_DIR and reused on a re-run; --overwrite starts afresh (ROOT's scenes are always reused;
     remove a scene folder to regenerate it).
     """
-    from dataclasses import replace
-
-    from roodi_toolkit.evaluate.benchmark import METHODS, PRESETS, SIZES, extract_config
-    from roodi_toolkit.run.benchmark import run_benchmark
-    from roodi_toolkit.plugins import load_plugin
-    from roodi_toolkit.synth.scene import make_benchmark_scene
-
     chosen = SIZES[scale]
     if size is not None:
         chosen = replace(chosen, size=size)

@@ -3,9 +3,19 @@ moved, turned and scaled (splat-transform's ``-t``, ``-r``, ``-s``, in the order
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
 from typing import Any
 
 import click
+import numpy as np
+
+from roodi_toolkit.io.files import check_output
+from roodi_toolkit.io.other_models import GSPLAT_CKPT
+from roodi_toolkit.io.splat import input_paths, output_format, read_cloud_report, write_cloud
+from roodi_toolkit.render.upright import resolve_up
+from roodi_toolkit.similarity import Similarity, rotation_between, splat_transform_actions, transform_cloud
+from roodi_toolkit.stats import absurd_scale_rows
 
 from .common import overwrite_option, parse_floats
 
@@ -78,16 +88,13 @@ def convert(input_path: str, output_path: str, filter_nan: bool, filter_absurd_s
     nerfstudio export with --dataparser-transforms and --data): OUT is then its scene in the data's frame, where the
     other commands expect it.
     """
-    from roodi_toolkit.io.files import check_output
-    from roodi_toolkit.io.splat import input_paths, output_format, read_cloud_report, write_cloud
-
     fmt = output_format(output_path)  # refuse an unknown extension before reading
     move = _moves(click.get_current_context().meta.get("convert_actions", []), up_spec)
     check_output(output_path, overwrite=overwrite, inputs=[*input_paths(input_path), data_dir, dataparser_transforms,
                                                            *([up_spec] if up_spec and _is_path(up_spec) else [])])
     model_note = ""
     if data_dir is not None or dataparser_transforms is not None or _is_model(input_path):
-        from roodi_toolkit.io.model import open_model
+        from roodi_toolkit.io.model import open_model  # lazy: the model readers import torch; splat files need none
 
         model = open_model(input_path, data_dir, dataparser_transforms=dataparser_transforms)
         if model.frames:
@@ -107,14 +114,10 @@ def convert(input_path: str, output_path: str, filter_nan: bool, filter_absurd_s
         cloud = cloud.select(~bad)
     extra = (f"; dropped {dropped:,} NaN/Inf rows" if dropped else "") + model_note
     if filter_absurd_scales:
-        from roodi_toolkit.stats import absurd_scale_rows
-
         wide = absurd_scale_rows(cloud)
         cloud = cloud.select(~wide)
         extra += f"; dropped {int(wide.sum()):,} Gaussians wider than the scene" if wide.any() else ""
     if move is not None:
-        from roodi_toolkit.similarity import transform_cloud
-
         cloud = transform_cloud(cloud, move)
         extra += f"; moved ({_describe(move)})"
     write_cloud(cloud, output_path)
@@ -133,24 +136,16 @@ class _ModelReport:
 
 def _is_model(path: str) -> bool:
     """Whether IN is a model folder or a gsplat checkpoint rather than a splat file."""
-    from pathlib import Path
-
-    from roodi_toolkit.io.other_models import GSPLAT_CKPT
-
     p = Path(path)
     return (p.is_dir() and not (p / "meta.json").is_file()) or GSPLAT_CKPT.fullmatch(p.name) is not None
 
 
 def _is_path(spec: str) -> bool:
-    from pathlib import Path
-
     return Path(spec).exists()
 
 
 def _moves(actions: list[tuple[str, str]], up_spec: str | None) -> Any:
     """Return the similarity the --up and -t/-r/-s options describe, or None when there are none."""
-    from roodi_toolkit.similarity import Similarity, rotation_between, splat_transform_actions
-
     parsed: list[tuple[str, Any]] = []
     for kind, text in actions:
         name = TRANSFORM_OPTIONS[kind]
@@ -163,11 +158,9 @@ def _moves(actions: list[tuple[str, str]], up_spec: str | None) -> Any:
             parsed.append((kind, parse_floats(text, 3, name)))
     total = None
     if up_spec is not None:
-        from roodi_toolkit.render.views import resolve_up
-
         if up_spec.strip().lower() == "auto":
             raise click.BadParameter("give the direction (X,Y,Z) or a dataset whose cameras tell it", param_hint="--up")
-        up, _ = resolve_up(up_spec, "")
+        up = resolve_up(up_spec, "").vector
         total = Similarity(rotation=rotation_between(up, (0.0, 0.0, 1.0)))
     if parsed:
         moves = splat_transform_actions(parsed)
@@ -176,10 +169,6 @@ def _moves(actions: list[tuple[str, str]], up_spec: str | None) -> Any:
 
 
 def _describe(move: Any) -> str:
-    import math
-
-    import numpy as np
-
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(move.rotation)) - 1.0) / 2.0))))
     t = ", ".join(f"{v:.4g}" for v in move.translation)
     return f"turned {angle:.3g} degrees, scaled by {move.scale:.4g}, then moved by {t}"

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import click
 
-from .common import overwrite_option, parse_size, progress_factory, quiet_option, renderer_option
+from roodi_toolkit.pipeline.train import config_with
+from roodi_toolkit.plugins import load_plugin
+from roodi_toolkit.synth.demo import ExtractDemoConfig, run_extract_demo, run_prune_demo
+from roodi_toolkit.synth.scene import SceneSettings
+
+from .common import overwrite_option, parse_size, progress_factory, quiet_option
+from .renderer_option import renderer_option
 
 PRESET_NAMES = ("bedroom", "kitchen", "livingroom", "picnic")
 SURFACES = ("ant", "sphere", "torus", "box")
@@ -94,12 +101,6 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
         return
     if surface is not None:
         raise click.UsageError("--surface is an option of --prune-only")
-    from dataclasses import replace
-
-    from roodi_toolkit.synth.demo import ExtractDemoConfig, run_extract_demo
-    from roodi_toolkit.synth.scene import SceneSettings
-    from roodi_toolkit.pipeline.train import config_with
-
     base = ExtractDemoConfig()
     width, height = parse_size(size_text) if size_text is not None else (base.scene.width, base.scene.height)
     scene = SceneSettings(width=width, height=height, train_views=train_views or base.scene.train_views,
@@ -115,8 +116,6 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
                       occlusion=replace(ex.occlusion, size=view_size or ex.occlusion.size),
                       inpainter=inpainter or ex.inpainter)
     if extract.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
-        from roodi_toolkit.plugins import load_plugin
-
         load_plugin("inpainters", extract.inpainter)
     config = replace(base, preset=preset or base.preset, seed=base.seed if seed is None else seed,
                      object_id=object_id, scene=scene, extract=extract)
@@ -150,8 +149,6 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
 
 
 def _prune_demo(out_dir: str, seed: int | None, surface: str | None, overwrite: bool, progress) -> None:
-    from roodi_toolkit.synth.demo import run_prune_demo
-
     res = run_prune_demo(out_dir, seed=0 if seed is None else seed, surface=surface or "ant", overwrite=overwrite,
                          progress=progress)
     s = res.scores

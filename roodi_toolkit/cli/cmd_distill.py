@@ -6,7 +6,14 @@ from typing import Any
 
 import click
 
-from .common import overwrite_option, parse_key_values, progress_factory, quiet_option, renderer_option
+from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.pipeline.distill import DistillConfig
+from roodi_toolkit.pipeline.segment import Click
+from roodi_toolkit.plugins import load_plugin
+from roodi_toolkit.run.distill import run_distill
+
+from .common import overwrite_option, parse_key_values, progress_factory, quiet_option
+from .renderer_option import renderer_option
 
 EXAMPLE = """Examples:
 
@@ -63,11 +70,6 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
     distill.json (which model file, settings, loss, held-out IoU) and distill.png (rendered classes next to the masks).
     MODEL_DIR and DATA_DIR are only read. Then take objects out with roodi-toolkit select OUT_DIR.
     """
-    from roodi_toolkit.pipeline.distill import DistillConfig
-    from roodi_toolkit.run.distill import run_distill
-    from roodi_toolkit.errors import ConfigError
-    from roodi_toolkit.pipeline.segment import Click
-
     opts = parse_key_values(options, "--option")
     parsed = []
     for texts, positive, hint in ((clicks, True, "--click"), (negative_clicks, False, "--negative-click")):
@@ -76,8 +78,6 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
                 parsed.append(Click.parse(c, positive))
             except ConfigError as exc:
                 raise click.BadParameter(str(exc), param_hint=hint) from None
-    from roodi_toolkit.plugins import load_plugin
-
     load_plugin("segmenters", segmenter)  # an unknown or broken --segmenter fails before the images are read
     changes = {k: v for k, v in (("feature_lr", feature_lr), ("classifier_lr", classifier_lr)) if v is not None}
     config = DistillConfig(iterations=iterations, seed=seed, **changes)

@@ -2,11 +2,23 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Any
 
 import click
+import numpy as np
 
-from .common import overwrite_option, progress_factory, quiet_option, renderer_option
+from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
+from roodi_toolkit.io import files
+from roodi_toolkit.io.dataset import load_dataset
+from roodi_toolkit.io.lpips_weights import ENV_WEIGHTS, read_lpips
+from roodi_toolkit.io.model import open_model
+from roodi_toolkit.io.other_models import GSPLAT_CKPT
+from roodi_toolkit.io.splat import input_paths, read_cloud
+
+from .common import overwrite_option, progress_factory, quiet_option
+from .renderer_option import renderer_option
 
 EXAMPLE = """Example:
 
@@ -49,13 +61,6 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
     each view's never-seen region (PSNR over its pixels, the SSIM map averaged over it, IoU of alpha > 0.5 counting
     its pixels only, LPIPS of its box with the render pasted into the truth inside it).
     """
-    import numpy as np
-
-    from roodi_toolkit.io import files
-    from roodi_toolkit.io.dataset import load_dataset
-    from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
-    from roodi_toolkit.io.splat import input_paths, read_cloud
-
     # --json over scene.json or --renders into DATA_DIR is refused
     inputs = [*input_paths(object_ply), data_dir, lpips_weights, dataparser_transforms]
     files.check_outputs([("--json", json_path)], overwrite=overwrite, inputs=inputs)
@@ -63,19 +68,9 @@ def evaluate(object_ply: str, data_dir: str, object_id: int, json_path: str | No
         if json_path is not None and files.same_file(json_path, renders_dir):
             raise click.BadParameter(f"{renders_dir} is also the --json file", param_hint="--renders")
         out_dir = files.prepare_output_dir(renders_dir, overwrite=overwrite, inputs=inputs)
-    import os
-
-    from roodi_toolkit.io.lpips_weights import ENV_WEIGHTS, read_lpips
-
     if lpips_weights or os.environ.get(ENV_WEIGHTS):  # weights named by the user must load: fail now, naming them
         read_lpips(lpips_weights)
-    from pathlib import Path
-
-    from roodi_toolkit.io.other_models import GSPLAT_CKPT
-
     if Path(object_ply).is_dir() or dataparser_transforms or GSPLAT_CKPT.fullmatch(Path(object_ply).name):
-        from roodi_toolkit.io.model import open_model
-
         cloud = open_model(object_ply, data_dir, dataparser_transforms=dataparser_transforms).read_cloud()
     else:
         cloud = read_cloud(object_ply)

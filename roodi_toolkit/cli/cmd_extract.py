@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import click
 
-from .common import (overwrite_option, parse_floats, parse_key_values, progress_factory, quiet_option,
-                     renderer_option)
+from roodi_toolkit.pipeline.distill import DistillConfig
+from roodi_toolkit.pipeline.extract import ExtractConfig
+from roodi_toolkit.pipeline.inpaint import get_inpainter
+from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
+from roodi_toolkit.pipeline.train import config_with
+from roodi_toolkit.prune.outliers import PruneConfig
+from roodi_toolkit.run.extract import extract_objects
+
+from .common import overwrite_option, parse_floats, parse_key_values, progress_factory, quiet_option
+from .renderer_option import renderer_option
 
 EXAMPLE = """Example:
 
@@ -72,13 +82,6 @@ def extract_config_from_options(*, downscale: float | None, iterations: int | No
                                 distance: str, rule: str, single_stage: bool, inpainter: str,
                                 inpainter_options: tuple[str, ...] = (), **_: Any) -> Any:
     """Return the ExtractConfig the stage options describe."""
-    from dataclasses import replace
-
-    from roodi_toolkit.pipeline.distill import DistillConfig
-    from roodi_toolkit.pipeline.extract import ExtractConfig
-    from roodi_toolkit.pipeline.train import config_with
-    from roodi_toolkit.prune.outliers import PruneConfig
-
     base = ExtractConfig()
     return replace(base, downscale=downscale, train=config_with(base.train, iterations=iterations, init=init),
                    distill=DistillConfig(iterations=distill_iterations), threshold=threshold, prune=not no_prune,
@@ -134,12 +137,6 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     not replaced without --overwrite, which makes every stage again (or write to another OUT_DIR, with --model
     OUT_DIR/scene --distill OUT_DIR/distill to reuse the scene). DATA_DIR, --model and --distill are only read.
     """
-    from dataclasses import replace
-    from pathlib import Path
-
-    from roodi_toolkit.run.extract import extract_objects
-    from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
-
     if len(paths) > 2:
         raise click.UsageError(f"expected [DATA_DIR] OUT_DIR, got {len(paths)} paths")
     if len(paths) == 1 and model_dir is None:
@@ -163,8 +160,6 @@ def extract(paths: tuple[str, ...], object_ids: tuple[str, ...], clicks: tuple[s
     config = replace(config, segmenter=segmenter, segmenter_options=opts,
                      prompt=SegmentPrompt(clicks=parsed, mask_dir=Path(mask_dir) if mask_dir else None))
     if config.inpaint:  # an unknown or broken --inpainter, or options it does not take, fail now, not after training
-        from roodi_toolkit.pipeline.inpaint import get_inpainter
-
         get_inpainter(config.inpainter, **config.inpainter_options)
     report = extract_objects(data_dir, out_dir, object_ids, model_dir=model_dir, distill_dir=distill_dir,
                              config=config, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer,

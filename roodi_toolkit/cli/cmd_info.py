@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
+import os
+
 import click
+
+from roodi_toolkit.io.files import json_text
+from roodi_toolkit.io.ply import ply_info
+from roodi_toolkit.io.splat import OPACITY_LOGIT_LIMIT, read_cloud_report
+from roodi_toolkit.stats import describe_cloud
 
 
 def _fmt(x: float) -> str:
@@ -18,12 +25,6 @@ def info(ply: str, as_json: bool) -> None:
 
     FILE is any readable splat: PLY, compressed PLY, SPZ, SOG (.sog, meta.json or its folder), .splat, .ksplat.
     """
-    import os
-
-    from roodi_toolkit.io.ply import ply_info
-    from roodi_toolkit.io.splat import OPACITY_LOGIT_LIMIT, read_cloud_report
-    from roodi_toolkit.stats import describe_cloud
-
     cloud, report = read_cloud_report(ply)
     stats = describe_cloud(cloud)
     bad = stats["bad_values"]
@@ -34,8 +35,6 @@ def info(ply: str, as_json: bool) -> None:
         file_info.update(encoding=layout.format, variant=layout.variant, properties=len(layout.property_names))
     stats["file"] = file_info
     if as_json:
-        from roodi_toolkit.io.files import json_text
-
         click.echo(json_text(stats, indent=2))  # strict JSON: NaN and infinities as null
         return
     bb = stats["bbox"]

@@ -3,14 +3,22 @@
 from __future__ import annotations
 
 import click
+from matplotlib.colors import is_color_like
 
 from roodi_toolkit.cli.common import overwrite_option, parse_size, quiet_option
 from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo_options, picture_title,
                                              prune_config_from_options, prune_mode_options, prune_options,
                                              prune_with_photos, write_floater_picture)
 from roodi_toolkit.cli.settings import config_from_options, config_options
+from roodi_toolkit.errors import ConfigError, EnvironmentProblemError
+from roodi_toolkit.io.files import check_outputs, write_image
+from roodi_toolkit.io.splat import input_paths, read_cloud
 from roodi_toolkit.prune.config import PhotoSettings
+from roodi_toolkit.prune.summary import summary_lines
+from roodi_toolkit.render.upright import check_up, resolve_up
+from roodi_toolkit.viz import inspect as insp
 from roodi_toolkit.viz.inspect import InspectView
+from roodi_toolkit.viz.page import floater_page, write_floater_page
 
 
 EPILOG = """\b
@@ -64,13 +72,6 @@ def inspect(input_ply: str, window_size: str, screenshot: str | None, view_png: 
     and the window the PyVista view, where each Gaussian is drawn with its footprint (oriented, scaled ellipsoids for
     small clouds, Gaussian splats sized by scale for large ones). Without a display, ask for a file.
     """
-    from roodi_toolkit.viz import inspect as insp
-    from roodi_toolkit.errors import ConfigError, EnvironmentProblemError
-    from roodi_toolkit.io.files import check_outputs, write_image
-    from roodi_toolkit.io.splat import input_paths, read_cloud
-    from roodi_toolkit.prune.summary import summary_lines
-    from roodi_toolkit.render.upright import check_up, resolve_up
-
     config = prune_config_from_options(**{**settings, "mode": effective_mode(settings["mode"])})
     photo = config_from_options(PhotoSettings, settings)
     view = config_from_options(InspectView, settings)
@@ -93,8 +94,6 @@ def inspect(input_ply: str, window_size: str, screenshot: str | None, view_png: 
                           "--view-png or --histogram")
     highlight_colour = None if view.highlight.strip().lower() == "none" else view.highlight
     if highlight_colour is not None:
-        from matplotlib.colors import is_color_like
-
         if not is_color_like(highlight_colour):
             raise click.BadParameter(f"not a colour: {view.highlight!r} (use a name such as red or #ff00ff)",
                                      param_hint="--highlight")
@@ -116,8 +115,6 @@ def inspect(input_ply: str, window_size: str, screenshot: str | None, view_png: 
         write_floater_picture(input_ply, cloud, keep, report, screenshot, quiet, up=up)
         click.echo(f"wrote {screenshot}")
     if html_path is not None:
-        from roodi_toolkit.viz.page import floater_page, write_floater_page
-
         write_floater_page(floater_page(cloud, keep, report, up_axis.vector, title=picture_title(input_ply),
                                         grey=view.color_by != "rgb"), html_path)
         click.echo(f"wrote {html_path}")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from roodi_toolkit.synth.scene import SceneSettings, make_scene as run
+
 from .common import overwrite_option, parse_size, progress_factory, quiet_option
 
 PRESET_NAMES = ("bedroom", "kitchen", "livingroom", "picnic")
@@ -53,8 +55,6 @@ def make_scene(out_dir: str, preset: str, seed: int, size_text: str, train_views
       roodi-toolkit make-scene scenes/kitchen0 --preset kitchen --seed 0
       roodi-toolkit make-scene scenes/kitchen0_occ --preset kitchen --occluded --size 64
     """
-    from roodi_toolkit.synth.scene import SceneSettings, make_scene as run
-
     width, height = parse_size(size_text)
     settings = SceneSettings(width=width, height=height, train_views=train_views, test_views=test_views,
                              supersample=supersample, n_objects=n_objects, n_targets=n_targets,

@@ -6,6 +6,8 @@ import json
 
 import click
 
+from roodi_toolkit.plugins import check_all, short_group
+
 
 @click.command(epilog="Example:\n\n\b\n  roodi-toolkit plugins\n"
                "  ROODI_PLUGINS='inpainters:mine=my_inpainter:Mine' roodi-toolkit plugins   # my_inpainter.py here\n"
@@ -14,8 +16,6 @@ import click
 def plugins(as_json: bool) -> None:
     """List plugins with their group, origin and status: installed (it can run here), needs CUDA, needs weights,
     needs a package (with what to do), or error (it does not load, with the error)."""
-    from roodi_toolkit.plugins import check_all, short_group
-
     statuses = check_all()
     rows = [{"group": short_group(s.spec.group), "name": s.spec.name, "origin": s.spec.origin,
              "target": s.spec.target, "status": s.state, "detail": s.detail, "error": s.error} for s in statuses]

@@ -3,6 +3,10 @@ statistical rule with ``--mode statistical``)."""
 
 from __future__ import annotations
 
+import os
+import time
+from pathlib import Path
+
 import click
 
 from roodi_toolkit.cli.common import overwrite_option, quiet_option
@@ -10,7 +14,11 @@ from roodi_toolkit.cli.prune_options import (effective_mode, photo_inputs, photo
                                              prune_mode_options, prune_options, prune_with_photos,
                                              write_floater_picture)
 from roodi_toolkit.cli.settings import config_from_options
+from roodi_toolkit.io.files import check_outputs, write_json
+from roodi_toolkit.io.splat import WRITE_SUFFIXES, input_paths, read_cloud, write_cloud
 from roodi_toolkit.prune.config import PhotoSettings
+from roodi_toolkit.prune.summary import summary_lines
+from roodi_toolkit.render.upright import check_up
 
 
 EPILOG = """\b
@@ -54,13 +62,6 @@ def prune(input_ply: str, output_ply: str, dry_run: bool, up: str | None, floate
     Every column of the input, extra properties included, is kept for the kept Gaussians, in input order.
     The filters (--filter-nan, --min-opacity, --filter-box, --filter-sphere, --filter-value) run first.
     """
-    import time
-    from pathlib import Path
-
-    from roodi_toolkit.io.files import check_outputs, write_json
-    from roodi_toolkit.io.splat import input_paths, read_cloud, write_cloud
-    from roodi_toolkit.prune.summary import summary_lines
-
     start = time.perf_counter()
     _skip_hugepage_advice()
     config = prune_config_from_options(**{**settings, "mode": effective_mode(settings["mode"])})
@@ -69,13 +70,9 @@ def prune(input_ply: str, output_ply: str, dry_run: bool, up: str | None, floate
     if up is not None and not dry_run:
         raise click.BadParameter("--up sets the --dry-run picture's up; the pruned cloud keeps its axes",
                                  param_hint="--up")
-    from roodi_toolkit.render.upright import check_up
-
     check_up(up)
     picture = None
     if dry_run:
-        from roodi_toolkit.io.splat import WRITE_SUFFIXES
-
         stem = Path(output_ply)
         suffix = next((s for s in WRITE_SUFFIXES if stem.name.lower().endswith(s)), "")
         stem = stem.with_name(stem.name[:len(stem.name) - len(suffix)])
@@ -135,12 +132,10 @@ def _skip_hugepage_advice() -> None:
     0.6 s instead of 1.2-1.3 s (``benchmarks/RESULTS.md``, "Prune on real splats"). NumPy offers the switch after
     import only privately; without it nothing changes.
     """
-    import os
-
     if "NUMPY_MADVISE_HUGEPAGE" in os.environ:
         return
     try:
-        from numpy._core.multiarray import _set_madvise_hugepage
+        from numpy._core.multiarray import _set_madvise_hugepage  # lazy: private to NumPy 2; other layouts lack it
     except ImportError:  # another NumPy layout: keep its default
         return
     _set_madvise_hugepage(False)

@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import click
 
+from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.io.dataset import load_cameras
+from roodi_toolkit.io.files import prepare_output_dir
+from roodi_toolkit.io.splat import input_paths, read_cloud
 from roodi_toolkit.render.settings import OrbitSettings
+from roodi_toolkit.render.views import framing_orbit, render_views, resolve_up
 
-from .common import (check_render_size, overwrite_option, parse_floats, parse_size, progress_factory, quiet_option,
-                     renderer_option)
+from .common import check_render_size, overwrite_option, parse_floats, parse_size, progress_factory, quiet_option
+from .renderer_option import renderer_option
 from .settings import config_from_options, config_options
 
 EPILOG = """Examples:
@@ -53,10 +59,6 @@ def render(ply: str, out_dir: str, cameras_path: str | None, up: str | None, fra
            size_text: str | None, what: str, background: str, renderer: Any, filter_nan: bool, overwrite: bool,
            quiet: bool, **settings: Any) -> None:
     """Render IN (any splat format) into OUT_DIR from an orbit around the cloud or from a dataset's cameras."""
-    from roodi_toolkit.io.files import prepare_output_dir
-    from roodi_toolkit.io.splat import input_paths, read_cloud
-    from roodi_toolkit.render.views import framing_orbit, render_views, resolve_up
-
     orbit = config_from_options(OrbitSettings, settings)
     bg = parse_floats(background, 3, "--background")
     if not all(0.0 <= v <= 1.0 for v in bg):
@@ -73,9 +75,6 @@ def render(ply: str, out_dir: str, cameras_path: str | None, up: str | None, fra
     cloud.require_finite(ply)
     extra = {}
     if cameras_path:
-        from roodi_toolkit.errors import ConfigError
-        from roodi_toolkit.io.dataset import load_cameras
-
         cams = load_cameras(cameras_path)
         if not cams:
             raise ConfigError(f"{cameras_path}: holds no cameras (no frames); give a dataset with views")
@@ -97,8 +96,6 @@ def render(ply: str, out_dir: str, cameras_path: str | None, up: str | None, fra
     big = max(cams, key=lambda c: c.width * c.height)
     check_render_size(big.width, big.height, f"--size {size_text}" if size_text else cameras_path or "--size")
     # a transforms_*.json stands for its whole dataset folder: rendering into its images/ would overwrite them
-    from pathlib import Path
-
     camera_folder = str(Path(cameras_path).parent) if cameras_path and Path(cameras_path).is_file() else None
     out = prepare_output_dir(out_dir, overwrite=overwrite, inputs=[*input_paths(ply), cameras_path, camera_folder,
                                                                  *(input_paths(frame_like) if frame_like else [])])

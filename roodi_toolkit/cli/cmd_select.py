@@ -6,7 +6,10 @@ from typing import Any
 
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option, renderer_option
+from roodi_toolkit.run.select import run_select
+
+from .common import overwrite_option, progress_factory, quiet_option
+from .renderer_option import renderer_option
 
 EXAMPLE = """Examples:
 
@@ -34,8 +37,6 @@ def select(distill_dir: str, output_ply: str, object_id: int, threshold: float, 
            overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Write the Gaussians of object --object of the distillation DISTILL_DIR (a roodi-toolkit distill output) to
     OUT.ply; the scene is read from the model file the distillation names."""
-    from roodi_toolkit.run.select import run_select
-
     summary = run_select(distill_dir, object_id, output_ply, threshold=threshold, prune=not no_prune,
                          picture=picture, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
     pruned = f", {summary['pruned']:,} pruned as outliers" if summary["pruned"] is not None else ""

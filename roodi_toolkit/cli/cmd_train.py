@@ -6,7 +6,12 @@ from typing import Any
 
 import click
 
-from .common import overwrite_option, progress_factory, quiet_option, renderer_option
+from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.pipeline.train import TrainConfig, config_with
+from roodi_toolkit.run.train import train_scene
+
+from .common import overwrite_option, progress_factory, quiet_option
+from .renderer_option import renderer_option
 
 EXAMPLE = """Example:
 
@@ -52,10 +57,6 @@ def train(data_dir: str, out_dir: str, iterations: int | None, cap_max: int | No
     Writes OUT_DIR/point_cloud/iteration_N/point_cloud.ply (Inria PLY), checkpoints/latest.pt, cfg.json,
     metrics.json, training.png and renders/ (held-out views beside the ground truth).
     """
-    from roodi_toolkit.errors import ConfigError
-    from roodi_toolkit.pipeline.train import TrainConfig, config_with
-    from roodi_toolkit.run.train import train_scene
-
     if resume and overwrite:
         raise ConfigError("--resume and --overwrite contradict each other; choose one")
     config = config_with(TrainConfig(), iterations=iterations, cap_max=cap_max, sh_degree=sh_degree, init=init,

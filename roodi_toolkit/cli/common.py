@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import functools
+import math
+import os
 import sys
 from typing import Any, Callable
 
 import click
 
 from roodi_toolkit import settings
+from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.limits import check_memory
+from roodi_toolkit.progress import null_progress
 
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 
@@ -16,10 +21,8 @@ overwrite_option = click.option("--overwrite", is_flag=True, help="Replace exist
 def progress_factory(quiet: bool = False) -> Callable[..., Any]:
     """Return a tqdm progress factory writing to stderr (a no-op one when quiet)."""
     if quiet:
-        from roodi_toolkit.progress import null_progress
-
         return null_progress
-    from tqdm import tqdm
+    from tqdm import tqdm  # lazy: -q runs (batch workers, scripts) never draw a bar
 
     return functools.partial(tqdm, file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5)
 
@@ -43,10 +46,6 @@ def threads_setting() -> int:
     Raises:
         ConfigError: the value is not an integer from 1 to the machine's core count.
     """
-    import os
-
-    from roodi_toolkit.errors import ConfigError
-
     value = os.environ.get("ROODI_THREADS", "1")
     try:
         n = int(value)
@@ -64,7 +63,7 @@ def threads_setting() -> int:
 def set_torch_threads() -> None:
     """Give PyTorch the threads of :func:`threads_setting` (imports PyTorch)."""
     n = threads_setting()
-    import torch
+    import torch  # lazy: 2-5 s to import; only the commands that run torch call this
 
     torch.set_num_threads(n)
 
@@ -112,34 +111,5 @@ RENDER_BYTES_PER_PIXEL = 80
 def check_render_size(width: int, height: int, where: str) -> None:
     """Refuse, in one line naming ``where`` (an option or a camera file), a view too large to render in the memory
     this machine has available (a header or an option can ask for any size)."""
-    from roodi_toolkit.errors import ConfigError
-    from roodi_toolkit.limits import check_memory
-
     check_memory(RENDER_BYTES_PER_PIXEL * int(width) * int(height), f"{where}: rendering a {width}x{height} view",
                  "choose a smaller size", ConfigError)
-
-
-def _load_renderer(ctx: click.Context, param: click.Parameter, value: str) -> Any:
-    """Return the renderer registered as ``value``, built with the ``--renderer-option`` values: a missing or
-    unavailable plugin, or an option it does not take, fails before any work."""
-    from roodi_toolkit.render.renderer import get_renderer
-
-    return get_renderer(value, **ctx.meta.get("renderer_options", {}))
-
-
-def _keep_renderer_options(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> None:
-    ctx.meta["renderer_options"] = parse_key_values(value, "--renderer-option")
-
-
-def renderer_option(func: Callable[..., Any]) -> Callable[..., Any]:
-    """``--renderer NAME`` (the command receives the :class:`~roodi_toolkit.render.renderer.Renderer` instance) and
-    ``--renderer-option KEY=VALUE`` (repeatable; the renderer's keyword arguments, read first)."""
-    func = click.option(
-        "--renderer", default="numba", show_default=True, metavar="NAME", callback=_load_renderer,
-        help="Renderer plugin for every rendering of the command: numba (built-in, compiled CPU kernels), torch "
-             "(built-in, the slower reference) or an installed one such as gsplat (CUDA); see roodi-toolkit plugins.")(func)
-    return click.option(
-        "--renderer-option", multiple=True, metavar="KEY=VALUE", expose_value=False, is_eager=True,
-        callback=_keep_renderer_options,
-        help="Renderer option (repeatable), e.g. device=cuda:1 or tile_size=8 for gsplat: the keyword arguments of "
-             "the plugin's class.")(func)

@@ -21,23 +21,33 @@ exit  when
 143   terminated (SIGTERM; 129 for SIGHUP, a closed terminal): as with Ctrl-C, no output appears half made
 ====  ==========================================================================================================
 
-Commands are imported only when run (or when ``--help`` lists them), so ``roodi-toolkit info`` stays fast; command
-modules import heavy libraries inside their functions.
+Commands are imported only when run (``--help`` reads their short help from their modules' source), so
+``roodi-toolkit info`` stays fast; a command's module imports what it runs at its top.
 """
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import importlib
+import importlib.util
+import io
+import math
 import os
 import signal
 import sys
+import threading
 import warnings
+from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import click
 
 from roodi_toolkit._version import __version__
+from roodi_toolkit.cli.common import set_torch_threads, threads_setting
+from roodi_toolkit.errors import InputWarning, RoodiError, missing_library_problem, os_error_problem
+from roodi_toolkit.io.files import output_group
+from roodi_toolkit.signals import deferrable
 
 # name -> "module:attribute" of a click.Command. One line per command.
 COMMANDS: dict[str, str] = {
@@ -68,12 +78,31 @@ class LazyGroup(click.Group):
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted(COMMANDS)
 
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """List the commands with their short help, read from the source of their modules: listing them imports
+        none of them (each imports what it runs at its top: ``train`` imports torch)."""
+        names = self.list_commands(ctx)
+        limit = formatter.width - 6 - max(len(name) for name in names)
+        with formatter.section("Commands"):
+            formatter.write_dl([(name, _short_help(COMMANDS[name], limit)) for name in names])
+
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
         target = COMMANDS.get(name)
         if target is None:
             return None
         module_name, attr = target.split(":")
         return _finite_floats(getattr(importlib.import_module(module_name), attr))
+
+
+def _short_help(target: str, limit: int) -> str:
+    """Return the short help of the command ``module:attribute`` as click makes it from the docstring of the
+    function the command decorates, found in the module's source without importing it."""
+    module_name, attr = target.split(":")
+    spec = importlib.util.find_spec(module_name)
+    tree = ast.parse(Path(spec.origin).read_text(encoding="utf-8"))
+    doc = next(ast.get_docstring(node, clean=False) for node in tree.body
+               if isinstance(node, ast.FunctionDef) and node.name == attr)
+    return click.Command(attr, help=doc).get_short_help_str(limit)
 
 
 class FiniteFloat(click.ParamType):
@@ -85,8 +114,6 @@ class FiniteFloat(click.ParamType):
         self.name = inner.name
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        import math
-
         out = self.inner.convert(value, param, ctx)
         if isinstance(out, float) and not math.isfinite(out):
             self.fail(f"must be a finite number, got {value!r}", param, ctx)
@@ -153,10 +180,6 @@ def _output_scope(args: Sequence[str]) -> Any:
 
 @contextlib.contextmanager
 def _grouped() -> Iterator[None]:
-    import io
-
-    from roodi_toolkit.io.files import output_group
-
     said = io.StringIO()
     with output_group(), contextlib.redirect_stdout(said):
         yield
@@ -181,8 +204,6 @@ def _torch_threads(args: Sequence[str]) -> None:
     """Set PyTorch's intra-op threads for the torch commands (:func:`roodi_toolkit.cli.common.set_torch_threads`:
     ``--threads N`` or ``$ROODI_THREADS``, default 1). ``prune`` and ``inspect`` load PyTorch only to render and
     set them there; the value is checked here first."""
-    from roodi_toolkit.cli.common import set_torch_threads, threads_setting
-
     if any(a in LAZY_TORCH_COMMANDS for a in args):
         threads_setting()  # they load PyTorch only to render: a bad value is still refused before any work
     if any(a in TORCH_COMMANDS for a in args):
@@ -229,10 +250,6 @@ def _on_signals() -> dict[int, Any] | None:
     """Make SIGTERM and SIGHUP raise :class:`Terminated` and Ctrl-C ``KeyboardInterrupt`` (in the main thread only),
     all held while outputs are put in place (:mod:`roodi_toolkit.signals`); return the handlers they replace. A
     signal that is ignored (SIGINT in a background job, SIGHUP under nohup) stays ignored."""
-    import threading
-
-    from roodi_toolkit.signals import deferrable
-
     def handler(signum: int, frame: Any) -> None:
         raise Terminated(signum)
 
@@ -249,8 +266,6 @@ def _on_signals() -> dict[int, Any] | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI and return its exit code (also used as the console script)."""
-    from roodi_toolkit.errors import RoodiError
-
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     args, quiet = _pop_quiet(_pop_threads([a for a in args if a != "--debug"]))
@@ -319,10 +334,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _show_input_warnings() -> Any:
     """Show the library's :class:`~roodi_toolkit.errors.InputWarning` (what an input lacked, what was assumed) as one
     ``warning:`` line on stderr each, every time; return the function that puts the previous display back."""
-    import warnings
-
-    from roodi_toolkit.errors import InputWarning
-
     shown, filters = warnings.showwarning, list(warnings.filters)
 
     def show(message: Any, category: type, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
@@ -343,8 +354,6 @@ def _show_input_warnings() -> Any:
 
 def _environment_problem(exc: BaseException) -> str | None:
     """Return what the machine lacks, and what to do, for an error that is the environment's fault; else None."""
-    from roodi_toolkit.errors import missing_library_problem, os_error_problem
-
     if isinstance(exc, OSError):
         problem = os_error_problem(exc)
         if problem is not None:

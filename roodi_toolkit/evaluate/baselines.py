@@ -22,8 +22,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
+import cv2
 import numpy as np
 import torch
+from scipy.spatial import Delaunay, QhullError
 
 from ..errors import CloudError, ConfigError
 from ..gaussians import GaussianCloud
@@ -70,8 +72,6 @@ def inside_hull(points: np.ndarray, chosen: np.ndarray, iqr_factor: float = 1.0)
         >>> inside_hull(pts, np.r_[np.ones(8, bool), False, False]).tolist()[-2:]
         [True, False]
     """
-    from scipy.spatial import Delaunay, QhullError
-
     points = np.asarray(points, dtype=np.float64)
     pts = points[chosen]
     if len(pts) >= 4:
@@ -115,8 +115,6 @@ def gaussian_grouping(cloud: GaussianCloud, classifier: ObjectClassifier, object
 
 def click_in_mask(mask: np.ndarray) -> tuple[int, int]:
     """Return the pixel ``(x, y)`` deepest inside a binary mask (largest distance to its border)."""
-    import cv2
-
     m = np.pad(np.asarray(mask, dtype=np.uint8), 1)
     if not m.any():
         raise ConfigError("the mask is empty: nothing to click on")

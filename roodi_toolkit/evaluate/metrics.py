@@ -26,16 +26,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
+import kornia
 import numpy as np
 import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..errors import CloudError, DatasetError
+from ..errors import CloudError, DatasetError, RoodiError
 from ..gaussians import GaussianCloud
 from ..imaging import mask_iou, psnr, ssim
+from ..io.dataset import load_dataset
+from ..io.files import read_image
+from ..io.generated import read_scene_record
+from ..io.lpips_weights import read_lpips
+from ..lpips import LPIPSUnavailable
 from ..progress import ProgressFactory, null_progress
-from ..render.renderer import Renderer
+from ..render.renderer import Renderer, render_cloud, resolve_renderer
 
 BOX_SCALE = 1.2
 """Metrics are computed inside this multiple of the true object's tight 2D bounding box (paper)."""
@@ -201,8 +207,6 @@ def region_scores(render: np.ndarray, alpha: np.ndarray, truth: np.ndarray, trut
         >>> round(region_scores(r, np.ones((16, 16)), t, np.ones((16, 16)), m)["ns_psnr"], 6)
         20.0
     """
-    import kornia
-
     region = np.asarray(region, dtype=bool)
     n = int(region.sum())
     if n == 0:
@@ -236,10 +240,6 @@ def load_never_seen(data_dir: str | Path, object_id: int, names: Sequence[str]) 
     Raises:
         DatasetError: scene.json names masks that are missing or unreadable.
     """
-    from ..io.files import read_image
-    from ..io.generated import read_scene_record
-    from ..errors import RoodiError
-
     root = Path(data_dir)
     target = {int(t["id"]): t for t in read_scene_record(root).get("targets", [])}.get(int(object_id))
     if target is None or "never_seen" not in target:
@@ -299,8 +299,6 @@ def find_target(data_dir: str | Path, object_id: int) -> tuple[Path, str]:
     Raises:
         DatasetError: no scene.json, or no such target (the message lists the targets).
     """
-    from ..io.generated import read_scene_record
-
     root = Path(data_dir)
     record = read_scene_record(root)
     targets = {int(t["id"]): t for t in record.get("targets", [])}
@@ -330,11 +328,6 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
     Returns:
         ``(evaluation, renders)`` with renders ``[N, H, W, 3]`` on white.
     """
-    from ..io.dataset import load_dataset
-    from ..io.lpips_weights import read_lpips
-    from ..lpips import LPIPSUnavailable
-    from ..render.renderer import render_cloud, resolve_renderer
-
     folder, name = find_target(data_dir, object_id)
     truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
     if truth.alphas is None:
@@ -369,8 +362,6 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
 def alpha_iou(cloud: GaussianCloud, cameras: Sequence[Camera], alphas: Sequence[np.ndarray] | Tensor, *,
               level: float = 0.5, renderer: Renderer | None = None) -> list[float]:
     """Return per view the IoU of ``alpha > level`` of the rendered ``cloud`` and of the given alpha maps."""
-    from ..render.renderer import render_cloud, resolve_renderer
-
     renderer = resolve_renderer(renderer)
     out = []
     for cam, a in zip(cameras, alphas):

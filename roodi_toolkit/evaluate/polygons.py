@@ -13,9 +13,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image, ImageDraw
 
 from ..errors import ConfigError, DatasetError
 from ..io.dataset import Dataset, to_loaded_pixel
+from ..io.files import read_json
 
 SUPERSAMPLE = 4
 """Each loaded pixel is covered by SUPERSAMPLE^2 samples; it is inside when at least half of them are."""
@@ -27,8 +29,6 @@ def read_polygons(path: str | Path) -> dict[str, list[list[float]]]:
     Raises:
         DatasetError: unreadable, or a polygon with fewer than 3 finite vertices.
     """
-    from ..io.files import read_json
-
     record = read_json(path, "polygon masks")
     polys = record.get("polygons") if isinstance(record, dict) else None
     if not isinstance(polys, dict) or not polys:
@@ -57,8 +57,6 @@ def _loaded_vertex(dataset: Dataset, view: str, x: float, y: float) -> tuple[flo
 
 def polygon_mask(dataset: Dataset, view: str, polygon: Any) -> np.ndarray:
     """Return the ``[H, W]`` bool mask of ``polygon`` (photo pixels of view ``view``) at the dataset's resolution."""
-    from PIL import Image, ImageDraw
-
     if view not in dataset.names:
         raise ConfigError(f"the polygon's view {view!r} is not in the dataset")
     pts = [_loaded_vertex(dataset, view, float(x), float(y)) for x, y in polygon]

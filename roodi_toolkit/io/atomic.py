@@ -20,6 +20,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
+from .. import signals
 from ..errors import EnvironmentProblemError, OutputError, os_error_problem
 
 NAME_MAX = 255
@@ -298,15 +299,11 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None, *, replace: 
 
 def _hold_signals() -> bool:
     """Hold SIGTERM and Ctrl-C (see :mod:`roodi_toolkit.signals`); return the token for :func:`_release_signals`."""
-    from .. import signals
-
     return signals.hold()
 
 
 def _release_signals(held: bool) -> None:
     """End a hold; a signal that came meanwhile is acted on now (its handler may raise)."""
-    from .. import signals
-
     signals.release(held)
 
 

@@ -20,16 +20,17 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 
 from ..cameras import Camera, qvec_to_rotmat, rotmat_to_qvec
 from ..errors import DatasetError, RoodiError, UnsupportedFormatError
 from ..progress import ProgressFactory, null_progress
+from .colmap_files import (COLMAP_CAMERA_MODELS, ColmapCamera, ColmapImage, ColmapModel, ColmapPoints,
+                           read_colmap_model, write_colmap_model)
 from .dataset_core import (LLFF_HOLD, Dataset, _check_background, _check_downscale, _crop_camera, _downscaled_size,
                            _find_colmap_sparse, _plan_crop, _source_pixels, estimate_bounds)
 from .photos import _image_size, _ViewStack
-from .colmap_files import (COLMAP_CAMERA_MODELS, ColmapCamera, ColmapImage, ColmapModel, ColmapPoints,
-                           read_colmap_model, write_colmap_model)
 
 __all__ = [
     "COLMAP_CAMERA_MODELS",
@@ -88,8 +89,6 @@ def _colmap_intrinsics(cam: ColmapCamera, where: str) -> np.ndarray:
             f"{where}: camera {cam.id} uses the COLMAP camera model {cam.model}, which is not supported (pinhole: "
             f"{', '.join(SUPPORTED_COLMAP_MODELS)}; undistorted on loading: {', '.join(UNDISTORTED_COLMAP_MODELS)}); "
             "undistort the images first, e.g. `colmap image_undistorter`")
-    import cv2
-
     K, dist = _distortion(cam)
     new, _ = cv2.getOptimalNewCameraMatrix(_opencv_k(K), dist, (cam.width, cam.height), 0.0)
     new = np.asarray(new, dtype=np.float64)
@@ -111,8 +110,6 @@ class _Undistorter:
         self._maps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def __call__(self, img: np.ndarray) -> np.ndarray:
-        import cv2
-
         h, w = img.shape[:2]
         if (w, h) not in self._maps:
             scale = np.diag([w / self.size[0], h / self.size[1], 1.0])

@@ -4,6 +4,7 @@ the reference implementation, splat-transform)."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..errors import CloudError
 from ..gaussians import GaussianCloud
@@ -42,8 +43,6 @@ def cloud_differences(a: GaussianCloud, b: GaussianCloud, *, match: bool = False
     if len(a) != len(b):
         raise CloudError(f"cannot compare clouds of {len(a)} and {len(b)} Gaussians")
     if match:
-        from scipy.spatial import cKDTree
-
         _, idx = cKDTree(a.means.astype(np.float64)).query(b.means.astype(np.float64))
         a = a.select(idx)
     finite = np.isfinite(a.means).all(axis=1)

@@ -10,10 +10,12 @@ build on this module, and :mod:`roodi_toolkit.io.dataset` (format detection,
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 import torch
 
@@ -206,8 +208,6 @@ def _plan_crop(paths: Sequence[Path], sizes: Sequence[tuple[int, int]],
     h0 = min(h for _, h in sizes)
     too_far = [i for i, (w, h) in enumerate(sizes) if (w - w0) > max_fraction * w or (h - h0) > max_fraction * h]
     if too_far:
-        from collections import Counter
-
         counts = Counter((int(w), int(h)) for w, h in sizes).most_common()
         common = counts[0][0] if len(counts) == 1 or counts[0][1] > counts[1][1] else None
         rule = (f"images of one dataset may differ in size by at most {max_fraction:.0%} (they are cropped to the "
@@ -259,8 +259,6 @@ def to_loaded_pixel(dataset: "Dataset", view: str, x: float, y: float) -> tuple[
         raise ConfigError(f"click {x:g},{y:g} is outside the {pw}x{ph} image {view}")
     ux, uy = x, y
     if "undistort" in m:  # a distorted photo (COLMAP OPENCV ...): where its pixel lies in the undistorted image
-        import cv2
-
         u = m["undistort"]
         shift = np.diag([1.0, 1.0, 1.0])
         shift[:2, 2] = -0.5  # OpenCV puts pixel centres at integers, we at +0.5

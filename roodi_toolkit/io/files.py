@@ -14,12 +14,17 @@ import contextlib
 import json
 import math
 import os
+import pickle
+import sys
+import warnings
+import zipfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
 from ..errors import InputError, OutputError
+from ..limits import check_memory
 from .atomic import (NAME_MAX, PATH_MAX, OutputGroup, atomic_path, check_name_lengths,  # noqa: F401
                      forget_claims, output_group)
 from .atomic import _CLAIMS, _FOLDER_CLAIMS, _claim_key, _note_created, _raise_environment_problem
@@ -198,14 +203,27 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
     return parse_json(text, p, what)
 
 
+def pil_image() -> Any:
+    """Return Pillow's ``PIL.Image`` module (its readers and writers of PNG, JPEG and WebP)."""
+    from PIL import Image  # lazy: prune, info and convert of splat files never read or write an image
+
+    return Image
+
+
+def _torch() -> Any:
+    """Return the ``torch`` module (checkpoints are ``torch.save`` archives)."""
+    import torch  # lazy: 2-5 s to import; the commands on splat files never read or write a checkpoint
+
+    return torch
+
+
 def write_image(image: np.ndarray, path: str | os.PathLike) -> Path:
     """Write an image atomically as PNG (or the format of the extension).
 
     Args:
         image: ``[H, W]``, ``[H, W, 3]`` or ``[H, W, 4]``; float in [0, 1] becomes 8-bit, uint8/uint16 are kept.
     """
-    from PIL import Image
-
+    Image = pil_image()
     arr = np.asarray(image)
     if arr.dtype.kind == "f":
         arr = (np.clip(np.nan_to_num(arr), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
@@ -239,12 +257,7 @@ def open_image(path: str | os.PathLike, what: str = "image") -> Iterator[Any]:
     Pillow's own decompression-bomb guard (a warning on stderr above 89 M pixels, an error above 179 M) is
     replaced by that memory bound, which says what the image needs and what there is.
     """
-    import warnings
-
-    from PIL import Image, UnidentifiedImageError
-
-    from ..limits import check_memory
-
+    Image = pil_image()
     p = Path(path)
     limit = Image.MAX_IMAGE_PIXELS
     try:
@@ -256,7 +269,7 @@ def open_image(path: str | os.PathLike, what: str = "image") -> Iterator[Any]:
         raise InputError(f"{p}: {what} not found") from None
     except IsADirectoryError:
         raise InputError(f"{p}: is a folder, expected an {what} file") from None
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+    except (Image.UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         raise InputError(f"{p}: cannot read {what} ({' '.join(str(exc).split())[:200]})") from None
     finally:
         Image.MAX_IMAGE_PIXELS = limit
@@ -304,7 +317,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 def new_figure(*args: Any, figsize: tuple[float, float], **subplots: Any) -> tuple[Any, Any]:
     """Return ``(figure, axes)`` like ``plt.subplots`` but without pyplot, so the caller's matplotlib backend (a
     notebook's inline one, say) is neither needed nor changed; save it with :func:`save_figure`."""
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # lazy: matplotlib takes 1-2 s to import; only figures need it
 
     fig = Figure(figsize=figsize)
     return fig, fig.subplots(*args, **subplots)
@@ -319,8 +332,6 @@ def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 110) -> Path:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
     finally:
-        import sys
-
         if "matplotlib.pyplot" in sys.modules:
             sys.modules["matplotlib.pyplot"].close(fig)
     return Path(path)
@@ -332,8 +343,7 @@ def save_checkpoint(obj: Any, path: str | os.PathLike) -> Path:
     ``torch.save`` writes through a Python file object: a full disk is then the ``OSError`` it is (named as an
     environment problem), not the zip writer's "enforce fail at inline_container.cc" of a path given to torch.
     """
-    import torch
-
+    torch = _torch()
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         torch.save(obj, f)
     return Path(path)
@@ -346,8 +356,6 @@ def check_torch_archive(path: str | os.PathLike, what: str = "checkpoint") -> No
     Raises:
         InputError: naming the file and the entry.
     """
-    import zipfile
-
     p = Path(path)
     try:
         if not zipfile.is_zipfile(p):
@@ -365,10 +373,7 @@ def check_torch_archive(path: str | os.PathLike, what: str = "checkpoint") -> No
 def load_checkpoint(path: str | os.PathLike) -> Any:
     """Read a checkpoint written by :func:`save_checkpoint` with ``torch.load(weights_only=True)`` (no code runs;
     a compressed entry is refused first, :func:`check_torch_archive`)."""
-    import pickle
-
-    import torch
-
+    torch = _torch()
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: checkpoint not found")

@@ -32,19 +32,23 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, ModelError, RoodiError  # ModelError: importable from here as before
-from . import other_models as om
-from .other_models import (GSPLAT_CKPT, INRIA_ARGS, INRIA_CAMERAS, inria_settings, load_inria_cameras, read_cfg_args,
-                           read_gsplat_checkpoint, seen_fraction)
+from ..errors import ConfigError, InputWarning, ModelError, RoodiError  # ModelError: importable from here as before
+from ..similarity import Similarity, transform_cloud
+from . import gsplat, other_models as om
+from .dataset import _find_colmap_sparse, detect_format, load_cameras
+from .files import atomic_path, load_checkpoint, read_json, save_checkpoint, write_image, write_json
+from .gsplat import read_gsplat_checkpoint
+from .nerfstudio import _applied_transform as applied, _json_path, _read_meta
+from .other_models import GSPLAT_CKPT, seen_fraction
+from .records import MODEL_RECORD, model_record  # noqa: F401 (importable from here as before)
+from .splat import read_cloud
 
 if TYPE_CHECKING:
     from ..cameras import Camera
     from ..gaussians import GaussianCloud
-    from ..similarity import Similarity
 
 MODEL_PLY = "point_cloud.ply"
 CHECKPOINT = Path("checkpoints") / "latest.pt"
-MODEL_RECORD = "cfg.json"
 
 FEATURES_FILE = "features.npy"
 CLASSIFIER_FILE = "object_classifier.pt"
@@ -117,13 +121,9 @@ class ModelFolder:
 def read_scene(path: str | Path, to_data: "Similarity | None" = None) -> "GaussianCloud":
     """Return the Gaussians of a model's scene file (a splat file of any readable format, or a gsplat checkpoint),
     moved by ``to_data`` when given."""
-    from .splat import read_cloud
-
     p = Path(path)
     cloud = read_gsplat_checkpoint([p]) if GSPLAT_CKPT.fullmatch(p.name) else read_cloud(p)
     if to_data is not None and not to_data.is_identity():
-        from ..similarity import transform_cloud
-
         cloud = transform_cloud(cloud, to_data)
     return cloud
 
@@ -146,8 +146,6 @@ def find_model(model_dir: str | Path) -> ModelFolder:
     Raises:
         ModelError: not a folder, or no ``point_cloud/iteration_N/point_cloud.ply`` in it.
     """
-    from .files import read_json
-
     root = Path(model_dir)
     if not root.is_dir():
         raise ModelError(f"{root}: model folder not found (give a roodi-toolkit train output folder)")
@@ -166,9 +164,6 @@ def find_model(model_dir: str | Path) -> ModelFolder:
 def _quiet_cameras(data_dir: Path) -> "list[Camera]":
     """Return a dataset's cameras for checking a model against, without repeating the loader's warnings (the dataset
     itself is loaded and warns later)."""
-    from ..errors import InputWarning
-    from .dataset import load_cameras
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InputWarning)
         return load_cameras(data_dir)
@@ -222,7 +217,7 @@ def open_model(path: str | Path, data_dir: str | Path | None = None, *,
         if data_dir is not None:
             model.config = {**model.config, "data_dir": str(data_dir)}
         return model
-    ckpts = om.find_gsplat_checkpoints(p)
+    ckpts = gsplat.find_gsplat_checkpoints(p)
     if ckpts is not None:
         return _gsplat_model(*ckpts, data_dir, data_cameras)
     if p.is_dir():
@@ -234,37 +229,6 @@ def open_model(path: str | Path, data_dir: str | Path | None = None, *,
                         notes=[f"{p.name}: a splat file, taken to be in {data_dir}'s frame"])
     _check_seen(model, data_cameras if data_cameras is not None else _quiet_cameras(Path(data_dir)), Path(data_dir))
     return model
-
-
-def model_record(root: str | Path) -> tuple[dict[str, Any], Path | None]:
-    """Return a model folder's record in this toolkit's keys and the data folder it names (None if it names none),
-    reading only the record: ``cfg.json``, or an Inria folder's ``cfg_args`` (its ``cameras.json`` gives the photos'
-    width for its resolution). Nothing is checked against the data (:func:`open_model` does that).
-
-    Raises:
-        InputError: an unreadable record.
-    """
-    from .files import read_json
-
-    root = Path(root)
-    if (root / MODEL_RECORD).is_file() or not (root / INRIA_ARGS).is_file():
-        record = read_json(root / MODEL_RECORD, "training record")
-        record = record if isinstance(record, dict) else {}
-        value = record.get("data_dir")
-    else:
-        args = read_cfg_args(root / INRIA_ARGS)
-        width = None
-        if (root / INRIA_CAMERAS).is_file():
-            width = max(c.width for c in load_inria_cameras(root / INRIA_CAMERAS))
-        value = args.get("source_path")
-        record = inria_settings(root, args, width)
-    if not value:
-        return record, None
-    data = Path(str(value))
-    for cand in (data, root / data):
-        if cand.exists():
-            return record, cand
-    return record, data
 
 
 def _enclosing_folder(p: Path) -> Path | None:
@@ -312,18 +276,15 @@ def _inria_model(root: Path, ply: Path | None, data_dir: str | Path | None,
 
 def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path | None,
                   data_cameras: "Sequence[Camera] | None") -> ModelFolder:
-    from ..similarity import transform_cloud
-    from .dataset import _find_colmap_sparse
-
     if len(files) > 1:
         raise ModelError(f"{root}: step {step} is split over {len(files)} ranks' checkpoints ({files[0].name}, ...); "
                          "this reads a single-GPU run's ckpt_N_rank0.pt")
-    cfg = om.read_gsplat_config(root)
+    cfg = gsplat.read_gsplat_config(root)
     record = root / om.GSPLAT_CONFIG
     data = _recorded_data(root, cfg.get("data_dir"), record, data_dir) if data_dir is not None or cfg else None
     if data is None:
         raise ModelError(f"{files[0]}: no {om.GSPLAT_CONFIG} beside its ckpts folder names the data; give DATA_DIR")
-    settings = om.gsplat_settings(cfg, record)
+    settings = gsplat.gsplat_settings(cfg, record)
     normalize = settings.pop("normalize")
     config = {"data_dir": str(data), **settings}
     notes = [f"gsplat checkpoint, step {step}" + ("" if cfg else f" (no {om.GSPLAT_CONFIG}: gsplat's defaults "
@@ -336,7 +297,7 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
         if sparse is None:
             raise ModelError(f"{files[0]}: gsplat normalised its world from a COLMAP capture, but {data} has no "
                              "sparse/0; give the COLMAP data folder it was trained on")
-        frames = [f.inverse() for f in om.gsplat_frames(sparse)]
+        frames = [f.inverse() for f in gsplat.gsplat_frames(sparse)]
         seen = [om.seen_fraction(transform_cloud(cloud, f), cams) for f in frames]
         keep = [f for f, s in zip(frames, seen) if s >= SEEN_MIN]
         if not keep:
@@ -354,8 +315,6 @@ def _gsplat_model(root: Path, step: int, files: list[Path], data_dir: str | Path
 
 def _nerfstudio_model(p: Path, data_dir: str | Path | None, transforms: Path,
                       data_cameras: "Sequence[Camera] | None") -> ModelFolder:
-    from ..similarity import Similarity
-
     if data_dir is None:
         raise ModelError(f"{p}: a nerfstudio export needs the data folder it was trained on; give DATA_DIR")
     data = Path(data_dir)
@@ -374,9 +333,6 @@ def _nerfstudio_model(p: Path, data_dir: str | Path | None, transforms: Path,
 
 def _applied_transform(data: Path) -> list | None:
     """Return the ``applied_transform`` of a nerfstudio capture (as its data parser takes it), None for other data."""
-    from .dataset import detect_format
-    from .nerfstudio import _applied_transform as applied, _json_path, _read_meta
-
     if detect_format(data) != "nerfstudio":
         return None
     json_path = _json_path(data)
@@ -422,8 +378,6 @@ class Distillation:
     def read_scene(self) -> "GaussianCloud":
         """Return the scene the features belong to, in the data's frame (a model from another tool is moved as it
         was when distilled)."""
-        from ..similarity import Similarity
-
         matrix = self.record.get("model_to_data")
         move = None
         if matrix is not None:
@@ -439,8 +393,6 @@ def write_distillation(out_dir: str | Path, *, model_ply: Path, features: np.nda
                        masks: dict[str, np.ndarray] | None = None, picture: np.ndarray | None = None) -> Path:
     """Write a distillation folder (every file atomically, the record last: it marks the folder complete); return
     the record's path. ``record`` gains the model file's path, size and SHA-256."""
-    from .files import save_checkpoint, write_image, write_json
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     features = np.ascontiguousarray(features, dtype=np.float32)
@@ -466,8 +418,6 @@ def read_distillation(distill_dir: str | Path) -> Distillation:
     Raises:
         ModelError: not a distillation folder, a missing or changed model file, or features of the wrong size.
     """
-    from .files import load_checkpoint, read_json
-
     root = Path(distill_dir)
     rec_path = root / DISTILL_RECORD
     if not rec_path.is_file():
@@ -493,8 +443,6 @@ def read_distillation(distill_dir: str | Path) -> Distillation:
 
 
 def _save_npy(array: np.ndarray, path: Path) -> None:
-    from .files import atomic_path
-
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.save(f, array, allow_pickle=False)
 

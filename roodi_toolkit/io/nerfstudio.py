@@ -36,11 +36,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
+import torch
+from plyfile import PlyData
 
 from ..cameras import Camera, opengl_c2w_to_w2c
 from ..errors import DatasetError, InputWarning, RoodiError
 from ..progress import ProgressFactory, null_progress
+from ..similarity import Similarity
 from .dataset_core import (LLFF_HOLD, SPLITS, Dataset, _check_background, _check_downscale, _crop_camera,
                            _downscaled_size, _plan_crop, _read_frames_json, _source_pixels, estimate_bounds)
 from .photos import _image_size, _read_dataset_image, _ViewStack
@@ -249,8 +253,6 @@ class _Lens:
     at whatever size they are read (a reduced ``images_N`` copy scales both intrinsics)."""
 
     def __init__(self, K: np.ndarray, dist: np.ndarray, size: tuple[int, int], fisheye: bool, where: Path) -> None:
-        import cv2
-
         self.K, self.dist, self.size, self.fisheye = K, dist, size, fisheye
         cv_k = self._cv(K)
         try:
@@ -277,8 +279,6 @@ class _Lens:
         return out
 
     def __call__(self, img: np.ndarray) -> np.ndarray:
-        import cv2
-
         h, w = img.shape[:2]
         if (w, h) not in self._maps:
             scale = np.diag([w / self.size[0], h / self.size[1], 1.0])
@@ -366,8 +366,6 @@ def _read_points(json_path: Path, meta: dict[str, Any]) -> tuple[np.ndarray | No
     path = json_path.parent / rel
     if not path.is_file():
         raise DatasetError(f"{json_path}: 'ply_file_path' {rel!r} not found ({path})")
-    from plyfile import PlyData
-
     try:
         vertex = PlyData.read(str(path))["vertex"]
         names = vertex.data.dtype.names or ()
@@ -447,8 +445,6 @@ def load_nerfstudio(path: str | os.PathLike, downscale: float = 1, *, background
     stack = _ViewStack(crop, (out_w, out_h), bg)
     valid = None
     if any(m is not None for m in mask_paths):
-        import torch
-
         valid = torch.ones(len(frames), out_h, out_w, dtype=torch.float32)
     cameras: list[Camera] = []
     lenses: dict[str, _Lens] = {}
@@ -511,8 +507,6 @@ def _mask_weights(stack: _ViewStack, index: int, path: Path, size: tuple[int, in
         arr = arr[..., 0]  # an RGB(A) mask: nerfstudio's masks are one channel, black = ignore
     keep = (arr > 0).astype(np.float32)
     if keep.shape != (size[1], size[0]):
-        import cv2
-
         if abs(keep.shape[1] * size[1] / size[0] - keep.shape[0]) > 1:
             raise DatasetError(f"{path}: mask is {keep.shape[1]}x{keep.shape[0]} but its image {frame.image.name} is "
                                f"{size[0]}x{size[1]}")
@@ -525,8 +519,6 @@ def _mask_weights(stack: _ViewStack, index: int, path: Path, size: tuple[int, in
 def _applied_transform(json_path: Path, meta: dict[str, Any]) -> list[list[float]] | None:
     """Return ``applied_transform`` ``[3, 4]`` as nerfstudio takes it (its fallback for old COLMAP captures)."""
     if "applied_transform" in meta:
-        from ..similarity import Similarity
-
         value = meta["applied_transform"]
         try:
             Similarity.from_matrix(value, f"{json_path}: 'applied_transform'")

@@ -13,7 +13,8 @@ import numpy as np
 import torch
 
 from ..errors import DatasetError, RoodiError
-from .files import read_image
+from ..limits import check_memory
+from .files import open_image, read_image
 
 if TYPE_CHECKING:
     from .dataset_core import _Crop
@@ -49,8 +50,6 @@ def _read_rgb(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
 def _image_size(path: Path) -> tuple[int, int]:
     """Return an image file's (width, height) from its header, without decoding it (refused in one line if it is
     unreadable or too large for the memory available)."""
-    from .files import open_image
-
     try:
         with open_image(path) as img:
             return int(img.size[0]), int(img.size[1])
@@ -90,8 +89,6 @@ class _ViewStack:
     """
 
     def __init__(self, crop: _Crop, size: tuple[int, int], background: Sequence[float]) -> None:
-        from ..limits import check_memory
-
         self.crop, self.size = crop, size  # size: (width, height) after downscaling
         self.bg = np.asarray(background, np.float32)
         n = len(crop.offsets)
@@ -198,8 +195,6 @@ def _read_dataset_image(path: Path) -> np.ndarray:
 def _read_stored(path: Path) -> np.ndarray:
     """Return a dataset photo's pixels as stored (bool for 1-bit, uint8 or uint16; grey ``[H, W]``, colour
     ``[H, W, 3|4]``), read-only and without the copy :func:`read_image` makes."""
-    from .files import open_image
-
     try:
         with open_image(path) as img:
             if img.mode in ("1", "L", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "I;16N"):
@@ -241,8 +236,6 @@ def _read_depth(path: Path, scale: float) -> np.ndarray:
 def _load_npy(path: Path, what: str) -> np.ndarray:
     """Return a ``.npy`` array: mapped first, so a header that claims more than the file holds is refused before
     anything is allocated, then copied into memory if it fits."""
-    from ..limits import check_memory
-
     try:
         mapped = np.load(path, mmap_mode="r", allow_pickle=False)
     except (OSError, ValueError, EOFError, SyntaxError) as exc:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import os
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
@@ -18,8 +19,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import FormatError
+from ..errors import FormatError, InputError
 from ..gaussians import GaussianCloud
+from ..limits import check_memory
+from .files import parse_json, pil_image
 
 _MAX_COUNT = 1 << 28
 _BYTES_PER_GAUSSIAN = 600  # peak memory of decoding one Gaussian (int64 texels, float64 steps, the cloud)
@@ -115,9 +118,6 @@ def read_sog(path: str | os.PathLike) -> GaussianCloud:
         if p.stat().st_size > _META_MAX_BYTES:
             raise _fail(p, f"SOG meta.json holds {p.stat().st_size:,} bytes, more than any meta.json needs")
         meta_bytes = p.read_bytes()
-    from ..errors import InputError
-    from .files import parse_json
-
     try:
         meta = parse_json(meta_bytes, p, "SOG meta.json")
     except InputError as exc:
@@ -148,10 +148,7 @@ def _webp_size(data: bytes) -> tuple[int, int] | None:
 
 def _open_webp(p: Path, name: str, data: bytes, max_pixels: int) -> Any:
     """Return Pillow's (not yet decoded) image of a WebP texture whose size is at most ``max_pixels``."""
-    import warnings
-
-    from PIL import Image, UnidentifiedImageError
-
+    Image = pil_image()
     size = _webp_size(data)
     if size is not None and size[0] * size[1] > max_pixels:
         raise _fail(p, f"SOG texture {name!r} claims {size[0]}x{size[1]} pixels, more than the count in meta.json can "
@@ -162,7 +159,7 @@ def _open_webp(p: Path, name: str, data: bytes, max_pixels: int) -> Any:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             im = Image.open(io.BytesIO(data))
-    except UnidentifiedImageError:
+    except Image.UnidentifiedImageError:
         raise _fail(p, f"SOG texture {name!r} is not a readable image") from None
     except (OSError, SyntaxError, ValueError) as exc:
         raise _fail(p, f"SOG texture {name!r} is not a readable WebP image ({' '.join(str(exc).split())[:160]})") \
@@ -186,8 +183,6 @@ def _texture(p: Path, load: Callable[[str, int], bytes], name: str, count: int,
 
     ``max_pixels``: the most pixels the texture may have (default from ``count``, :func:`_texture_pixel_limit`).
     """
-    from ..limits import check_memory
-
     max_pixels = _texture_pixel_limit(count) if max_pixels is None else max_pixels
     data = load(name, _byte_limit(max_pixels))
     with _open_webp(p, name, data, max_pixels) as im:
@@ -212,8 +207,6 @@ def _decode(p: Path, meta: dict, load: Callable[[str, int], bytes]) -> GaussianC
     count = int(meta["count"]) if version == 2 else int(meta["means"]["shape"][0])
     if count <= 0 or count > _MAX_COUNT:
         raise _fail(p, f"SOG count {count} is out of range")
-    from ..limits import check_memory
-
     check_memory(_BYTES_PER_GAUSSIAN * count, f"{p}: reading its {count:,} Gaussians", "convert it on a larger machine",
                  FormatError)
     lo = _texture(p, load, meta["means"]["files"][0], count)

@@ -27,6 +27,11 @@ import numpy as np
 
 from ..errors import FormatError, RoodiError
 from ..gaussians import GaussianCloud
+from .compressed_ply import is_compressed, read_compressed_ply, write_compressed_ply
+from .ply import _open_checked, read_header, read_ply, write_ply
+from .sog import read_sog
+from .splat_files import looks_like_ksplat, read_ksplat, read_splat
+from .spz import read_spz, write_spz
 
 OPACITY_LOGIT_LIMIT = float(np.log((1 - 1e-6) / 1e-6))
 """|logit| that +-inf opacities are read as: logit(1 - 1e-6) = 13.8155 (splat-transform's own clamp)."""
@@ -52,8 +57,6 @@ def _fail(p: Path | str, msg: str) -> FormatError:
 def _check_file(path: str | os.PathLike) -> Path:
     p = Path(path)
     if p.name.lower().endswith(".ply"):  # a PLY name keeps the PLY reader's own errors (PlyError)
-        from .ply import _open_checked
-
         return _open_checked(p)[0]
     if not p.exists():
         raise _fail(p, "no such file")
@@ -86,9 +89,6 @@ def detect_format(path: str | os.PathLike) -> str:
     with open(p, "rb") as f:
         head = f.read(4096)
     if head.startswith(b"ply\n") or head.startswith(b"ply\r\n"):
-        from .compressed_ply import is_compressed
-        from .ply import read_header
-
         return "compressed-ply" if is_compressed(read_header(p)) else "ply"
     if head[:4] == b"NGSP":
         return "spz"
@@ -105,8 +105,6 @@ def detect_format(path: str | os.PathLike) -> str:
         return "sog"
     if _is_sog_meta(head):
         return "sog"
-    from .splat_files import looks_like_ksplat
-
     if looks_like_ksplat(head, size):
         return "ksplat"
     if p.suffix.lower() == ".splat":
@@ -116,8 +114,6 @@ def detect_format(path: str | os.PathLike) -> str:
         if np.all(np.isfinite(first)) and np.all(first[3:6] > 0):
             return "splat"
     if p.name.lower().endswith(".ply"):  # say what is wrong as a PLY (PlyError "not a PLY file ...")
-        from .ply import read_header
-
         read_header(p)
     raise _fail(p, "unknown splat format (readable: PLY, compressed PLY, SPZ, SOG .sog/meta.json, .splat, .ksplat)")
 
@@ -136,39 +132,26 @@ def finite_opacity(cloud: GaussianCloud) -> tuple[GaussianCloud, int, int]:
 
 
 def _read_ply(p: Path) -> GaussianCloud:
-    from .ply import read_ply
-
     return read_ply(p)
 
 
 def _read_compressed_ply(p: Path) -> GaussianCloud:
-    from .compressed_ply import read_compressed_ply
-    from .ply import read_header
-
     return read_compressed_ply(p, read_header(p))
 
 
 def _read_spz(p: Path) -> GaussianCloud:
-    from .spz import read_spz
-
     return read_spz(p)
 
 
 def _read_sog(p: Path) -> GaussianCloud:
-    from .sog import read_sog
-
     return read_sog(p)
 
 
 def _read_splat(p: Path) -> GaussianCloud:
-    from .splat_files import read_splat
-
     return read_splat(p)
 
 
 def _read_ksplat(p: Path) -> GaussianCloud:
-    from .splat_files import read_ksplat
-
     return read_ksplat(p)
 
 
@@ -280,8 +263,6 @@ def write_cloud(cloud: GaussianCloud, path: str | os.PathLike, *, comments: tupl
     if count == 0:
         raise _fail(path, "refusing to write a cloud with no Gaussians")
     if fmt == "ply":
-        from .ply import write_ply
-
         return write_ply(cloud, path, comments=comments, rows=rows)
     if rows is not None:
         cloud = cloud.select(rows)
@@ -291,9 +272,5 @@ def write_cloud(cloud: GaussianCloud, path: str | os.PathLike, *, comments: tupl
         raise _fail(path, f"{int(bad.sum())} Gaussians have NaN/Inf values, which {fmt} cannot store; "
                           "drop them first (--filter-nan)")
     if fmt == "compressed-ply":
-        from .compressed_ply import write_compressed_ply
-
         return write_compressed_ply(cloud, path)
-    from .spz import write_spz
-
     return write_spz(cloud, path)

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..gaussians import GaussianCloud, sigmoid
+from ..limits import check_memory
 from .files import atomic_path
 
 MAGIC = 0x5053474E  # "NGSP" little-endian
@@ -46,8 +47,6 @@ _DEFLATE_MAX_RATIO = 1100  # deflate's best is 1032:1: fewer compressed bytes th
 
 
 def _check_memory(p: Path, n: int) -> None:
-    from ..limits import check_memory
-
     check_memory(_BYTES_PER_GAUSSIAN * n, f"{p}: reading its {n:,} Gaussians", "convert it on a larger machine",
                  FormatError)
 
@@ -83,7 +82,7 @@ class _GzipStream:
 
 def _streams_v4(p: Path, raw: bytes, num_streams: int, toc: int, expected: list[int]) -> list[bytes]:
     try:
-        import zstandard
+        import zstandard  # lazy: every import of the package reads splat files; only SPZ version 4 needs it
     except ImportError:  # pragma: no cover - a dependency of the package
         raise _fail(p, "SPZ version 4 needs the zstandard package: pip install zstandard") from None
     if toc < 32 or toc + 16 * num_streams > len(raw):

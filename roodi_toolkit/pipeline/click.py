@@ -11,8 +11,13 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Optional, Sequence
 
+import cv2
 import numpy as np
 import torch
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
+from scipy.sparse.linalg import spsolve
+from scipy.spatial import cKDTree
 
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
@@ -173,11 +178,7 @@ class ClickSegmenter(Segmenter):
 
     @classmethod
     def available(cls) -> tuple[bool, str]:
-        try:
-            import cv2  # noqa: F401
-        except ImportError:
-            return False, "OpenCV is missing: pip install opencv-python-headless"
-        return True, ""
+        return True, ""  # OpenCV, all it needs, is imported with this module
 
     def segment(self, dataset: Dataset, prompt: SegmentPrompt, *, scene: Optional[GaussianCloud] = None,
                 progress: ProgressFactory = null_progress) -> ViewMasks:
@@ -301,8 +302,6 @@ class ClickSegmenter(Segmenter):
                         not_seeds: Sequence[tuple[int, int]] = ()) -> tuple[np.ndarray, np.ndarray]:
         """Return the clicked view's object region and the rest around it (a band, and the surfaces of the negative
         clicks ``not_seeds``), both ``[H, W]`` bool."""
-        import cv2
-
         s = self.settings
         H, W = dataset.height, dataset.width
         cam0 = dataset.cameras[v0]
@@ -461,10 +460,6 @@ class ClickSegmenter(Segmenter):
     def _pieces(self, pos: np.ndarray) -> np.ndarray:
         """Return the connected piece of each position ``[n]``: each linked to those of its 16 nearest within
         ``part_spacing`` times their median spacing."""
-        from scipy import sparse
-        from scipy.sparse.csgraph import connected_components
-        from scipy.spatial import cKDTree
-
         near, nb = cKDTree(pos).query(pos, k=min(17, len(pos)))
         link = near[:, 1:] <= self.settings.part_spacing * float(np.median(near[:, 1]))
         rows = np.repeat(np.arange(len(pos)), link.sum(axis=1))
@@ -474,8 +469,6 @@ class ClickSegmenter(Segmenter):
     def _is_part(self, pos: np.ndarray, rgb: np.ndarray, part: np.ndarray, body: np.ndarray) -> bool:
         """Whether the Gaussians ``part`` belong to the object ``body`` (both ``[n]`` bool): nearer to it than
         ``part_gap`` of its radius and mostly (half their Gaussians) within ``part_colour`` of its colours."""
-        from scipy.spatial import cKDTree
-
         s = self.settings
         centre = pos[body].mean(axis=0)
         radius = float(np.linalg.norm(pos[body] - centre, axis=1).max())
@@ -505,10 +498,6 @@ class ClickSegmenter(Segmenter):
     def _grow(self, scene: GaussianCloud, fg: np.ndarray, bg: np.ndarray, centre: np.ndarray,
               radius: float) -> np.ndarray:
         """Return each Gaussian's object label in 0..1 ``[N]``: the seeds grown through the 3D neighbour graph."""
-        from scipy import sparse
-        from scipy.spatial import cKDTree
-        from scipy.sparse.linalg import spsolve
-
         s = self.settings
         n = len(scene)
         dist = np.linalg.norm(scene.means - centre, axis=1)

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import cv2
 import numpy as np
+from scipy import ndimage
 
 
 def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int, seed: int) -> np.ndarray:
@@ -15,8 +17,6 @@ def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int, seed: int) ->
     Falls back to the probable/sure foreground of ``init`` when GrabCut cannot model one of the two sides (it needs
     pixels of both).
     """
-    import cv2
-
     fg = (init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)
     if fg.all() or not fg.any():
         return fg
@@ -36,8 +36,6 @@ def _depth_flood_fill(depth: np.ndarray, allowed: np.ndarray, seeds: Sequence[tu
                       tolerance: float) -> np.ndarray:
     """Return the pixels reached from ``seeds`` (row, col) through 4-neighbours whose depths differ by less than
     ``tolerance`` relative, within ``allowed``."""
-    import cv2
-
     logd = np.log(np.where(allowed, np.maximum(depth, 1e-12), 1.0)).astype(np.float32)
     H, W = depth.shape
     region = np.zeros((H, W), bool)
@@ -54,15 +52,11 @@ def _depth_flood_fill(depth: np.ndarray, allowed: np.ndarray, seeds: Sequence[tu
 
 
 def _fill_holes(mask: np.ndarray) -> np.ndarray:
-    from scipy import ndimage
-
     return ndimage.binary_fill_holes(mask)
 
 
 def _component_at(mask: np.ndarray, seeds: Sequence[tuple[int, int]]) -> np.ndarray:
     """Return the union of the 8-connected components of ``mask`` that contain a seed ``(row, col)``."""
-    from scipy import ndimage
-
     labels, _ = ndimage.label(mask, structure=np.ones((3, 3), bool))
     ids = {int(labels[r, c]) for r, c in seeds if labels[r, c] > 0}
     return np.isin(labels, list(ids)) if ids else np.zeros_like(mask)
@@ -75,6 +69,4 @@ def _disk(radius: int) -> np.ndarray:
 
 
 def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
-    from scipy import ndimage
-
     return ndimage.binary_dilation(mask, structure=_disk(radius)) if radius > 0 else mask.copy()

@@ -23,6 +23,7 @@ from typing import Optional
 import numpy as np
 import torch
 import torch.nn.functional as F
+from scipy.ndimage import binary_fill_holes
 from torch import Tensor
 
 from ..errors import ConfigError
@@ -197,8 +198,6 @@ class ExemplarInpainter(Inpainter):
         if self.extent == "all":
             region = mask
         else:
-            from scipy.ndimage import binary_fill_holes
-
             # holes wholly enclosed by the object are filled whatever their size (the outline's closing bridges
             # only narrow ones)
             region = outline_region(mask, self.outline_radius) | (binary_fill_holes(~mask) & mask)

@@ -23,18 +23,20 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
+from scipy import ndimage
 from torch import Tensor
 
 from ..cameras import Camera
 from ..errors import ConfigError, DatasetError
 from ..gaussians import GaussianCloud
 from ..params import GaussianParams
+from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, resolve_renderer
-from .perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss  # noqa: F401 (re-exported)
-from .inpaint import inpaint_views
+from .inpaint import FillContext, Inpainter, get_inpainter, inpaint_views
 from .occlusion import (OcclusionConfig, OcclusionResult, object_extent, occlusion_masks, seen_through,
                         up_from_cameras)
-from ..progress import ProgressFactory, null_progress
+from .perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss  # noqa: F401 (re-exported)
+from .support import other_gaussians, pixel_size, support_height
 
 
 
@@ -298,8 +300,6 @@ def seed_hole_gaussians(object_cloud: GaussianCloud, occlusion: OcclusionResult,
         depth_tolerance: how much nearer (times the object's radius) the scene must be than the seed.
         background: the views' background colour.
     """
-    from scipy import ndimage
-
     bg = np.asarray(background, dtype=np.float32)
     means, colours, sizes = [], [], []
     for k, cam in enumerate(occlusion.cameras):
@@ -388,8 +388,6 @@ def _resolve_inpainter(inpainter: Any, inpainter_options: Optional[dict], occlus
     Raises:
         ConfigError: occlusion views other than the grid's 4, or something that is no inpainter.
     """
-    from .inpaint import Inpainter, get_inpainter
-
     if occlusion.num_views != 4:
         raise ConfigError(f"the inpainting grid is 2x2: occlusion.num_views must be 4, got {occlusion.num_views}")
     if isinstance(inpainter, str):
@@ -405,9 +403,6 @@ def _fill_context(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, scene
     """Return what a 3D-aware inpainter reads (:class:`~roodi_toolkit.pipeline.inpaint.FillContext`): which points
     the training views see through (empty space), the pixel size and, when it ``wants`` them, the support the
     object stands on and the other Gaussians; the occlusion fields are filled in later."""
-    from .inpaint import FillContext
-    from .support import other_gaussians, pixel_size, support_height
-
     masks_np = torch.as_tensor(object_masks).bool().numpy()
     _, seen_radius = object_extent(object_cloud)
 

@@ -6,8 +6,11 @@ Split from :mod:`roodi_toolkit.pipeline.train` (which calls them from ``Trainer`
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch import Tensor
 
 from ..errors import DatasetError
@@ -38,8 +41,6 @@ def projected_colors(points: np.ndarray, dataset: Dataset, views: list[int], max
         img = dataset.images[v].numpy()
         samples[j, ok] = img[px[ok, 1], px[ok, 0]]
     with np.errstate(all="ignore"):
-        import warnings
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             colors = np.nanmedian(samples, axis=0)
@@ -77,8 +78,6 @@ def densified_points(points: np.ndarray, colors: np.ndarray | None, n: int,
     own neighbourhood (the RMS distance to its 3 nearest SfM points) and given its colour: the cloud stays on the
     reconstructed surfaces and densest where SfM found structure, as the points themselves are.
     """
-    from scipy.spatial import cKDTree
-
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) >= n or len(pts) < 4:
         return points, colors

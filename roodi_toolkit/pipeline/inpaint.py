@@ -32,6 +32,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Optional, Sequence
 
+import cv2
 import numpy as np
 import torch
 from torch import Tensor
@@ -185,8 +186,6 @@ def outline_region(mask: np.ndarray, radius: float = 0.1) -> np.ndarray:
     """
     if mask.all():
         return mask
-    import cv2
-
     r = max(1, round(radius * min(mask.shape)))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     known = (~mask).astype(np.uint8)
@@ -342,8 +341,6 @@ class OpenCVInpainter(Inpainter):
         return mask if self.extent == "all" else outline_region(mask, self.outline_radius)
 
     def _fill_one(self, image: np.ndarray, region: np.ndarray, radius: float, levels: int) -> np.ndarray:
-        import cv2
-
         flag = cv2.INPAINT_TELEA if self.method == "telea" else cv2.INPAINT_NS
         h, w = region.shape
         work = image.copy()

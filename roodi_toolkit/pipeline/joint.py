@@ -20,12 +20,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..io.dataset import Dataset
-from .distill import (DistillConfig, DistilledScene, DistillResult, ObjectClassifier, finish_distillation,
-                      initial_classifier)
 from ..errors import ConfigError
+from ..io.dataset import Dataset
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, RenderOutput
+from .distill import (DistillConfig, DistilledScene, DistillResult, ObjectClassifier, finish_distillation,
+                      initial_classifier)
 from .segment import ViewMasks
 from .train import TrainConfig, Trainer
 

@@ -16,6 +16,9 @@ import torch
 
 from ..errors import ConfigError
 from ..io.dataset import Dataset, split_views
+from ..io.model import read_scene
+from ..render.renderer import render_cloud
+from ..similarity import transform_cloud
 
 CHECK_VIEWS = 2
 """Training views rendered to check the frame (evenly spread)."""
@@ -39,8 +42,6 @@ def _errors(cloud: Any, dataset: Dataset, views: list[int], renderer: Any) -> tu
     background, or a model trained on random backgrounds, is no other frame; what counts is whether some background
     lets the scene explain the photos much better than that background alone does.
     """
-    from ..render.renderer import render_cloud
-
     backgrounds = [torch.tensor(b, dtype=torch.float32) for b in (dataset.background, (0.0, 0.0, 0.0),
                                                                   (1.0, 1.0, 1.0))]
     err = torch.zeros(len(backgrounds), dtype=torch.float64)
@@ -72,9 +73,6 @@ def settle_model_frame(model: Any, dataset: Dataset, renderer: Any = None) -> di
             :data:`MATCH_RATIO` of an empty picture's error: it lies in another frame than the data, or shows other
             photos.
     """
-    from ..io.model import read_scene
-    from ..similarity import transform_cloud
-
     if model.kind == "roodi":
         return {}
     train, _ = split_views(dataset, int(model.config.get("holdout_every", 8) or 0))

@@ -15,14 +15,18 @@ import math
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
+import kornia
 import numpy as np
 import torch
+from scipy.ndimage import binary_dilation, binary_erosion
 from torch import Tensor
 
 from ..cameras import Camera, horizontal_basis, intrinsics_from_fov, look_at
 from ..errors import CloudError, ConfigError
 from ..gaussians import GaussianCloud
+from ..io.files import write_image
 from ..params import GaussianParams
+from ..render.pictures import probability_grid
 from ..render.renderer import Renderer, resolve_renderer
 
 
@@ -200,8 +204,6 @@ def morphological_opening(masks: Tensor, size: int) -> Tensor:
     """
     if size <= 1:
         return masks.clone()
-    import kornia
-
     kernel = torch.ones(size, size)
     opened = kornia.morphology.opening(masks.float()[:, None], kernel)
     return opened[:, 0] > 0.5
@@ -279,8 +281,6 @@ def outline(mask: np.ndarray | Tensor, width: int = 1) -> np.ndarray:
         >>> int(outline(m).sum())  # the 3x3 square's 8 border pixels
         8
     """
-    from scipy.ndimage import binary_erosion
-
     m = np.asarray(mask, dtype=bool)
     return m & ~binary_erosion(m, iterations=max(1, width), border_value=0)
 
@@ -327,8 +327,6 @@ def fill_picture(before: Tensor, after: Tensor, filled: Tensor, occluded: Option
     The regions are tinted in the top row and only outlined below it. Views smaller than 128 pixels are enlarged by
     a whole factor first.
     """
-    from ..render.pictures import probability_grid
-
     # small views are enlarged (nearest neighbour) so that one-pixel outlines do not cover them
     scale = max(1, 128 // max(1, int(before.shape[1])))
     if scale > 1:
@@ -398,8 +396,6 @@ def seen_empty(points: np.ndarray, cameras: Sequence[Camera], object_masks: Tens
         >>> seen_empty(np.array([[0.0, 0, 0], [0.8, 0, 0], [1.5, 3.0, 0]]), [cam], masks, depths, 0.1).tolist()
         [False, True, False]
     """
-    from scipy.ndimage import binary_dilation
-
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     masks = np.asarray(object_masks, dtype=bool)
     depths = np.asarray(depths, dtype=np.float64)
@@ -452,8 +448,6 @@ def seen_through(points: np.ndarray, cameras: Sequence[Camera], object_masks: Te
         >>> seen_through(np.array([[0.0, 0.0, 0.0], [0.0, -1.5, 0.0]]), [cam], masks, wall, 0.05).tolist()
         [False, True]
     """
-    from scipy.ndimage import binary_dilation
-
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     masks = np.asarray(object_masks, dtype=bool)
     through = np.zeros(len(pts), dtype=bool)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from typing import Optional
 
+import kornia
 import torch
 from torch import Tensor
 
@@ -43,8 +44,6 @@ class LaplacianLoss(torch.nn.Module):
         self.levels = levels
 
     def forward(self, a: Tensor, b: Tensor) -> Tensor:
-        import kornia
-
         x = torch.stack([a, b]).permute(0, 3, 1, 2)
         levels = max(1, min(self.levels, int(math.log2(max(2, min(x.shape[-2:])))) - 2))
         pyr = kornia.geometry.transform.build_laplacian_pyramid(x, levels)

@@ -34,9 +34,10 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import torch
 
-from ..io.dataset import Dataset
 from ..errors import ConfigError, DatasetError, PluginError, RoodiError
 from ..gaussians import GaussianCloud
+from ..io.dataset import Dataset, to_loaded_pixel
+from ..io.files import read_image
 from ..plugins import discover, instantiate
 from ..progress import ProgressFactory, null_progress
 from .resolution import full_size_masks
@@ -243,8 +244,6 @@ def resolve_prompt(prompt: SegmentPrompt, dataset: Dataset) -> tuple[SegmentProm
     Raises:
         ConfigError: an unknown view, or a click outside its photo.
     """
-    from ..io.dataset import to_loaded_pixel
-
     if not prompt.clicks:
         return prompt, prompt
     given, clicks = [], []
@@ -334,8 +333,6 @@ class FilesSegmenter(Segmenter):
                                    "folder of mask PNGs named like the views, or use --segmenter click")
             masks = dataset.masks.clone()
             return ViewMasks(masks, dataset.names, "instances", int(masks.max()) + 1, source="dataset masks")
-        from ..io.files import read_image
-
         folder = Path(folder)
         if not folder.is_dir():
             raise DatasetError(f"{folder}: mask folder not found")

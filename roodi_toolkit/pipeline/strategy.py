@@ -21,6 +21,7 @@ from kornia.geometry.conversions import quaternion_to_rotation_matrix
 from torch import Tensor
 
 from ..errors import ConfigError
+from .train_kernels import covariance_noise
 
 Params = MutableMapping[str, Tensor]
 """A :class:`~roodi_toolkit.params.GaussianParams` or a name -> Parameter mapping with its names."""
@@ -270,8 +271,6 @@ def inject_position_noise(params: Params, scale: float,
     The noise is ``Sigma_i n_i`` with ``n_i ~ N(0, 1) * gate(o_i) * scale``; the product with each covariance is
     one compiled pass (:func:`~roodi_toolkit.pipeline.train_kernels.covariance_noise`;
     :func:`covariance_noise_reference` is the same in torch)."""
-    from .train_kernels import covariance_noise
-
     means = params["means"]
     opac = torch.sigmoid(params["opacity_logits"])
     noise = torch.randn(means.shape, generator=generator, dtype=means.dtype) * noise_gate(opac)[:, None] * scale

@@ -15,14 +15,14 @@ from __future__ import annotations
 from typing import Optional, Sequence
 
 import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
-from ..cameras import Camera
-from ..gaussians import GaussianCloud
+from ..cameras import Camera, horizontal_basis
+from ..gaussians import SH_C0, GaussianCloud, logit
 
 
 def _spacing(means: np.ndarray) -> float:
-    from scipy.spatial import cKDTree
-
     d, _ = cKDTree(means).query(means, k=2)
     return float(np.median(d[:, 1]))
 
@@ -210,8 +210,6 @@ def _wall_orientations(ring: np.ndarray, radial: np.ndarray, u: np.ndarray) -> t
     """Return the quaternion ``[A, 4]`` wxyz of a Gaussian lying in the wall at each point of the ``ring`` ``[A, 3]``
     (its frame: along the outline, up, across it) and the wall's normal there ``[A, 3]`` (across the outline,
     outwards like ``radial``)."""
-    from scipy.spatial.transform import Rotation
-
     tangent = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
     tangent -= np.outer(tangent @ u, u)
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
@@ -260,8 +258,6 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
         obstacles: positions ``[M, 3]`` of the scene's other Gaussians: the wall stays inside what lies round
             the hidden part (:func:`_inside_obstacles`; a ball in a bowl is narrower near the floor).
     """
-    from ..cameras import horizontal_basis
-
     u, h, lowest, height = _vertical_extent(cloud, up)
     gap = lowest - float(support)
     layer = np.flatnonzero(h <= lowest + band * height)
@@ -311,12 +307,8 @@ def shell_to_support(cloud: GaussianCloud, up: Sequence[float], support: float, 
     along = max(spacing, 1e-9)
     scales = np.tile([overlap * along, overlap * step, thickness * min(along, step)], (len(pts), 1))
     # each new Gaussian takes its columns (SH degree, extras) from the nearest band Gaussian
-    from scipy.spatial import cKDTree
-
     _, nearest = cKDTree(xy[layer] - centre).query((ring - (centre[0] * e1 + centre[1] * e2)) @ np.stack([e1, e2], 1))
     out = cloud.select(np.tile(layer[nearest], rows))
-    from ..gaussians import SH_C0, logit
-
     colour = np.tile(c_at, (rows, 1))
     out = out.with_fields(
         means=pts.astype(out.means.dtype), quats_wxyz=quats.astype(out.quats_wxyz.dtype),
@@ -378,8 +370,6 @@ def other_gaussians(scene_cloud: GaussianCloud, object_cloud: GaussianCloud, *,
                     min_opacity: float = 0.3) -> np.ndarray:
     """Return the centres ``[M, 3]`` of the scene's Gaussians of at least ``min_opacity`` that are not the object's
     (the object was selected from the scene: its Gaussians are the scene's at the same places)."""
-    from scipy.spatial import cKDTree
-
     means = scene_cloud.means.astype(np.float64)
     keep = scene_cloud.opacities >= min_opacity
     if len(object_cloud):

@@ -36,10 +36,14 @@ from typing import Optional, Sequence
 
 import numpy as np
 import torch
+from scipy.ndimage import binary_fill_holes
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 from torch import Tensor
 
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
+from ..params import GaussianParams
 from .inpaint import FillContext, Inpainter, get_inpainter, to_grid
 from .support import _spacing, extrude_to_support, shell_to_support
 
@@ -69,8 +73,6 @@ def mirror_cloud(cloud: GaussianCloud, normal: Sequence[float], offset: float) -
         >>> m.means.tolist(), np.round(m.covariances(), 3).tolist() == np.round(c.covariances(), 3).tolist()
         ([[-1.0, 1.0, 0.0]], True)
     """
-    from scipy.spatial.transform import Rotation
-
     n = np.asarray(normal, np.float64)
     n = n / np.linalg.norm(n)
     house = np.eye(3) - 2 * np.outer(n, n)
@@ -114,8 +116,6 @@ def find_mirror(cloud: GaussianCloud, *, up: Optional[Sequence[float]] = None, o
         >>> round(abs(float(m.normal[0])), 2), abs(float(m.offset * np.sign(m.normal[0])) - 5.0) < 0.15
         (1.0, True)
     """
-    from scipy.spatial import cKDTree
-
     if len(cloud) < 4:
         raise ConfigError(f"symmetry: the object has {len(cloud)} Gaussians; at least 4 are needed to find a plane")
     means = cloud.means.astype(np.float64)
@@ -183,8 +183,6 @@ def find_mirror(cloud: GaussianCloud, *, up: Optional[Sequence[float]] = None, o
 
 def new_gaussians(cloud: GaussianCloud, mirrored: GaussianCloud, distance: float) -> np.ndarray:
     """Return which mirrored Gaussians ``[M]`` (bool) lie farther than ``distance`` from every original one."""
-    from scipy.spatial import cKDTree
-
     d, _ = cKDTree(cloud.means.astype(np.float64)).query(mirrored.means.astype(np.float64),
                                                           distance_upper_bound=distance)
     return ~np.isfinite(d)
@@ -278,8 +276,6 @@ class SymmetryInpainter(Inpainter):
         """Return the object with its completion (:meth:`complete`, or the context's ``completion`` when the
         refinement made it first) rendered in the context's views (rgb ``[V, H, W, 3]``, alpha ``[V, H, W]``) and
         the completion's Gaussians, or None when there is no completion."""
-        from ..params import GaussianParams
-
         mirrored = context.completion if context.completion is not None else self.complete(context)
         if mirrored is None:
             return None
@@ -295,8 +291,6 @@ class SymmetryInpainter(Inpainter):
 
     def fill(self, images: Tensor, masks: Tensor, prompt: str,  # type: ignore[override]
              context: Optional[FillContext] = None) -> Tensor:
-        from scipy.ndimage import binary_fill_holes
-
         if context is not None:
             context.proposed = None
         views = None

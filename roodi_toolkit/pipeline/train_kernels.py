@@ -26,6 +26,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..imaging import ssim as kornia_ssim
+
 SSIM_SIGMA = 1.5
 """kornia's (and the SSIM paper's) Gaussian window: sigma 1.5 whatever the window's size."""
 SSIM_C1 = 0.01 ** 2
@@ -262,8 +264,6 @@ def ssim(a: Tensor, b: Tensor, window: int = 11) -> Tensor:
     if b.requires_grad:
         raise ValueError("ssim's reference image must not require a gradient")
     if a.device.type != "cpu" or b.device.type != "cpu":
-        from ..imaging import ssim as kornia_ssim
-
         return kornia_ssim(a, b, window)
     win = min(window, min(a.shape[:2]))
     win = win if win % 2 == 1 else win - 1

@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
+import scipy.sparse as sp
 import torch
 from torch import Tensor
 
@@ -49,8 +50,6 @@ def map_bytes(w: Tensor) -> int:
 
 def both_ways(w: Tensor) -> tuple[Tensor, Tensor]:
     """Return the CSR map ``w`` and its transpose, both with 32-bit indices where they fit (else 64-bit)."""
-    import scipy.sparse as sp
-
     m = sp.csr_matrix((w.values().numpy(), w.col_indices().numpy(), w.crow_indices().numpy()), shape=tuple(w.shape))
     index = np.int32 if m.nnz < 2**31 - 1 and max(m.shape) < 2**31 - 1 else np.int64
     return csr_tensor(m, index), csr_tensor(m.T.tocsr(), index)

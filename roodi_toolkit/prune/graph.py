@@ -10,6 +10,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+try:
+    from pykdtree.kdtree import KDTree
+except ImportError:  # named with what to install when the prune needs it (neighbour_graph)
+    KDTree = None
+
 from ..errors import EnvironmentProblemError
 from ..progress import ProgressFactory, null_progress
 from .knn import _drop_self, check_k, morton_order
@@ -61,11 +66,9 @@ def neighbour_graph(means: np.ndarray, k: int, progress: ProgressFactory = null_
         k: neighbours per Gaussian, 1 <= k < N.
         progress: progress factory.
     """
-    try:
-        from pykdtree.kdtree import KDTree
-    except ImportError as exc:  # a dependency of the package; only a broken install lacks it
+    if KDTree is None:  # a dependency of the package; only a broken install lacks it
         raise EnvironmentProblemError("the default prune needs pykdtree (a dependency of roodi-toolkit); install it "
-                                      "with `pip install pykdtree`") from exc
+                                      "with `pip install pykdtree`")
 
     n = len(means)
     check_k(k, n)

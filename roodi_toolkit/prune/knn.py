@@ -7,6 +7,8 @@ search about 3x faster on clouds stored in training order (measured on 1M points
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..errors import CloudError, ConfigError
@@ -86,6 +88,13 @@ def _drop_self(idx: np.ndarray, dist2: np.ndarray, own: np.ndarray) -> tuple[np.
     return np.take_along_axis(idx, cols, axis=1), np.take_along_axis(dist2, cols, axis=1)
 
 
+def _open3d() -> Any:
+    """Return the ``open3d`` module (its KD-trees serve the W2 and Euclidean neighbour searches)."""
+    import open3d  # lazy: 3 s to import; the default prune's search (pykdtree, :mod:`.graph`) never needs it
+
+    return open3d
+
+
 class CentreIndex:
     """A KD-tree over Gaussian centres; answers kNN queries in the caller's index space.
 
@@ -94,8 +103,7 @@ class CentreIndex:
     """
 
     def __init__(self, points: np.ndarray) -> None:
-        import open3d as o3d
-
+        o3d = _open3d()
         self.points = np.ascontiguousarray(points, dtype=np.float32)
         reach = float(np.abs(self.points).max()) if self.points.size else 0.0
         if not reach <= MAX_COORDINATE:
@@ -114,8 +122,7 @@ class CentreIndex:
 
     def query(self, queries: np.ndarray, knn: int) -> tuple[np.ndarray, np.ndarray]:
         """Return the ``knn`` nearest indices ``[Q, knn]`` (int32, into the indexed points) and squared distances."""
-        import open3d as o3d
-
+        o3d = _open3d()
         q = np.ascontiguousarray(queries, dtype=np.float32)
         idx, dist2 = self._nns.knn_search(o3d.core.Tensor.from_numpy(q), int(knn))
         idx = idx.numpy()
@@ -124,8 +131,7 @@ class CentreIndex:
     def knn_all(self, k: int, *, progress: ProgressFactory = null_progress) -> tuple[np.ndarray, np.ndarray]:
         """Return the K nearest neighbours of every indexed point, excluding itself: indices ``[N, K]`` int32 and
         squared distances ``[N, K]`` float32, rows in the points' order."""
-        import open3d as o3d
-
+        o3d = _open3d()
         n = len(self)
         check_k(k, n)
         neighbors = np.empty((n, k), dtype=np.int32)
@@ -229,8 +235,7 @@ def _w2_ball(means: np.ndarray, shapes: GaussianShapes, index: CentreIndex, row:
     if d2 is not None:
         cand = np.flatnonzero(d2 <= radius2 * (1 + 1e-6) + 1e-30)
     else:
-        import open3d as o3d
-
+        o3d = _open3d()
         tree = getattr(index, "_legacy", None)
         if tree is None:
             pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(index.points.astype(np.float64)))

@@ -21,19 +21,19 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from ..errors import CloudError
 from ..gaussians import GaussianCloud
+from ..progress import ProgressFactory, null_progress
 # the settings and the report, importable from here as before
 from .config import (DEFAULT_ALPHA, DISTANCES, MODES, NEIGHBORS, RULES, VALUE_NAMES, PruneConfig,  # noqa: F401
                      PruneReport, PruneResult)
 from .filters import filtered_report
 from .knn import CentreIndex, _drop_self, check_k, knn_w2
-from ..progress import ProgressFactory, null_progress
 from .wasserstein import gaussian_shapes, w2_sq_neighbors
 
 EXTRA_CANDIDATES = 8
@@ -347,8 +347,6 @@ def remove_statistical_outliers(cloud: GaussianCloud, config: PruneConfig | None
     """
     config = config or PruneConfig()
     if options:
-        from dataclasses import replace
-
         config = replace(config, **options)
     t0 = time.perf_counter()
     n = len(cloud)

@@ -1,4 +1,7 @@
-"""The photo check of the local prune: a flagged Gaussian that the training photos support stays.
+"""The photos of the local prune's photo check: where they are, and loading them (the check itself:
+:mod:`.photo_check`).
+
+A flagged Gaussian that the training photos support stays.
 
 The local tests of :mod:`.scene` judge a Gaussian by its neighbours alone. On a capture that misjudges real content:
 a room's far wall, a table's edge or a chair seen by few photos is reconstructed by sparse Gaussians that fall apart
@@ -31,20 +34,21 @@ held-out views, which are never used), from a model folder or dataset folder giv
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from ..errors import ConfigError, RoodiError
+from ..io.files import read_json
+from ..io.records import model_record
 from ..progress import ProgressFactory, null_progress
 
 if TYPE_CHECKING:  # torch and the renderer load only when there are photos: `prune` on a lone PLY never needs them
     import torch
 
     from ..cameras import Camera
-    from ..gaussians import GaussianCloud
 
 PHOTO_VIEWS = 32
 """Views the check renders at most (evenly spaced over the training views): on the default-trained lego (87
@@ -94,7 +98,7 @@ def _spread(indices: Sequence[int], count: int) -> list[int]:
 
 def _from_dataset(path: Path, downscale: float, holdout_every: int, max_views: int, origin: str,
                   progress: ProgressFactory) -> Photos:
-    from ..io.dataset import load_dataset, split_views
+    from ..io.dataset import load_dataset, split_views  # lazy: the dataset readers import torch (photos only)
 
     dataset = load_dataset(path, downscale, progress=progress)
     train, _ = split_views(dataset, holdout_every)
@@ -118,11 +122,7 @@ def _record(root: Path) -> tuple[dict, Path | None]:
     Raises:
         InputError: ``cfg.json`` is not readable JSON.
     """
-    from ..io.files import read_json
-
     if not (root / "cfg.json").is_file():  # an Inria folder: its cfg_args in this toolkit's keys
-        from ..io.model import model_record
-
         return model_record(root)
     record = read_json(root / "cfg.json", "training record")
     record = record if isinstance(record, dict) else {}
@@ -150,7 +150,7 @@ def _model_photos(root: Path, max_views: int, progress: ProgressFactory) -> Phot
     if not data.exists():
         raise PhotosUnavailable(f"the data folder {data} that {where} names is not here")
     if where.name == "cfg_args":  # an Inria model: its cameras.json must agree with the data's cameras
-        from ..io.model import open_model
+        from ..io.model import open_model  # lazy: the model reader imports the dataset readers (torch)
 
         try:
             open_model(root, data)
@@ -229,90 +229,3 @@ def find_photos(cloud_path: str | Path, spec: str = "auto", *, max_views: int = 
         return _from_dataset(path, downscale, 0, max_views, "", progress)
     except RoodiError as exc:
         raise ConfigError(f"--photos {spec}: not a model folder, and not readable as a dataset ({exc})") from None
-
-
-def _psnr(mse: float) -> float:
-    return float("inf") if mse <= 0 else -10.0 * float(np.log10(mse))
-
-
-def _squared_error(rgb: torch.Tensor, alpha: torch.Tensor, photo: torch.Tensor, photo_alpha: torch.Tensor | None,
-                   background: torch.Tensor) -> torch.Tensor:
-    """Return the per-pixel squared error ``[H, W]`` of a rendering on black (``rgb``, ``alpha``) against a photo.
-
-    Without the photo's alpha: on the photos' background. With it: on black plus on white, from premultiplied colours.
-    """
-    if photo_alpha is None:
-        return ((rgb + (1 - alpha) * background - photo) ** 2).sum(-1)
-    pa = photo_alpha[..., None]
-    photo_black = photo - (1 - pa) * background
-    return ((rgb - photo_black) ** 2).sum(-1) + ((rgb + (1 - alpha) - photo_black - (1 - pa)) ** 2).sum(-1)
-
-
-@dataclass(frozen=True)
-class PhotoCheck:
-    """What the photo check measured.
-
-    Attributes:
-        support: ``[N]`` float64 ``support_i`` (module docstring); 0 for Gaussians not flagged or never seen.
-        psnr: PSNR of the whole cloud's renderings against the photos, from the mean squared error over the views (on
-            black and white for RGBA photos).
-        psnr_empty: the same for an empty rendering (the background alone).
-        views: views rendered.
-    """
-
-    support: np.ndarray
-    psnr: float
-    psnr_empty: float
-    views: int
-
-
-def photo_support(cloud: GaussianCloud, flagged: np.ndarray, photos: Photos, *, renderer=None,
-                  progress: ProgressFactory = null_progress) -> PhotoCheck:
-    """Return how much the photos support each flagged Gaussian (module docstring).
-
-    Raises:
-        ConfigError: the cloud does not explain the photos (:data:`MATCH_RATIO`): another scene or another frame.
-    """
-    import torch
-
-    from ..params import GaussianParams
-    from ..render.renderer import resolve_renderer
-
-    renderer = resolve_renderer(renderer)
-    n = len(cloud)
-    support = torch.zeros(n, dtype=torch.float64)
-    flagged = np.asarray(flagged, dtype=bool)
-    full = GaussianParams.from_cloud(cloud)
-    cut = GaussianParams.from_cloud(cloud.select(~flagged))
-    background = torch.tensor(photos.background, dtype=torch.float32)
-    black = (0.0, 0.0, 0.0)
-    mse_full, mse_empty = [], []
-    with progress(total=len(photos.cameras), desc="photo check") as bar:
-        for v, camera in enumerate(photos.cameras):
-            photo = photos.images[v].float()
-            photo_alpha = None if photos.alphas is None else photos.alphas[v].float()
-            ones = torch.ones(n, 1, dtype=full.dtype, requires_grad=True)
-            out = renderer.render(replace(full, features=ones), camera, background=black)
-            rgb, alpha = out.rgb.detach().float(), out.alpha.detach().float()
-            err_full = _squared_error(rgb, alpha, photo, photo_alpha, background)
-            zero = torch.zeros_like(rgb[..., :1])
-            err_empty = _squared_error(torch.zeros_like(rgb), zero, photo, photo_alpha, background)
-            channels = 3 if photo_alpha is None else 6
-            mse_full.append(float(err_full.mean()) / channels)
-            mse_empty.append(float(err_empty.mean()) / channels)
-            if flagged.any():
-                with torch.no_grad():
-                    without = renderer.render(cut, camera, background=black)
-                err_cut = _squared_error(without.rgb.float(), without.alpha.float(), photo, photo_alpha, background)
-                delta = (err_cut - err_full).to(out.features.dtype)
-                (grad,) = torch.autograd.grad((out.features[..., 0] * delta).sum(), ones)
-                support += grad[:, 0].double()
-            bar.update(1)
-    fit, empty = float(np.mean(mse_full)), float(np.mean(mse_empty))
-    if not fit < MATCH_RATIO * empty:
-        raise ConfigError(f"the cloud does not match the photos ({photos.source}): its renderings from their cameras "
-                          f"are {_psnr(fit):.1f} dB against {_psnr(empty):.1f} dB for an empty "
-                          f"picture; is it in their frame? give --photos none to prune without them")
-    values = support.numpy()
-    values[~flagged] = 0.0
-    return PhotoCheck(values, _psnr(fit), _psnr(empty), len(photos.cameras))

@@ -45,10 +45,12 @@ import numpy as np
 from ..errors import CloudError
 from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
+from .filters import filtered_report
 from .graph import NeighbourGraph, components, neighbour_graph
+from .outliers import PruneConfig, PruneResult, remove_statistical_outliers
 
 if TYPE_CHECKING:
-    from .outliers import PruneConfig, PruneReport, PruneResult
+    from .outliers import PruneReport
     from .photos import Photos
 
 DETACHED, OVERSIZED, FOG = "detached", "oversized", "fog"
@@ -371,9 +373,6 @@ def prune_cloud(cloud: GaussianCloud, config: "PruneConfig | None" = None, *, ph
         >>> report.mode, bool(keep[planted.labels == 0].all()), bool(keep[planted.labels == 2].mean() < 0.05)
         ('object', True, True)
     """
-    from .filters import filtered_report
-    from .outliers import PruneConfig, PruneResult, remove_statistical_outliers
-
     config = config or PruneConfig()
     if options:
         config = replace(config, **options)
@@ -434,7 +433,7 @@ def _photo_supported(cloud: GaussianCloud, front: np.ndarray, behind: np.ndarray
     blobs and fog) are judged first; those that go are left out when the rest (``behind``: detached pieces, a
     capture's sparse background among them) are judged.
     """
-    from .photos import photo_support
+    from .photo_check import photo_support  # lazy: torch and the renderer load only when there are photos
 
     t0 = time.perf_counter()
     n = len(cloud)

@@ -256,20 +256,6 @@ def w2_sq_covariances(means_a: np.ndarray, covs_a: np.ndarray, means_b: np.ndarr
     return np.einsum("ij,ij->i", diff, diff) + bures
 
 
-def w2_sq_reference(means_a: np.ndarray, covs_a: np.ndarray, means_b: np.ndarray, covs_b: np.ndarray) -> np.ndarray:
-    """Return W2^2 per pair with ``scipy.linalg.sqrtm`` in float64, ``[M]``: the slow reference for tests."""
-    from scipy.linalg import sqrtm
-
-    ma = np.asarray(means_a, dtype=np.float64).reshape(-1, 3)
-    mb = np.asarray(means_b, dtype=np.float64).reshape(-1, 3)
-    out = np.empty(len(ma))
-    for n, (sa, sb) in enumerate(zip(np.asarray(covs_a, np.float64), np.asarray(covs_b, np.float64))):
-        rb = np.real(sqrtm(sb))
-        cross = np.real(sqrtm(rb @ sa @ rb))
-        out[n] = float(np.sum((ma[n] - mb[n]) ** 2) + np.trace(sa) + np.trace(sb) - 2 * np.trace(cross))
-    return out
-
-
 def w2_sq_neighbors(means: np.ndarray, shapes: GaussianShapes, neighbors: np.ndarray, *,
                     dist2: np.ndarray | None = None, rows: np.ndarray | None = None, chunk_rows: int = 1 << 14,
                     threads: int = 2, progress: ProgressFactory = null_progress) -> np.ndarray:

@@ -7,7 +7,8 @@ selection) make pictures too, and the pipeline may not import from viz, which de
 
 from __future__ import annotations
 
-from typing import Sequence
+import colorsys
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -16,8 +17,6 @@ from ..errors import ConfigError
 
 def colorize_ids(ids: np.ndarray) -> np.ndarray:
     """Return ``[H, W, 3]`` float colours of a class map: 0 black, others distinct hues (golden-angle spaced)."""
-    import colorsys
-
     ids = np.asarray(ids)
     top = int(ids.max()) if ids.size else 0
     palette = np.zeros((top + 1, 3), np.float32)
@@ -42,8 +41,13 @@ def probability_grid(rows: Sequence[Sequence[np.ndarray]], gap: int = 2) -> np.n
     return out
 
 
+def colour_map(name: str) -> Any:
+    """Return matplotlib's colour map ``name`` (a function of values in [0, 1] to RGBA ``[..., 4]``)."""
+    from matplotlib import colormaps  # lazy: matplotlib takes 1-2 s to import; only pictures need its colour maps
+
+    return colormaps[name]
+
+
 def heat(prob: np.ndarray) -> np.ndarray:
     """Return ``[H, W, 3]`` viridis colours of probabilities ``[H, W]`` in [0, 1]."""
-    from matplotlib import colormaps
-
-    return colormaps["viridis"](np.clip(prob, 0, 1))[..., :3].astype(np.float32)
+    return colour_map("viridis")(np.clip(prob, 0, 1))[..., :3].astype(np.float32)

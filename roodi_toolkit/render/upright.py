@@ -24,7 +24,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, RoodiError
+from ..io.files import read_json
+from ..io.other_models import load_inria_cameras
+from ..io.ply import ply_info
+from ..io.splat import detect_format
 
 Y_DOWN_FORMATS = {"compressed-ply": "PlayCanvas compressed PLY", "sog": "PlayCanvas SOG", "spz": "SPZ"}
 """Formats whose clouds are y-down by convention (:func:`format_up`)."""
@@ -90,10 +94,6 @@ def model_cameras(ply: str | os.PathLike) -> list[Any] | None:
     ``MODEL/cfg.json``, whose ``data_dir`` names the dataset; an Inria output keeps its own cameras in
     ``MODEL/cameras.json`` beside ``cfg_args``; None when there is no such record or the dataset is gone.
     """
-    from ..errors import RoodiError
-    from ..io.dataset import load_cameras
-    from ..io.files import read_json
-
     root = _model_root(ply)
     if root is None:
         return None
@@ -105,15 +105,19 @@ def model_cameras(ply: str | os.PathLike) -> list[Any] | None:
     try:
         cfg = read_json(record, "training record")
         data = Path(str(cfg["data_dir"])) if isinstance(cfg, dict) and "data_dir" in cfg else None
-        return load_cameras(data) if data is not None and data.exists() else None
+        return _dataset_cameras(data) if data is not None and data.exists() else None
     except (RoodiError, OSError):
         return None
 
 
-def _inria_cameras(path: Path) -> list[Any] | None:
-    from ..errors import RoodiError
-    from ..io.other_models import load_inria_cameras
+def _dataset_cameras(data_dir: str | os.PathLike) -> list[Any]:
+    """Return the cameras of the dataset in ``data_dir``."""
+    from ..io.dataset import load_cameras  # lazy: the dataset readers import torch; a lone PLY never needs them
 
+    return load_cameras(data_dir)
+
+
+def _inria_cameras(path: Path) -> list[Any] | None:
     try:
         return load_inria_cameras(path)
     except RoodiError:  # not the file we know: no cameras then
@@ -139,9 +143,6 @@ def inria_cameras_up(ply: str | os.PathLike) -> tuple[np.ndarray, Path] | None:
 
 def format_up(path: str | os.PathLike) -> UpAxis | None:
     """Return the up axis the file's format fixes by convention (:data:`Y_DOWN_FORMATS`, nerfstudio PLYs), or None."""
-    from ..errors import RoodiError
-    from ..io.splat import detect_format
-
     try:
         fmt = detect_format(path)
     except RoodiError:
@@ -149,8 +150,6 @@ def format_up(path: str | os.PathLike) -> UpAxis | None:
     if fmt in Y_DOWN_FORMATS:
         return UpAxis(np.array([0.0, -1.0, 0.0]), f"{Y_DOWN_FORMATS[fmt]} files are y-down by convention", "format")
     if fmt == "ply":
-        from ..io.ply import ply_info
-
         try:
             variant = ply_info(path).variant
         except RoodiError:
@@ -190,7 +189,7 @@ def ground_plane_up(means: np.ndarray, seed: int = 0) -> tuple[np.ndarray, dict[
     diag = float(np.linalg.norm(high - low))
     if len(pts) < 100 or not diag > 0:
         return None
-    import open3d as o3d
+    import open3d as o3d  # lazy: 3 s to import; only the ground-plane guess (no cameras, no format) needs it
 
     o3d.utility.random.seed(seed)
     thickness = 0.005 * diag
@@ -291,9 +290,7 @@ def resolve_up(spec: str | None, path: str | os.PathLike, means: np.ndarray | No
     text = "" if spec is None else spec.strip()
     if text and text.lower() != "auto":
         if Path(text).exists():
-            from ..io.dataset import load_cameras
-
-            return UpAxis(cameras_up(load_cameras(text)), f"the mean up of the cameras in {text}", "cameras")
+            return UpAxis(cameras_up(_dataset_cameras(text)), f"the mean up of the cameras in {text}", "cameras")
         return UpAxis(parse_up(text), "given", "given")
     cams = model_cameras(path)
     if cams:

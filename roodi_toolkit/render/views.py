@@ -22,6 +22,7 @@ from ..io.files import write_image, write_json
 from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
 from ..params import GaussianParams
+from .pictures import colour_map
 from .renderer import Renderer, resolve_renderer
 from .upright import cameras_up, model_cameras  # noqa: F401 - their home before upright.py
 from .upright import resolve_up as resolve_upright
@@ -148,13 +149,11 @@ def depth_encoding_for(cloud: GaussianCloud, cameras: Sequence[Camera], min_alph
 
 def colorize_depth(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Return an RGB preview ``[H, W, 3]`` float of a depth map: turbo colormap, near = red end, black = no surface."""
-    from matplotlib import colormaps
-
     out = np.zeros(depth.shape + (3,))
     if valid.any():
         lo, hi = float(depth[valid].min()), float(depth[valid].max())
         t = np.clip((depth - lo) / max(hi - lo, 1e-12), 0, 1)
-        out = colormaps["turbo"](1.0 - t)[..., :3]
+        out = colour_map("turbo")(1.0 - t)[..., :3]
         out[~valid] = 0.0
     return out
 

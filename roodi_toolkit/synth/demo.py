@@ -21,22 +21,35 @@ Layout of the extraction demo's ``OUT_DIR``::
 from __future__ import annotations
 
 import os
+import platform
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
+import torch
+from matplotlib.patches import Rectangle
+from scipy.ndimage import binary_erosion
 
 from ..errors import ConfigError
-from ..pipeline.extract import ExtractConfig
+from ..evaluate.metrics import ALPHA_THRESHOLD, Evaluation, evaluate_object, find_target, zoom_box
 from ..gaussians import GaussianCloud
-from ..evaluate.metrics import Evaluation
-from ..progress import ProgressFactory, null_progress
-from ..render.renderer import Renderer, resolve_renderer
-from .objects import PRESETS
-from .scene import SceneSettings
+from ..io import files
+from ..io.dataset import load_dataset
+from ..io.files import read_image
+from ..io.ply import read_ply, write_ply
+from ..pipeline.extract import ExtractConfig
+from ..pipeline.occlusion import FILLED_COLOUR, outlined
 from ..pipeline.train import TrainConfig, config_with
+from ..progress import ProgressFactory, null_progress
+from ..prune.outliers import remove_statistical_outliers
+from ..render.renderer import Renderer, resolve_renderer
+from ..run.extract import extract_objects
+from .floaters import FloaterMix, planted_floater_cloud, removal_scores
+from .objects import PRESETS
+from .scene import SceneSettings, build_scene, make_scene
+from .tracer import render_views
 
 
 @dataclass
@@ -71,11 +84,6 @@ def run_prune_demo(out_dir: str | Path, *, seed: int = 0, surface: str = "ant", 
     Writes ``with_floaters.ply`` (the input), ``pruned.ply``, ``floaters.ply`` (what was removed), ``report.json`` and
     ``prune_demo.png`` (the cloud before and after, removed Gaussians in red) into ``out_dir``.
     """
-    from ..io import files
-    from ..prune.outliers import remove_statistical_outliers
-    from ..io.ply import write_ply
-    from .floaters import FloaterMix, planted_floater_cloud, removal_scores
-
     out = files.prepare_output_dir(out_dir, overwrite=overwrite)
     t0 = time.perf_counter()
     planted = planted_floater_cloud(FloaterMix(surface, n_object=n_object), seed=seed)
@@ -204,10 +212,6 @@ def run_environment(renderer: Renderer) -> dict[str, Any]:
     the trained scene a little, and training amplifies it the way a change of seed does (docs/benchmark.md,
     "Run to run"); a report with these records says which of them differed.
     """
-    import platform
-
-    import torch
-
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as fh:
@@ -221,8 +225,6 @@ def run_environment(renderer: Renderer) -> dict[str, Any]:
 
 def _alone_masks(scene: Any, cameras: list, target_ids: list[int]) -> dict[int, np.ndarray]:
     """Return per target ``[V, H, W]`` True where it covers the views' pixel centres when rendered alone."""
-    from .tracer import render_views
-
     alone = {}
     for tid in target_ids:
         renders = render_views(scene, cameras, object_ids=[tid], with_ground=False, supersample=1)
@@ -231,8 +233,6 @@ def _alone_masks(scene: Any, cameras: list, target_ids: list[int]) -> dict[int, 
 
 
 def _outline(mask: np.ndarray) -> np.ndarray:
-    from scipy.ndimage import binary_erosion
-
     return mask & ~binary_erosion(mask)
 
 
@@ -244,9 +244,6 @@ def _never_seen(target_dir: Path, view_name: str, truth_alpha: np.ndarray, befor
     """Return the region of a test view to outline ``[H, W]`` and what it is: the scene's never-seen mask of that
     view when make-scene wrote one (``test/never_seen/<view>.png`` beside the target's views), else the true
     object's pixels where the object before the fill shows the white background (what the model lacked)."""
-    from ..evaluate.metrics import ALPHA_THRESHOLD
-    from ..io.files import read_image
-
     path = target_dir / "test" / "never_seen" / f"{Path(view_name).name}.png"
     if path.is_file():
         mask = np.asarray(read_image(path))
@@ -263,13 +260,6 @@ def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visi
     """Write five panels: a training view, its close-up (the target outlined, its hidden part in red), then, zoomed
     in on the object in one test view, the true object and the object before and after refinement, with the
     ``never_seen`` region ``[H, W]`` of that view outlined in red on all three (what the fill had to add)."""
-    from ..pipeline.occlusion import FILLED_COLOUR, outlined
-
-    from matplotlib.patches import Rectangle
-
-    from ..io import files
-    from ..evaluate.metrics import ALPHA_THRESHOLD, zoom_box
-
     view = train_image.copy()
     hidden = alone & ~visible
     view[hidden] = 0.45 * view[hidden] + 0.55 * np.array([1.0, 0.0, 0.0])
@@ -325,9 +315,6 @@ def _draw_summary(path: Path, config: ExtractDemoConfig, data: Path, dataset: An
                   renders: list, before_renders: list) -> tuple[str, str]:
     """Write ``summary.png`` (a training view, the target in close-up, the true object, before and after) and
     return the names of its training and test views."""
-    from ..evaluate.metrics import find_target
-    from ..io.dataset import load_dataset
-
     settings = config.scene
     j, k = _summary_views(evaluation, alone, visible)
     truth = load_dataset(find_target(data, object_id)[0], background=(1.0, 1.0, 1.0))
@@ -368,13 +355,6 @@ def run_extract_demo(out_dir: str | Path, config: ExtractDemoConfig = ExtractDem
         ConfigError: bad settings, or ``config.object_id`` is not one of the scene's targets.
         OutputError: ``out_dir`` exists and is not empty without ``overwrite``.
     """
-    from ..io import files
-    from ..io.dataset import load_dataset
-    from ..run.extract import extract_objects
-    from ..evaluate.metrics import evaluate_object
-    from ..io.ply import read_ply
-    from .scene import build_scene, make_scene
-
     renderer = resolve_renderer(renderer)
     load_start = os.getloadavg()[0]
     t0 = time.perf_counter()

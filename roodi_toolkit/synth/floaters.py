@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
@@ -73,8 +74,7 @@ class PlantedCloud:
 
 def _unit_mesh(name: str) -> tuple[np.ndarray, np.ndarray]:
     """Return vertices ``[V, 3]`` and triangles ``[F, 3]`` of a bundled mesh, centred, bounding radius 1."""
-    import pyvista as pv
-    from pyvista import examples
+    from pyvista import examples  # lazy: pyvista takes 2 s to import; only the ant surface reads a mesh
 
     if name == "ant":
         mesh = examples.load_ant()
@@ -85,7 +85,6 @@ def _unit_mesh(name: str) -> tuple[np.ndarray, np.ndarray]:
     v = np.asarray(mesh.points, dtype=np.float64)
     v = v - 0.5 * (v.min(axis=0) + v.max(axis=0))
     v /= np.linalg.norm(v, axis=1).max()
-    del pv
     return v, faces
 
 
@@ -196,8 +195,6 @@ def planted_floater_cloud(mix: FloaterMix = FloaterMix(), seed: int = 0) -> Plan
         >>> len(planted.cloud), int((planted.labels == FAR).sum()), int((planted.labels == NEAR).sum())
         (2060, 20, 40)
     """
-    from scipy.spatial import cKDTree
-
     if mix.surface not in SURFACES:
         raise ConfigError(f"unknown surface {mix.surface!r}; choose one of {', '.join(SURFACES)}")
     rng = np.random.default_rng(seed)

@@ -18,6 +18,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
+import open3d as o3d
+from pyvista import examples
 
 
 __all__ = ["PRESETS", "BUILDERS", "MAX_OBJECTS", "Material", "Part", "SceneObject", "Light", "Preset", "box", "cylinder",
@@ -192,8 +194,6 @@ _NOT_TARGETS = frozenset({"bed", "sofa", "table", "blanket", "bench", "umbrella"
 
 
 def _o3d():
-    import open3d as o3d
-
     return o3d
 
 
@@ -260,8 +260,6 @@ def torus(radius: float, tube: float, mat: Material, at: Sequence[float] = (0, 0
 
 def _pyvista_mesh(name: str) -> tuple[np.ndarray, np.ndarray]:
     """Return (vertices, triangles) of a mesh bundled with PyVista's examples (no download)."""
-    from pyvista import examples
-
     loaders = {"airplane": examples.load_airplane, "ant": examples.load_ant, "nut": examples.load_nut,
                "globe": examples.load_globe}
     mesh = loaders[name]().triangulate()  # bundled PolyData surfaces

@@ -33,15 +33,16 @@ import numpy as np
 from .._version import __version__
 from ..cameras import Camera, intrinsics_from_fov, look_at
 from ..errors import ConfigError, DatasetError
+from ..io.blender import write_blender_transforms
 from ..io.files import prepare_output_dir, write_image, write_json
 from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
 from ..progress import ProgressFactory, null_progress
 from .layout import build_scene
 from .objects import MAX_OBJECTS, PRESETS, SceneObject
+from .overview import overview_image
 from .tracer import _Tracer, render_views
 from .visibility import NEVER_SEEN_DIR, never_seen_record, write_never_seen
 from .world import Scene
-from .overview import overview_image
 
 if TYPE_CHECKING:
     from ..evaluate.benchmark import BenchmarkSize
@@ -272,8 +273,6 @@ def make_scene(out_dir: str | os.PathLike, preset: str = "bedroom", seed: int = 
     common = {"background": list(scene.sky[0]),
               "scene_bounds": scene_bounds, "depth_scale": DEPTH_SCALE}
     # the environment is not one colour; "background" is the horizon colour, used only if a tool needs one
-    from ..io.blender import write_blender_transforms
-
     write_blender_transforms(out / "transforms_train.json", cams, [f"train/{c.name}" for c in cams],
                              extra=common, frame_extra=frame_extra)
     write_json({"camera_angle_x": cams[0].fov_x, "frames": [],

@@ -19,6 +19,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..cameras import Camera
+from ..io.files import write_image
 from .tracer import RenderResult, _Tracer
 
 __all__ = ["VISIBILITY_TOLERANCE", "NEVER_SEEN_DIR", "surface_points", "seen_by_any", "never_seen_masks",
@@ -110,8 +111,6 @@ def write_never_seen(target_dir: Path, scene, object_id: int, test_cameras: Sequ
     """Write a target's never-seen masks (uint8, 255 = never seen) under ``target_dir/NEVER_SEEN_DIR``, add each
     frame's ``never_seen_path`` to ``frame_extra``, and return the target's scene.json entries (folder, share,
     pixel counts)."""
-    from ..io.files import write_image
-
     masks = never_seen_masks(scene, object_id, test_cameras, test_renders, train_cameras, tracer=tracer)
     (target_dir / NEVER_SEEN_DIR).mkdir(parents=True, exist_ok=True)
     for cam, m, e in zip(test_cameras, masks, frame_extra):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
 from .objects import Material, Part, _matte, _mesh_arrays, _o3d, _random_color
 
@@ -37,8 +38,6 @@ WRAP_KINDS = ("open_box", "sleeve", "bowl_wrap")
 def _hull_wall(points_xy: np.ndarray, offset: float, thickness: float, height: float, mat: Material) -> Part:
     """Return a wall ``height`` high standing on z = 0 around the convex hull of ``points_xy`` ``[P, 2]`` grown by
     ``offset``: inner and outer faces ``thickness`` apart and the rim between them; no floor, no lid."""
-    from scipy.spatial import ConvexHull
-
     ring = np.linspace(0, 2 * math.pi, 24, endpoint=False)
     disc = np.stack([np.cos(ring), np.sin(ring)], axis=1)
     grown = (points_xy[:, None, :] + offset * disc[None]).reshape(-1, 2)  # Minkowski sum with a 24-gon
@@ -94,8 +93,6 @@ def wrap_parts(kind: str, target: list[Part], rng: np.random.Generator) -> tuple
     # every triangle that reaches below the rim: the hull of their corners holds the target's part below it
     low = np.concatenate([p.vertices[np.unique(p.triangles[p.vertices[p.triangles][:, :, 2].min(axis=1) < wall_h])]
                           for p in target])
-    from scipy.spatial import ConvexHull
-
     corners = len(ConvexHull(low[:, :2]).vertices)
     wall = _hull_wall(low[:, :2], g, WRAP_THICKNESS, wall_h, mat)
     return ("open_box" if corners <= 4 else "sleeve"), [wall]

@@ -20,15 +20,24 @@ commands write it (:func:`roodi_toolkit.io.files.write_image`).
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
+import torch
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
 from ..cameras import Camera
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
+from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
+from ..prune.summary import STAGE_LABELS, mode_line
+from ..render.renderer import resolve_renderer
+from ..render.views import framing_orbit
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..prune.outliers import PruneReport
@@ -88,8 +97,6 @@ def picture_views(cloud: GaussianCloud, keep: np.ndarray, up: Sequence[float],
     90: the image's up then stays defined), all at the distance of :func:`~roodi_toolkit.render.views.framing_orbit`
     (what stays fills the narrower field of view; raised while a view starts inside it).
     """
-    from ..render.views import framing_orbit
-
     frame = cloud.select(keep) if keep.any() else cloud
     w, h = size
     side = framing_orbit(frame, 4, elevation_deg=20.0, width=w, height=h, up=up, azimuth0_deg=-60.0)
@@ -141,9 +148,6 @@ class _Sheet:
     panel's axes in pixel units (y down, as camera pixels) and a label above it."""
 
     def __init__(self, pw: int, ph: int) -> None:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-
         self.pw, self.ph = pw, ph
         self.width = 3 * pw + 4 * GAP
         self.height = TITLE_BAND + 2 * (LABEL_BAND + ph) + 3 * GAP // 2
@@ -203,11 +207,6 @@ def _render_before_after(shown: GaussianCloud, keep: np.ndarray, camera: Camera,
                          progress: ProgressFactory) -> list[np.ndarray]:
     """Return the cloud rendered from ``camera`` before and after the prune, ``[H, W, 3]`` in [0, 1] each (black
     where nothing is left)."""
-    import torch
-
-    from ..params import GaussianParams
-    from ..render.renderer import resolve_renderer
-
     renderer = resolve_renderer(renderer)
     with progress(total=2, desc="rendering before and after") as bar:
         renders = []
@@ -241,8 +240,6 @@ def floater_picture(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport
     Raises:
         ConfigError: a keep mask or report that does not match the cloud.
     """
-    from ..prune.summary import mode_line
-
     n = len(cloud)
     keep = np.asarray(keep)
     removed_by, stage_counts = _removal_groups(keep, report, n)
@@ -291,8 +288,6 @@ def floater_picture(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport
 
 
 def _frame(pw: int, ph: int) -> Any:
-    from matplotlib.patches import Rectangle
-
     return Rectangle((0, 0), pw, ph, fill=False, edgecolor="#999999", linewidth=1.0)
 
 
@@ -315,10 +310,6 @@ def _border_arrows(ax: Any, pixels: np.ndarray, colour: str, pw: int, ph: int) -
 def _legend(ax: Any, report: "PruneReport", stages: list[tuple[int, str, int]], colours: dict[str, str], kept: int,
             went: int, up_source: str, up: np.ndarray, pw: int, ph: int, dry_run: bool) -> None:
     """Write the legend panel: one coloured marker and count per reason, what stays and why, the up used."""
-    import textwrap
-
-    from ..prune.summary import STAGE_LABELS
-
     ax.add_patch(_frame(pw, ph))
     y = 24.0
 

@@ -10,12 +10,12 @@ import os
 from typing import TYPE_CHECKING
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from ..errors import ConfigError, OutputError
+from ..io.files import atomic_path
 
 if TYPE_CHECKING:  # pragma: no cover
-    from matplotlib.figure import Figure
-
     from ..prune.outliers import PruneReport
 
 __all__ = ["distance_is_log", "distance_label", "histogram_figure", "save_histogram"]
@@ -66,8 +66,6 @@ def histogram_figure(report: "PruneReport", *, bins: int = 80, figsize: tuple[fl
         >>> bool(fig.axes[0].get_xscale() == "log"), fig._roodi_threshold == report.threshold
         (True, True)
     """
-    from matplotlib.figure import Figure
-
     d = np.asarray(report.mean_distances, dtype=np.float64)
     if d.size == 0:
         raise ConfigError("the report has no per-Gaussian distances (nothing reached the statistics)")
@@ -127,8 +125,6 @@ def save_histogram(fig: "Figure", path: str | os.PathLike, dpi: int = 110) -> No
     The metadata (keys ``roodi:threshold``, ``roodi:removed_share``, full precision) lets a script read back
     exactly which threshold the picture marks.
     """
-    from ..io.files import atomic_path
-
     metadata: dict[str, str] = {}
     if str(path).lower().endswith(".png"):
         for key, attr in (("roodi:threshold", "_roodi_threshold"), ("roodi:removed_share", "_roodi_removed_share")):

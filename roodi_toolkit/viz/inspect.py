@@ -28,15 +28,20 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
+import pyvista as pv
 
+try:
+    from vtkmodules.vtkCommonCore import vtkLogger
+except ImportError:  # pragma: no cover - older VTK
+    vtkLogger = None
+
+from ..cameras import horizontal_basis
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
 from ..settings import check_settings, documented, setting
 from .histogram import distance_is_log, distance_label, histogram_figure, save_histogram  # noqa: F401 (re-exported)
 
 if TYPE_CHECKING:  # pragma: no cover
-    import pyvista as pv
-
     from ..prune.outliers import PruneReport
 
 GLYPHS = ("auto", "ellipsoids", "splats")
@@ -113,12 +118,8 @@ def display_available() -> bool:
 
 def _quiet_vtk() -> None:
     """Silence VTK's stderr log (it warns about the missing X server before falling back to EGL)."""
-    try:
-        from vtkmodules.vtkCommonCore import vtkLogger
-
+    if vtkLogger is not None:
         vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
-    except ImportError:  # pragma: no cover - older VTK
-        pass
 
 
 def distances_per_gaussian(report: "PruneReport", n: int | None = None) -> np.ndarray:
@@ -166,8 +167,6 @@ def ellipsoid_mesh(means: np.ndarray, rotations: np.ndarray, scales: np.ndarray,
         sigmas: the surface drawn, in standard deviations.
         subdivisions: icosphere subdivisions (0: 12 points, 1: 42, 2: 162).
     """
-    import pyvista as pv
-
     means = np.asarray(means, dtype=np.float64)
     n = len(means)
     if means.shape != (n, 3) or np.shape(rotations) != (n, 3, 3) or np.shape(scales) != (n, 3):
@@ -231,8 +230,6 @@ def frame_camera(plotter: "pv.Plotter", centre: Sequence[float], radius: float, 
     radius = max(float(radius), 1e-6)
     direction, view_up = (np.asarray(v, dtype=np.float64) for v in _DIRECTIONS[camera])
     if up is not None:
-        from ..cameras import horizontal_basis
-
         up_v, e1, e2 = horizontal_basis(up)
         if camera == "iso":
             direction = e1 + e2 + up_v
@@ -311,8 +308,6 @@ def _checked_keep(cloud: GaussianCloud, keep_mask: np.ndarray | None, highlight:
         ConfigError: a mask of the wrong shape or type, a highlight that is no colour, a window size that is no
             ``(width, height)``.
     """
-    import pyvista as pv
-
     n = len(cloud)
     keep = np.ones(n, dtype=bool) if keep_mask is None else np.asarray(keep_mask)
     if keep.shape != (n,) or keep.dtype != np.bool_:
@@ -374,8 +369,6 @@ def _colour_map(cloud: GaussianCloud, color_by: str, distances: np.ndarray | Non
 
 def _glyph_mesh(sub: GaussianCloud, use_ellipsoids: bool, sigmas: float) -> "pv.PolyData":
     """Return the Gaussians' glyphs: ellipsoid surfaces, or their centres with the splat sizes as ``footprint``."""
-    import pyvista as pv
-
     if use_ellipsoids:
         return ellipsoid_mesh(sub.means, sub.rotations(), sub.scales, sigmas=sigmas)
     mesh = pv.PolyData(np.ascontiguousarray(sub.means, dtype=np.float32))
@@ -388,8 +381,6 @@ def _colour_glyphs(mesh: "pv.PolyData", sub: GaussianCloud, idx: np.ndarray, is_
                    colours: _ColourMap | None, use_ellipsoids: bool) -> dict[str, Any]:
     """Colour the glyphs of the Gaussians ``idx`` (``sub``) and return the ``add_mesh`` arguments that draw them:
     highlighted, through the colour map, or in their own colours."""
-    import pyvista as pv
-
     kwargs: dict[str, Any] = {}
     if is_highlight:
         # the footprint, unlit in the highlight colour without hiding what it covers: ellipsoids as wireframes,
@@ -476,8 +467,6 @@ def plot_cloud(cloud: GaussianCloud, keep_mask: np.ndarray | None = None, *, sho
     Raises:
         ConfigError: an unknown option, a mask or distances of the wrong shape, or nothing to draw.
     """
-    import pyvista as pv
-
     _check_choice(show, SHOW, "show")
     _check_choice(color_by, COLOR_BY, "color_by")
     _check_choice(glyphs, GLYPHS, "glyphs")

@@ -14,9 +14,14 @@ import os
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
+from PIL import Image
 
+from ..cameras import horizontal_basis
 from ..errors import EnvironmentProblemError
 from ..gaussians import GaussianCloud
+from ..io.files import atomic_path
+from ..prune.summary import STAGE_LABELS, mode_line
+from .floaters import reason_colour
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..prune.outliers import PruneReport
@@ -41,13 +46,10 @@ def floater_page(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport", 
         EnvironmentProblemError: plotly is not installed.
     """
     try:
-        import plotly.graph_objects as go
+        import plotly.graph_objects as go  # lazy: plotly is missing from some installs: named with what to do
     except ImportError as exc:
         raise EnvironmentProblemError(f"the HTML page needs plotly ({exc}); install it with `pip install plotly`") \
             from None
-    from ..prune.summary import STAGE_LABELS, mode_line
-    from .floaters import reason_colour
-
     finite = ~cloud.nonfinite_rows()
     keep = np.asarray(keep, dtype=bool)
     removed_by = np.asarray(report.removed_by)
@@ -85,8 +87,6 @@ def floater_page(cloud: GaussianCloud, keep: np.ndarray, report: "PruneReport", 
                                                    "line": {"color": "black", "width": 1}}))
     up_v = np.asarray(up, dtype=np.float64)
     up_v = up_v / max(float(np.linalg.norm(up_v)), 1e-30)
-    from ..cameras import horizontal_basis
-
     _, e1, e2 = horizontal_basis(up_v)
     eye = 1.6 * (np.cos(np.radians(20)) * (np.cos(np.radians(-60)) * e1 + np.sin(np.radians(-60)) * e2)
                  + np.sin(np.radians(20)) * up_v)
@@ -110,8 +110,6 @@ def palette_colours(rgb: np.ndarray, colours: int = 256) -> dict:
     """Return plotly marker settings giving each of ``rgb`` ``[N, 3]`` (0-1) the nearest of a ``colours``-entry
     palette (Pillow's median cut): a per-point index and a colour scale, a byte a point where colour strings take
     about sixteen (a 90k-Gaussian page: 8.1 MB with strings)."""
-    from PIL import Image
-
     pixels = (np.clip(rgb, 0.0, 1.0) * 255 + 0.5).astype(np.uint8)[None]  # [1, N, 3]
     quantised = Image.fromarray(pixels, "RGB").quantize(colours, method=Image.Quantize.MEDIANCUT)
     index = np.asarray(quantised, dtype=np.uint8)[0]  # [N]
@@ -126,8 +124,6 @@ def palette_colours(rgb: np.ndarray, colours: int = 256) -> dict:
 
 def write_floater_page(html: str, path: str | os.PathLike) -> None:
     """Write the page atomically."""
-    from ..io.files import atomic_path
-
     with atomic_path(path, suffix=".html") as tmp:
         with open(tmp, "w", encoding="utf-8") as f:
             f.write(html)

@@ -24,6 +24,21 @@ def test_version_and_help(run_cli):
         assert name in res.stdout
 
 
+def test_the_command_list_reads_as_click_makes_it_and_imports_no_command():
+    """``roodi-toolkit --help`` lists each command's short help from its module's source (issue 35: a command's
+    module imports what it runs at its top, ``train`` torch): the rows click makes from the imported commands, and
+    no command module imported for them."""
+    code = ("import sys, click\n"
+            "from roodi_toolkit.cli.main import app\n"
+            "ctx = click.Context(app, info_name='roodi-toolkit')\n"
+            "ours = ctx.make_formatter(); app.format_commands(ctx, ours)\n"
+            "print(sorted(m for m in sys.modules if m.startswith('roodi_toolkit.cli.cmd_')))\n"
+            "clicks = ctx.make_formatter(); click.Group.format_commands(app, ctx, clicks)\n"
+            "print(ours.getvalue() == clicks.getvalue(), len(ours.getvalue().splitlines()))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines() == ["[]", f"True {len(COMMANDS) + 1}"], out
+
+
 @pytest.mark.parametrize("name", sorted(COMMANDS))
 def test_every_command_help_shows_an_example(run_cli, name):
     res = run_cli(name, "--help")
@@ -152,7 +167,7 @@ def test_sigterm_mid_write_leaves_no_partial_file(tmp_path, run_cli, monkeypatch
             tmp.write_bytes(b"ply\nhalf")
             os.kill(os.getpid(), signal.SIGTERM)
 
-    monkeypatch.setattr("roodi_toolkit.io.ply.write_ply", killed_writer)
+    monkeypatch.setattr("roodi_toolkit.io.splat.write_ply", killed_writer)  # the name write_cloud calls
     before = signal.getsignal(signal.SIGTERM)
     res = run_cli("prune", src, tmp_path / "out.ply", "-q")
     assert res.exit_code == 143 and "terminated" in res.stderr
@@ -187,3 +202,19 @@ def test_quiet_and_threads_wherever_they_stand(run_cli, monkeypatch, tmp_path):
         assert res.exit_code == 1 and "--threads" in res.stderr  # checked for prune too, which renders late
     finally:
         torch.set_num_threads(before)
+
+
+HEAVY_LIBRARIES = ("torch", "scipy", "cv2", "open3d", "pyvista", "matplotlib", "kornia", "numba", "PIL")
+
+
+def test_commands_on_splat_files_import_no_heavy_library(tmp_path):
+    """``info``, ``convert`` and ``prune`` of a lone splat file import none of the heavy libraries (issue 35: imports
+    at the top of modules must not put torch, 2-5 s, in front of a prune that takes seconds)."""
+    src = tmp_path / "in.ply"
+    write_ply(make_cloud(300, seed=3), src)
+    code = ("import sys; from roodi_toolkit.cli.main import main; "
+            f"codes = [main(['info', {str(src)!r}]), main(['convert', {str(src)!r}, {str(tmp_path / 'c.spz')!r}]), "
+            f"main(['prune', {str(src)!r}, {str(tmp_path / 'p.ply')!r}, '-q'])]; "
+            f"print(codes, sorted(set({HEAVY_LIBRARIES!r}) & {{m.split('.')[0] for m in sys.modules}}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines()[-1] == "[0, 0, 0] []", out

@@ -310,7 +310,7 @@ def _run_cases(reader: str, n: int, tmp: Path, seed: int = 0) -> Counter:
             return what, read, path
     elif reader in ("cfg_args", "inria_cameras", "gsplat_ckpt", "gsplat_cfg", "dataparser_transforms"):
         from roodi_toolkit.cameras import orbit_cameras
-        from roodi_toolkit.io import other_models as om
+        from roodi_toolkit.io import gsplat, other_models as om
 
         data = _other_model_seeds(tmp)[reader]
         data_cams = [c.__class__(c.world_to_camera, c.K, c.width, c.height, name=f"v{i}")
@@ -336,9 +336,9 @@ def _run_cases(reader: str, n: int, tmp: Path, seed: int = 0) -> Counter:
                 if reader == "inria_cameras":
                     return om.check_inria_cameras(path, data_cams, folder)
                 if reader == "gsplat_ckpt":
-                    return om.read_gsplat_checkpoint([path])
+                    return gsplat.read_gsplat_checkpoint([path])
                 if reader == "gsplat_cfg":
-                    return om.gsplat_settings(om.read_gsplat_config(folder), path)
+                    return gsplat.gsplat_settings(gsplat.read_gsplat_config(folder), path)
                 return om.read_dataparser_transforms(path)
             return what, read, path
     else:

@@ -171,7 +171,7 @@ def test_gsplat_normalisation_is_gsplats(colmap_scene) -> None:
     their principal axes are x, y, z in decreasing spread."""
     from roodi_toolkit.cameras import invert_rigid
     from roodi_toolkit.io.colmap import read_colmap_model
-    from roodi_toolkit.io.other_models import _align_principal_axes, _similarity_from_cameras, gsplat_frames
+    from roodi_toolkit.io.gsplat import _align_principal_axes, _similarity_from_cameras, gsplat_frames
 
     model = read_colmap_model(colmap_scene / "sparse" / "0")
     c2w = np.stack([invert_rigid(im.world_to_camera()) for im in model.images.values()])
@@ -191,7 +191,7 @@ def test_gsplat_normalisation_is_gsplats(colmap_scene) -> None:
 
 
 def test_gsplat_checkpoint_opens_in_the_data_frame_and_distils(scene, colmap_scene, tmp_path, run_cli) -> None:
-    from roodi_toolkit.io.other_models import gsplat_frames
+    from roodi_toolkit.io.gsplat import gsplat_frames
 
     _, _, cloud = scene
     to_ckpt = gsplat_frames(colmap_scene / "sparse" / "0")[0]

@@ -18,7 +18,8 @@ from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.io.blender import write_blender_transforms
 from roodi_toolkit.io.files import write_image
 from roodi_toolkit.io.ply import read_ply, write_ply
-from roodi_toolkit.prune.photos import Photos, PhotosUnavailable, find_photos, photo_support
+from roodi_toolkit.prune.photo_check import photo_support
+from roodi_toolkit.prune.photos import Photos, PhotosUnavailable, find_photos
 from roodi_toolkit.prune.scene import prune_cloud
 from roodi_toolkit.render.renderer import render_cloud
 
