@@ -24,7 +24,6 @@ from torch import Tensor
 from ..cameras import Camera, horizontal_basis, intrinsics_from_fov, look_at
 from ..errors import CloudError, ConfigError
 from ..gaussians import GaussianCloud
-from ..io.files import write_image
 from ..params import GaussianParams
 from ..render.pictures import probability_grid
 from ..render.renderer import Renderer, resolve_renderer
