@@ -10,7 +10,8 @@ from dataclasses import dataclass, fields
 import click
 import pytest
 
-from roodi_toolkit.cli.settings import click_type, command_settings, config_from_options, config_options, option_names
+from roodi_toolkit.cli.settings import (SettingsCommand, click_type, command_settings, config_from_options,
+                                       config_options, option_names)
 from roodi_toolkit.prune.config import PhotoSettings, PruneConfig
 from roodi_toolkit.render.settings import OrbitSettings
 from roodi_toolkit.settings import declared, setting
@@ -160,3 +161,98 @@ def test_statistical_options_imply_the_statistical_mode(run_cli, tmp_path):
         assert res.exit_code == 0, res.stderr
         report = json.loads((tmp_path / "r.json").read_text())
         assert (report["mode"] == "statistical") == (mode == "statistical"), (extra, report["mode"])
+
+
+# ------------------------------------------------------------------ nested configs, negated flags, unset options
+@dataclass(frozen=True)
+class Inner:
+    steps: int = setting(5, "Inner steps.", low=1)
+    rate: float = setting(0.5, "Inner rate.", low=0)
+    secret: int = setting(2, "Library only.", cli=False)
+
+
+@dataclass(frozen=True)
+class Outer:
+    on: bool = setting(True, "Do the thing; --no-on skips it.")
+    inner: Inner = setting(factory=lambda: Inner(steps=9), help="The inner stage.", prefix="inner")
+    flat: Inner = setting(factory=Inner, help="Another stage, its options unprefixed.", prefix="")
+    notes: dict = setting(factory=dict, help="Library only.", cli=False)
+
+
+def _toy(options):
+    @click.command(cls=SettingsCommand)
+    @options
+    def cmd(**values):
+        click.echo(repr(options.config(values)))
+
+    return cmd
+
+
+def test_nested_configs_get_prefixed_options_with_the_base_configs_defaults():
+    from roodi_toolkit.cli.settings import Options
+
+    opts = Options(Outer)
+    got = [(o.option, o.param, o.path, o.default) for o in opts.offered()]
+    assert got == [("--no-on", "on", ("on",), True), ("--inner-steps", "inner_steps", ("inner", "steps"), 9),
+                   ("--inner-rate", "inner_rate", ("inner", "rate"), 0.5), ("--steps", "steps", ("flat", "steps"), 5),
+                   ("--rate", "rate", ("flat", "rate"), 0.5)]
+    from click.testing import CliRunner
+
+    out = CliRunner().invoke(_toy(opts), ["--inner-steps", "3", "--no-on", "--rate", "2"])
+    assert out.exit_code == 0, out.output
+    assert out.output.strip() == repr(Outer(on=False, inner=Inner(steps=3), flat=Inner(rate=2.0)))
+    assert CliRunner().invoke(_toy(opts), []).output.strip() == repr(Outer())
+    assert CliRunner().invoke(_toy(opts), ["--inner-steps", "0"]).exit_code == 2  # the nested field's range
+    text = " ".join(CliRunner().invoke(_toy(opts), ["--help"]).output.split())
+    assert "--inner-steps INTEGER RANGE Inner steps. [default: 9; x>=1]" in text  # the base's 9, not the field's 5
+    assert "--no-on Do the thing; --no-on skips it." in text and "secret" not in text
+
+
+def test_only_picks_settings_in_its_order_and_refuses_unknown_names():
+    from roodi_toolkit.cli.settings import Options
+
+    opts = Options(Outer, only=("flat.rate", "inner.steps"))
+    assert [o.option for o in opts.offered()] == ["--rate", "--inner-steps"]
+    assert opts.config({"rate": 1.0, "inner_steps": 4}) == Outer(inner=Inner(steps=4), flat=Inner(rate=1.0))
+    with pytest.raises(TypeError, match="no command-line setting inner.secret"):
+        Options(Outer, only=("inner.secret",)).offered()
+
+
+def test_unset_options_keep_the_base_value_and_show_it_as_default():
+    from click.testing import CliRunner
+
+    from roodi_toolkit.cli.settings import Options
+
+    opts = Options(Outer, unset=True, only=("on", "inner.steps", "flat.rate"))
+    cmd = _toy(opts)
+    values = cmd.make_context("cmd", []).params
+    assert values == {"on": None, "inner_steps": None, "rate": None}
+    resumed = Outer(on=False, inner=Inner(steps=40), flat=Inner(rate=3.0))
+    assert opts.config(values, base=resumed) == resumed  # nothing given: the resumed run's values
+    given = cmd.make_context("cmd", ["--inner-steps", "7"]).params
+    assert opts.config(given, base=resumed) == Outer(on=False, inner=Inner(steps=7), flat=Inner(rate=3.0))
+    assert opts.config(cmd.make_context("cmd", ["--no-on"]).params) == Outer(on=False)
+    text = " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    assert "Inner steps. [default: 9; x>=1]" in text and "Inner rate. [default: 0.5; x>=0]" in text
+
+
+def test_options_named_by_text_are_made_when_the_command_is_used():
+    """``roodi-toolkit --help`` lists the commands without making their options: their configs' modules import
+    PyTorch. The made options get the CLI's finite floats."""
+    from roodi_toolkit.cli.main import FiniteFloat, _finite_floats
+    from roodi_toolkit.cli.settings import Options
+
+    cmd = _finite_floats(_toy(Options("tests.cli.test_settings:Outer", only=("inner.rate",))))
+    assert cmd.made_params == []
+    (param,) = cmd.params
+    assert param.name == "inner_rate" and isinstance(param.type, FiniteFloat)
+
+
+def test_listing_the_commands_imports_no_pytorch():
+    import subprocess
+    import sys
+
+    code = ("import sys; from roodi_toolkit.cli.main import main\ntry: main(['--help'])\nexcept SystemExit: pass\n"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split()[-1] == "False", out
