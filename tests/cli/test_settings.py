@@ -9,6 +9,7 @@ from dataclasses import dataclass, fields
 
 import click
 import pytest
+from click.testing import CliRunner
 
 from roodi_toolkit.cli.settings import (SettingsCommand, click_type, command_settings, config_from_options,
                                        config_options, option_names)
@@ -256,3 +257,102 @@ def test_listing_the_commands_imports_no_pytorch():
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split()[-1] == "False", out
+
+
+# ------------------------------------------------------------------ the pipeline commands' options
+def _settings_of(name):
+    """The Options a pipeline command's settings are made from, and its own parameters that are no setting."""
+    from roodi_toolkit.cli import cmd_distill, cmd_extract, cmd_select, cmd_train
+
+    extract_own = {"model_dir", "distill_dir", "inpainter_options", "quiet"}
+    run = {"overwrite", "renderer", "renderer_option", "quiet"}  # renderer_option: --renderer-option's parameter
+    return {
+        "train": (cmd_train.TRAIN_SETTINGS, run | {"data_dir", "out_dir", "downscale", "resume"}),
+        "distill": (cmd_distill.DISTILL_SETTINGS, run | {"model_dir", "data_dir", "out_dir", "segmenter", "clicks",
+                                                         "negative_clicks", "mask_dir", "options", "downscale",
+                                                         "dataparser_transforms"}),
+        "select": (cmd_select.SELECT_SETTINGS, run | {"distill_dir", "output_ply", "object_id", "picture"}),
+        "extract": (cmd_extract.EXTRACT_SETTINGS, run | extract_own | {
+            "paths", "object_ids", "clicks", "negative_clicks", "view", "segmenter", "segmenter_options", "mask_dir",
+            "dataparser_transforms"}),
+        "batch extract": (cmd_extract.EXTRACT_SETTINGS, extract_own | {"data_dir", "out", "object_ids", "jobs",
+                                                                       "ray_address", "results", "rerun"}),
+    }[name]
+
+
+@pytest.mark.parametrize("name", ["train", "distill", "select", "extract", "batch extract"])
+def test_pipeline_options_are_the_configs_settings(name):
+    """Each option of the pipeline commands is a setting of their config (help, range, default from its field),
+    or one of the command's own parameters."""
+    options, own = _settings_of(name)
+    params = {p.name: p for p in _command(name).params}
+    offered = {o.param: o for o in options.offered()}
+    assert set(params) - own == set(offered)
+    for o in offered.values():
+        p = params[o.param]
+        assert [*p.opts, *p.secondary_opts] == o.option.split("/") and p.help == o.setting.meta.help
+        assert p.default == (None if options.unset else o.default)
+        if o.setting.meta.choices is not None:
+            assert tuple(p.type.choices) == o.setting.meta.choices
+
+
+def test_train_options_round_trip_to_the_train_config():
+    from roodi_toolkit.cli.cmd_train import TRAIN_SETTINGS
+    from roodi_toolkit.pipeline.strategy import MCMCStrategy
+    from roodi_toolkit.pipeline.train import TrainConfig
+
+    cmd = _command("train")
+    args = ["d", "o", "--iterations", "7", "--cap-max", "900", "--sh-degree", "1", "--init", "random",
+            "--init-points", "50", "--fixed-background", "--eval-every", "0", "--checkpoint-every", "3", "--seed", "4"]
+    config = TRAIN_SETTINGS.config(cmd.make_context("train", args).params)
+    assert config == TrainConfig(iterations=7, strategy=MCMCStrategy(cap_max=900), sh_degree=1, init="random",
+                                 init_num_points=50, random_background=False, eval_every=0, checkpoint_every=3,
+                                 seed=4)
+    # none given: every option None (a resumed run keeps its own), the config TrainConfig's defaults
+    values = cmd.make_context("train", ["d", "o"]).params
+    assert [values[o.param] for o in TRAIN_SETTINGS.offered()] == [None] * 9
+    assert TRAIN_SETTINGS.config(values) == TrainConfig() and TrainConfig().strategy.cap_max == 60_000
+    assert TRAIN_SETTINGS.config(cmd.make_context("train", ["d", "o", "--random-background"]).params) == \
+        TrainConfig(random_background=True)
+    for bad in (["--init-points", "3"], ["--sh-degree", "4"], ["--init", "sfm"], ["--seed", "-1"]):
+        assert CliRunner().invoke(cmd, ["d", "o", *bad]).exit_code == 2, bad
+
+
+def test_distill_and_select_options_round_trip():
+    from roodi_toolkit.cli.cmd_distill import DISTILL_SETTINGS
+    from roodi_toolkit.pipeline.distill import DistillConfig
+
+    values = _command("distill").make_context("distill", ["m", "d", "o", "--iterations", "9", "--feature-lr", "0.1",
+                                                          "--classifier-lr", "0.2", "--seed", "3"]).params
+    assert DISTILL_SETTINGS.config(values) == DistillConfig(iterations=9, feature_lr=0.1, classifier_lr=0.2, seed=3)
+    assert DISTILL_SETTINGS.config(_command("distill").make_context("distill", ["m", "d", "o"]).params) == \
+        DistillConfig()
+    select = _command("select")
+    assert {k: select.make_context("select", ["d", "o.ply", "--object", "1", *extra]).params[k]
+            for extra, k in ((["--threshold", "0.6"], "threshold"), ([], "prune"))} == {"threshold": 0.6,
+                                                                                        "prune": True}
+    assert select.make_context("select", ["d", "o.ply", "--object", "1", "--no-prune"]).params["prune"] is False
+
+
+@pytest.mark.parametrize("name", ["extract", "batch extract"])
+def test_extract_options_round_trip_to_the_extract_config(name):
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_extract import extract_config_from_options
+    from roodi_toolkit.pipeline.distill import DistillConfig
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.prune.config import PruneConfig
+
+    cmd = _command(name)
+    paths = ["d", "o", "--object", "1"]
+    args = [*paths, "--downscale", "2", "--iterations", "50", "--init", "random", "--distill-iterations", "20",
+            "--threshold", "0.5", "--no-prune", "--no-inpaint", "--distance", "euclidean", "--rule", "paper",
+            "--single-stage", "--inpainter", "exemplar", "--inpainter-option", "patch=5"]
+    values = cmd.make_context(name, args).params
+    base = ExtractConfig()
+    assert extract_config_from_options(**values) == replace(
+        base, downscale=2.0, train=replace(base.train, iterations=50, init="random"),
+        distill=DistillConfig(iterations=20), threshold=0.5, prune=False, inpaint=False,
+        prune_config=PruneConfig(distance="euclidean", rule="paper"), single_stage=True, inpainter="exemplar",
+        inpainter_options={"patch": "5"})
+    assert extract_config_from_options(**cmd.make_context(name, paths).params) == base
