@@ -356,3 +356,26 @@ def test_extract_options_round_trip_to_the_extract_config(name):
         prune_config=PruneConfig(distance="euclidean", rule="paper"), single_stage=True, inpainter="exemplar",
         inpainter_options={"patch": "5"})
     assert extract_config_from_options(**cmd.make_context(name, paths).params) == base
+
+
+def test_demo_settings_default_to_the_demos_own_config():
+    """The demo's --iterations, --distill-iterations and --inpainter are its ExtractConfig's settings: unset they keep
+    the demo's values (2000 steps, symmetry), and given they are still refused with --prune-only."""
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_demo import DEMO_SETTINGS
+    from roodi_toolkit.synth.demo import ExtractDemoConfig
+
+    base = ExtractDemoConfig().extract
+    cmd = _command("demo")
+    assert DEMO_SETTINGS.config(cmd.make_context("demo", ["out"]).params, base=base) == base
+    assert (base.train.iterations, base.inpainter) == (2000, "symmetry")
+    values = cmd.make_context("demo", ["out", "--iterations", "30", "--distill-iterations", "7", "--inpainter",
+                                       "opencv"]).params
+    assert DEMO_SETTINGS.config(values, base=base) == replace(
+        base, train=replace(base.train, iterations=30), distill=replace(base.distill, iterations=7),
+        inpainter="opencv")
+    text = " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    assert "[default: 2000; x>=1]" in text and "[default: symmetry]" in text
+    res = CliRunner().invoke(cmd, ["out", "--prune-only", "--distill-iterations", "3", "--inpainter", "x"])
+    assert res.exit_code == 2 and "--distill-iterations, --inpainter: options of the extraction demo" in res.output
