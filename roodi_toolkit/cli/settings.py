@@ -82,7 +82,7 @@ def make_option(o: "Offered", unset: bool = False) -> click.Option:
     """Return the click option of ``o``: its default the config's value, or None with ``unset`` (then ``--help``
     shows the config's value as the default)."""
     d, m = o.setting, o.setting.meta
-    shown = m.show_default and not (o.default is None or o.default is False or o.default == ())  # 0 is shown
+    shown = m.show_default and d.kind is not bool and not (o.default is None or o.default == ())  # 0 is shown
     cls: Any = click.Option
     extra: dict[str, Any] = {}
     if unset:

@@ -379,3 +379,10 @@ def test_demo_settings_default_to_the_demos_own_config():
     assert "[default: 2000; x>=1]" in text and "[default: symmetry]" in text
     res = CliRunner().invoke(cmd, ["out", "--prune-only", "--distill-iterations", "3", "--inpainter", "x"])
     assert res.exit_code == 2 and "--distill-iterations, --inpainter: options of the extraction demo" in res.output
+
+
+def test_unset_flags_show_no_default():
+    from roodi_toolkit.cli.settings import Options
+
+    text = " ".join(CliRunner().invoke(_toy(Options(Outer, unset=True, only=("on",))), ["--help"]).output.split())
+    assert "--no-on Do the thing; --no-on skips it." in text and "default" not in text
