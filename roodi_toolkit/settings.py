@@ -5,8 +5,12 @@ dataclass (:func:`check_settings`, from its ``__post_init__``) are made from tha
 A setting is a dataclass field made by :func:`setting`; its :class:`Setting` sits in the field's metadata. Its value
 space comes from the field's annotation: ``bool`` (a flag), ``int``, ``float``, ``str`` (with ``choices``), ``X |
 None`` (None: unset), ``tuple[float, float, ...]`` (a fixed number of values, written ``a,b,c`` on the command line)
-and ``tuple[X, ...]`` (repeatable, each value read by ``parse``). This module imports no command-line library: the
-library's configs declare their settings without depending on how a command line (or a batch manifest) reads them.
+and ``tuple[X, ...]`` (repeatable, each value read by ``parse``). A ``bool`` whose default is True is offered as
+``--no-NAME``. A field holding another config dataclass declares it with ``setting(factory=Config, prefix=...)``: its
+settings are offered too, their options prefixed (``prefix="distill"``: ``--distill-iterations``; ``""``: as they
+are). Any other value (a dict, a dataclass of no settings) is a library-only setting (``cli=False``), checked by its
+type. This module imports no command-line library: the library's configs declare their settings without depending on
+how a command line (or a batch manifest) reads them.
 
 Example:
     >>> from dataclasses import dataclass
@@ -54,6 +58,8 @@ class Setting:
         parse: turns one command-line or manifest text into the value (one entry of a repeatable setting); raises
             ValueError with what is wrong.
         show_default: whether ``--help`` shows the default (never for None, False or an empty tuple).
+        prefix: a nested config's prefix of its settings' options and click parameters (``"distill"``:
+            ``--distill-iterations``, ``distill_iterations``; ``""``: none); None for a plain setting.
     """
 
     help: str
@@ -68,16 +74,25 @@ class Setting:
     metavar: str | None = None
     parse: Callable[[str], Any] | None = None
     show_default: bool = True
+    prefix: str | None = None
 
 
-def setting(default: Any, help: str, *, low: float | None = None, high: float | None = None, low_open: bool = False,
+def setting(default: Any = dataclasses.MISSING, help: str = "", *, factory: Callable[[], Any] | None = None,
+            prefix: str | None = None, low: float | None = None, high: float | None = None, low_open: bool = False,
             high_open: bool = False, choices: tuple[str, ...] | None = None, finite: bool = True,
             option: str | None = None, cli: bool = True, metavar: str | None = None,
             parse: Callable[[str], Any] | None = None, show_default: bool = True) -> Any:
-    """Return a dataclass field declaring a setting: its default and its :class:`Setting` (the other arguments)."""
+    """Return a dataclass field declaring a setting: its default (or ``factory``, which makes it: a nested config or
+    a dict) and its :class:`Setting` (the other arguments)."""
+    if not help:
+        raise TypeError("a setting needs its help")
+    if (default is dataclasses.MISSING) == (factory is None):
+        raise TypeError("a setting has a default or a factory, one of them")
     meta = Setting(help=help, low=low, high=high, low_open=low_open, high_open=high_open,
                    choices=tuple(choices) if choices is not None else None, finite=finite, option=option, cli=cli,
-                   metavar=metavar, parse=parse, show_default=show_default)
+                   metavar=metavar, parse=parse, show_default=show_default, prefix=prefix)
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata={KEY: meta})
     return dataclasses.field(default=default, metadata={KEY: meta})
 
 
@@ -88,7 +103,8 @@ class Declared:
     Attributes:
         name: the field's name (the click parameter's name too).
         default: the field's default.
-        kind: the value's type: ``bool``, ``int``, ``float``, ``str`` or ``tuple`` (of ``size`` floats).
+        kind: the value's type: ``bool``, ``int``, ``float``, ``str`` or ``tuple`` (of ``size`` floats); a config
+            dataclass (a nested config, see :attr:`nested`) or another class (a library-only value).
         optional: None is a value (unset).
         repeated: a ``tuple[X, ...]`` of entries, each read by ``meta.parse``.
         size: the number of floats of a fixed tuple (0 otherwise).
@@ -105,8 +121,20 @@ class Declared:
 
     @property
     def option(self) -> str:
-        """The command-line flag, e.g. ``--min-opacity``."""
-        return self.meta.option or "--" + self.name.replace("_", "-")
+        """The command-line flag, e.g. ``--min-opacity``; ``--no-NAME`` for a flag that is on by default."""
+        if self.meta.option:
+            return self.meta.option
+        return ("--no-" if self.negated else "--") + self.name.replace("_", "-")
+
+    @property
+    def negated(self) -> bool:
+        """A flag on by default: its option (``--no-prune``) turns it off."""
+        return self.kind is bool and self.default is True and "/" not in (self.meta.option or "")
+
+    @property
+    def nested(self) -> bool:
+        """A config dataclass whose own settings are offered (with :attr:`Setting.prefix`)."""
+        return self.meta.prefix is not None
 
 
 def declared(cls: type) -> list[Declared]:
@@ -127,6 +155,11 @@ def declared(cls: type) -> list[Declared]:
     return out
 
 
+def default_of(f: dataclasses.Field) -> Any:
+    """Return the default of the dataclass field ``f`` (made by its factory if it has one)."""
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+
+
 def _declare(owner: str, f: dataclasses.Field, hint: Any, meta: Setting) -> Declared:
     args = typing.get_args(hint)
     optional = type(None) in args
@@ -141,9 +174,13 @@ def _declare(owner: str, f: dataclasses.Field, hint: Any, meta: Setting) -> Decl
         repeated, kind = True, tuple
     elif origin is tuple and args and all(a is float for a in args):
         size, kind = len(args), tuple
-    if kind not in (bool, int, float, str, tuple):
-        raise TypeError(f"{owner}.{f.name}: unsupported setting type {hint!r}")
-    return Declared(f.name, f.default, kind, optional, repeated, size, meta)
+    if meta.prefix is not None and not (isinstance(kind, type) and dataclasses.is_dataclass(kind)):
+        raise TypeError(f"{owner}.{f.name}: prefix= is for a nested config dataclass, not {hint!r}")
+    if kind not in (bool, int, float, str, tuple) and not (isinstance(kind, type) and (
+            meta.prefix is not None or not meta.cli)):
+        raise TypeError(f"{owner}.{f.name}: unsupported setting type {hint!r} (a nested config takes prefix=, "
+                        f"another value cli=False)")
+    return Declared(f.name, default_of(f), kind, optional, repeated, size, meta)
 
 
 def describe_range(d: Declared) -> str:
@@ -151,6 +188,8 @@ def describe_range(d: Declared) -> str:
     m = d.meta
     if m.choices is not None:
         return "one of " + ", ".join(m.choices)
+    if d.kind not in (bool, int, float, str, tuple):
+        return f"a {d.kind.__name__}"
     if d.kind is tuple:
         return f"{d.size} finite numbers" if d.size else "a list"
     what = {int: "a whole number", float: "a finite number" if m.finite else "a number", bool: "true or false",
@@ -167,6 +206,8 @@ def describe_range(d: Declared) -> str:
 def _fits(d: Declared, value: Any) -> bool:
     """Whether ``value`` lies in the declared value space of ``d`` (None aside)."""
     m = d.meta
+    if d.kind not in (bool, int, float, str, tuple):  # a nested config (checked by its own class) or a value
+        return isinstance(value, d.kind)
     if d.kind is bool:
         return isinstance(value, (bool, np.bool_))
     if d.kind is str:
@@ -213,6 +254,8 @@ def documented(cls: type) -> type:
     for d in declared(cls):
         space = describe_range(d) + (" or None" if d.optional else "")
         option = f"; {d.option}" if d.meta.cli else "; library only"
+        if d.nested and d.meta.cli:
+            option = f"; its settings' options{f' as --{d.meta.prefix}-NAME' if d.meta.prefix else ''}"
         lines.append(f"    {d.name}: {d.meta.help} (default {d.default!r}; {space}{option})")
     cls.__doc__ = (cls.__doc__ or cls.__name__).rstrip() + "\n\n    Attributes:\n" + "\n".join(
         "    " + line for line in lines) + "\n"

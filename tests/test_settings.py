@@ -125,3 +125,45 @@ def test_documented_lists_every_setting_in_the_docstring():
     assert "cap: An optional cap. (default None; a finite number > 0 or None; --cap)" in doc
     assert "hidden: Library only. (default 3; a whole number; library only)" in doc
     assert all(f"        {d.name}: {d.meta.help}" in PruneConfig.__doc__ for d in declared(PruneConfig))
+
+
+def test_nested_configs_and_library_values_are_checked_by_their_type():
+    @dataclass(frozen=True)
+    class Outer:
+        inner: Toy = setting(factory=Toy, help="A nested config.", prefix="toy")
+        notes: dict = setting(factory=dict, help="Library only.", cli=False)
+
+        def __post_init__(self) -> None:
+            check_settings(self)
+
+    kinds = {d.name: (d.kind, d.nested, d.default) for d in declared(Outer)}
+    assert kinds == {"inner": (Toy, True, Toy()), "notes": (dict, False, {})}
+    with pytest.raises(ConfigError, match="inner must be a Toy, got 3"):
+        Outer(inner=3)
+    with pytest.raises(ConfigError, match="notes must be a dict"):
+        Outer(notes=[])
+
+    @dataclass
+    class Wrong:
+        a: int = setting(1, "Not a config.", prefix="a")
+
+    with pytest.raises(TypeError, match="prefix= is for a nested config"):
+        declared(Wrong)
+
+    @dataclass
+    class Offered:
+        a: Toy = setting(factory=Toy, help="A config offered without a prefix.")
+
+    with pytest.raises(TypeError, match="a nested config takes prefix="):
+        declared(Offered)
+
+
+def test_a_flag_on_by_default_is_offered_as_no_name():
+    @dataclass(frozen=True)
+    class Flags:
+        prune: bool = setting(True, "Prune; --no-prune skips it.")
+        quick: bool = setting(False, "Go quickly.")
+        both: bool | None = setting(None, "One or the other.", option="--this/--that")
+
+    assert [(d.option, d.negated) for d in declared(Flags)] == [("--no-prune", True), ("--quick", False),
+                                                                 ("--this/--that", False)]

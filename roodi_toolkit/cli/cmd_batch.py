@@ -14,6 +14,7 @@ from roodi_toolkit.batch.runner import run_batch
 from roodi_toolkit.batch.tasks import check_items, settings_for
 from roodi_toolkit.cli.cmd_extract import extract_config_from_options, extract_options
 from roodi_toolkit.cli.common import progress_factory, quiet_option
+from roodi_toolkit.cli.settings import SettingsCommand
 from roodi_toolkit.cli.prune_options import (effective_mode, prune_config_from_options, prune_mode_options,
                                              prune_options)
 from roodi_toolkit.errors import InputError
@@ -135,7 +136,7 @@ def batch_info(source: str, out: str, jobs: int, ray_address: str | None, result
     _run("info", source, out, ".json", {}, jobs, ray_address, results, rerun, overwrite, quiet)
 
 
-@batch.command("extract")
+@batch.command("extract", cls=SettingsCommand)
 @click.argument("data_dir", type=str)
 @click.argument("out", type=str)
 @click.option("--object", "object_ids", multiple=True, required=True, metavar="ID|all",

@@ -14,6 +14,7 @@ from roodi_toolkit.synth.scene import make_benchmark_scene
 
 from .common import overwrite_option, progress_factory, quiet_option
 from .renderer_option import renderer_option
+from .settings import Options, SettingsCommand
 
 EXAMPLE = """Example:
 
@@ -25,7 +26,7 @@ EXAMPLE = """Example:
 """
 
 
-@click.command(epilog=EXAMPLE)
+@click.command(cls=SettingsCommand, epilog=EXAMPLE)
 @click.argument("root", type=click.Path(path_type=str))
 @click.argument("out_dir", type=click.Path(path_type=str))
 @click.option("--preset", "presets", multiple=True, help="Scene preset to run (repeat; default all four).")
@@ -42,9 +43,7 @@ EXAMPLE = """Example:
 @click.option("--occluded", is_flag=True,
               help="Run on the presets' occluded variants (ROOT/<preset>_occluded, make-scene --occluded) and also "
                    "score every method inside each test view's never-seen region.")
-@click.option("--inpainter", default="opencv", show_default=True,
-              help="The inpainter plugin of the full method and the ablations that inpaint (see roodi-toolkit "
-                   "plugins).")
+@Options("roodi_toolkit.pipeline.extract:ExtractConfig", only=("inpainter",))  # of full and the ablations that inpaint
 @overwrite_option
 @renderer_option
 @quiet_option

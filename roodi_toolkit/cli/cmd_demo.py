@@ -14,6 +14,7 @@ from roodi_toolkit.synth.scene import SceneSettings
 
 from .common import overwrite_option, parse_size, progress_factory, quiet_option
 from .renderer_option import renderer_option
+from .settings import Options, SettingsCommand
 
 PRESET_NAMES = ("bedroom", "kitchen", "livingroom", "picnic")
 SURFACES = ("ant", "sphere", "torus", "box")
@@ -44,7 +45,13 @@ def _scores(ev) -> str:
     return f"PSNR {ev.psnr:.2f} dB, SSIM {ev.ssim:.3f}, LPIPS {lpips}, IoU {ev.iou:.3f}"
 
 
-@click.command(epilog=EXAMPLE)
+DEMO_SETTINGS = Options("roodi_toolkit.synth.demo:ExtractDemoConfig", within="extract", unset=True,
+                        only=("train.iterations", "distill.iterations", "inpainter"))
+"""The demo's settings of its ExtractConfig (--iterations, --distill-iterations, --inpainter); unset: the demo's own
+(not given, --prune-only may go with them)."""
+
+
+@click.command(cls=SettingsCommand, epilog=EXAMPLE)
 @click.argument("out_dir", type=click.Path(path_type=str), default="demo-out")
 @click.option("--preset", type=click.Choice(PRESET_NAMES), default=None, help="Generated scene type [kitchen].")
 @click.option("--seed", type=int, default=None,
@@ -55,18 +62,15 @@ def _scores(ev) -> str:
 @click.option("--train-views", type=click.IntRange(1, 1000), default=None, help="Views of the full scene [50].")
 @click.option("--test-views", type=click.IntRange(1, 1000), default=None,
               help="Views of the target alone, used for scoring [12].")
-@click.option("--iterations", type=click.IntRange(1), default=None, help="Scene training iterations [2000].")
+@DEMO_SETTINGS
 @click.option("--train-seed", type=click.IntRange(0), default=None,
               help="Seed of the scene training [0]; the scene stays the same (--seed). Runs with other seeds show "
                    "how much the figures move from run to run (docs/benchmark.md, \"Run to run\").")
 @click.option("--max-gaussians", type=click.IntRange(2), default=None,
               help="Most Gaussians the scene may grow to; it starts from half as many [30000].")
-@click.option("--distill-iterations", type=click.IntRange(1), default=None, help="Mask distillation steps [500].")
 @click.option("--finetune-iterations", type=click.IntRange(0), default=None, help="Fine-tuning steps [100].")
 @click.option("--view-size", type=click.IntRange(8, 4096), default=None,
               help="Side in pixels of the four object-centred views that are inpainted [256].")
-@click.option("--inpainter", default=None,
-              help="Inpainter plugin: opencv, exemplar, symmetry, sdxl, ... (roodi-toolkit plugins) [symmetry].")
 @click.option("--occluded/--no-occluded", default=None,
               help="The preset's occluded variant (make-scene --occluded): the target stands in a wrap that hides "
                    "part of it from every training view [occluded]; --no-occluded: the plain preset.")
@@ -77,11 +81,9 @@ def _scores(ev) -> str:
 @renderer_option
 @quiet_option
 def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | None, size_text: str | None,
-         train_views: int | None, test_views: int | None, iterations: int | None, train_seed: int | None,
-         max_gaussians: int | None,
-         distill_iterations: int | None, finetune_iterations: int | None, view_size: int | None,
-         inpainter: str | None, occluded: bool | None, prune_only: bool,
-         surface: str | None, overwrite: bool, renderer: Any, quiet: bool) -> None:
+         train_views: int | None, test_views: int | None, train_seed: int | None, max_gaussians: int | None,
+         finetune_iterations: int | None, view_size: int | None, occluded: bool | None, prune_only: bool,
+         surface: str | None, overwrite: bool, renderer: Any, quiet: bool, **settings: Any) -> None:
     """Extract one object from a generated scene into OUT_DIR, score it, and say where the PLY and pictures are.
 
     Generates a cluttered scene (make-scene), trains it, distils its instance masks, then selects, prunes, completes
@@ -106,15 +108,13 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
     scene = SceneSettings(width=width, height=height, train_views=train_views or base.scene.train_views,
                           test_views=test_views or base.scene.test_views,
                           occluded=base.scene.occluded if occluded is None else occluded)
-    ex = base.extract
-    train = config_with(ex.train, iterations=iterations, cap_max=max_gaussians, seed=train_seed,
+    ex = DEMO_SETTINGS.config(params, base=base.extract)
+    train = config_with(ex.train, cap_max=max_gaussians, seed=train_seed,
                         init_num_points=None if max_gaussians is None else max(1, max_gaussians // 2))
     extract = replace(ex, train=train,
-                      distill=replace(ex.distill, iterations=distill_iterations or ex.distill.iterations),
                       finetune=replace(ex.finetune, iterations=ex.finetune.iterations if finetune_iterations is None
                                        else finetune_iterations),
-                      occlusion=replace(ex.occlusion, size=view_size or ex.occlusion.size),
-                      inpainter=inpainter or ex.inpainter)
+                      occlusion=replace(ex.occlusion, size=view_size or ex.occlusion.size))
     if extract.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
         load_plugin("inpainters", extract.inpainter)
     config = replace(base, preset=preset or base.preset, seed=base.seed if seed is None else seed,

@@ -7,13 +7,13 @@ from typing import Any
 import click
 
 from roodi_toolkit.errors import ConfigError
-from roodi_toolkit.pipeline.distill import DistillConfig
 from roodi_toolkit.pipeline.segment import Click
 from roodi_toolkit.plugins import load_plugin
 from roodi_toolkit.run.distill import run_distill
 
 from .common import overwrite_option, parse_key_values, progress_factory, quiet_option
 from .renderer_option import renderer_option
+from .settings import Options, SettingsCommand
 
 EXAMPLE = """Examples:
 
@@ -27,7 +27,11 @@ EXAMPLE = """Examples:
 """
 
 
-@click.command(epilog=EXAMPLE)
+DISTILL_SETTINGS = Options("roodi_toolkit.pipeline.distill:DistillConfig")
+"""distill's settings of DistillConfig (--iterations, --feature-lr, --classifier-lr, --seed)."""
+
+
+@click.command(cls=SettingsCommand, epilog=EXAMPLE)
 @click.argument("model_dir", type=click.Path(path_type=str))
 @click.argument("data_dir", type=click.Path(path_type=str))
 @click.argument("out_dir", type=click.Path(path_type=str))
@@ -42,14 +46,9 @@ EXAMPLE = """Examples:
               help="files segmenter: folder of mask PNGs named like the views (default: the dataset's masks).")
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE",
               help="Segmenter option, e.g. checkpoint=PATH for sam2 (repeatable).")
-@click.option("--iterations", type=click.IntRange(1), default=500, show_default=True, help="Distillation steps.")
-@click.option("--feature-lr", type=click.FloatRange(0, min_open=True), default=None,
-              help="Adam rate of the object features [2.5e-2].")
-@click.option("--classifier-lr", type=click.FloatRange(0, min_open=True), default=None,
-              help="Adam rate of the classifier [5e-3].")
+@DISTILL_SETTINGS
 @click.option("--downscale", type=click.FloatRange(1.0), default=None,
               help="Image downscale (default: the training run's, from MODEL_DIR/cfg.json).")
-@click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--dataparser-transforms", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="With a nerfstudio export (splat.ply) as MODEL_DIR: its training run's dataparser_transforms.json, "
                    "which moves it back into the data's frame.")
@@ -58,9 +57,8 @@ EXAMPLE = """Examples:
 @quiet_option
 def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks: tuple[str, ...],
             negative_clicks: tuple[str, ...], mask_dir: str | None,
-            options: tuple[str, ...], iterations: int, feature_lr: float | None, classifier_lr: float | None,
-            downscale: float | None, seed: int, dataparser_transforms: str | None, overwrite: bool, renderer: Any,
-            quiet: bool) -> None:
+            options: tuple[str, ...], downscale: float | None, dataparser_transforms: str | None, overwrite: bool,
+            renderer: Any, quiet: bool, **settings: Any) -> None:
     """Distil object masks of DATA_DIR's views into per-Gaussian features of the scene model in MODEL_DIR (a
     roodi-toolkit train output; or an Inria or gsplat output folder, a gsplat ckpt_N_rank0.pt, a splat file, a
     nerfstudio export with --dataparser-transforms: checked against DATA_DIR's cameras and photos), written to the
@@ -79,8 +77,7 @@ def distill(model_dir: str, data_dir: str, out_dir: str, segmenter: str, clicks:
             except ConfigError as exc:
                 raise click.BadParameter(str(exc), param_hint=hint) from None
     load_plugin("segmenters", segmenter)  # an unknown or broken --segmenter fails before the images are read
-    changes = {k: v for k, v in (("feature_lr", feature_lr), ("classifier_lr", classifier_lr)) if v is not None}
-    config = DistillConfig(iterations=iterations, seed=seed, **changes)
+    config = DISTILL_SETTINGS.config(settings)
     summary = run_distill(model_dir, data_dir, out_dir, segmenter=segmenter, clicks=parsed, mask_dir=mask_dir,
                           segmenter_options=opts, config=config, downscale=downscale, overwrite=overwrite,
                           progress=progress_factory(quiet), renderer=renderer,

@@ -8,16 +8,13 @@ from typing import Any
 
 import click
 
-from roodi_toolkit.pipeline.distill import DistillConfig
-from roodi_toolkit.pipeline.extract import ExtractConfig
 from roodi_toolkit.pipeline.inpaint import get_inpainter
 from roodi_toolkit.pipeline.segment import Click, SegmentPrompt
-from roodi_toolkit.pipeline.train import config_with
-from roodi_toolkit.prune.outliers import PruneConfig
 from roodi_toolkit.run.extract import extract_objects
 
 from .common import overwrite_option, parse_floats, parse_key_values, progress_factory, quiet_option
 from .renderer_option import renderer_option
+from .settings import Options, SettingsCommand
 
 EXAMPLE = """Example:
 
@@ -36,6 +33,11 @@ EXAMPLE = """Example:
 """
 
 
+EXTRACT_SETTINGS = Options("roodi_toolkit.pipeline.extract:ExtractConfig", only=(
+    "downscale", "train.iterations", "train.init", "distill.iterations", "threshold", "prune", "inpaint",
+    "prune_config.distance", "prune_config.rule", "single_stage", "inpainter"))
+"""The settings of ExtractConfig that extract and batch extract offer (--distance and --rule: StatisticalSettings')."""
+
 _OPTIONS = [
     click.option("--model", "model_dir", type=click.Path(path_type=str), default=None,
                  help="Use this trained scene instead of training one; only read: a roodi-toolkit train output, an "
@@ -44,26 +46,7 @@ _OPTIONS = [
     click.option("--distill", "distill_dir", type=click.Path(path_type=str), default=None,
                  help="Use this distillation of --model (roodi-toolkit distill output) instead of distilling; "
                       "only read."),
-    click.option("--downscale", type=click.FloatRange(1.0), default=None,
-                 help="Image downscale [the --model's own, from its cfg.json; else 1]."),
-    click.option("--iterations", type=click.IntRange(1), default=None, help="Scene training iterations [3000]."),
-    click.option("--init", type=click.Choice(["auto", "points", "random", "depth"]), default="auto",
-                 show_default=True, help="Scene initialisation (see roodi-toolkit train)."),
-    click.option("--distill-iterations", type=click.IntRange(1), default=500, show_default=True),
-    click.option("--threshold", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.3,
-                 show_default=True, help="Selection probability."),
-    click.option("--no-prune", is_flag=True, help="Skip pruning (ablation)."),
-    click.option("--no-inpaint", is_flag=True, help="Skip occlusion reasoning, inpainting and fine-tuning (ablation)."),
-    click.option("--distance", type=click.Choice(["w2", "euclidean"]), default="w2", show_default=True,
-                 help="Pruning distance (euclidean: ablation)."),
-    click.option("--rule", type=click.Choice(["robust", "paper", "clip"]), default="robust", show_default=True,
-                 help="Pruning rule (paper: the paper's single pass)."),
-    click.option("--single-stage", is_flag=True,
-                 help="Learn the object features together with the scene instead of after it "
-                      "(ablation: w/o two-stage)."),
-    click.option("--inpainter", default="opencv", show_default=True,
-                 help="Inpainter plugin: opencv, exemplar, symmetry (objects with never-seen parts), sdxl, ... "
-                      "(see roodi-toolkit plugins)."),
+    EXTRACT_SETTINGS,
     click.option("--inpainter-option", "inpainter_options", multiple=True, metavar="KEY=VALUE",
                  help="Inpainter option (repeatable), e.g. model=PATH steps=30 for sdxl, method=ns for opencv; the "
                       "keyword arguments of the plugin's class (docs/plugins.md)."),
@@ -77,20 +60,13 @@ def extract_options(func: Any) -> Any:
     return func
 
 
-def extract_config_from_options(*, downscale: float | None, iterations: int | None, init: str,
-                                distill_iterations: int, threshold: float, no_prune: bool, no_inpaint: bool,
-                                distance: str, rule: str, single_stage: bool, inpainter: str,
-                                inpainter_options: tuple[str, ...] = (), **_: Any) -> Any:
+def extract_config_from_options(*, inpainter_options: tuple[str, ...] = (), **values: Any) -> Any:
     """Return the ExtractConfig the stage options describe."""
-    base = ExtractConfig()
-    return replace(base, downscale=downscale, train=config_with(base.train, iterations=iterations, init=init),
-                   distill=DistillConfig(iterations=distill_iterations), threshold=threshold, prune=not no_prune,
-                   prune_config=PruneConfig(distance=distance, rule=rule), inpaint=not no_inpaint,
-                   inpainter=inpainter, single_stage=single_stage,
+    return replace(EXTRACT_SETTINGS.config(values),
                    inpainter_options=parse_key_values(inpainter_options, "--inpainter-option"))
 
 
-@click.command(epilog=EXAMPLE)
+@click.command(cls=SettingsCommand, epilog=EXAMPLE)
 @click.argument("paths", nargs=-1, required=True, metavar="[DATA_DIR] OUT_DIR", type=click.Path(path_type=str))
 @click.option("--object", "object_ids", multiple=True, metavar="ID|all",
               help="Instance id of an object to extract (repeat for several; they share one scene and distillation), "

@@ -10,6 +10,7 @@ from roodi_toolkit.run.select import run_select
 
 from .common import overwrite_option, progress_factory, quiet_option
 from .renderer_option import renderer_option
+from .settings import Options, SettingsCommand
 
 EXAMPLE = """Examples:
 
@@ -20,24 +21,26 @@ EXAMPLE = """Examples:
 """
 
 
-@click.command(epilog=EXAMPLE)
+SELECT_SETTINGS = Options("roodi_toolkit.pipeline.extract:ExtractConfig", only=("threshold", "prune"))
+"""select's settings: extract's selection threshold and pruning switch (ExtractConfig's)."""
+
+
+@click.command(cls=SettingsCommand, epilog=EXAMPLE)
 @click.argument("distill_dir", type=click.Path(path_type=str))
 @click.argument("output_ply", metavar="OUT.ply", type=click.Path(path_type=str))
 @click.option("--object", "object_id", type=click.IntRange(0), required=True,
               help="Class id of the object (its instance id in the masks; 1 for click/binary masks).")
-@click.option("--threshold", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.3,
-              show_default=True, help="Keep Gaussians whose probability of the object exceeds this.")
-@click.option("--no-prune", is_flag=True, help="Skip the statistical outlier removal.")
+@SELECT_SETTINGS
 @click.option("--picture", type=click.Path(path_type=str), default=None,
               help="Where to write the picture of rendered probabilities beside the masks [OUT.png].")
 @overwrite_option
 @renderer_option
 @quiet_option
-def select(distill_dir: str, output_ply: str, object_id: int, threshold: float, no_prune: bool, picture: str | None,
+def select(distill_dir: str, output_ply: str, object_id: int, threshold: float, prune: bool, picture: str | None,
            overwrite: bool, renderer: Any, quiet: bool) -> None:
     """Write the Gaussians of object --object of the distillation DISTILL_DIR (a roodi-toolkit distill output) to
     OUT.ply; the scene is read from the model file the distillation names."""
-    summary = run_select(distill_dir, object_id, output_ply, threshold=threshold, prune=not no_prune,
+    summary = run_select(distill_dir, object_id, output_ply, threshold=threshold, prune=prune,
                          picture=picture, overwrite=overwrite, progress=progress_factory(quiet), renderer=renderer)
     pruned = f", {summary['pruned']:,} pruned as outliers" if summary["pruned"] is not None else ""
     name = f" ({summary['label']})" if summary.get("label") else ""

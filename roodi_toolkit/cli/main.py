@@ -136,8 +136,12 @@ NumPy's legacy and PyTorch's seeding stop at 32 and 64 bits."""
 
 def _finite_floats(command: click.Command) -> click.Command:
     """Make every float option and argument of ``command`` refuse non-finite values, and every ``--seed`` a value
-    outside :data:`SEED_RANGE` (once per command object)."""
-    for param in command.params:
+    outside :data:`SEED_RANGE` (once per command object; the options a
+    :class:`~roodi_toolkit.cli.settings.SettingsCommand` makes later, once made)."""
+    finishers = getattr(command, "finishers", None)
+    if finishers is not None and _finite_floats not in finishers:
+        finishers.append(_finite_floats)
+    for param in command.made_params if hasattr(command, "made_params") else command.params:
         if isinstance(param.type, click.types.FloatParamType):
             param.type = FiniteFloat(param.type)
         elif param.name == "seed" and type(param.type) is click.types.IntParamType:

@@ -30,6 +30,7 @@ from ..cameras import Camera
 from ..errors import CloudError, ConfigError, InputError
 from ..io.dataset import Dataset, split_views
 from ..gaussians import GaussianCloud
+from ..settings import check_settings, setting
 from ..params import GaussianParams
 from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer
 from ..render.renderer import render_features as composite_features
@@ -75,27 +76,18 @@ class DistillConfig:
             the object, not sharp ones (measured: ``benchmarks/RESULTS.md``, "Working resolution").
     """
 
-    iterations: int = 500
-    feature_dim: int = 16
-    feature_lr: float = 2.5e-2
-    classifier_lr: float = 5e-3
-    feature_init_std: float = 1e-2
-    seed: int = 0
-    cache_weights: bool = True
-    cache_mb: float = 2048
-    max_pixels: int = 512 * 512
+    iterations: int = setting(500, "Distillation steps, one training view each.", low=1)
+    feature_dim: int = setting(16, "Object feature size.", low=1, cli=False)
+    feature_lr: float = setting(2.5e-2, "Adam rate of the object features.", low=0, low_open=True)
+    classifier_lr: float = setting(5e-3, "Adam rate of the classifier.", low=0, low_open=True)
+    feature_init_std: float = setting(1e-2, "Standard deviation of the initial features.", low=0, cli=False)
+    seed: int = setting(0, "Seed of the initial features, the classifier and the view order.")
+    cache_weights: bool = setting(True, "Render features from cached compositing weights.", cli=False)
+    cache_mb: float = setting(2048, "Memory bound of the cached weights in MB.", low=0, cli=False)
+    max_pixels: int = setting(512 * 512, "Pixels of the working views.", low=1, cli=False)
 
     def __post_init__(self) -> None:
-        if self.iterations < 1:
-            raise ConfigError(f"iterations must be at least 1, got {self.iterations}")
-        if self.feature_dim < 1:
-            raise ConfigError(f"feature_dim must be positive, got {self.feature_dim}")
-        if not (self.feature_lr > 0 and self.classifier_lr > 0):
-            raise ConfigError("learning rates must be positive")
-        if self.feature_init_std < 0:
-            raise ConfigError(f"feature_init_std must be >= 0, got {self.feature_init_std}")
-        if self.cache_mb < 0 or self.max_pixels < 1:
-            raise ConfigError(f"cache_mb must be >= 0 and max_pixels positive, got {self.cache_mb}, {self.max_pixels}")
+        check_settings(self)
 
 
 @dataclass

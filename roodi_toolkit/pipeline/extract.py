@@ -8,7 +8,7 @@ the data folder to the object PLY, trains and distils the scene, reuses finished
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Optional, Sequence
 
 import torch
@@ -24,6 +24,7 @@ from .finetune import FinetuneConfig, PerView, RefineResult, refine_object
 from .occlusion import OcclusionConfig
 from .segment import SegmentPrompt
 from .select import prune_selection, select_object
+from ..settings import check_settings, setting
 from .train import TrainConfig
 
 
@@ -54,27 +55,30 @@ class ExtractConfig:
             type of the plugin's default).
     """
 
-    train: TrainConfig = field(default_factory=lambda: TrainConfig(init="auto"))
-    downscale: Optional[float] = None
-    distill: DistillConfig = DistillConfig()
-    threshold: float = 0.3
-    prune: bool = True
-    prune_config: PruneConfig = PruneConfig()
-    inpaint: bool = True
-    inpainter: str = "opencv"
-    occlusion: OcclusionConfig = OcclusionConfig()
-    finetune: FinetuneConfig = FinetuneConfig()
-    single_stage: bool = False
-    segmenter: str = "files"
-    prompt: SegmentPrompt = SegmentPrompt()
-    segmenter_options: dict = field(default_factory=dict)
-    inpainter_options: dict = field(default_factory=dict)
+    train: TrainConfig = setting(factory=lambda: TrainConfig(init="auto"), help="Scene training.", prefix="")
+    downscale: Optional[float] = setting(None, "Image downscale [the --model's own, from its cfg.json; else 1].",
+                                         low=1)
+    distill: DistillConfig = setting(factory=DistillConfig, help="Mask distillation.", prefix="distill")
+    threshold: float = setting(0.3, "Selection: keep Gaussians whose probability of the object exceeds this.",
+                               low=0, high=1, low_open=True, high_open=True)
+    prune: bool = setting(True, "Prune the selection's floaters (ROODI 3.2); --no-prune skips it (ablation).")
+    prune_config: PruneConfig = setting(factory=PruneConfig, help="Pruning of the selection.", prefix="")
+    inpaint: bool = setting(True, "Occlusion reasoning, inpainting and fine-tuning; --no-inpaint skips them "
+                            "(ablation).")
+    inpainter: str = setting("opencv", "Inpainter plugin: opencv, exemplar, symmetry (objects with never-seen parts), "
+                             "sdxl, ... (see roodi-toolkit plugins).")
+    occlusion: OcclusionConfig = setting(factory=OcclusionConfig, help="Occlusion reasoning.", cli=False)
+    finetune: FinetuneConfig = setting(factory=FinetuneConfig, help="Fine-tuning.", cli=False)
+    single_stage: bool = setting(False, "Learn the object features together with the scene instead of after it "
+                                 "(ablation: w/o two-stage).")
+    segmenter: str = setting("files", "Segmenter plugin whose masks are distilled: files (the dataset's instance "
+                             "masks), click (the clicked object), sam2, ...")
+    prompt: SegmentPrompt = setting(factory=SegmentPrompt, help="The segmenter's clicks or mask folder.", cli=False)
+    segmenter_options: dict = setting(factory=dict, help="Keyword options of the segmenter.", cli=False)
+    inpainter_options: dict = setting(factory=dict, help="Keyword options of the inpainter.", cli=False)
 
     def __post_init__(self) -> None:
-        if not 0 < self.threshold < 1:
-            raise ConfigError(f"threshold is a probability in (0, 1), got {self.threshold}")
-        if self.downscale is not None and not self.downscale >= 1:
-            raise ConfigError(f"downscale must be at least 1, got {self.downscale}")
+        check_settings(self)
 
 
 def object_ids(requested: Sequence[int | str], num_classes: int) -> list[int]:

@@ -20,8 +20,8 @@ import torch
 from kornia.geometry.conversions import quaternion_to_rotation_matrix
 from torch import Tensor
 
-from ..errors import ConfigError
 from .train_kernels import covariance_noise
+from ..settings import check_settings, setting
 
 Params = MutableMapping[str, Tensor]
 """A :class:`~roodi_toolkit.params.GaussianParams` or a name -> Parameter mapping with its names."""
@@ -46,25 +46,20 @@ class MCMCStrategy:
         scale_reg: weight of the mean-scale regulariser (0.01).
     """
 
-    cap_max: int = 1_000_000
-    noise_lr: float = 5e5
-    refine_start_iter: int = 500
-    refine_stop_iter: int = 25_000
-    refine_every: int = 100
-    min_opacity: float = 0.005
-    grow_rate: float = 0.05
-    opacity_reg: float = 0.01
-    scale_reg: float = 0.01
+    cap_max: int = setting(1_000_000, "Most Gaussians MCMC may grow to.", low=1)
+    noise_lr: float = setting(5e5, "Scale of the position noise, times the position learning rate.", low=0,
+                              cli=False)
+    refine_start_iter: int = setting(500, "First iteration of relocation and growth.", low=0, cli=False)
+    refine_stop_iter: int = setting(25_000, "Iteration after which relocation and growth stop.", low=0, cli=False)
+    refine_every: int = setting(100, "Relocate and grow every this many iterations.", low=1, cli=False)
+    min_opacity: float = setting(0.005, "Gaussians below this opacity are dead and relocated.", low=0, high=1,
+                                 high_open=True, cli=False)
+    grow_rate: float = setting(0.05, "Growth per refinement step, a fraction of the count.", low=0, cli=False)
+    opacity_reg: float = setting(0.01, "Weight of the mean-opacity regulariser.", low=0, cli=False)
+    scale_reg: float = setting(0.01, "Weight of the mean-scale regulariser.", low=0, cli=False)
 
     def __post_init__(self) -> None:
-        if self.cap_max < 1:
-            raise ConfigError(f"cap_max must be at least 1, got {self.cap_max}")
-        if not 0 <= self.min_opacity < 1:
-            raise ConfigError(f"min_opacity must be in [0, 1), got {self.min_opacity}")
-        if self.refine_every < 1:
-            raise ConfigError(f"refine_every must be at least 1, got {self.refine_every}")
-        if self.grow_rate < 0:
-            raise ConfigError(f"grow_rate must be non-negative, got {self.grow_rate}")
+        check_settings(self)
 
     def initialize_state(self) -> "MCMCState":
         """Return a fresh training state for this strategy."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -26,7 +26,8 @@ from ..cameras import Camera
 from ..io.dataset import Dataset, split_views  # split_views: importable from here as before
 from .budget import check_train
 from .init_points import depth_points, projected_colors, rgb_to_sh0, sfm_initial_points
-from ..errors import ConfigError, DatasetError, InputError
+from ..errors import DatasetError, InputError
+from ..settings import check_settings, setting
 from ..gaussians import GaussianCloud
 from ..imaging import psnr, ssim as ssim_value
 from ..progress import ProgressFactory, null_progress
@@ -69,40 +70,40 @@ class TrainConfig:
         strategy: the MCMC hyperparameters; ``cap_max`` sized for the CPU (3DGS-MCMC uses 1-3 million).
     """
 
-    iterations: int = 3000
-    sh_degree: int = 3
-    sh_degree_interval: int = 1000
-    ssim_lambda: float = 0.2
-    ssim_window: int = 11
-    means_lr: float = 1.6e-4
-    means_lr_final: float = 0.01
-    scales_lr: float = 5e-3
-    quats_lr: float = 1e-3
-    opacities_lr: float = 5e-2
-    sh0_lr: float = 2.5e-3
-    shN_lr: float = 2.5e-3 / 20
-    init: str = "auto"
-    init_num_points: int = 20_000
-    init_opacity: float = 0.5
-    init_scale: float = 0.1
-    random_background: bool | None = None
-    holdout_every: int = 8
-    seed: int = 0
-    eval_every: int = 500
-    checkpoint_every: int = 250
-    strategy: MCMCStrategy = field(default_factory=lambda: MCMCStrategy(cap_max=60_000))
+    iterations: int = setting(3000, "Optimisation steps, one view each.", low=1)
+    sh_degree: int = setting(3, "Largest SH degree.", low=0, high=3)
+    sh_degree_interval: int = setting(1000, "Raise the SH degree every this many steps.", low=1, cli=False)
+    ssim_lambda: float = setting(0.2, "Weight of D-SSIM in the loss.", low=0, high=1, cli=False)
+    ssim_window: int = setting(11, "SSIM window in pixels.", low=1, cli=False)
+    means_lr: float = setting(1.6e-4, "Position learning rate per unit of scene scale.", low=0, cli=False)
+    means_lr_final: float = setting(0.01, "Final position learning rate, a fraction of means_lr.", low=0, cli=False)
+    scales_lr: float = setting(5e-3, "Learning rate of the log scales.", low=0, cli=False)
+    quats_lr: float = setting(1e-3, "Learning rate of the rotations.", low=0, cli=False)
+    opacities_lr: float = setting(5e-2, "Learning rate of the opacity logits.", low=0, cli=False)
+    sh0_lr: float = setting(2.5e-3, "Learning rate of the base colours.", low=0, cli=False)
+    shN_lr: float = setting(2.5e-3 / 20, "Learning rate of the higher SH coefficients.", low=0, cli=False)
+    init: str = setting("auto", "Initial Gaussians: sparse points (COLMAP), random in the scene box, or lifted from "
+                        "the views' depth maps (datasets with depth, e.g. make-scene); auto: the points if any, else "
+                        "random.", choices=("auto", "points", "random", "depth"))
+    init_num_points: int = setting(20_000, "Random initialisation size; sparse SfM points fewer than this are topped "
+                                   "up to it.", low=4, option="--init-points")
+    init_opacity: float = setting(0.5, "Initial opacity.", low=0, high=1, low_open=True, high_open=True, cli=False)
+    init_scale: float = setting(0.1, "Initial scale, a fraction of the mean distance to the 3 nearest points.",
+                                low=0, low_open=True, cli=False)
+    random_background: bool | None = setting(
+        None, "Render on a random colour each step (images with alpha are composited on it; opaque photos then teach "
+        "every pixel to be covered), or on the dataset's background [default: random when the images have alpha, as "
+        "3DGS trainers do; cfg.json records the choice].", option="--random-background/--fixed-background")
+    holdout_every: int = setting(8, "Without a test split, hold out every n-th training view (0: none).", low=0,
+                                 cli=False)
+    seed: int = setting(0, "Random seed of every random choice.")
+    eval_every: int = setting(500, "Evaluate on the held-out views this often (0: only at the end).", low=0)
+    checkpoint_every: int = setting(250, "Write a resumable checkpoint this often.", low=1)
+    strategy: MCMCStrategy = setting(factory=lambda: MCMCStrategy(cap_max=60_000),
+                                     help="The MCMC densification's settings.", prefix="")
 
     def __post_init__(self) -> None:
-        if self.iterations < 1:
-            raise ConfigError(f"iterations must be at least 1, got {self.iterations}")
-        if self.sh_degree not in (0, 1, 2, 3):
-            raise ConfigError(f"sh_degree must be 0..3, got {self.sh_degree}")
-        if self.init not in ("auto", "points", "random", "depth"):
-            raise ConfigError(f"init must be auto, points, random or depth, got {self.init!r}")
-        if not 0 <= self.ssim_lambda <= 1:
-            raise ConfigError(f"ssim_lambda must be in [0, 1], got {self.ssim_lambda}")
-        if self.init_num_points < 1:
-            raise ConfigError(f"init_num_points must be positive, got {self.init_num_points}")
+        check_settings(self)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

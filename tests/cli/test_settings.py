@@ -9,8 +9,10 @@ from dataclasses import dataclass, fields
 
 import click
 import pytest
+from click.testing import CliRunner
 
-from roodi_toolkit.cli.settings import click_type, command_settings, config_from_options, config_options, option_names
+from roodi_toolkit.cli.settings import (SettingsCommand, click_type, command_settings, config_from_options,
+                                       config_options, option_names)
 from roodi_toolkit.prune.config import PhotoSettings, PruneConfig
 from roodi_toolkit.render.settings import OrbitSettings
 from roodi_toolkit.settings import declared, setting
@@ -160,3 +162,227 @@ def test_statistical_options_imply_the_statistical_mode(run_cli, tmp_path):
         assert res.exit_code == 0, res.stderr
         report = json.loads((tmp_path / "r.json").read_text())
         assert (report["mode"] == "statistical") == (mode == "statistical"), (extra, report["mode"])
+
+
+# ------------------------------------------------------------------ nested configs, negated flags, unset options
+@dataclass(frozen=True)
+class Inner:
+    steps: int = setting(5, "Inner steps.", low=1)
+    rate: float = setting(0.5, "Inner rate.", low=0)
+    secret: int = setting(2, "Library only.", cli=False)
+
+
+@dataclass(frozen=True)
+class Outer:
+    on: bool = setting(True, "Do the thing; --no-on skips it.")
+    inner: Inner = setting(factory=lambda: Inner(steps=9), help="The inner stage.", prefix="inner")
+    flat: Inner = setting(factory=Inner, help="Another stage, its options unprefixed.", prefix="")
+    notes: dict = setting(factory=dict, help="Library only.", cli=False)
+
+
+def _toy(options):
+    @click.command(cls=SettingsCommand)
+    @options
+    def cmd(**values):
+        click.echo(repr(options.config(values)))
+
+    return cmd
+
+
+def test_nested_configs_get_prefixed_options_with_the_base_configs_defaults():
+    from roodi_toolkit.cli.settings import Options
+
+    opts = Options(Outer)
+    got = [(o.option, o.param, o.path, o.default) for o in opts.offered()]
+    assert got == [("--no-on", "on", ("on",), True), ("--inner-steps", "inner_steps", ("inner", "steps"), 9),
+                   ("--inner-rate", "inner_rate", ("inner", "rate"), 0.5), ("--steps", "steps", ("flat", "steps"), 5),
+                   ("--rate", "rate", ("flat", "rate"), 0.5)]
+    from click.testing import CliRunner
+
+    out = CliRunner().invoke(_toy(opts), ["--inner-steps", "3", "--no-on", "--rate", "2"])
+    assert out.exit_code == 0, out.output
+    assert out.output.strip() == repr(Outer(on=False, inner=Inner(steps=3), flat=Inner(rate=2.0)))
+    assert CliRunner().invoke(_toy(opts), []).output.strip() == repr(Outer())
+    assert CliRunner().invoke(_toy(opts), ["--inner-steps", "0"]).exit_code == 2  # the nested field's range
+    text = " ".join(CliRunner().invoke(_toy(opts), ["--help"]).output.split())
+    assert "--inner-steps INTEGER RANGE Inner steps. [default: 9; x>=1]" in text  # the base's 9, not the field's 5
+    assert "--no-on Do the thing; --no-on skips it." in text and "secret" not in text
+
+
+def test_only_picks_settings_in_its_order_and_refuses_unknown_names():
+    from roodi_toolkit.cli.settings import Options
+
+    opts = Options(Outer, only=("flat.rate", "inner.steps"))
+    assert [o.option for o in opts.offered()] == ["--rate", "--inner-steps"]
+    assert opts.config({"rate": 1.0, "inner_steps": 4}) == Outer(inner=Inner(steps=4), flat=Inner(rate=1.0))
+    with pytest.raises(TypeError, match="no command-line setting inner.secret"):
+        Options(Outer, only=("inner.secret",)).offered()
+
+
+def test_unset_options_keep_the_base_value_and_show_it_as_default():
+    from click.testing import CliRunner
+
+    from roodi_toolkit.cli.settings import Options
+
+    opts = Options(Outer, unset=True, only=("on", "inner.steps", "flat.rate"))
+    cmd = _toy(opts)
+    values = cmd.make_context("cmd", []).params
+    assert values == {"on": None, "inner_steps": None, "rate": None}
+    resumed = Outer(on=False, inner=Inner(steps=40), flat=Inner(rate=3.0))
+    assert opts.config(values, base=resumed) == resumed  # nothing given: the resumed run's values
+    given = cmd.make_context("cmd", ["--inner-steps", "7"]).params
+    assert opts.config(given, base=resumed) == Outer(on=False, inner=Inner(steps=7), flat=Inner(rate=3.0))
+    assert opts.config(cmd.make_context("cmd", ["--no-on"]).params) == Outer(on=False)
+    text = " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    assert "Inner steps. [default: 9; x>=1]" in text and "Inner rate. [default: 0.5; x>=0]" in text
+
+
+def test_options_named_by_text_are_made_when_the_command_is_used():
+    """``roodi-toolkit --help`` lists the commands without making their options: their configs' modules import
+    PyTorch. The made options get the CLI's finite floats."""
+    from roodi_toolkit.cli.main import FiniteFloat, _finite_floats
+    from roodi_toolkit.cli.settings import Options
+
+    cmd = _finite_floats(_toy(Options("tests.cli.test_settings:Outer", only=("inner.rate",))))
+    assert cmd.made_params == []
+    (param,) = cmd.params
+    assert param.name == "inner_rate" and isinstance(param.type, FiniteFloat)
+
+
+def test_listing_the_commands_imports_no_pytorch():
+    import subprocess
+    import sys
+
+    code = ("import sys; from roodi_toolkit.cli.main import main\ntry: main(['--help'])\nexcept SystemExit: pass\n"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split()[-1] == "False", out
+
+
+# ------------------------------------------------------------------ the pipeline commands' options
+def _settings_of(name):
+    """The Options a pipeline command's settings are made from, and its own parameters that are no setting."""
+    from roodi_toolkit.cli import cmd_distill, cmd_extract, cmd_select, cmd_train
+
+    extract_own = {"model_dir", "distill_dir", "inpainter_options", "quiet"}
+    run = {"overwrite", "renderer", "renderer_option", "quiet"}  # renderer_option: --renderer-option's parameter
+    return {
+        "train": (cmd_train.TRAIN_SETTINGS, run | {"data_dir", "out_dir", "downscale", "resume"}),
+        "distill": (cmd_distill.DISTILL_SETTINGS, run | {"model_dir", "data_dir", "out_dir", "segmenter", "clicks",
+                                                         "negative_clicks", "mask_dir", "options", "downscale",
+                                                         "dataparser_transforms"}),
+        "select": (cmd_select.SELECT_SETTINGS, run | {"distill_dir", "output_ply", "object_id", "picture"}),
+        "extract": (cmd_extract.EXTRACT_SETTINGS, run | extract_own | {
+            "paths", "object_ids", "clicks", "negative_clicks", "view", "segmenter", "segmenter_options", "mask_dir",
+            "dataparser_transforms"}),
+        "batch extract": (cmd_extract.EXTRACT_SETTINGS, extract_own | {"data_dir", "out", "object_ids", "jobs",
+                                                                       "ray_address", "results", "rerun"}),
+    }[name]
+
+
+@pytest.mark.parametrize("name", ["train", "distill", "select", "extract", "batch extract"])
+def test_pipeline_options_are_the_configs_settings(name):
+    """Each option of the pipeline commands is a setting of their config (help, range, default from its field),
+    or one of the command's own parameters."""
+    options, own = _settings_of(name)
+    params = {p.name: p for p in _command(name).params}
+    offered = {o.param: o for o in options.offered()}
+    assert set(params) - own == set(offered)
+    for o in offered.values():
+        p = params[o.param]
+        assert [*p.opts, *p.secondary_opts] == o.option.split("/") and p.help == o.setting.meta.help
+        assert p.default == (None if options.unset else o.default)
+        if o.setting.meta.choices is not None:
+            assert tuple(p.type.choices) == o.setting.meta.choices
+
+
+def test_train_options_round_trip_to_the_train_config():
+    from roodi_toolkit.cli.cmd_train import TRAIN_SETTINGS
+    from roodi_toolkit.pipeline.strategy import MCMCStrategy
+    from roodi_toolkit.pipeline.train import TrainConfig
+
+    cmd = _command("train")
+    args = ["d", "o", "--iterations", "7", "--cap-max", "900", "--sh-degree", "1", "--init", "random",
+            "--init-points", "50", "--fixed-background", "--eval-every", "0", "--checkpoint-every", "3", "--seed", "4"]
+    config = TRAIN_SETTINGS.config(cmd.make_context("train", args).params)
+    assert config == TrainConfig(iterations=7, strategy=MCMCStrategy(cap_max=900), sh_degree=1, init="random",
+                                 init_num_points=50, random_background=False, eval_every=0, checkpoint_every=3,
+                                 seed=4)
+    # none given: every option None (a resumed run keeps its own), the config TrainConfig's defaults
+    values = cmd.make_context("train", ["d", "o"]).params
+    assert [values[o.param] for o in TRAIN_SETTINGS.offered()] == [None] * 9
+    assert TRAIN_SETTINGS.config(values) == TrainConfig() and TrainConfig().strategy.cap_max == 60_000
+    assert TRAIN_SETTINGS.config(cmd.make_context("train", ["d", "o", "--random-background"]).params) == \
+        TrainConfig(random_background=True)
+    for bad in (["--init-points", "3"], ["--sh-degree", "4"], ["--init", "sfm"], ["--seed", "-1"]):
+        assert CliRunner().invoke(cmd, ["d", "o", *bad]).exit_code == 2, bad
+
+
+def test_distill_and_select_options_round_trip():
+    from roodi_toolkit.cli.cmd_distill import DISTILL_SETTINGS
+    from roodi_toolkit.pipeline.distill import DistillConfig
+
+    values = _command("distill").make_context("distill", ["m", "d", "o", "--iterations", "9", "--feature-lr", "0.1",
+                                                          "--classifier-lr", "0.2", "--seed", "3"]).params
+    assert DISTILL_SETTINGS.config(values) == DistillConfig(iterations=9, feature_lr=0.1, classifier_lr=0.2, seed=3)
+    assert DISTILL_SETTINGS.config(_command("distill").make_context("distill", ["m", "d", "o"]).params) == \
+        DistillConfig()
+    select = _command("select")
+    assert {k: select.make_context("select", ["d", "o.ply", "--object", "1", *extra]).params[k]
+            for extra, k in ((["--threshold", "0.6"], "threshold"), ([], "prune"))} == {"threshold": 0.6,
+                                                                                        "prune": True}
+    assert select.make_context("select", ["d", "o.ply", "--object", "1", "--no-prune"]).params["prune"] is False
+
+
+@pytest.mark.parametrize("name", ["extract", "batch extract"])
+def test_extract_options_round_trip_to_the_extract_config(name):
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_extract import extract_config_from_options
+    from roodi_toolkit.pipeline.distill import DistillConfig
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.prune.config import PruneConfig
+
+    cmd = _command(name)
+    paths = ["d", "o", "--object", "1"]
+    args = [*paths, "--downscale", "2", "--iterations", "50", "--init", "random", "--distill-iterations", "20",
+            "--threshold", "0.5", "--no-prune", "--no-inpaint", "--distance", "euclidean", "--rule", "paper",
+            "--single-stage", "--inpainter", "exemplar", "--inpainter-option", "patch=5"]
+    values = cmd.make_context(name, args).params
+    base = ExtractConfig()
+    assert extract_config_from_options(**values) == replace(
+        base, downscale=2.0, train=replace(base.train, iterations=50, init="random"),
+        distill=DistillConfig(iterations=20), threshold=0.5, prune=False, inpaint=False,
+        prune_config=PruneConfig(distance="euclidean", rule="paper"), single_stage=True, inpainter="exemplar",
+        inpainter_options={"patch": "5"})
+    assert extract_config_from_options(**cmd.make_context(name, paths).params) == base
+
+
+def test_demo_settings_default_to_the_demos_own_config():
+    """The demo's --iterations, --distill-iterations and --inpainter are its ExtractConfig's settings: unset they keep
+    the demo's values (2000 steps, symmetry), and given they are still refused with --prune-only."""
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_demo import DEMO_SETTINGS
+    from roodi_toolkit.synth.demo import ExtractDemoConfig
+
+    base = ExtractDemoConfig().extract
+    cmd = _command("demo")
+    assert DEMO_SETTINGS.config(cmd.make_context("demo", ["out"]).params, base=base) == base
+    assert (base.train.iterations, base.inpainter) == (2000, "symmetry")
+    values = cmd.make_context("demo", ["out", "--iterations", "30", "--distill-iterations", "7", "--inpainter",
+                                       "opencv"]).params
+    assert DEMO_SETTINGS.config(values, base=base) == replace(
+        base, train=replace(base.train, iterations=30), distill=replace(base.distill, iterations=7),
+        inpainter="opencv")
+    text = " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    assert "[default: 2000; x>=1]" in text and "[default: symmetry]" in text
+    res = CliRunner().invoke(cmd, ["out", "--prune-only", "--distill-iterations", "3", "--inpainter", "x"])
+    assert res.exit_code == 2 and "--distill-iterations, --inpainter: options of the extraction demo" in res.output
+
+
+def test_unset_flags_show_no_default():
+    from roodi_toolkit.cli.settings import Options
+
+    text = " ".join(CliRunner().invoke(_toy(Options(Outer, unset=True, only=("on",))), ["--help"]).output.split())
+    assert "--no-on Do the thing; --no-on skips it." in text and "default" not in text
