@@ -242,11 +242,6 @@ def test_no_import_cycle():
 
 MAX_LAZY_IMPORTS = 20
 LAZY_REASON = "# lazy:"
-PENDING = {  # in-function imports not yet moved (issue 35): at most this many each, none may be added
-    # rewritten by other helpers now (pure stages, settings from config dataclasses): left to them
-    "pipeline/extract.py": 30, "pipeline/train.py": 7, "pipeline/distill.py": 11, "pipeline/select.py": 10,
-    "evaluate/benchmark.py": 19, "cli/prune_options.py": 11,
-}
 
 
 def _lazy_imports(source: str) -> list[tuple[int, bool]]:
@@ -292,16 +287,11 @@ def test_imports_inside_functions_are_few_and_say_why():
     """Imports inside functions only for optional heavy dependencies and plugins, each with a ``# lazy:`` reason, at
     most :data:`MAX_LAZY_IMPORTS` in the package (issue 35); everything else at the top, where readers and tools see
     the real graph."""
-    lazy, unsaid, over = 0, [], []
+    lazy, unsaid = 0, []
     for path in MODULES:
         rel = path.relative_to(ROOT).as_posix()
         found = _lazy_imports(path.read_text())
-        if rel in PENDING:
-            if len(found) > PENDING[rel]:
-                over.append(f"{rel}: {len(found)} > {PENDING[rel]}")
-            continue
         lazy += len(found)
         unsaid += [f"{rel}:{line}" for line, said in found if not said]
-    assert not over, "imports added inside functions: " + ", ".join(over)
     assert not unsaid, "move to the module's top, or say why it must wait (# lazy: reason): " + ", ".join(unsaid)
     assert lazy <= MAX_LAZY_IMPORTS, f"{lazy} imports inside functions (at most {MAX_LAZY_IMPORTS})"

@@ -9,13 +9,19 @@ parsed values and :func:`prune_with_photos` runs :func:`~roodi_toolkit.prune.sce
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import click
 
+from roodi_toolkit.cli.common import progress_factory, set_torch_threads
 from roodi_toolkit.cli.settings import config_from_options, config_options, option_names
+from roodi_toolkit.io.files import write_image
 from roodi_toolkit.prune.config import (FilterSettings, LocalSettings, NeighbourSettings, PhotoSettings, PruneConfig,
                                         StatisticalSettings)
+from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos, photo_folders
+from roodi_toolkit.prune.scene import prune_cloud
+from roodi_toolkit.render.upright import resolve_up
 
 prune_options = config_options(NeighbourSettings, StatisticalSettings, FilterSettings)
 """Decorator: the options of the neighbourhood (``--k``), the statistical rule and the filters."""
@@ -43,7 +49,6 @@ def photo_inputs(input_path: str, mode: str, photos_spec: str) -> list[str]:
     Raises:
         click.BadParameter: a photo folder given with the statistical rule (it runs as published, without them).
     """
-    from roodi_toolkit.prune.photos import photo_folders
 
     if mode == "statistical":
         if photos_spec not in ("auto", "none"):
@@ -63,9 +68,6 @@ def prune_with_photos(input_path: str, cloud: Any, config: PruneConfig, photo: P
     the photo check of ``photo`` (``--photos``, ``--photo-views``) in the local modes (a note on stderr when ``auto``
     finds none). Progress bars show for clouds of at least :data:`PROGRESS_MIN_GAUSSIANS`, and always for the photo
     check. ``select=False``: the result's cloud may be None (the keep mask says what stays)."""
-    from roodi_toolkit.cli.common import progress_factory, set_torch_threads
-    from roodi_toolkit.prune.photos import PhotosUnavailable, find_photos, photo_folders
-    from roodi_toolkit.prune.scene import prune_cloud
 
     progress = progress_factory(quiet or len(cloud) < PROGRESS_MIN_GAUSSIANS)
     photos = None
@@ -98,7 +100,6 @@ def effective_mode(mode: str) -> str:
 def picture_title(path: str, limit: int = 60) -> str:
     """Return how the floater picture names its input: the path as given, its tail when long; a SOG given as its
     ``meta.json`` or folder is named by the folder."""
-    from pathlib import Path
 
     p = Path(path)
     text = str(p.parent) if p.name == "meta.json" else str(p)
@@ -110,10 +111,7 @@ def write_floater_picture(input_path: str, cloud: Any, keep: Any, report: Any, p
     """Write the floater picture (:func:`roodi_toolkit.viz.floaters.floater_picture`) of a prune of ``cloud``, read
     from ``input_path``, upright on the cloud's up (``up``: ``--up``; :func:`roodi_toolkit.render.upright.resolve_up`);
     return that up axis (the caller says where it came from)."""
-    from roodi_toolkit.cli.common import progress_factory, set_torch_threads
-    from roodi_toolkit.io.files import write_image
-    from roodi_toolkit.render.upright import resolve_up
-    from roodi_toolkit.viz.floaters import floater_picture
+    from roodi_toolkit.viz.floaters import floater_picture  # lazy: matplotlib and the renderer, for a picture only
 
     set_torch_threads()  # the before/after renders
     axis = resolve_up(up, input_path, cloud.means)

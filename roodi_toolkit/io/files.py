@@ -314,19 +314,10 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
             raise InputError(f"{p}: cannot read image ({' '.join(str(exc).split())[:200]})") from None
 
 
-def new_figure(*args: Any, figsize: tuple[float, float], **subplots: Any) -> tuple[Any, Any]:
-    """Return ``(figure, axes)`` like ``plt.subplots`` but without pyplot, so the caller's matplotlib backend (a
-    notebook's inline one, say) is neither needed nor changed; save it with :func:`save_figure`."""
-    from matplotlib.figure import Figure  # lazy: matplotlib takes 1-2 s to import; only figures need it
-
-    fig = Figure(figsize=figsize)
-    return fig, fig.subplots(*args, **subplots)
-
-
 def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 110) -> Path:
     """Save a matplotlib figure atomically (format from the extension) and release it.
 
-    Figures from :func:`new_figure` are not known to pyplot; ones made with pyplot are closed there too.
+    Figures from :func:`roodi_toolkit.viz.figures.new_figure` are not known to pyplot; ones made with pyplot are closed there too.
     """
     try:
         with atomic_path(path) as tmp:

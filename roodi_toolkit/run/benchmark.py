@@ -29,6 +29,7 @@ from ..pipeline.segment import FilesSegmenter, SegmentPrompt
 from ..lpips import LPIPSUnavailable
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, resolve_renderer
+from ..viz.figures import new_figure
 from .distill import load_distillation
 from .extract import extract_objects
 
@@ -295,7 +296,7 @@ def _scene_grid(truths: _Truths, preset: str, methods: Sequence[str], pictures: 
     targets = truths.targets
     cols = ["training view", "ground truth", *methods]
     rows = 2 * len(targets)
-    fig, axes = files.new_figure(rows, len(cols), figsize=(1.6 * len(cols), 1.7 * rows), squeeze=False)
+    fig, axes = new_figure(rows, len(cols), figsize=(1.6 * len(cols), 1.7 * rows), squeeze=False)
     for r, target in enumerate(targets):
         areas = [int((m == target["id"]).sum()) for m in scene.masks] if scene.masks is not None else [0]
         truth = truths[target["id"]].dataset

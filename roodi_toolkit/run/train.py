@@ -31,6 +31,7 @@ from ..pipeline.segment import FilesSegmenter, SegmentPrompt
 from ..pipeline.train import Trained, TrainConfig, Trainer, train
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer
+from ..viz.figures import new_figure
 from .records import scene_labels
 
 
@@ -179,7 +180,7 @@ def write_training_pictures(trainer: Trainer, out: Path, max_renders: int = 4) -
     hist = trainer.history
     train_rows = [h for h in hist if "loss" in h]
     evals = [h for h in hist if "eval_psnr" in h]
-    fig, (ax1, ax2) = files.new_figure(1, 2, figsize=(10, 3.5))
+    fig, (ax1, ax2) = new_figure(1, 2, figsize=(10, 3.5))
     if train_rows:
         ax1.plot([h["step"] for h in train_rows], [h["loss"] for h in train_rows], lw=1)
         ax2.plot([h["step"] for h in train_rows], [h["psnr"] for h in train_rows], lw=1, alpha=0.6,

@@ -46,6 +46,7 @@ from ..progress import ProgressFactory, null_progress
 from ..prune.outliers import remove_statistical_outliers
 from ..render.renderer import Renderer, resolve_renderer
 from ..run.extract import extract_objects
+from ..viz.figures import new_figure
 from .floaters import FloaterMix, planted_floater_cloud, removal_scores
 from .objects import PRESETS
 from .scene import SceneSettings, build_scene, make_scene
@@ -107,7 +108,7 @@ def run_prune_demo(out_dir: str | Path, *, seed: int = 0, surface: str = "ant", 
     thin = int(np.argmin(extent))
     view = tuple(i for i in range(3) if i != thin)
     along = "xyz"[thin]
-    fig, axes = files.new_figure(1, 3, figsize=(12, 4.2))
+    fig, axes = new_figure(1, 3, figsize=(12, 4.2))
     _projection_panel(axes[0], planted.cloud, np.ones(len(keep), dtype=bool), view,
                       f"input: {len(keep):,} Gaussians (view along {along})")
     _projection_panel(axes[1], planted.cloud, keep, view, f"flagged by pruning: {(~keep).sum():,}")
@@ -271,7 +272,7 @@ def _summary_figure(path: Path, train_image: np.ndarray, alone: np.ndarray, visi
         width = max(1, truth.shape[0] // 128)
         tests = tuple(outlined(img, [(never_seen, FILLED_COLOUR)], width=width, tint=0.0) for img in tests)
     test = [img[t0:t1, s0:s1] for img in tests]
-    fig, axes = files.new_figure(1, 5, figsize=(16, 3.9))
+    fig, axes = new_figure(1, 5, figsize=(16, 3.9))
     for ax, img, title in zip(axes, [train_image, view[y0:y1, x0:x1], *test], titles):
         ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
         ax.set_title(title, fontsize=9)

@@ -56,7 +56,8 @@ def test_json_roundtrip_and_errors(tmp_path):
 def test_figures_leave_the_matplotlib_backend_alone(tmp_path):
     import matplotlib
 
-    from roodi_toolkit.io.files import new_figure, save_figure
+    from roodi_toolkit.io.files import save_figure
+    from roodi_toolkit.viz.figures import new_figure
 
     before = matplotlib.get_backend()
     fig, (a, b) = new_figure(1, 2, figsize=(4, 2))
