@@ -50,14 +50,14 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from ..errors import CloudError, ConfigError
-from .metrics import Evaluation, score_views
 from ..gaussians import GaussianCloud
 from ..io.dataset import Dataset
 from ..pipeline.extract import ExtractConfig
-from ..progress import ProgressFactory, null_progress
-from ..render.renderer import Renderer, render_cloud, resolve_renderer
 from ..pipeline.strategy import MCMCStrategy
 from ..pipeline.train import TrainConfig
+from ..progress import ProgressFactory, null_progress
+from ..render.renderer import Renderer
+from .metrics import Evaluation, render_object_views, score_views
 
 PRESETS = ("bedroom", "kitchen", "livingroom", "picnic")
 METHODS: dict[str, str] = {
@@ -202,16 +202,10 @@ def score_object(cloud: GaussianCloud, truth: TargetTruth, *, lpips_model: Any =
     count = len(views_of) if max_views is None else min(max_views, len(views_of))
     if len(cloud) == 0:
         raise CloudError("the extracted object has no Gaussians")
-    renderer = resolve_renderer(renderer)
-    renders, alphas = [], []
-    with progress(total=count, desc=f"evaluate {truth.name}") as bar:
-        for i in range(count):
-            out = render_cloud(cloud, views_of.cameras[i], renderer=renderer, background=(1.0, 1.0, 1.0))
-            renders.append(out.rgb.clamp(0, 1).numpy())
-            alphas.append(out.alpha[..., 0].numpy())
-            bar.update(1)
+    renders, alphas = render_object_views(cloud, views_of.cameras[:count], renderer=renderer, progress=progress,
+                                          desc=f"evaluate {truth.name}")
     never_seen = None if truth.never_seen is None else truth.never_seen[:count]
-    views = score_views(np.stack(renders), np.stack(alphas), views_of.images[:count].numpy(),
+    views = score_views(renders, alphas, views_of.images[:count].numpy(),
                         views_of.alphas[:count].numpy(), views_of.names[:count], lpips_model, never_seen)
     return Evaluation.from_views(truth.object_id, truth.name, views, lpips_status=lpips_status,
                                  never_seen=never_seen is not None), np.stack(renders)

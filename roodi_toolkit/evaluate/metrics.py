@@ -311,6 +311,22 @@ def find_target(data_dir: str | Path, object_id: int) -> tuple[Path, str]:
     return folder, str(targets[object_id]["name"])
 
 
+def render_object_views(cloud: GaussianCloud, cameras: Sequence[Camera], *, renderer: Renderer | None = None,
+                        progress: ProgressFactory = null_progress, desc: str = "evaluate"
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Return the object's colours on white ``[V, H, W, 3]`` (clamped to [0, 1]) and its alpha ``[V, H, W]`` in
+    ``cameras``: what it is scored on against the true views."""
+    renderer = resolve_renderer(renderer)
+    renders, alphas = [], []
+    with progress(total=len(cameras), desc=desc) as bar:
+        for cam in cameras:
+            out = render_cloud(cloud, cam, renderer=renderer, background=(1.0, 1.0, 1.0))
+            renders.append(out.rgb.clamp(0, 1).numpy())
+            alphas.append(out.alpha[..., 0].numpy())
+            bar.update(1)
+    return np.stack(renders), np.stack(alphas)
+
+
 def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, *, renderer: Renderer | None = None,
                     lpips_weights: str | None = None, max_views: int | None = None,
                     progress: ProgressFactory = null_progress) -> tuple[Evaluation, np.ndarray]:
@@ -340,15 +356,8 @@ def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, 
         lpips_model = read_lpips(lpips_weights)
     except LPIPSUnavailable as exc:
         status = f"unavailable: {exc}"
-    renderer = resolve_renderer(renderer)
-    renders, alphas = [], []
-    with progress(total=count, desc=f"evaluate {name}") as bar:
-        for i in range(count):
-            out = render_cloud(cloud, truth.cameras[i], renderer=renderer, background=(1.0, 1.0, 1.0))
-            renders.append(out.rgb.clamp(0, 1).numpy())
-            alphas.append(out.alpha[..., 0].numpy())
-            bar.update(1)
-    renders_np, alphas_np = np.stack(renders), np.stack(alphas)
+    renders_np, alphas_np = render_object_views(cloud, truth.cameras[:count], renderer=renderer, progress=progress,
+                                                desc=f"evaluate {name}")
     never_seen = load_never_seen(data_dir, object_id, truth.names[:count])
     if never_seen is not None and never_seen.shape[1:] != alphas_np.shape[1:]:
         raise DatasetError(f"{folder}: the never-seen masks are {never_seen.shape[2]}x{never_seen.shape[1]} but the "
