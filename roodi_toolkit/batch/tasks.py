@@ -12,7 +12,6 @@ import math
 import os
 import time
 import traceback
-import typing
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -20,9 +19,10 @@ from typing import Any, Callable, Sequence
 from ..errors import ConfigError, RoodiError
 from ..io.files import json_text
 from ..io.splat import read_cloud, write_cloud
-from ..run.extract import extract_object, prepare_scene
 from ..prune.outliers import PruneConfig
 from ..prune.scene import prune_cloud
+from ..run.extract import extract_object, prepare_scene
+from ..settings import declared, parse_text
 from ..stats import describe_cloud
 from .items import Item
 from .outputs import file_id, write_output
@@ -40,18 +40,18 @@ def _write(cloud, path: Path) -> None:
     write_cloud(cloud, path)
 
 
-def _coerce(name: str, value: Any, hint: Any) -> Any:
-    """Return an item option's value as its PruneConfig field's type, or raise ConfigError naming the option."""
-    args = [a for a in typing.get_args(hint) if a is not type(None)]
-    optional = type(None) in typing.get_args(hint)
-    kind = args[0] if optional and len(args) == 1 else hint
-    if value is None and optional:
+def _coerce(d: Declared, value: Any) -> Any:
+    """Return an item option's value as its setting ``d`` declares it (the field's type; a fixed tuple and each entry
+    of a repeatable one also as the command line writes them, ``a,b,c``), or raise ConfigError naming the option.
+    Ranges and choices are checked by the config itself."""
+    name = d.name
+    if value is None and d.optional:
         return None
-    if kind is bool:
+    if d.kind is bool:
         if isinstance(value, bool):
             return value
         raise ConfigError(f"option {name}: expected true or false, got {value!r}")
-    if kind in (int, float):
+    if d.kind in (int, float):
         number = value
         if isinstance(value, str):
             try:
@@ -59,34 +59,38 @@ def _coerce(name: str, value: Any, hint: Any) -> Any:
             except ValueError:
                 number = None
         if isinstance(number, bool) or not isinstance(number, (int, float)) or not math.isfinite(number):
-            what = "a whole number" if kind is int else "a finite number"
+            what = "a whole number" if d.kind is int else "a finite number"
             raise ConfigError(f"option {name}: expected {what}, got {value!r}")
-        if kind is int:
+        if d.kind is int:
             if number != int(number):
                 raise ConfigError(f"option {name}: expected a whole number, got {value!r}")
             return int(number)
         return float(number)
-    if kind is str:
+    if d.kind is str:
         if isinstance(value, str):
             return value
         raise ConfigError(f"option {name}: expected text, got {value!r}")
-    if name in ("box", "sphere"):
-        parts = value.split(",") if isinstance(value, str) else value
-        size = 6 if name == "box" else 4
-        try:
-            numbers = tuple(float(v) for v in parts)
-        except (TypeError, ValueError):
-            numbers = ()
-        if len(numbers) != size or not all(math.isfinite(v) for v in numbers):
-            raise ConfigError(f"option {name}: expected {size} comma-separated finite numbers, got {value!r}")
+    try:
+        if d.repeated:  # entries as the command line writes them (a CSV cell: ';' between), or a JSON list
+            if isinstance(value, str):
+                return tuple(parse_text(d, part) for part in value.split(";") if part.strip())
+            if not isinstance(value, (list, tuple)):
+                raise ValueError(f"expected a list of entries, got {value!r}")
+            return tuple(parse_text(d, v) if isinstance(v, str) else _entry(v) for v in value)
+        if isinstance(value, str):
+            return parse_text(d, value)
+        numbers = tuple(float(v) for v in value)
+        if len(numbers) != d.size or not all(math.isfinite(v) for v in numbers):
+            raise ValueError(f"expected {d.size} finite numbers, got {value!r}")
         return numbers
-    if name == "value_ranges":
-        try:
-            ranges = tuple((str(n), float(lo), float(hi)) for n, lo, hi in value)
-        except (TypeError, ValueError):
-            raise ConfigError(f"option {name}: expected [[name, low, high], ...], got {value!r}") from None
-        return ranges
-    return value
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"option {name}: {exc}") from None
+
+
+def _entry(value: Any) -> tuple[str, float, float]:
+    """Return a ``[name, low, high]`` entry of a repeatable setting given as a list (a JSON manifest's form)."""
+    name, low, high = value
+    return str(name), float(low), float(high)
 
 
 def prune_config(settings: dict[str, Any], options: dict[str, Any]):
@@ -99,13 +103,12 @@ def prune_config(settings: dict[str, Any], options: dict[str, Any]):
     unknown = sorted(set(options) - known)
     if unknown:
         raise ConfigError(f"unknown prune option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
-    hints = typing.get_type_hints(PruneConfig)
-    merged = {**settings, **{k: _coerce(k, v, hints[k]) for k, v in options.items()}}
-    for name in ("box", "sphere"):
-        if isinstance(merged.get(name), str):
-            merged[name] = tuple(float(v) for v in merged[name].split(","))
-        elif merged.get(name) is not None:
-            merged[name] = tuple(merged[name])
+    declarations = {d.name: d for d in declared(PruneConfig)}
+    merged = {**settings, **{k: _coerce(declarations[k], v) for k, v in options.items()}}
+    for name, value in merged.items():  # the batch's own settings as JSON carries them to the workers: lists
+        d = declarations.get(name)
+        if d is not None and d.kind is tuple and isinstance(value, (str, list)):
+            merged[name] = _coerce(d, value)
     try:
         return PruneConfig(**merged)
     except (TypeError, ValueError, OverflowError) as exc:

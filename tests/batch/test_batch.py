@@ -173,3 +173,19 @@ def test_batch_convert_matches_the_convert_command(tmp_path, run_cli):
         single = tmp_path / f"single_{p.stem}.spz"
         assert run_cli("convert", p, single).exit_code == 0
         assert (tmp_path / "out" / rel).read_bytes() == single.read_bytes()
+
+
+def test_manifest_options_are_read_as_the_prune_settings_declare_them():
+    """A manifest's columns are PruneConfig's settings, read from their declarations: a fixed tuple as the command
+    line writes it, a repeatable one as ';'-separated entries or a JSON list, numbers from text."""
+    from roodi_toolkit.batch.tasks import prune_config
+    from roodi_toolkit.errors import ConfigError
+
+    config = prune_config({}, {"k": "12", "box": "-1,-1,-1,1,1,1", "value_ranges": "scale,0,0.5;z,-1,10"})
+    assert config.k == 12 and config.box == (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0)
+    assert config.value_ranges == (("scale", 0.0, 0.5), ("z", -1.0, 10.0))
+    json_form = prune_config({}, {"box": [-1, -1, -1, 1, 1, 1], "value_ranges": [["scale", 0, 0.5], "z,-1,10"]})
+    assert json_form.box == config.box and json_form.value_ranges == config.value_ranges
+    for bad in ({"box": "1,2"}, {"value_ranges": 3}, {"value_ranges": "size,0,1"}, {"sphere": [0, 0, "x", 1]}):
+        with pytest.raises(ConfigError, match=next(iter(bad))):
+            prune_config({}, bad)
