@@ -48,7 +48,7 @@ def box_psnr(cloud, truth) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from roodi_toolkit.evaluate.metrics import find_target
+    from roodi_toolkit.run.evaluate import find_target
     from roodi_toolkit.gaussians import GaussianCloud
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.io.generated import read_scene_record

@@ -15,7 +15,7 @@ after occlusion-reasoned inpainting and fine-tuning), this compares ``selected.p
   depth) counted in the training views that see them (the generator's ids and depth), and the object model's alpha
   there before refinement;
 - PSNR in the training views inside the target's mask ("unoccluded");
-- the paper's metrics (:func:`roodi_toolkit.evaluate.metrics.evaluate_object`: PSNR in 1.2x the true box, alpha IoU) on the
+- the paper's metrics (:func:`roodi_toolkit.run.evaluate.evaluate_object`: PSNR in 1.2x the true box, alpha IoU) on the
   target's object-alone test views: the "w/o inpainting" vs "full" comparison per object.
 
 With ``--control``, ``selected.ply`` is also fine-tuned again with the run's settings but on the original views only
@@ -53,7 +53,7 @@ from roodi_toolkit.io.model import find_model  # noqa: E402
 from roodi_toolkit.io.files import read_json, write_json  # noqa: E402
 from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,  # noqa: E402
                                     refine_object)
-from roodi_toolkit.evaluate.metrics import evaluate_object  # noqa: E402
+from roodi_toolkit.run.evaluate import evaluate_object  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, mask_scores, occlusion_masks, up_from_cameras  # noqa: E402
 from roodi_toolkit.io.ply import read_ply  # noqa: E402
 from roodi_toolkit.synth.scene import scene_from_record  # noqa: E402

@@ -9,7 +9,7 @@ from typing import Any
 import click
 import numpy as np
 
-from roodi_toolkit.evaluate.metrics import evaluate_object, find_target
+from roodi_toolkit.run.evaluate import evaluate_object, find_target
 from roodi_toolkit.io import files
 from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.io.lpips_weights import ENV_WEIGHTS, read_lpips

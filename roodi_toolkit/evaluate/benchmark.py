@@ -25,7 +25,7 @@ what the issue or the paper changes:
 ``paper_rule``            ``full`` pruning with the paper's single-pass rule instead of the robust default
 ========================  ==========================================================================================
 
-Each object is scored by :func:`roodi_toolkit.evaluate.metrics.evaluate_object` (PSNR, SSIM, LPIPS inside 1.2x the true box,
+Each object is scored by :func:`roodi_toolkit.run.evaluate.evaluate_object` (PSNR, SSIM, LPIPS inside 1.2x the true box,
 alpha IoU) on its object-alone test views, averaged per scene, then over scenes (the paper's protocol). An extraction
 that fails (for example no Gaussian passes the selection) is scored as an empty render, so failures count against
 the method instead of vanishing from its average.
@@ -44,8 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from pathlib import Path
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -148,10 +147,6 @@ PAPER_SIZE = BenchmarkSize(size=200, train_views=50, test_views=50, iterations=3
 
 SIZES = {"cpu": MACHINE_SIZE, "cpu-large": LARGE_SIZE, "paper": PAPER_SIZE}
 
-# Generates a missing scene: ``make_scene(folder, preset, seed, size, occluded, progress)``; the scene generator is on
-# the floor above this one (roodi_toolkit.synth), so its caller passes it: synth.scene.make_benchmark_scene.
-SceneMaker = Callable[[Path, str, int, BenchmarkSize, bool, ProgressFactory], Any]
-
 
 def extract_config(size: BenchmarkSize, seed: int = 0) -> ExtractConfig:
     """Return the full method's settings at ``size``: every stage's defaults, except that the occlusion views are
@@ -184,7 +179,7 @@ def score_object(cloud: GaussianCloud, truth: TargetTruth, *, lpips_model: Any =
                  renderer: Renderer | None = None, max_views: int | None = None,
                  progress: ProgressFactory = null_progress) -> tuple[Evaluation, np.ndarray]:
     """Return the paper's metrics of an extracted object against its true views, and the renders ``[N, H, W, 3]``
-    on white (as :func:`roodi_toolkit.evaluate.metrics.evaluate_object` scores a scene folder's target).
+    on white (as :func:`roodi_toolkit.run.evaluate.evaluate_object` scores a scene folder's target).
 
     Args:
         cloud: the extracted object.

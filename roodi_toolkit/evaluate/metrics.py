@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Optional, Sequence
 
 import kornia
@@ -32,14 +31,8 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..errors import CloudError, DatasetError, RoodiError
 from ..gaussians import GaussianCloud
 from ..imaging import mask_iou, psnr, ssim
-from ..io.dataset import load_dataset
-from ..io.files import read_image
-from ..io.generated import read_scene_record
-from ..io.lpips_weights import read_lpips
-from ..lpips import LPIPSUnavailable
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, render_cloud, resolve_renderer
 
@@ -233,29 +226,6 @@ def region_scores(render: np.ndarray, alpha: np.ndarray, truth: np.ndarray, trut
             "ns_iou": region_iou, "ns_pixels": n}
 
 
-def load_never_seen(data_dir: str | Path, object_id: int, names: Sequence[str]) -> np.ndarray | None:
-    """Return ``[N, H, W]`` bool never-seen masks of target ``object_id``'s test views ``names``, or None when the
-    scene has none (made without ``--occluded`` / ``--never-seen``).
-
-    Raises:
-        DatasetError: scene.json names masks that are missing or unreadable.
-    """
-    root = Path(data_dir)
-    target = {int(t["id"]): t for t in read_scene_record(root).get("targets", [])}.get(int(object_id))
-    if target is None or "never_seen" not in target:
-        return None
-    folder = root / target["path"] / str(target["never_seen"])
-    masks = []
-    for name in names:
-        path = folder / f"{Path(name).name}.png"
-        try:
-            m = read_image(path)
-        except (RoodiError, OSError) as exc:
-            raise DatasetError(f"{path}: cannot read the never-seen mask named by scene.json ({exc}); regenerate the "
-                               "scene with make-scene") from None
-        masks.append(np.asarray(m).reshape(m.shape[0], m.shape[1], -1)[..., 0] > 127)
-    return np.stack(masks)
-
 
 def score_views(renders: np.ndarray, alphas: np.ndarray, truth: np.ndarray, truth_alpha: np.ndarray,
                 names: Sequence[str], lpips_model: Any = None,
@@ -293,23 +263,6 @@ def _mean(values: list[Optional[float]]) -> Optional[float]:
     return float(np.mean(vals)) if vals else None
 
 
-def find_target(data_dir: str | Path, object_id: int) -> tuple[Path, str]:
-    """Return the folder of target ``object_id``'s object-alone test views and the object's name.
-
-    Raises:
-        DatasetError: no scene.json, or no such target (the message lists the targets).
-    """
-    root = Path(data_dir)
-    record = read_scene_record(root)
-    targets = {int(t["id"]): t for t in record.get("targets", [])}
-    if object_id not in targets:
-        listed = ", ".join(f"{i} ({t['name']})" for i, t in sorted(targets.items())) or "none"
-        raise DatasetError(f"{root}: object {object_id} is not an extraction target; targets: {listed}")
-    folder = root / targets[object_id]["path"]
-    if not (folder / "transforms_test.json").is_file():
-        raise DatasetError(f"{folder}: missing transforms_test.json of the target's views")
-    return folder, str(targets[object_id]["name"])
-
 
 def render_object_views(cloud: GaussianCloud, cameras: Sequence[Camera], *, renderer: Renderer | None = None,
                         progress: ProgressFactory = null_progress, desc: str = "evaluate"
@@ -325,47 +278,6 @@ def render_object_views(cloud: GaussianCloud, cameras: Sequence[Camera], *, rend
             alphas.append(out.alpha[..., 0].numpy())
             bar.update(1)
     return np.stack(renders), np.stack(alphas)
-
-
-def evaluate_object(cloud: GaussianCloud, data_dir: str | Path, object_id: int, *, renderer: Renderer | None = None,
-                    lpips_weights: str | None = None, max_views: int | None = None,
-                    progress: ProgressFactory = null_progress) -> tuple[Evaluation, np.ndarray]:
-    """Return the paper's metrics of an extracted object against its true object-alone views, and the renders.
-
-    Args:
-        cloud: the extracted object.
-        data_dir: a scene made by ``roodi-toolkit make-scene``.
-        object_id: the target's instance id.
-        renderer: draws the object (default: the built-in CPU renderer).
-        lpips_weights: local LPIPS weights (default: found by :func:`roodi_toolkit.io.lpips_weights.read_lpips`).
-        max_views: evaluate on the first this many test views only.
-        progress: progress factory.
-
-    Returns:
-        ``(evaluation, renders)`` with renders ``[N, H, W, 3]`` on white.
-    """
-    folder, name = find_target(data_dir, object_id)
-    truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
-    if truth.alphas is None:
-        raise DatasetError(f"{folder}: the target's views have no alpha; cannot score IoU")
-    count = len(truth) if max_views is None else min(max_views, len(truth))
-    if len(cloud) == 0:
-        raise CloudError("the extracted object has no Gaussians")
-    lpips_model, status = None, "ok"
-    try:
-        lpips_model = read_lpips(lpips_weights)
-    except LPIPSUnavailable as exc:
-        status = f"unavailable: {exc}"
-    renders_np, alphas_np = render_object_views(cloud, truth.cameras[:count], renderer=renderer, progress=progress,
-                                                desc=f"evaluate {name}")
-    never_seen = load_never_seen(data_dir, object_id, truth.names[:count])
-    if never_seen is not None and never_seen.shape[1:] != alphas_np.shape[1:]:
-        raise DatasetError(f"{folder}: the never-seen masks are {never_seen.shape[2]}x{never_seen.shape[1]} but the "
-                           f"test views {alphas_np.shape[2]}x{alphas_np.shape[1]}; regenerate the scene")
-    views = score_views(renders_np, alphas_np, truth.images[:count].numpy(), truth.alphas[:count].numpy(),
-                        truth.names[:count], lpips_model, never_seen)
-    return Evaluation.from_views(object_id, name, views, lpips_status=status,
-                                 never_seen=never_seen is not None), renders_np
 
 
 def alpha_iou(cloud: GaussianCloud, cameras: Sequence[Camera], alphas: Sequence[np.ndarray] | Tensor, *,

@@ -9,16 +9,16 @@ import hashlib
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, DatasetError, RoodiError
+from ..errors import ConfigError, RoodiError
 from ..evaluate.baselines import feature_similarity, gaussian_grouping
 from ..evaluate.benchmark import (BASELINES, GG_RULE, MACHINE_SIZE, METHODS, MODEL_OF, PRESETS, SHORT, BenchmarkSize,
-                                  SceneMaker, TargetTruth, _average, _method_order, checks, empty_scores,
+                                  TargetTruth, _average, _method_order, checks, empty_scores,
                                   extract_config, method_config, results_markdown, scene_name, score_object)
-from ..evaluate.metrics import ALPHA_THRESHOLD, find_target, load_never_seen, zoom_box
+from ..evaluate.metrics import ALPHA_THRESHOLD, zoom_box
 from ..io import files
 from ..io.dataset import load_dataset, split_views
 from ..io.generated import read_scene_record
@@ -31,24 +31,13 @@ from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, resolve_renderer
 from ..viz.figures import new_figure
 from .distill import load_distillation
+from .evaluate import load_truth
 from .extract import extract_objects
 
 
-def load_truth(data_dir: Path, object_id: int) -> TargetTruth:
-    """Return target ``object_id``'s true object-alone test views and never-seen masks, read from the scene folder.
-
-    Raises:
-        DatasetError: no such target, views without alpha, or never-seen masks of another size than the views.
-    """
-    folder, name = find_target(data_dir, object_id)
-    truth = load_dataset(folder, background=(1.0, 1.0, 1.0))
-    if truth.alphas is None:
-        raise DatasetError(f"{folder}: the target's views have no alpha; cannot score IoU")
-    never_seen = load_never_seen(data_dir, object_id, truth.names)
-    if never_seen is not None and never_seen.shape[1:] != (truth.height, truth.width):
-        raise DatasetError(f"{folder}: the never-seen masks are {never_seen.shape[2]}x{never_seen.shape[1]} but the "
-                           f"test views {truth.width}x{truth.height}; regenerate the scene")
-    return TargetTruth(int(object_id), name, truth, never_seen)
+# Generates a missing scene: ``make_scene(folder, preset, seed, size, occluded, progress)``; the scene generator is on
+# the floor above this one (roodi_toolkit.synth), so its caller passes it: synth.scene.make_benchmark_scene.
+SceneMaker = Callable[[Path, str, int, BenchmarkSize, bool, ProgressFactory], Any]
 
 
 class _Truths:

@@ -33,7 +33,7 @@ from matplotlib.patches import Rectangle
 from scipy.ndimage import binary_erosion
 
 from ..errors import ConfigError
-from ..evaluate.metrics import ALPHA_THRESHOLD, Evaluation, evaluate_object, find_target, zoom_box
+from ..evaluate.metrics import ALPHA_THRESHOLD, Evaluation, zoom_box
 from ..gaussians import GaussianCloud
 from ..io import files
 from ..io.dataset import load_dataset
@@ -45,6 +45,7 @@ from ..pipeline.train import TrainConfig, config_with
 from ..progress import ProgressFactory, null_progress
 from ..prune.outliers import remove_statistical_outliers
 from ..render.renderer import Renderer, resolve_renderer
+from ..run.evaluate import evaluate_object, find_target
 from ..run.extract import extract_objects
 from ..viz.figures import new_figure
 from .floaters import FloaterMix, planted_floater_cloud, removal_scores

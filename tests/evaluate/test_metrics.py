@@ -7,7 +7,8 @@ import pytest
 
 from roodi_toolkit import write_ply
 from roodi_toolkit.errors import DatasetError
-from roodi_toolkit.evaluate.metrics import box_around, evaluate_object, iou, psnr, score_views
+from roodi_toolkit.evaluate.metrics import box_around, iou, psnr, score_views
+from roodi_toolkit.run.evaluate import evaluate_object
 
 from ..mesh_gaussians import mesh_cloud
 

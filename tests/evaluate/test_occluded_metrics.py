@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.evaluate.benchmark import _average, checks, results_markdown
-from roodi_toolkit.evaluate.metrics import (Evaluation, evaluate_object, load_never_seen, region_scores,
-                                            score_views)
+from roodi_toolkit.evaluate.metrics import Evaluation, region_scores, score_views
 from roodi_toolkit.io.files import read_json
+from roodi_toolkit.run.evaluate import evaluate_object, load_never_seen
 from roodi_toolkit.synth.scene import SceneSettings, make_scene, scene_from_record
 from tests.mesh_gaussians import mesh_cloud
 

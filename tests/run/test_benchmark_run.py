@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from roodi_toolkit.evaluate.benchmark import empty_scores, score_object
-from roodi_toolkit.evaluate.metrics import evaluate_object
+from roodi_toolkit.run.evaluate import evaluate_object
 from roodi_toolkit.run import benchmark as run_benchmark_module
 from roodi_toolkit.run.benchmark import _LPIPS, _Truths, load_truth
 

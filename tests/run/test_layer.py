@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from roodi_toolkit.evaluate import benchmark as evaluate_benchmark, metrics
 from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.pipeline import distill, extract, finetune, joint, occlusion, select, train
 from roodi_toolkit.pipeline.distill import DistillConfig, distill_scene
@@ -23,7 +24,7 @@ from ..paths import REPO
 # the modules of the package that read or write files: a stage imports none of them
 FILE_MODULES = {"roodi_toolkit.io.files", "roodi_toolkit.io.model", "roodi_toolkit.io.ply", "roodi_toolkit.io.atomic",
                 "roodi_toolkit.io.generated", "roodi_toolkit.io.splat", "roodi_toolkit.io.lpips_weights"}
-STAGES = (train, distill, select, extract, joint, finetune, occlusion)
+STAGES = (train, distill, select, extract, joint, finetune, occlusion, metrics, evaluate_benchmark)
 
 
 def _imported(module) -> set[str]:
@@ -48,8 +49,8 @@ def _imported(module) -> set[str]:
 
 @pytest.mark.parametrize("module", STAGES, ids=lambda m: m.__name__.rsplit(".", 1)[1])
 def test_stages_open_name_and_check_no_file(module):
-    """train, distill, select, extract, joint training, occlusion and fine-tuning are functions of in-memory values:
-    no file module, no path (their folders and pictures are the run layer's, roodi_toolkit/run)."""
+    """train, distill, select, extract, joint training, occlusion, fine-tuning and evaluation are functions of
+    in-memory values: no file module, no path (their folders and pictures are the run layer's, roodi_toolkit/run)."""
     bad = _imported(module) & (FILE_MODULES | {"open", "Path", "pathlib", "pathlib.Path"})
     assert not bad, f"{module.__name__} touches files through {sorted(bad)}"
 
