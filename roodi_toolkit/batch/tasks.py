@@ -7,6 +7,7 @@ caught here and becomes the item's error line; the other items go on.
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import os
@@ -21,7 +22,6 @@ from ..io.files import json_text
 from ..io.splat import read_cloud, write_cloud
 from ..prune.outliers import PruneConfig
 from ..prune.scene import prune_cloud
-from ..run.extract import extract_object, prepare_scene
 from ..settings import declared, parse_text
 from ..stats import describe_cloud
 from .items import Item
@@ -177,25 +177,19 @@ def _info(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
     return {"count": stats["count"], "sh_degree": stats["sh_degree"], "nonfinite_rows": stats["nonfinite_rows"]}
 
 
-_PREPARED: dict[tuple[str, str], Any] = {}
-"""The scene a worker process has loaded (dataset, model, distillation), reused by its next object of that scene."""
+TASKS: dict[str, Callable[[Item, dict[str, Any]], dict[str, Any]] | str] = {
+    "prune": _prune, "convert": _convert, "info": _info,
+    # the whole pipeline (torch): imported when an extract item runs, so a batch of splat files starts light
+    "extract": "roodi_toolkit.batch.extract_task:extract_item"}
 
 
-def _extract(item: Item, settings: dict[str, Any]) -> dict[str, Any]:
-    config = settings["config"]
-    key = (item.input, settings["out"])
-    if key not in _PREPARED:
-        _PREPARED.clear()  # one scene held per worker
-        # the shared stages are made by the batch before its items start: here they are only reused
-        _PREPARED[key] = prepare_scene(item.input, settings["out"], model_dir=settings.get("model_dir"),
-                                       distill_dir=settings.get("distill_dir"), config=config,
-                                       replace_changed=settings.get("replace_changed", True))
-    entry = extract_object(_PREPARED[key], int(item.options["object"]), config=config)
-    return {k: entry[k] for k in ("gaussians", "gaussians_selected_and_pruned", "object_ply") if k in entry}
-
-
-TASKS: dict[str, Callable[[Item, dict[str, Any]], dict[str, Any]]] = {
-    "prune": _prune, "convert": _convert, "info": _info, "extract": _extract}
+def task_function(task: str) -> Callable[[Item, dict[str, Any]], dict[str, Any]]:
+    """Return the function that runs one item of ``task`` (importing its module where :data:`TASKS` names it)."""
+    function = TASKS[task]
+    if isinstance(function, str):
+        module, attr = function.split(":")
+        function = getattr(importlib.import_module(module), attr)
+    return function
 
 
 def run_item(task: str, item: Item, settings: dict[str, Any]) -> dict[str, Any]:
@@ -203,7 +197,7 @@ def run_item(task: str, item: Item, settings: dict[str, Any]) -> dict[str, Any]:
     t0 = time.perf_counter()
     line: dict[str, Any] = {"item": item.name, "input": item.input, "output": item.output}
     try:
-        line.update(status="ok", **TASKS[task](item, settings))
+        line.update(status="ok", **task_function(task)(item, settings))
         if item.output is not None and "://" not in item.output and task != "extract":
             line["output_id"] = file_id(item.output)  # what a later run recognises as its own output
     except RoodiError as exc:

@@ -8,18 +8,16 @@ from typing import Any
 
 import click
 
-from roodi_toolkit.batch.items import Item, collect_items, join_output
+from roodi_toolkit.batch.items import collect_items, join_output
 from roodi_toolkit.batch.outputs import is_url
 from roodi_toolkit.batch.runner import run_batch
 from roodi_toolkit.batch.tasks import check_items, settings_for
-from roodi_toolkit.cli.cmd_extract import extract_config_from_options, extract_options
 from roodi_toolkit.cli.common import progress_factory, quiet_option
-from roodi_toolkit.cli.settings import SettingsCommand
+from roodi_toolkit.cli.main import LazyGroup
 from roodi_toolkit.cli.prune_options import (effective_mode, prune_config_from_options, prune_mode_options,
                                              prune_options)
 from roodi_toolkit.errors import InputError
 from roodi_toolkit.io.files import check_output_dir
-from roodi_toolkit.run.extract import prepare_scene
 
 EPILOG = """\b
 SOURCE is a folder (every .ply, .compressed.ply, .spz, .splat, .ksplat, .sog and meta.json in it, recursively), a
@@ -64,7 +62,9 @@ def _common(func: Any) -> Any:
     return func
 
 
-@click.group(epilog=EPILOG)
+# extract runs the whole pipeline (torch): its module is imported only when it runs, so that prune, convert and info
+# of splat files start as light as the single-file commands
+@click.group(cls=LazyGroup, lazy={"extract": "roodi_toolkit.cli.cmd_batch_extract:batch_extract"}, epilog=EPILOG)
 def batch() -> None:
     """Run prune, convert or info over many splat files, or extract every object of a scene: one item per worker,
     results as JSON lines."""
@@ -85,7 +85,7 @@ def _run(task: str, source: str, out: str, suffix: str | None, settings: dict[st
     summary = run_batch(task, items, results, settings=settings, jobs=jobs, ray=ray_address, rerun=rerun,
                         overwrite=overwrite, inputs=[source] if not glob_pattern(source) else [],
                         progress=progress_factory(quiet))
-    _report(task, summary, results)
+    report(task, summary, results)
 
 
 def glob_pattern(source: str) -> bool:
@@ -93,7 +93,7 @@ def glob_pattern(source: str) -> bool:
     return not Path(source).exists() and glob.has_magic(source)
 
 
-def _report(task: str, summary: Any, results: str) -> None:
+def report(task: str, summary: Any, results: str) -> None:
     """Echo the batch's outcome; raise (exit 1) if any item failed."""
     failed = [line for line in summary.lines if line["status"] == "failed"]
     for line in failed[:10]:
@@ -134,38 +134,3 @@ def batch_info(source: str, out: str, jobs: int, ray_address: str | None, result
                overwrite: bool, quiet: bool) -> None:
     """Describe every splat of SOURCE (count, SH degree, bounds, opacities, scales, bad rows) as OUT/<name>.json."""
     _run("info", source, out, ".json", {}, jobs, ray_address, results, rerun, overwrite, quiet)
-
-
-@batch.command("extract", cls=SettingsCommand)
-@click.argument("data_dir", type=str)
-@click.argument("out", type=str)
-@click.option("--object", "object_ids", multiple=True, required=True, metavar="ID|all",
-              help="An object to extract (repeat), or 'all' for every object of the distillation.")
-@click.option("--jobs", "-j", type=click.IntRange(1, 256), default=1, show_default=True,
-              help="Worker processes on this machine (one object each at a time); with --ray local, its CPUs.")
-@click.option("--ray", "ray_address", default=None, metavar="ADDRESS",
-              help="Run the objects as Ray tasks on this cluster, or 'local' to start Ray here.")
-@click.option("--results", default=None, help="The JSON-lines results file [OUT/results.jsonl].")
-@click.option("--rerun", is_flag=True, help="Extract every object again, even those an earlier run finished; "
-              "without it a scene, distillation or object made with other settings is not replaced.")
-@extract_options
-@quiet_option
-def batch_extract(data_dir: str, out: str, object_ids: tuple[str, ...], jobs: int, ray_address: str | None,
-                  results: str | None, rerun: bool, model_dir: str | None, distill_dir: str | None, quiet: bool,
-                  **stage_options: Any) -> None:
-    """Extract objects of DATA_DIR into OUT/object_<ID>/: the scene is trained and distilled once (or taken from
-    --model and --distill), then every object is an item of the batch."""
-    config = extract_config_from_options(**stage_options)
-    progress = progress_factory(quiet)
-    prepared = prepare_scene(data_dir, out, model_dir=model_dir, distill_dir=distill_dir, config=config,
-                             progress=progress, replace_changed=rerun)
-    ids = prepared.object_ids(object_ids)
-    items = [Item(f"object_{i}", data_dir, str(prepared.out / f"object_{i}" / "object.ply"), {"object": i})
-             for i in ids]
-    results = results or str(prepared.out / "results.jsonl")
-    settings = {"config": config, "out": str(prepared.out), "model_dir": model_dir, "distill_dir": distill_dir,
-                "replace_changed": rerun}
-    del prepared  # the workers load the scene themselves
-    summary = run_batch("extract", items, results, settings=settings, jobs=jobs, ray=ray_address, rerun=rerun,
-                        progress=progress)
-    _report("extract", summary, results)

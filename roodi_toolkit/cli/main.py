@@ -73,21 +73,29 @@ EPILOG = ("Add --debug anywhere for a full traceback on errors, --threads N for 
 
 
 class LazyGroup(click.Group):
-    """A click group that imports each command's module on first use."""
+    """A click group whose commands named in ``lazy`` (name -> ``"module:attribute"``; the package's
+    :data:`COMMANDS` by default) are imported on first use, beside any it holds itself (``batch``'s light tasks)."""
+
+    def __init__(self, *args: Any, lazy: dict[str, str] | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.lazy = COMMANDS if lazy is None else lazy
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return sorted(COMMANDS)
+        return sorted(set(self.commands) | set(self.lazy))
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
-        """List the commands with their short help, read from the source of their modules: listing them imports
-        none of them (each imports what it runs at its top: ``train`` imports torch)."""
+        """List the commands with their short help, that of lazy ones read from the source of their modules: listing
+        them imports none of them (each imports what it runs at its top: ``train`` imports torch)."""
         names = self.list_commands(ctx)
         limit = formatter.width - 6 - max(len(name) for name in names)
         with formatter.section("Commands"):
-            formatter.write_dl([(name, _short_help(COMMANDS[name], limit)) for name in names])
+            formatter.write_dl([(name, self.commands[name].get_short_help_str(limit) if name in self.commands
+                                 else _short_help(self.lazy[name], limit)) for name in names])
 
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
-        target = COMMANDS.get(name)
+        if name in self.commands:
+            return self.commands[name]
+        target = self.lazy.get(name)
         if target is None:
             return None
         module_name, attr = target.split(":")

@@ -218,3 +218,18 @@ def test_commands_on_splat_files_import_no_heavy_library(tmp_path):
             f"print(codes, sorted(set({HEAVY_LIBRARIES!r}) & {{m.split('.')[0] for m in sys.modules}}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.splitlines()[-1] == "[0, 0, 0] []", out
+
+
+def test_batch_of_splat_files_imports_no_heavy_library(tmp_path):
+    """``batch info``, ``convert`` and ``prune`` of splat files start as light as the single-file commands: only
+    ``batch extract`` (its own module, and its own task module) imports the pipeline."""
+    (tmp_path / "src").mkdir()
+    write_ply(make_cloud(300, seed=3), tmp_path / "src" / "a.ply")
+    src = str(tmp_path / "src")
+    code = ("import sys; from roodi_toolkit.cli.main import main; "
+            f"codes = [main(['batch', 'info', {src!r}, {str(tmp_path / 'i')!r}, '-q']), "
+            f"main(['batch', 'convert', {src!r}, {str(tmp_path / 'c')!r}, '--to', '.spz', '-q']), "
+            f"main(['batch', 'prune', {src!r}, {str(tmp_path / 'p')!r}, '-q'])]; "
+            f"print(codes, sorted(set({HEAVY_LIBRARIES!r}) & {{m.split('.')[0] for m in sys.modules}}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines()[-1] == "[0, 0, 0] []", out

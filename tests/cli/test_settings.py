@@ -38,7 +38,7 @@ def _command(name: str) -> click.Command:
 
     ctx = click.Context(app)
     cmd = app.get_command(ctx, name.split()[0])
-    return cmd.commands[name.split()[1]] if " " in name else cmd
+    return cmd.get_command(ctx, name.split()[1]) if " " in name else cmd
 
 
 @pytest.mark.parametrize("name", sorted(OWN))
