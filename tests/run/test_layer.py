@@ -62,7 +62,7 @@ def test_the_run_layer_is_where_the_commands_go():
                               ("distill", "roodi_toolkit.run.distill import run_distill"),
                               ("select", "roodi_toolkit.run.select import run_select"),
                               ("extract", "roodi_toolkit.run.extract import extract_objects"),
-                              ("batch", "roodi_toolkit.run.extract import prepare_scene"),
+                              ("batch_extract", "roodi_toolkit.run.extract import prepare_scene"),
                               ("benchmark", "roodi_toolkit.run.benchmark import run_benchmark")):
         assert function in (cli / f"cmd_{command}.py").read_text(), command
 
