@@ -28,12 +28,11 @@ EXAMPLE = """Example:
   roodi-toolkit demo prune-out --prune-only         # the planted-floater pruning demo (seconds)
 """
 
-# parameter -> flag of the options that only the extraction demo takes (None when not given: the library's default)
+# parameter -> flag of the demo's own options that only the extraction demo takes (None when not given: the
+# library's default); the options of DEMO_SETTINGS and DEMO_REFINE_SETTINGS are the extraction demo's too
 EXTRACT_ONLY = {"preset": "--preset", "object_id": "--object", "size_text": "--size", "train_views": "--train-views",
-                "test_views": "--test-views", "iterations": "--iterations", "max_gaussians": "--max-gaussians",
-                "distill_iterations": "--distill-iterations", "finetune_iterations": "--finetune-iterations",
-                "view_size": "--view-size", "inpainter": "--inpainter", "occluded": "--occluded/--no-occluded",
-                "train_seed": "--train-seed"}
+                "test_views": "--test-views", "max_gaussians": "--max-gaussians",
+                "occluded": "--occluded/--no-occluded", "train_seed": "--train-seed"}
 
 
 def _duration(seconds: float) -> str:
@@ -49,6 +48,19 @@ DEMO_SETTINGS = Options("roodi_toolkit.synth.demo:ExtractDemoConfig", within="ex
                         only=("train.iterations", "distill.iterations", "inpainter"))
 """The demo's settings of its ExtractConfig (--iterations, --distill-iterations, --inpainter); unset: the demo's own
 (not given, --prune-only may go with them)."""
+
+DEMO_REFINE_SETTINGS = Options("roodi_toolkit.synth.demo:ExtractDemoConfig", within="extract", unset=True,
+                               only=("finetune.iterations", "occlusion.size"))
+"""The demo's settings of its refinement (--finetune-iterations, --view-size), unset as DEMO_SETTINGS' (a second set
+only to keep them where ``--help`` lists them)."""
+
+
+def _extract_only(params: dict[str, Any]) -> list[str]:
+    """Return the flags given that only the extraction demo takes, in ``--help``'s order."""
+    flags = dict(EXTRACT_ONLY)
+    flags.update((o.param, o.option) for o in DEMO_SETTINGS.offered() + DEMO_REFINE_SETTINGS.offered())
+    order = [p.name for p in click.get_current_context().command.params]
+    return [flags[name] for name in sorted(flags, key=order.index) if params[name] is not None]
 
 
 @click.command(cls=SettingsCommand, epilog=EXAMPLE)
@@ -68,9 +80,7 @@ DEMO_SETTINGS = Options("roodi_toolkit.synth.demo:ExtractDemoConfig", within="ex
                    "how much the figures move from run to run (docs/benchmark.md, \"Run to run\").")
 @click.option("--max-gaussians", type=click.IntRange(2), default=None,
               help="Most Gaussians the scene may grow to; it starts from half as many [30000].")
-@click.option("--finetune-iterations", type=click.IntRange(0), default=None, help="Fine-tuning steps [100].")
-@click.option("--view-size", type=click.IntRange(8, 4096), default=None,
-              help="Side in pixels of the four object-centred views that are inpainted [256].")
+@DEMO_REFINE_SETTINGS
 @click.option("--occluded/--no-occluded", default=None,
               help="The preset's occluded variant (make-scene --occluded): the target stands in a wrap that hides "
                    "part of it from every training view [occluded]; --no-occluded: the plain preset.")
@@ -82,7 +92,7 @@ DEMO_SETTINGS = Options("roodi_toolkit.synth.demo:ExtractDemoConfig", within="ex
 @quiet_option
 def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | None, size_text: str | None,
          train_views: int | None, test_views: int | None, train_seed: int | None, max_gaussians: int | None,
-         finetune_iterations: int | None, view_size: int | None, occluded: bool | None, prune_only: bool,
+         occluded: bool | None, prune_only: bool,
          surface: str | None, overwrite: bool, renderer: Any, quiet: bool, **settings: Any) -> None:
     """Extract one object from a generated scene into OUT_DIR, score it, and say where the PLY and pictures are.
 
@@ -94,7 +104,7 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
     5 minutes on 2 CPU cores.
     """
     params = click.get_current_context().params
-    given = [flag for name, flag in EXTRACT_ONLY.items() if params[name] is not None]
+    given = _extract_only(params)
     progress = progress_factory(quiet)
     if prune_only:
         if given:
@@ -108,13 +118,10 @@ def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | No
     scene = SceneSettings(width=width, height=height, train_views=train_views or base.scene.train_views,
                           test_views=test_views or base.scene.test_views,
                           occluded=base.scene.occluded if occluded is None else occluded)
-    ex = DEMO_SETTINGS.config(params, base=base.extract)
+    ex = DEMO_REFINE_SETTINGS.config(params, base=DEMO_SETTINGS.config(params, base=base.extract))
     train = config_with(ex.train, cap_max=max_gaussians, seed=train_seed,
                         init_num_points=None if max_gaussians is None else max(1, max_gaussians // 2))
-    extract = replace(ex, train=train,
-                      finetune=replace(ex.finetune, iterations=ex.finetune.iterations if finetune_iterations is None
-                                       else finetune_iterations),
-                      occlusion=replace(ex.occlusion, size=view_size or ex.occlusion.size))
+    extract = replace(ex, train=train)
     if extract.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained
         load_plugin("inpainters", extract.inpainter)
     config = replace(base, preset=preset or base.preset, seed=base.seed if seed is None else seed,

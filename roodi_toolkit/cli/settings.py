@@ -192,7 +192,8 @@ def offered_settings(config: Any, only: Sequence[str] | None = None) -> list[Off
     as ``"train.iterations"``), in its order.
 
     Raises:
-        TypeError: a name of ``only`` that is no command-line setting of ``config`` (a mistake in the command).
+        TypeError: a name of ``only`` that is no command-line setting of ``config``, or two settings that would be
+            the same click parameter (mistakes in the command or the declarations).
     """
     found: dict[str, Offered] = {}
 
@@ -206,6 +207,10 @@ def offered_settings(config: Any, only: Sequence[str] | None = None) -> list[Off
                 walk(value, path + (d.name,), inner)
                 continue
             param = "_".join(p for p in (prefix.replace("-", "_"), d.name) if p)
+            twin = next((o for o in found.values() if o.param == param), None)
+            if twin is not None:
+                raise TypeError(f"{type(config).__name__}: {'.'.join(twin.path)} and {'.'.join(path + (d.name,))} "
+                                f"would both be the parameter {param!r} (give a nested config another prefix)")
             found[".".join(path + (d.name,))] = Offered(path + (d.name,), d, param, _prefixed(d.option, prefix),
                                                         value)
 

@@ -24,58 +24,45 @@ from .finetune import FinetuneConfig, PerView, RefineResult, refine_object
 from .occlusion import OcclusionConfig
 from .segment import SegmentPrompt
 from .select import prune_selection, select_object
-from ..settings import check_settings, setting
+from ..settings import check_settings, documented, setting
 from .train import TrainConfig
 
 
+@documented
 @dataclass(frozen=True)
 class ExtractConfig:
-    """Settings of every stage; the defaults are each stage's own (sources in their modules).
+    """Settings of every stage; the defaults are each stage's own (sources in their modules). The ablations: prune
+    ``False`` (``--no-prune``), ``prune_config`` with ``distance="euclidean"`` or ``rule="paper"``, inpaint ``False``
+    (``--no-inpaint``), single_stage ``True`` (w/o two-stage, :mod:`roodi_toolkit.pipeline.joint`; needs the dataset's
+    masks). The segmenter's clicks (``prompt``) are in the original photo's pixels (what an image viewer shows),
+    whatever ``downscale``; a click whose view is ``""`` is in the first training view."""
 
-    Attributes:
-        train: scene training (used only when no trained model is given).
-        downscale: image downscale factor of the dataset (None: the trained model's own, from its ``cfg.json``,
-            else 1).
-        distill: mask distillation.
-        threshold: selection probability (Gaussian Grouping: 0.3).
-        prune: prune the selection (paper: yes; ``--no-prune`` for the ablation).
-        prune_config: pruning settings (``distance="euclidean"`` and ``rule="paper"`` for the ablations).
-        inpaint: occlusion reasoning, inpainting and fine-tuning (``--no-inpaint`` for the ablation).
-        inpainter: the inpainter plugin.
-        occlusion: occlusion-reasoning settings.
-        finetune: fine-tuning settings.
-        single_stage: train the object features together with the scene instead of distilling them into the trained
-            scene (the paper's "w/o two-stage" ablation, :mod:`roodi_toolkit.pipeline.joint`); needs the dataset's masks.
-        segmenter: the segmenter plugin whose masks are distilled (``files``: the dataset's instance masks;
-            ``click``: the clicked object, propagated to every view through the scene's Gaussians; or a plugin).
-        prompt: the segmenter's clicks or mask folder. Clicks are in the original photo's pixels (what an image
-            viewer shows), whatever ``downscale``; a click whose view is ``""`` is in the first training view.
-        segmenter_options: keyword options of the segmenter.
-        inpainter_options: keyword options of the inpainter (``--inpainter-option KEY=VALUE``; text values take the
-            type of the plugin's default).
-    """
-
-    train: TrainConfig = setting(factory=lambda: TrainConfig(init="auto"), help="Scene training.", prefix="")
+    train: TrainConfig = setting(factory=lambda: TrainConfig(init="auto"),
+                                 help="Scene training (only when no trained model is given).", prefix="")
     downscale: Optional[float] = setting(None, "Image downscale [the --model's own, from its cfg.json; else 1].",
                                          low=1)
     distill: DistillConfig = setting(factory=DistillConfig, help="Mask distillation.", prefix="distill")
+    # Gaussian Grouping: 0.3
     threshold: float = setting(0.3, "Selection: keep Gaussians whose probability of the object exceeds this.",
                                low=0, high=1, low_open=True, high_open=True)
+    # paper: yes
     prune: bool = setting(True, "Prune the selection's floaters (ROODI 3.2); --no-prune skips it (ablation).")
     prune_config: PruneConfig = setting(factory=PruneConfig, help="Pruning of the selection.", prefix="")
     inpaint: bool = setting(True, "Occlusion reasoning, inpainting and fine-tuning; --no-inpaint skips them "
                             "(ablation).")
     inpainter: str = setting("opencv", "Inpainter plugin: opencv, exemplar, symmetry (objects with never-seen parts), "
                              "sdxl, ... (see roodi-toolkit plugins).")
-    occlusion: OcclusionConfig = setting(factory=OcclusionConfig, help="Occlusion reasoning.", cli=False)
-    finetune: FinetuneConfig = setting(factory=FinetuneConfig, help="Fine-tuning.", cli=False)
+    # unprefixed: OcclusionConfig.size is --view-size
+    occlusion: OcclusionConfig = setting(factory=OcclusionConfig, help="Occlusion reasoning.", prefix="")
+    finetune: FinetuneConfig = setting(factory=FinetuneConfig, help="Fine-tuning.", prefix="finetune")
     single_stage: bool = setting(False, "Learn the object features together with the scene instead of after it "
                                  "(ablation: w/o two-stage).")
     segmenter: str = setting("files", "Segmenter plugin whose masks are distilled: files (the dataset's instance "
                              "masks), click (the clicked object), sam2, ...")
     prompt: SegmentPrompt = setting(factory=SegmentPrompt, help="The segmenter's clicks or mask folder.", cli=False)
     segmenter_options: dict = setting(factory=dict, help="Keyword options of the segmenter.", cli=False)
-    inpainter_options: dict = setting(factory=dict, help="Keyword options of the inpainter.", cli=False)
+    inpainter_options: dict = setting(factory=dict, help="Keyword options of the inpainter (text values "
+                                     "take the type of the plugin's default).", cli=False)
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -32,6 +32,7 @@ from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer, resolve_renderer
+from ..settings import check_settings, documented, setting
 from .inpaint import FillContext, Inpainter, get_inpainter, inpaint_views
 from .occlusion import (OcclusionConfig, OcclusionResult, object_extent, occlusion_masks, seen_through,
                         up_from_cameras)
@@ -39,67 +40,53 @@ from .perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss  # noqa: F401 
 from .support import other_gaussians, pixel_size, support_height
 
 
-
+@documented
 @dataclass(frozen=True)
 class FinetuneConfig:
-    """Hyperparameters of fine-tuning. Sources: paper (iterations, schedule, no D-SSIM), 3DGS (learning rates), ours.
+    """Hyperparameters of fine-tuning. Sources: paper (iterations, schedule, no D-SSIM), 3DGS (learning rates), ours."""
 
-    Attributes:
-        iterations: optimisation steps (paper: 100).
-        inpaint_every: use an inpainted view every this many steps (paper: every other step, 2).
-        l1_inpaint_weight: lambda of the L1 to inpainted views (not published; 1.0, like the original-view L1).
-        perceptual_weight: lambda of the perceptual loss (not published; 0.2, so that the perceptual term is of the
-            order of the L1 term at the start on our benchmark scenes).
-        perceptual: ``"auto"`` (LPIPS if available locally, else Laplacian), ``"lpips"`` (required) or
-            ``"laplacian"``.
-        lpips_weights: a local LPIPS weights file (default: ``$ROODI_LPIPS_WEIGHTS`` or the upstream local caches).
-        means_lr: position learning rate per unit of object radius (3DGS: 1.6e-4 per unit of scene extent).
-        scales_lr, quats_lr, opacities_lr, sh0_lr, shN_lr: 3DGS learning rates.
-        background: RGB behind the object in renders and targets.
-        seed: order of the views.
-        seed_holes: before fine-tuning, add Gaussians where an inpainted view shows the object but the object model
-            renders (almost) nothing (ours, not in the paper; see :func:`seed_hole_gaussians`). Without it the 100
-            steps can only recolour and nudge existing Gaussians, which leaves holes behind occluders empty.
-        seed_stride: one seeded Gaussian per this many pixels along each axis of a view.
-        seed_opacity: opacity of the seeded Gaussians.
-        seed_min_difference: a pixel counts as filled when the inpainted colour differs from the background by more
-            than this (max over channels).
-        adopt_proposed: add the Gaussians a 3D-aware inpainter proposes (e.g. ``symmetry``'s mirrored copies that
-            land where the object has none; :class:`~roodi_toolkit.pipeline.inpaint.FillContext`) before fine-tuning.
-            2D inpainters propose none, so this changes nothing for them.
-    """
-
-    iterations: int = 100
-    inpaint_every: int = 2
-    l1_inpaint_weight: float = 1.0
-    perceptual_weight: float = 0.2
-    perceptual: str = "auto"
-    lpips_weights: Optional[str] = None
-    means_lr: float = 1.6e-4
-    scales_lr: float = 5e-3
-    quats_lr: float = 1e-3
-    opacities_lr: float = 5e-2
-    sh0_lr: float = 2.5e-3
-    shN_lr: float = 2.5e-3 / 20
-    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    seed: int = 0
-    seed_holes: bool = False
-    seed_stride: int = 2
-    seed_opacity: float = 0.5
-    seed_min_difference: float = 0.1
-    adopt_proposed: bool = True
+    # paper: 100 steps
+    iterations: int = setting(100, "Fine-tuning steps.", low=0)
+    # paper: every other step
+    inpaint_every: int = setting(2, "Use an inpainted view every this many steps.", low=1, cli=False)
+    # not published; 1.0, like the original views' L1
+    l1_inpaint_weight: float = setting(1.0, "Weight of the L1 loss to the inpainted views.", low=0, cli=False)
+    # not published; 0.2 puts the perceptual term at the order of the L1 term at the start on our benchmark scenes
+    perceptual_weight: float = setting(0.2, "Weight of the perceptual loss to the inpainted views.", low=0, cli=False)
+    perceptual: str = setting("auto", "Perceptual loss: lpips (required), laplacian (a Laplacian-pyramid L1), or "
+                              "auto (LPIPS if its weights are here, else laplacian).",
+                              choices=("auto", "lpips", "laplacian"), cli=False)
+    lpips_weights: str | None = setting(None, "A local LPIPS weights file (None: $ROODI_LPIPS_WEIGHTS or the "
+                                        "upstream local caches).", cli=False)
+    # 3DGS: 1.6e-4 per unit of scene extent; here per unit of the object's radius
+    means_lr: float = setting(1.6e-4, "Position learning rate per unit of the object's radius.", low=0, cli=False)
+    # 3DGS's learning rates
+    scales_lr: float = setting(5e-3, "Learning rate of the log scales.", low=0, cli=False)
+    quats_lr: float = setting(1e-3, "Learning rate of the rotations.", low=0, cli=False)
+    opacities_lr: float = setting(5e-2, "Learning rate of the opacity logits.", low=0, cli=False)
+    sh0_lr: float = setting(2.5e-3, "Learning rate of the base colours.", low=0, cli=False)
+    shN_lr: float = setting(2.5e-3 / 20, "Learning rate of the higher SH coefficients.", low=0, cli=False)
+    background: tuple[float, float, float] = setting((1.0, 1.0, 1.0), "RGB behind the object in renders and "
+                                                     "targets.", cli=False)
+    seed: int = setting(0, "Seed of the order of the views.", cli=False)
+    # ours, not in the paper: without seeds the 100 steps can only recolour and nudge existing Gaussians, which leaves
+    # holes behind occluders empty (seed_hole_gaussians)
+    seed_holes: bool = setting(False, "Before fine-tuning, add Gaussians where an inpainted view shows the object but "
+                               "the object model renders (almost) nothing.", cli=False)
+    seed_stride: int = setting(2, "One seeded Gaussian per this many pixels along each axis of a view.", low=1,
+                               cli=False)
+    seed_opacity: float = setting(0.5, "Opacity of the seeded Gaussians.", low=0, high=1, low_open=True,
+                                  high_open=True, cli=False)
+    seed_min_difference: float = setting(0.1, "A pixel counts as filled where its inpainted colour differs from the "
+                                         "background by more than this (largest over the channels).", low=0, high=1,
+                                         high_open=True, cli=False)
+    # 2D inpainters propose none, so this changes nothing for them
+    adopt_proposed: bool = setting(True, "Add the Gaussians a 3D-aware inpainter proposes (symmetry's mirrored "
+                                   "copies that land where the object has none; FillContext) before fine-tuning.",
+                                   cli=False)
 
     def __post_init__(self) -> None:
-        if self.iterations < 0 or self.inpaint_every < 1:
-            raise ConfigError(f"finetune: need iterations >= 0 and inpaint_every >= 1, got {self.iterations}, "
-                              f"{self.inpaint_every}")
-        if self.perceptual not in ("auto", "lpips", "laplacian"):
-            raise ConfigError(f"finetune: perceptual must be auto, lpips or laplacian, got {self.perceptual!r}")
-        if self.l1_inpaint_weight < 0 or self.perceptual_weight < 0:
-            raise ConfigError("finetune: loss weights must be non-negative")
-        if self.seed_stride < 1 or not 0 < self.seed_opacity < 1 or not 0 <= self.seed_min_difference < 1:
-            raise ConfigError(f"finetune: need seed_stride >= 1, 0 < seed_opacity < 1, 0 <= seed_min_difference < 1; "
-                              f"got {self.seed_stride}, {self.seed_opacity}, {self.seed_min_difference}")
+        check_settings(self)
 
 
 # ------------------------------------------------------------------------------------------------------ fine-tuning

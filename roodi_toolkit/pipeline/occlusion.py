@@ -27,51 +27,44 @@ from ..gaussians import GaussianCloud
 from ..params import GaussianParams
 from ..render.pictures import probability_grid
 from ..render.renderer import Renderer, resolve_renderer
+from ..settings import check_settings, documented, setting
 
 
+@documented
 @dataclass(frozen=True)
 class OcclusionConfig:
-    """Settings of occlusion reasoning. Sources: paper (4 views, 17x17 opening, background in the mask), ours (rest).
+    """Settings of occlusion reasoning. Sources: paper (4 views, 17x17 opening, background in the mask), ours (rest)."""
 
-    Attributes:
-        num_views: object-centred views (paper: 4, tiled 2x2 for the inpainter).
-        size: width and height of each view in pixels (512 gives SD-XL's 1024x1024 grid).
-        fov_deg: field of view of the views.
-        margin: camera distance over the distance at which the object's bounding sphere just fills the view.
-        elevation_deg: range of camera elevations above the horizon (upper hemisphere w.r.t. ``up``).
-        depth_tolerance: the scene must be nearer than the object by this fraction of the object's radius to count
-            as occluding (expected depth blends surfaces at edges; the object's own Gaussians are in the scene too).
-        alpha_threshold: object alpha at or above which a pixel shows the object (below: background).
-        opening_size: side of the square structuring element of the opening (paper: 17).
-        opening_reference: view size the opening size refers to; the element is scaled by ``size / reference``
-            so a 17x17 opening at 512 px (a view of the 1024x1024 SD-XL grid) is 3x3 at 96 px. 0: never scale.
-        seed: seeds the camera directions.
-    """
-
-    num_views: int = 4
-    size: int = 256
-    fov_deg: float = 50.0
-    margin: float = 1.05
-    elevation_deg: tuple[float, float] = (10.0, 60.0)
-    depth_tolerance: float = 0.05
-    alpha_threshold: float = 0.5
-    opening_size: int = 17
-    opening_reference: int = 512
-    seed: int = 0
+    # paper: 4, tiled 2x2 for the inpainter
+    num_views: int = setting(4, "Object-centred views.", low=1, cli=False)
+    # 512 gives SD-XL's 1024x1024 grid; a 2x2 grid of 4096 px views (8192 px a side) is more than any inpainter here
+    # takes
+    size: int = setting(256, "Side in pixels of the four object-centred views that are inpainted.", low=8, high=4096,
+                        option="--view-size")
+    fov_deg: float = setting(50.0, "Field of view of the views in degrees.", low=1, high=150, cli=False)
+    margin: float = setting(1.05, "Camera distance over the distance at which the object's bounding sphere just "
+                            "fills the view.", low=0, low_open=True, cli=False)
+    elevation_deg: tuple[float, float] = setting((10.0, 60.0), "Range of the camera elevations above the horizon in "
+                                                 "degrees (the upper hemisphere w.r.t. the scene's up).", cli=False)
+    # expected depth blends surfaces at edges, and the object's own Gaussians are in the scene too
+    depth_tolerance: float = setting(0.05, "The scene must be nearer than the object by this fraction of the "
+                                     "object's radius to count as occluding.", low=0, cli=False)
+    alpha_threshold: float = setting(0.5, "Object alpha at or above which a pixel shows the object (below: "
+                                     "background).", low=0, high=1, low_open=True, high_open=True, cli=False)
+    # paper: 17; must be odd (checked below)
+    opening_size: int = setting(17, "Side of the square structuring element of the opening; odd.", low=1, cli=False)
+    # a 17x17 opening at 512 px (a view of the 1024x1024 SD-XL grid) is 3x3 at 96 px
+    opening_reference: int = setting(512, "View size the opening size refers to: the element is scaled by "
+                                     "size / reference (0: never scaled).", low=0, cli=False)
+    seed: int = setting(0, "Seed of the camera directions.", low=0, cli=False)
 
     def __post_init__(self) -> None:
-        if self.num_views < 1 or self.size < 8:
-            raise ConfigError(f"occlusion: need num_views >= 1 and size >= 8, got {self.num_views}, {self.size}")
-        if not 1.0 <= self.fov_deg <= 150.0 or self.margin <= 0:
-            raise ConfigError(f"occlusion: fov_deg must be in [1, 150] and margin > 0, got {self.fov_deg}, "
-                              f"{self.margin}")
+        check_settings(self)
         lo, hi = self.elevation_deg
         if not -90.0 <= lo <= hi <= 90.0:
-            raise ConfigError(f"occlusion: elevation range must satisfy -90 <= lo <= hi <= 90, got {lo}, {hi}")
-        if self.opening_size < 1 or self.opening_size % 2 == 0:
-            raise ConfigError(f"occlusion: opening_size must be odd and positive, got {self.opening_size}")
-        if self.depth_tolerance < 0 or not 0 < self.alpha_threshold < 1:
-            raise ConfigError("occlusion: need depth_tolerance >= 0 and 0 < alpha_threshold < 1")
+            raise ConfigError(f"elevation_deg must be lo,hi with -90 <= lo <= hi <= 90, got {lo}, {hi}")
+        if self.opening_size % 2 == 0:
+            raise ConfigError(f"opening_size must be odd, got {self.opening_size}")
 
     @property
     def effective_opening(self) -> int:

@@ -13,6 +13,8 @@ from click.testing import CliRunner
 
 from roodi_toolkit.cli.settings import (SettingsCommand, click_type, command_settings, config_from_options,
                                        config_options, option_names)
+from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.pipeline.finetune import FinetuneConfig
 from roodi_toolkit.prune.config import PhotoSettings, PruneConfig
 from roodi_toolkit.render.settings import OrbitSettings
 from roodi_toolkit.settings import declared, setting
@@ -130,6 +132,13 @@ class Extended(PruneConfig):
     """PruneConfig with one more setting, as a contributor would add it."""
 
     knob: float = setting(0.25, "Turn the knob.", low=0, high=1)
+
+
+@dataclass(frozen=True)
+class ExtendedFinetune(FinetuneConfig):
+    """FinetuneConfig with one more command-line setting, as a contributor would add it."""
+
+    passes: int = setting(1, "Extra passes.", low=1)
 
 
 def test_a_new_setting_is_one_field_its_option_follows():
@@ -379,6 +388,94 @@ def test_demo_settings_default_to_the_demos_own_config():
     assert "[default: 2000; x>=1]" in text and "[default: symmetry]" in text
     res = CliRunner().invoke(cmd, ["out", "--prune-only", "--distill-iterations", "3", "--inpainter", "x"])
     assert res.exit_code == 2 and "--distill-iterations, --inpainter: options of the extraction demo" in res.output
+
+
+def test_demo_refinement_options_are_the_finetune_and_occlusion_settings():
+    """--finetune-iterations and --view-size are FinetuneConfig.iterations and OcclusionConfig.size (ranges, help
+    and the demo's defaults from the fields); unset they keep the demo's values, and --prune-only refuses them."""
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_demo import DEMO_REFINE_SETTINGS, DEMO_SETTINGS
+    from roodi_toolkit.pipeline.finetune import FinetuneConfig
+    from roodi_toolkit.pipeline.occlusion import OcclusionConfig
+    from roodi_toolkit.settings import declared
+
+    base = _demo_extract()
+    cmd = _command("demo")
+    offered = {o.param: o for o in DEMO_REFINE_SETTINGS.offered()}
+    assert [o.option for o in offered.values()] == ["--finetune-iterations", "--view-size"]
+    assert offered["finetune_iterations"].setting == declared(FinetuneConfig)[0]
+    assert offered["size"].setting == next(d for d in declared(OcclusionConfig) if d.name == "size")
+    params = {p.name: p for p in cmd.params}
+    assert params["finetune_iterations"].help == "Fine-tuning steps." and params["size"].opts == ["--view-size"]
+    values = cmd.make_context("demo", ["out", "--finetune-iterations", "0", "--view-size", "64", "--iterations",
+                                       "5"]).params
+    config = DEMO_REFINE_SETTINGS.config(values, base=DEMO_SETTINGS.config(values, base=base))
+    assert config == replace(base, train=replace(base.train, iterations=5), finetune=FinetuneConfig(iterations=0),
+                             occlusion=OcclusionConfig(size=64))
+    none = cmd.make_context("demo", ["out"]).params
+    assert DEMO_REFINE_SETTINGS.config(none, base=base) == base and (base.finetune.iterations,
+                                                                     base.occlusion.size) == (100, 256)
+    for bad in (["--view-size", "7"], ["--view-size", "4097"], ["--finetune-iterations", "-1"]):
+        assert CliRunner().invoke(cmd, ["out", *bad]).exit_code == 2, bad
+    text = " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    assert "--finetune-iterations INTEGER RANGE Fine-tuning steps. [default: 100; x>=0]" in text
+    assert "inpainted. [default: 256; 8<=x<=4096]" in text
+    res = CliRunner().invoke(cmd, ["out", "--prune-only", "--view-size", "64", "--max-gaussians", "9"])
+    assert res.exit_code == 2 and "--max-gaussians, --view-size: options of the extraction demo" in res.output
+
+
+def _demo_extract():
+    """The ExtractConfig of the extraction demo (its defaults are the demo's own)."""
+    from roodi_toolkit.synth.demo import ExtractDemoConfig
+
+    return ExtractDemoConfig().extract
+
+
+def _extended_extract():
+    """An ExtractConfig whose fine-tuning has one more setting (the target of an Options named by text)."""
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+
+    return ExtractConfig(finetune=ExtendedFinetune())
+
+
+def test_a_new_finetune_setting_is_one_field_its_options_follow():
+    """A FinetuneConfig with one more field: its option (and range, help) follows, alone and as a setting of
+    ExtractConfig's fine-tuning (``--finetune-`` prefix), with no other edit."""
+    from roodi_toolkit.cli.settings import Options
+
+    @click.command()
+    @config_options(ExtendedFinetune)
+    def alone(**values):
+        click.echo(repr(config_from_options(ExtendedFinetune, values)))
+
+    assert [p.opts for p in alone.params] == [["--iterations"], ["--passes"]]
+    out = CliRunner().invoke(alone, ["--passes", "3", "--iterations", "7"])
+    assert out.exit_code == 0 and out.output.strip() == repr(ExtendedFinetune(passes=3, iterations=7))
+    assert CliRunner().invoke(alone, ["--passes", "0"]).exit_code == 2
+
+    nested = Options("tests.cli.test_settings:_extended_extract", only=("finetune.iterations", "finetune.passes"))
+    cmd = _toy(nested)
+    assert [(p.opts, p.name) for p in cmd.params] == [(["--finetune-iterations"], "finetune_iterations"),
+                                                       (["--finetune-passes"], "finetune_passes")]
+    out = CliRunner().invoke(cmd, ["--finetune-passes", "4"])
+    assert out.exit_code == 0, out.output
+    assert out.output.strip() == repr(_extended_extract().__class__(finetune=ExtendedFinetune(passes=4)))
+    assert "Extra passes. [default: 1; x>=1]" in " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    with pytest.raises(ConfigError, match="passes must be a whole number >= 1"):
+        ExtendedFinetune(passes=0)
+
+
+def test_two_settings_that_would_be_one_parameter_are_refused():
+    from roodi_toolkit.cli.settings import Options
+
+    @dataclass(frozen=True)
+    class Twice:
+        inner: Inner = setting(factory=Inner, help="One stage.", prefix="")
+        again: Inner = setting(factory=Inner, help="Another, also unprefixed.", prefix="")
+
+    with pytest.raises(TypeError, match="inner.steps and again.steps would both be the parameter 'steps'"):
+        Options(Twice, only=("inner.rate",)).offered()
 
 
 def test_unset_flags_show_no_default():

@@ -100,6 +100,42 @@ def test_finetune_fits_targets_follows_the_schedule_and_leaves_the_input_alone()
         FinetuneConfig(perceptual="ssim")
 
 
+@pytest.mark.parametrize("kwargs,message", [
+    ({"iterations": -1}, "iterations must be a whole number >= 0, got -1"),
+    ({"inpaint_every": 0}, "inpaint_every must be a whole number >= 1"),
+    ({"iterations": 2.5}, "iterations must be a whole number"),
+    ({"perceptual_weight": -0.1}, "perceptual_weight must be a finite number >= 0"),
+    ({"means_lr": -1e-4}, "means_lr must be a finite number >= 0"),
+    ({"shN_lr": float("nan")}, "shN_lr must be a finite number >= 0"),
+    ({"perceptual": "ssim"}, "perceptual must be one of auto, lpips, laplacian"),
+    ({"background": (1.0, 1.0)}, "background must be 3 finite numbers"),
+    ({"seed_opacity": 1.0}, "seed_opacity must be a finite number in (0, 1)"),
+    ({"seed_min_difference": 1.0}, "seed_min_difference must be a finite number in [0, 1)"),
+    ({"seed_holes": "yes"}, "seed_holes must be true or false"),
+    ({"lpips_weights": 3}, "lpips_weights must be text or None"),
+])
+def test_finetune_settings_outside_their_declared_range_are_refused_by_name(kwargs, message):
+    with pytest.raises(ConfigError) as err:
+        FinetuneConfig(**kwargs)
+    assert str(err.value).startswith(message), str(err.value)
+
+
+def test_finetune_settings_are_declared_with_their_defaults_and_listed_in_the_docstring():
+    from dataclasses import fields
+
+    from roodi_toolkit.settings import declared
+
+    assert [d.name for d in declared(FinetuneConfig)] == [f.name for f in fields(FinetuneConfig)]
+    config = FinetuneConfig(iterations=0, inpaint_every=1, seed_opacity=0.01, seed_min_difference=0.0,
+                            lpips_weights="w.pth", seed=-3)
+    assert (config.iterations, config.seed) == (0, -3)
+    assert (FinetuneConfig().iterations, FinetuneConfig().shN_lr, FinetuneConfig().background) == \
+        (100, 2.5e-3 / 20, (1.0, 1.0, 1.0))
+    doc = FinetuneConfig.__doc__
+    assert "iterations: Fine-tuning steps. (default 100; a whole number >= 0; --iterations)" in doc
+    assert doc.count("Attributes:") == 1 and "seed_min_difference: A pixel counts as filled" in doc
+
+
 def test_refine_writes_the_debug_images(tmp_path):
     obj, scene, images, cams, masks = tiny_refine_inputs()
     res = refine_object(obj, scene, images, cams, masks, occlusion=OcclusionConfig(size=24),

@@ -106,6 +106,40 @@ def test_opening_scales_with_the_view_size():
     assert OcclusionConfig(size=96, opening_reference=0).effective_opening == 17
 
 
+@pytest.mark.parametrize("kwargs,message", [
+    ({"num_views": 0}, "num_views must be a whole number >= 1, got 0"),
+    ({"size": 7}, "size must be a whole number in [8, 4096], got 7"),
+    ({"size": 4097}, "size must be a whole number in [8, 4096]"),
+    ({"fov_deg": 0.5}, "fov_deg must be a finite number in [1, 150]"),
+    ({"margin": 0.0}, "margin must be a finite number > 0"),
+    ({"elevation_deg": (10.0, float("inf"))}, "elevation_deg must be 2 finite numbers"),
+    ({"elevation_deg": (50.0, 10.0)}, "elevation_deg must be lo,hi with -90 <= lo <= hi <= 90"),
+    ({"depth_tolerance": -0.01}, "depth_tolerance must be a finite number >= 0"),
+    ({"alpha_threshold": 1.0}, "alpha_threshold must be a finite number in (0, 1)"),
+    ({"opening_size": 0}, "opening_size must be a whole number >= 1"),
+    ({"opening_size": 16}, "opening_size must be odd, got 16"),
+    ({"opening_reference": -512}, "opening_reference must be a whole number >= 0"),
+    ({"seed": -1}, "seed must be a whole number >= 0, got -1"),  # numpy's generator takes no negative seed
+])
+def test_occlusion_settings_outside_their_declared_range_are_refused_by_name(kwargs, message):
+    with pytest.raises(ConfigError) as err:
+        OcclusionConfig(**kwargs)
+    assert str(err.value).startswith(message), str(err.value)
+
+
+def test_occlusion_settings_are_declared_and_the_view_size_is_an_option():
+    from dataclasses import fields
+
+    from roodi_toolkit.settings import declared
+
+    settings = {d.name: d for d in declared(OcclusionConfig)}
+    assert list(settings) == [f.name for f in fields(OcclusionConfig)]
+    assert [name for name, d in settings.items() if d.meta.cli] == ["size"]
+    assert settings["size"].option == "--view-size"
+    assert OcclusionConfig(size=8, opening_size=1, opening_reference=0, elevation_deg=(-90, 90)).size == 8
+    assert "size: Side in pixels of the four object-centred views" in OcclusionConfig.__doc__
+
+
 def test_bad_settings_and_empty_object():
     with pytest.raises(ConfigError):
         OcclusionConfig(opening_size=16)
