@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import textwrap
 import typing
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -249,17 +250,33 @@ def check_settings(config: Any) -> None:
 
 def documented(cls: type) -> type:
     """Return the dataclass ``cls`` with its settings listed under ``Attributes:`` in its docstring (name, default,
-    value space, help: from the declarations, so ``help(cls)`` and ``--help`` say the same)."""
+    value space, help: from the declarations, so ``help(cls)`` and ``--help`` say the same), each wrapped at 116
+    characters. A nested config's default is written as its class with the settings that differ from the class's
+    own defaults (``MCMCStrategy(cap_max=60000)``)."""
     lines = []
     for d in declared(cls):
         space = describe_range(d) + (" or None" if d.optional else "")
         option = f"; {d.option}" if d.meta.cli else "; library only"
         if d.nested and d.meta.cli:
             option = f"; its settings' options{f' as --{d.meta.prefix}-NAME' if d.meta.prefix else ''}"
-        lines.append(f"    {d.name}: {d.meta.help} (default {d.default!r}; {space}{option})")
-    cls.__doc__ = (cls.__doc__ or cls.__name__).rstrip() + "\n\n    Attributes:\n" + "\n".join(
-        "    " + line for line in lines) + "\n"
+        lines.append(textwrap.fill(f"{d.name}: {d.meta.help} (default {_short_repr(d.default)}; {space}{option})",
+                                   width=116, initial_indent=" " * 8, subsequent_indent=" " * 12,
+                                   break_long_words=False, break_on_hyphens=False))
+    cls.__doc__ = (cls.__doc__ or cls.__name__).rstrip() + "\n\n    Attributes:\n" + "\n".join(lines) + "\n"
     return cls
+
+
+def _short_repr(value: Any) -> str:
+    """Return ``repr(value)``; for a dataclass instance whose fields all have defaults, its class with only the fields
+    that differ from them (``TrainConfig()``, ``MCMCStrategy(cap_max=60000)``)."""
+    if not dataclasses.is_dataclass(value) or isinstance(value, type):
+        return repr(value)
+    fields = [f for f in dataclasses.fields(value) if f.init]
+    if any(f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING for f in fields):
+        return repr(value)
+    changed = [f"{f.name}={_short_repr(getattr(value, f.name))}" for f in fields
+               if getattr(value, f.name) != default_of(f)]
+    return f"{type(value).__name__}({', '.join(changed)})"
 
 
 def parse_floats(text: str, size: int) -> tuple[float, ...]:

@@ -124,7 +124,20 @@ def test_documented_lists_every_setting_in_the_docstring():
     assert "count: How many. (default 4; a whole number >= 1; --count)" in doc
     assert "cap: An optional cap. (default None; a finite number > 0 or None; --cap)" in doc
     assert "hidden: Library only. (default 3; a whole number; library only)" in doc
-    assert all(f"        {d.name}: {d.meta.help}" in PruneConfig.__doc__ for d in declared(PruneConfig))
+    text = " ".join(PruneConfig.__doc__.split())  # lines are wrapped
+    assert all(f" {d.name}: {d.meta.help} (default {d.default!r};" in text for d in declared(PruneConfig))
+    assert max(len(line) for line in PruneConfig.__doc__.splitlines()) <= 116
+
+
+def test_documented_writes_a_nested_configs_default_by_what_differs():
+    from roodi_toolkit.pipeline.extract import ExtractConfig
+    from roodi_toolkit.pipeline.train import TrainConfig
+
+    doc = " ".join(TrainConfig.__doc__.split())
+    assert "strategy: The MCMC densification's settings. (default MCMCStrategy(cap_max=60000); a MCMCStrategy" in doc
+    doc = " ".join(ExtractConfig.__doc__.split())
+    assert "(default FinetuneConfig(); a FinetuneConfig; its settings' options as --finetune-NAME)" in doc
+    assert "(default TrainConfig(); a TrainConfig; its settings' options)" in doc
 
 
 def test_nested_configs_and_library_values_are_checked_by_their_type():

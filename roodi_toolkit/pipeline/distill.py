@@ -30,7 +30,7 @@ from ..cameras import Camera
 from ..errors import CloudError, ConfigError, InputError
 from ..io.dataset import Dataset, split_views
 from ..gaussians import GaussianCloud
-from ..settings import check_settings, setting
+from ..settings import check_settings, documented, setting
 from ..params import GaussianParams
 from ..render.renderer import Renderer, has_compositing_weights, resolve_renderer
 from ..render.renderer import render_features as composite_features
@@ -46,44 +46,38 @@ FEATURE_PREFIX = "object_feature_"
 CLASSIFIER_FORMAT = "roodi-object-classifier"
 
 
+@documented
 @dataclass(frozen=True)
 class DistillConfig:
-    """Hyperparameters of the distillation, with their sources.
+    """Hyperparameters of the distillation, with their sources."""
 
-    Attributes:
-        iterations: optimisation steps, one training view each (paper: 500).
-        feature_dim: object feature size (Gaussian Grouping: 16).
-        feature_lr: Adam learning rate of the per-Gaussian features. Gaussian Grouping trains ``_objects_dc`` at its
-            ``feature_lr`` 2.5e-3 and the classifier at 5e-4, but jointly with the scene for 30,000 steps; in the
-            paper's 500 steps those rates leave the loss at 0.42 at step 410 where 10x both are at 0.08 (measured on
-            a generated scene, benchmarks/RESULTS.md), so the defaults are 10x Gaussian Grouping's. Pass 2.5e-3 / 5e-4 for its
-            exact rates.
-        classifier_lr: Adam learning rate of the 1x1 classifier (10x Gaussian Grouping's 5e-4, see above).
-        feature_init_std: features start as N(0, std^2): small, so Gaussians that no view sees keep a near-zero
-            feature and fall to the classifier's bias (the most frequent class, the background) instead of a random
-            class (Gaussian Grouping starts from uniform noise because it trains for 30,000 steps).
-        seed: seeds the initial features, the classifier and the view order.
-        cache_weights: the geometry is frozen, so rendering features is a fixed sparse linear map per view (the
-            compositing weights): compute each view's map once (:class:`~roodi_toolkit.pipeline.weight_cache.WeightCache`) and render with a
-            sparse product, for as many views as fit in ``cache_mb``; the other views (all of them with False)
-            render every step (the same result to float rounding).
-        cache_mb: memory bound of the cached maps, counted in bytes held: a map and its transpose in CSR with
-            32-bit indices, 16 bytes a (pixel, Gaussian) pair (a real scene's 400 px working view holds about
-            5-20M pairs, 80-320 MB), and never more than half of what the machine has available beyond the rest of
-            the stage (:func:`roodi_toolkit.pipeline.budget.cache_bytes`).
-        max_pixels: segmentation and distillation work on the views scaled down by the smallest integer factor that
-            brings them to this many pixels (:mod:`roodi_toolkit.pipeline.resolution`); a selection needs masks of
-            the object, not sharp ones (measured: ``benchmarks/RESULTS.md``, "Working resolution").
-    """
-
+    # paper: 500
     iterations: int = setting(500, "Distillation steps, one training view each.", low=1)
+    # Gaussian Grouping: 16
     feature_dim: int = setting(16, "Object feature size.", low=1, cli=False)
+    # Gaussian Grouping trains _objects_dc at its feature_lr 2.5e-3 and the classifier at 5e-4, but jointly with the
+    # scene for 30,000 steps; in the paper's 500 steps those rates leave the loss at 0.42 at step 410 where 10x both
+    # are at 0.08 (measured on a generated scene, benchmarks/RESULTS.md), so the defaults are 10x Gaussian Grouping's
+    # (pass 2.5e-3 / 5e-4 for its exact rates)
     feature_lr: float = setting(2.5e-2, "Adam rate of the object features.", low=0, low_open=True)
     classifier_lr: float = setting(5e-3, "Adam rate of the classifier.", low=0, low_open=True)
+    # small, so Gaussians that no view sees keep a near-zero feature and fall to the classifier's bias (the most
+    # frequent class, the background) instead of a random class (Gaussian Grouping starts from uniform noise because
+    # it trains for 30,000 steps)
     feature_init_std: float = setting(1e-2, "Standard deviation of the initial features.", low=0, cli=False)
     seed: int = setting(0, "Seed of the initial features, the classifier and the view order.")
+    # the geometry is frozen, so rendering features is a fixed sparse linear map per view (the compositing weights):
+    # each view's map is computed once (WeightCache) and features rendered with a sparse product, for as many views
+    # as fit in cache_mb; the other views (all of them with False) render every step (the same result to float
+    # rounding)
     cache_weights: bool = setting(True, "Render features from cached compositing weights.", cli=False)
+    # counted in bytes held: a map and its transpose in CSR with 32-bit indices, 16 bytes a (pixel, Gaussian) pair (a
+    # real scene's 400 px working view holds about 5-20M pairs, 80-320 MB), and never more than half of what the
+    # machine has available beyond the rest of the stage (budget.cache_bytes)
     cache_mb: float = setting(2048, "Memory bound of the cached weights in MB.", low=0, cli=False)
+    # segmentation and distillation work on the views scaled down by the smallest integer factor that brings them to
+    # this many pixels (pipeline/resolution.py); a selection needs masks of the object, not sharp ones (measured:
+    # benchmarks/RESULTS.md, "Working resolution")
     max_pixels: int = setting(512 * 512, "Pixels of the working views.", low=1, cli=False)
 
     def __post_init__(self) -> None:

@@ -21,7 +21,7 @@ from kornia.geometry.conversions import quaternion_to_rotation_matrix
 from torch import Tensor
 
 from .train_kernels import covariance_noise
-from ..settings import check_settings, setting
+from ..settings import check_settings, documented, setting
 
 Params = MutableMapping[str, Tensor]
 """A :class:`~roodi_toolkit.params.GaussianParams` or a name -> Parameter mapping with its names."""
@@ -30,21 +30,12 @@ N_MAX = 51
 """Largest number of copies a Gaussian is split into in one relocation (as gsplat)."""
 
 
+@documented
 @dataclass(frozen=True)
 class MCMCStrategy:
-    """Hyperparameters of MCMC densification. Defaults are those of 3DGS-MCMC / gsplat's ``MCMCStrategy``.
-
-    Attributes:
-        cap_max: the most Gaussians the model may grow to.
-        noise_lr: scale of the position noise, times the current position learning rate (3DGS-MCMC: 5e5).
-        refine_start_iter: first iteration of relocation and growth (500).
-        refine_stop_iter: iteration after which relocation and growth stop (25,000).
-        refine_every: relocate and grow every this many iterations (100).
-        min_opacity: Gaussians below this opacity are dead and relocated (0.005).
-        grow_rate: growth per refinement step as a fraction of the current count (5%).
-        opacity_reg: weight of the mean-opacity regulariser (0.01).
-        scale_reg: weight of the mean-scale regulariser (0.01).
-    """
+    """Hyperparameters of MCMC densification. Defaults are those of 3DGS-MCMC / gsplat's ``MCMCStrategy`` (the
+    position noise's scale 5e5, relocation and growth from iteration 500 to 25,000 every 100, dead below opacity
+    0.005, 5% growth, both regulariser weights 0.01)."""
 
     cap_max: int = setting(1_000_000, "Most Gaussians MCMC may grow to.", low=1)
     noise_lr: float = setting(5e5, "Scale of the position noise, times the position learning rate.", low=0,

@@ -27,7 +27,7 @@ from ..io.dataset import Dataset, split_views  # split_views: importable from he
 from .budget import check_train
 from .init_points import depth_points, projected_colors, rgb_to_sh0, sfm_initial_points
 from ..errors import DatasetError, InputError
-from ..settings import check_settings, setting
+from ..settings import check_settings, documented, setting
 from ..gaussians import GaussianCloud
 from ..imaging import psnr, ssim as ssim_value
 from ..progress import ProgressFactory, null_progress
@@ -40,41 +40,19 @@ CHECKPOINT_VERSION = 2
 """Version 2: parameters under GaussianParams' names (``log_scales``, ``opacity_logits``, ``sh_dc [N, 3]``)."""
 
 
+@documented
 @dataclass(frozen=True)
 class TrainConfig:
-    """Hyperparameters of scene training. Sources: 3DGS (learning rates, loss), gsplat/3DGS-MCMC (init, MCMC).
-
-    Attributes:
-        iterations: optimisation steps (one view each).
-        sh_degree: largest SH degree (3DGS: 3), reached by raising it every ``sh_degree_interval`` steps.
-        ssim_lambda: weight of D-SSIM in the loss (3DGS: 0.2).
-        ssim_window: SSIM window (3DGS: 11).
-        means_lr: position learning rate per unit of scene scale (3DGS: 1.6e-4), decayed to
-            ``means_lr * means_lr_final`` at the last step.
-        init: ``"auto"`` (the dataset's sparse points if any, else random), ``"points"``, ``"random"`` (uniform in
-            the scene box, coloured by projection into the views), or ``"depth"`` (pixels of the training views' depth
-            maps lifted to 3D, as from an RGB-D capture; needs a dataset with depth).
-        init_num_points: random initialisation size (ours: sized for the CPU; gsplat uses 100,000); sparse SfM
-            points fewer than this are topped up to it (:func:`~roodi_toolkit.pipeline.init_points.sfm_initial_points`).
-        init_opacity: initial opacity (3DGS-MCMC: 0.5).
-        init_scale: initial scale as a fraction of the mean distance to the 3 nearest points (3DGS-MCMC: 0.1).
-        random_background: render on a random colour each step and composite images with alpha on it, so that
-            transparent pixels teach transparency rather than one colour (a fixed colour grows floaters of that
-            colour, visible on any other background); on opaque photos it teaches every pixel to be covered (no
-            see-through to the background); None (the default): on exactly when the dataset's images have alpha. The
-            :class:`Trainer` resolves None to the value used, which ``cfg.json`` and checkpoints record.
-        holdout_every: when the dataset has no test split, hold out every n-th training view for evaluation.
-        seed: seeds every random choice.
-        eval_every: evaluate on the held-out views this often (0: only at the end).
-        checkpoint_every: write a resumable checkpoint this often.
-        strategy: the MCMC hyperparameters; ``cap_max`` sized for the CPU (3DGS-MCMC uses 1-3 million).
-    """
+    """Hyperparameters of scene training. Sources: 3DGS (learning rates, loss), gsplat/3DGS-MCMC (init, MCMC)."""
 
     iterations: int = setting(3000, "Optimisation steps, one view each.", low=1)
+    # 3DGS: 3, reached by raising it every sh_degree_interval steps
     sh_degree: int = setting(3, "Largest SH degree.", low=0, high=3)
     sh_degree_interval: int = setting(1000, "Raise the SH degree every this many steps.", low=1, cli=False)
+    # 3DGS: 0.2 and an 11 px window
     ssim_lambda: float = setting(0.2, "Weight of D-SSIM in the loss.", low=0, high=1, cli=False)
     ssim_window: int = setting(11, "SSIM window in pixels.", low=1, cli=False)
+    # 3DGS: 1.6e-4, decayed to means_lr * means_lr_final at the last step; the other rates are 3DGS's too
     means_lr: float = setting(1.6e-4, "Position learning rate per unit of scene scale.", low=0, cli=False)
     means_lr_final: float = setting(0.01, "Final position learning rate, a fraction of means_lr.", low=0, cli=False)
     scales_lr: float = setting(5e-3, "Learning rate of the log scales.", low=0, cli=False)
@@ -85,11 +63,15 @@ class TrainConfig:
     init: str = setting("auto", "Initial Gaussians: sparse points (COLMAP), random in the scene box, or lifted from "
                         "the views' depth maps (datasets with depth, e.g. make-scene); auto: the points if any, else "
                         "random.", choices=("auto", "points", "random", "depth"))
+    # ours: sized for the CPU (gsplat uses 100,000); sfm_initial_points tops sparse points up
     init_num_points: int = setting(20_000, "Random initialisation size; sparse SfM points fewer than this are topped "
                                    "up to it.", low=4, option="--init-points")
+    # 3DGS-MCMC: 0.5 and 0.1
     init_opacity: float = setting(0.5, "Initial opacity.", low=0, high=1, low_open=True, high_open=True, cli=False)
     init_scale: float = setting(0.1, "Initial scale, a fraction of the mean distance to the 3 nearest points.",
                                 low=0, low_open=True, cli=False)
+    # a fixed colour grows floaters of that colour, visible on any other background; the Trainer resolves None to the
+    # value used, which cfg.json and checkpoints record
     random_background: bool | None = setting(
         None, "Render on a random colour each step (images with alpha are composited on it; opaque photos then teach "
         "every pixel to be covered), or on the dataset's background [default: random when the images have alpha, as "
@@ -99,6 +81,7 @@ class TrainConfig:
     seed: int = setting(0, "Random seed of every random choice.")
     eval_every: int = setting(500, "Evaluate on the held-out views this often (0: only at the end).", low=0)
     checkpoint_every: int = setting(250, "Write a resumable checkpoint this often.", low=1)
+    # cap_max sized for the CPU (3DGS-MCMC uses 1-3 million)
     strategy: MCMCStrategy = setting(factory=lambda: MCMCStrategy(cap_max=60_000),
                                      help="The MCMC densification's settings.", prefix="")
 
