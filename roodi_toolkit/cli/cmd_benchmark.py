@@ -26,6 +26,10 @@ EXAMPLE = """Example:
 """
 
 
+SIZE_SETTINGS = Options("roodi_toolkit.evaluate.benchmark:BenchmarkSize", only=("size", "iterations"), unset=True)
+"""--size and --iterations: BenchmarkSize's settings; unset, the --scale's."""
+
+
 @click.command(cls=SettingsCommand, epilog=EXAMPLE)
 @click.argument("root", type=click.Path(path_type=str))
 @click.argument("out_dir", type=click.Path(path_type=str))
@@ -38,8 +42,7 @@ EXAMPLE = """Example:
 @click.option("--scale", type=click.Choice(["cpu", "cpu-large", "paper"]), default="cpu", show_default=True,
               help="cpu: 64x64, 32+8 views, 1,500 steps; cpu-large: 96x96, 40+12 views, 3,000 steps; paper: 200x200, "
                    "50+50 views, 30,000 steps.")
-@click.option("--size", type=click.IntRange(16, 2048), default=None, help="Image size of the generated scenes.")
-@click.option("--iterations", type=click.IntRange(1), default=None, help="Scene training iterations.")
+@SIZE_SETTINGS
 @click.option("--occluded", is_flag=True,
               help="Run on the presets' occluded variants (ROOT/<preset>_occluded, make-scene --occluded) and also "
                    "score every method inside each test view's never-seen region.")
@@ -48,19 +51,15 @@ EXAMPLE = """Example:
 @renderer_option
 @quiet_option
 def benchmark(root: str, out_dir: str, presets: tuple[str, ...], methods: tuple[str, ...], seed: int,
-              scale: str, size: int | None, iterations: int | None, occluded: bool, inpainter: str, overwrite: bool,
-              renderer: Any, quiet: bool) -> None:
+              scale: str, occluded: bool, inpainter: str, overwrite: bool, renderer: Any, quiet: bool,
+              **sizes: Any) -> None:
     """Generate (or reuse) the preset scenes in ROOT, run ROODI, its baselines and ablations, and write
     OUT_DIR/results.md and results.json (the paper's Tables 1 and 2) and a picture grid per scene.
 
     Every stage is kept in OUT_DIR and reused on a re-run; --overwrite starts afresh (ROOT's scenes are always reused;
     remove a scene folder to regenerate it).
     """
-    chosen = SIZES[scale]
-    if size is not None:
-        chosen = replace(chosen, size=size)
-    if iterations is not None:
-        chosen = replace(chosen, iterations=iterations)
+    chosen = SIZE_SETTINGS.config(sizes, base=SIZES[scale])
     load_plugin("inpainters", inpainter)  # an unknown or broken --inpainter fails now, not after training
     config = replace(extract_config(chosen, seed), inpainter=inpainter)
     results = run_benchmark(root, out_dir, presets=presets or PRESETS, seed=seed, size=chosen,

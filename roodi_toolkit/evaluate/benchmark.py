@@ -56,6 +56,7 @@ from ..pipeline.strategy import MCMCStrategy
 from ..pipeline.train import TrainConfig
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer
+from ..settings import check_settings, documented, setting
 from .metrics import Evaluation, render_object_views, score_views
 
 PRESETS = ("bedroom", "kitchen", "livingroom", "picnic")
@@ -110,27 +111,28 @@ PAPER_TABLE2 = {
 }
 
 
+@documented
 @dataclass(frozen=True)
 class BenchmarkSize:
-    """How large the scenes and runs are.
+    """How large the scenes and runs are; the defaults are :data:`MACHINE_SIZE`'s (``--scale cpu``). ``roodi-toolkit
+    benchmark``'s ``--size`` and ``--iterations`` are made from these fields (unset: the ``--scale``'s)."""
 
-    Attributes:
-        size: image width and height of the generated scenes.
-        train_views: full-scene training views (paper: 50).
-        test_views: object-alone test views per target (paper: 50).
-        iterations: scene training steps (3DGS: 30,000).
-        init_points: Gaussians lifted from the training views' depth at the start.
-        cap_max: the MCMC strategy's Gaussian budget.
-        supersample: anti-aliasing of the generated images.
-    """
+    # the bounds benchmark's --size had before it was made from this field
+    size: int = setting(64, "Image size of the generated scenes.", low=16, high=2048, show_default=False)
+    # paper: 50 and 50
+    train_views: int = setting(32, "Full-scene training views.", low=1, cli=False)
+    test_views: int = setting(8, "Object-alone test views per target.", low=1, cli=False)
+    # 3DGS: 30,000
+    iterations: int = setting(1500, "Scene training iterations.", low=1, show_default=False)
+    init_points: int = setting(6_000, "Gaussians lifted from the training views' depth at the start.", low=1,
+                               cli=False)
+    cap_max: int = setting(12_000, "The MCMC strategy's Gaussian budget.", low=1, cli=False)
+    # SceneSettings takes 1 to 4
+    supersample: int = setting(2, "Anti-aliasing of the generated images (rays per pixel along each axis).", low=1,
+                               high=4, cli=False)
 
-    size: int
-    train_views: int
-    test_views: int
-    iterations: int
-    init_points: int
-    cap_max: int
-    supersample: int = 2
+    def __post_init__(self) -> None:
+        check_settings(self)
 
 
 # Sized so the whole benchmark (4 scenes, 8 methods, two scene trainings per scene) runs in well under an hour on 2

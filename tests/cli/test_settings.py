@@ -478,6 +478,31 @@ def test_two_settings_that_would_be_one_parameter_are_refused():
         Options(Twice, only=("inner.rate",)).offered()
 
 
+def test_benchmark_size_options_are_the_benchmark_sizes_settings():
+    """--size and --iterations are BenchmarkSize's fields (help and range from them); unset they keep the --scale's
+    size, given they change it, and --help shows no default (it is the --scale's)."""
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_benchmark import SIZE_SETTINGS
+    from roodi_toolkit.evaluate.benchmark import MACHINE_SIZE, PAPER_SIZE, SIZES, BenchmarkSize
+
+    cmd = _command("benchmark")
+    assert [o.option for o in SIZE_SETTINGS.offered()] == ["--size", "--iterations"]
+    params = {p.name: p for p in cmd.params}
+    assert params["size"].help == "Image size of the generated scenes." and params["size"].default is None
+    assert (params["size"].type.min, params["size"].type.max, params["iterations"].type.min) == (16, 2048, 1)
+    assert BenchmarkSize() == MACHINE_SIZE
+    values = cmd.make_context("benchmark", ["r", "o", "--scale", "paper", "--size", "32"]).params
+    assert SIZE_SETTINGS.config(values, base=SIZES[values["scale"]]) == replace(PAPER_SIZE, size=32)
+    values = cmd.make_context("benchmark", ["r", "o", "--iterations", "7"]).params
+    assert SIZE_SETTINGS.config(values, base=SIZES[values["scale"]]) == replace(MACHINE_SIZE, iterations=7)
+    for bad in (["--size", "15"], ["--size", "2049"], ["--iterations", "0"]):
+        assert CliRunner().invoke(cmd, ["r", "o", *bad]).exit_code == 2, bad
+    text = " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    assert "--size INTEGER RANGE Image size of the generated scenes. [16<=x<=2048]" in text
+    assert "--iterations INTEGER RANGE Scene training iterations. [x>=1]" in text
+
+
 def test_unset_flags_show_no_default():
     from roodi_toolkit.cli.settings import Options
 

@@ -135,6 +135,22 @@ def test_benchmark_command_errors(tmp_path, run_cli):
     assert res.exit_code == 1 and "unknown method" in res.stderr
 
 
+@pytest.mark.parametrize("kwargs,message", [
+    ({"size": 8}, "size must be a whole number in [16, 2048], got 8"),
+    ({"iterations": 0}, "iterations must be a whole number >= 1"),
+    ({"train_views": 0}, "train_views must be a whole number >= 1"),
+    ({"supersample": 5}, "supersample must be a whole number in [1, 4]"),
+    ({"cap_max": 1.5}, "cap_max must be a whole number >= 1"),
+])
+def test_benchmark_sizes_outside_their_declared_range_are_refused_by_name(kwargs, message):
+    from roodi_toolkit.evaluate.benchmark import BenchmarkSize, SIZES
+
+    with pytest.raises(ConfigError) as err:
+        BenchmarkSize(**kwargs)
+    assert str(err.value).startswith(message), str(err.value)
+    assert all(isinstance(size, BenchmarkSize) for size in SIZES.values())  # the presets are inside
+
+
 def test_benchmark_never_writes_over_a_foreign_folder(tmp_path, run_cli):
     (tmp_path / "r" / "picnic").mkdir(parents=True)
     (tmp_path / "r" / "picnic" / "notes.txt").write_text("mine")
