@@ -92,8 +92,8 @@ def _extract_only(params: dict[str, Any]) -> list[str]:
 @quiet_option
 def demo(out_dir: str, preset: str | None, seed: int | None, object_id: int | None, size_text: str | None,
          train_views: int | None, test_views: int | None, train_seed: int | None, max_gaussians: int | None,
-         occluded: bool | None, prune_only: bool,
-         surface: str | None, overwrite: bool, renderer: Any, quiet: bool, **settings: Any) -> None:
+         occluded: bool | None, prune_only: bool, surface: str | None, overwrite: bool, renderer: Any, quiet: bool,
+         **settings: Any) -> None:
     """Extract one object from a generated scene into OUT_DIR, score it, and say where the PLY and pictures are.
 
     Generates a cluttered scene (make-scene), trains it, distils its instance masks, then selects, prunes, completes
