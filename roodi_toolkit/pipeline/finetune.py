@@ -222,7 +222,8 @@ def _l1(render: Tensor, target: Tensor, weight: Optional[Tensor] = None) -> Tens
 
 def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: ViewTargets,
                     config: FinetuneConfig = FinetuneConfig(), *,
-                    progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> FinetuneResult:
+                    progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
+                    lpips: torch.nn.Module | None = None) -> FinetuneResult:
     """Return the object model fine-tuned to the original views and the inpainted views (no densification).
 
     Args:
@@ -232,11 +233,13 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
         config: hyperparameters.
         progress: progress factory.
         renderer: draws every view (default: the built-in CPU renderer).
+        lpips: the LPIPS network of the perceptual loss (``config.perceptual`` ``"auto"`` or ``"lpips"``; read by
+            :func:`roodi_toolkit.io.lpips_weights.lpips_for_loss`); None: the Laplacian loss, unless ``"lpips"``.
     """
     if len(originals.cameras) == 0:
         raise DatasetError("fine-tuning needs at least one original view of the object")
     t0 = time.perf_counter()
-    perceptual = perceptual_loss(config.perceptual, config.lpips_weights)
+    perceptual = perceptual_loss(config.perceptual, lpips)
     renderer = resolve_renderer(renderer)
     params = GaussianParams.from_cloud(cloud, requires_grad=True)  # copies: the caller's cloud is left as it was
     _, radius = object_extent(cloud)
@@ -458,7 +461,8 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                   object_masks: Tensor, *, inpainter: Any = "opencv", inpainter_options: Optional[dict] = None,
                   occlusion: OcclusionConfig = OcclusionConfig(), finetune: FinetuneConfig = FinetuneConfig(),
                   up: Optional[Sequence[float]] = None, prompt: Optional[str] = None,
-                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> RefineResult:
+                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
+                  lpips: torch.nn.Module | None = None) -> RefineResult:
     """Return the object model after occlusion reasoning, inpainting (one 2x2 grid) and fine-tuning.
 
     Args:
@@ -476,6 +480,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         prompt: inpainting prompt (the paper uses none).
         progress: progress factory.
         renderer: draws every view of occlusion reasoning and fine-tuning (default: the built-in CPU renderer).
+        lpips: the LPIPS network of fine-tuning's perceptual loss (:func:`finetune_object`).
     """
     inpainter = _resolve_inpainter(inpainter, inpainter_options, occlusion)
     cameras = list(cameras)
@@ -508,7 +513,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                                     radius=occ.radius, background=bg)
     inpainted_targets = ViewTargets(occ.cameras, inpainted, torch.ones(inpainted.shape[:3]))
     result = finetune_object(grown, originals, inpainted_targets, finetune, progress=progress,
-                             renderer=renderer)
+                             renderer=renderer, lpips=lpips)
     after_params = GaussianParams.from_cloud(result.cloud)
     with torch.no_grad():
         after = torch.stack([renderer.render(after_params, c, background=bg).rgb.clamp(0, 1) for c in occ.cameras])

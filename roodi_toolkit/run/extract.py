@@ -37,6 +37,7 @@ from ..errors import ConfigError
 from ..gaussians import GaussianCloud
 from ..io import files
 from ..io.dataset import load_dataset
+from ..io.lpips_weights import lpips_for_loss
 from ..io.model import DISTILL_RECORD, checkpoint_file, find_model, open_model
 from ..io.ply import read_ply, write_ply
 from ..pipeline.distill import distill_scene, without_features
@@ -328,8 +329,9 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
     final = selected
     t = time.perf_counter()
     if config.inpaint:
+        lpips = lpips_for_loss(config.finetune.perceptual, config.finetune.lpips_weights)
         res = refine_stage(selected, prepared.scene, prepared.dataset, prepared.masks, object_id, config,
-                           renderer=prepared.renderer, progress=progress)
+                           renderer=prepared.renderer, progress=progress, lpips=lpips)
         write_refine_debug(res, odir / "debug", prepared.renderer)
         final = res.cloud
         files.write_image(fill_picture(res.occlusion.object_rgb, res.after_views, res.filled, res.occlusion.occluded),
