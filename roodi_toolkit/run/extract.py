@@ -42,14 +42,13 @@ from ..io.model import DISTILL_RECORD, checkpoint_file, find_model, open_model
 from ..io.ply import read_ply, write_ply
 from ..pipeline.distill import distill_scene, without_features
 from ..pipeline.extract import ExtractConfig, object_ids, refine_stage, select_stage
-from ..pipeline.model_frame import settle_model_frame
 from ..pipeline.occlusion import fill_picture
 from ..pipeline.segment import FilesSegmenter, SegmentPrompt, resolve_prompt
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import render_cloud, resolve_renderer
 from ..render.upright import cameras_up
 from ..render.views import framing_orbit
-from .distill import load_distillation, save_distilled
+from .distill import check_model_frame, load_distillation, save_distilled
 from .refine import write_refine_debug
 from .records import Stages, changed_error, read_record, scene_labels, settings, train_record
 from .train import train_joint, train_scene
@@ -257,7 +256,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     report["downscale"] = downscale
     dataset = load_dataset(data_dir, downscale, progress=progress)  # decoded once; every stage reads it from memory
     if model is not None:
-        report.update(settle_model_frame(model, dataset, renderer))  # another tool's scene: does it fit the photos?
+        report.update(check_model_frame(model, dataset, renderer))  # another tool's scene: does it fit the photos?
     given, prompt = resolve_prompt(config.prompt, dataset)  # checked now, before any training
     distill_out = out / "distill"
     distill_wanted = {"config": settings(config.distill), "segmenter": config.segmenter,
