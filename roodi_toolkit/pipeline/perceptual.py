@@ -1,10 +1,11 @@
 """The perceptual loss of fine-tuning against the inpainted views (paper, Sec. 3.3).
 
 LPIPS (Zhang et al. 2018), as in the paper, when the caller hands in the network (the run layer reads its weights
-with :func:`roodi_toolkit.io.lpips_weights.lpips_for_loss`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream
-files in the local caches; nothing is downloaded). Otherwise a Laplacian-pyramid L1 ("Lap1", Bojanowski et al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass
-levels of the two images, each level weighted equally, so that edges and texture at every scale count as much as
-flat colour. It needs no weights and is not D-SSIM.
+with :func:`roodi_toolkit.io.lpips_weights.lpips_for_loss`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the
+upstream files in the local caches; nothing is downloaded). Otherwise a Laplacian-pyramid L1 ("Lap1", Bojanowski et
+al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass levels of the two images, each level
+weighted equally, so that edges and texture at every scale count as much as flat colour. It needs no weights and is
+not D-SSIM.
 """
 
 from __future__ import annotations

@@ -16,8 +16,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
 from ..io import files
-from ..io.dataset import load_dataset
-from ..io.dataset import Dataset
+from ..io.dataset import Dataset, load_dataset
 from ..io.model import (DISTILL_RECORD, Distillation, ModelFolder, open_model, read_distillation, read_scene,
                         write_distillation)
 from ..pipeline.distill import (DistillConfig, DistilledScene, ObjectClassifier, cloud_features, distill_scene,
@@ -26,6 +25,7 @@ from ..pipeline.model_frame import settle_model_frame
 from ..pipeline.segment import SegmentPrompt, resolve_prompt
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer
+from .masks import options_with_masks
 from .records import scene_labels
 
 
@@ -96,8 +96,9 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
     # clicks come in the photos' own pixels, whatever the downscale (as extract takes them)
     _, prompt = resolve_prompt(SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)), dataset)
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=inputs)
+    options = options_with_masks(segmenter, segmenter_options, prompt, dataset, progress=progress)
     distilled = distill_scene(model.read_cloud(), dataset, segmenter=segmenter, prompt=prompt,
-                              segmenter_options=segmenter_options, config=config,
+                              segmenter_options=options, config=config,
                               holdout_every=int(model.config.get("holdout_every", 8)), labels=scene_labels(data_dir),
                               progress=progress, renderer=renderer)
     save_distilled(out, distilled, model.ply_path, {"data_dir": str(Path(data_dir).resolve()), "downscale": ds_scale,
