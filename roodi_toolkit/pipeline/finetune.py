@@ -10,8 +10,9 @@ returning what the debug images are made of (renders, masks, grids before and af
 and after; :func:`roodi_toolkit.run.refine.write_refine_debug` writes them and ``refine.json``). Nothing here opens a
 file.
 
-The perceptual loss is :mod:`roodi_toolkit.pipeline.perceptual`'s (LPIPS with local weights, else a Laplacian-pyramid
-L1; its classes are re-exported here); :attr:`FinetuneResult.perceptual` says which one ran.
+The perceptual loss is :mod:`roodi_toolkit.pipeline.perceptual`'s (LPIPS with the network the caller hands in as
+``lpips``, else a Laplacian-pyramid L1; its classes are re-exported here); :attr:`FinetuneResult.perceptual` says which
+one ran.
 """
 
 from __future__ import annotations

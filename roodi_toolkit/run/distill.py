@@ -96,7 +96,8 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
     # clicks come in the photos' own pixels, whatever the downscale (as extract takes them)
     _, prompt = resolve_prompt(SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)), dataset)
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=inputs)
-    options = options_with_masks(segmenter, segmenter_options, prompt, dataset, progress=progress)
+    options = options_with_masks(segmenter, segmenter_options, prompt, dataset, max_pixels=config.max_pixels,
+                                 progress=progress)
     distilled = distill_scene(model.read_cloud(), dataset, segmenter=segmenter, prompt=prompt,
                               segmenter_options=options, config=config,
                               holdout_every=int(model.config.get("holdout_every", 8)), labels=scene_labels(data_dir),

@@ -203,7 +203,8 @@ def _distill_stage(config: ExtractConfig, distill_out: Path, distill_old: dict[s
         _, cloud, classifier = load_distillation(distill_out, scene)
         return cloud, classifier
     if distilled is None:
-        options = options_with_masks(config.segmenter, config.segmenter_options, prompt, dataset, progress=progress)
+        options = options_with_masks(config.segmenter, config.segmenter_options, prompt, dataset,
+                                     max_pixels=config.distill.max_pixels, progress=progress)
         distilled = distill_scene(scene, dataset, segmenter=config.segmenter, prompt=prompt,
                                   segmenter_options=options, config=config.distill,
                                   holdout_every=int(model.config.get("holdout_every", 8)),

@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
 from roodi_toolkit.errors import DatasetError
 from roodi_toolkit.io.files import write_image
@@ -41,6 +42,38 @@ def test_the_files_segmenter_gets_the_folder_read(tmp_path):
     assert options_with_masks("files", None, SegmentPrompt(), ds) == {}
     with pytest.raises(DatasetError, match="missing: mask folder not found"):
         options_with_masks("files", None, missing, ds)
+
+
+def test_the_masks_are_read_at_the_working_size(tmp_path):
+    """Distillation segments views scaled down to its pixel budget: the folder is read at that size (centre samples of
+    each block, as the working dataset's own masks), not held at full size beside it."""
+    ds = SimpleNamespace(names=["a"], width=8, height=6, masks=None)
+    folder = tmp_path / "masks"
+    folder.mkdir()
+    full = np.arange(48, dtype=np.uint8).reshape(6, 8)
+    write_image(full, folder / "a.png")
+    options = options_with_masks("files", None, SegmentPrompt(mask_dir=folder), ds, max_pixels=12)  # 4x3: 1/2
+    np.testing.assert_array_equal(options["masks"]["a"], full[1::2, 1::2])
+    assert options_with_masks("files", None, SegmentPrompt(mask_dir=folder), ds)["masks"]["a"].shape == (6, 8)
+
+
+def test_a_folder_of_the_datasets_masks_gives_the_working_datasets_masks(tmp_path):
+    """What distillation segments from ``--masks`` is what it takes from the dataset's own masks at its working
+    resolution (the folder holds them at full size)."""
+    from roodi_toolkit.pipeline.resolution import working_dataset
+
+    from ..object_scene import object_dataset
+
+    ds, _, _ = object_dataset()
+    folder = tmp_path / "masks"
+    folder.mkdir()
+    for name, m in zip(ds.names, ds.masks.numpy()):
+        write_image(m.astype(np.uint8), folder / f"{name}.png")
+    work, factor = working_dataset(ds, 16 * 16)
+    options = options_with_masks("files", None, SegmentPrompt(mask_dir=folder), ds, max_pixels=16 * 16)
+    masks = get_segmenter("files", **options).segment(work, SegmentPrompt(mask_dir=folder))
+    assert factor == 2 and masks.kind == "instances" and torch.equal(masks.masks, work.masks)
+    assert torch.equal(folder_masks(folder, ds).masks, ds.masks)
 
 
 def test_folder_masks_reads_instance_ids(tmp_path):
