@@ -276,10 +276,12 @@ class FilesSegmenter(Segmenter):
             stages' working resolution); as :func:`roodi_toolkit.io.masks.read_mask_folder` reads a folder of PNGs.
         source: where the masks came from, for messages and reports (the folder).
 
-    Example:
-        >>> from roodi_toolkit.io.masks import read_mask_folder  # doctest: +SKIP
-        >>> masks = read_mask_folder("masks/", dataset.names, (dataset.width, dataset.height))  # doctest: +SKIP
-        >>> get_segmenter("files", masks=masks, source="masks/").segment(dataset)  # doctest: +SKIP
+    Example (a folder: ``masks=read_mask_folder(folder, dataset.names, (dataset.width, dataset.height))``):
+        >>> from types import SimpleNamespace
+        >>> views = SimpleNamespace(names=["r_000"], width=2, height=1, masks=None)  # a Dataset's names and size
+        >>> found = FilesSegmenter({"r_000": np.array([[0, 255]], np.uint8)}).segment(views)
+        >>> found.kind, found.masks.tolist()
+        ('binary', [[[0, 1]]])
     """
 
     name = "files"
