@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from roodi_toolkit.gaussians import GaussianCloud  # noqa: E402
 from roodi_toolkit.imaging import psnr  # noqa: E402
 from roodi_toolkit.params import GaussianParams  # noqa: E402
+from roodi_toolkit.io.lpips_weights import lpips_for_loss  # noqa: E402
 from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object  # noqa: E402
 from roodi_toolkit.pipeline.occlusion import OcclusionConfig, object_cameras  # noqa: E402
 from roodi_toolkit.render.renderer import TorchRenderer  # noqa: E402
@@ -110,7 +111,7 @@ def run_target(scene, target, inpainters, *, views=24, size=64, view_size=64, it
     for label, inp, ft in runs:
         t = time.perf_counter()
         res = refine_object(obj, scene_cloud, images, cams, masks, inpainter=inp, occlusion=occ, finetune=ft,
-                            up=(0, 0, 1))
+                            up=(0, 0, 1), lpips=lpips_for_loss(ft.perceptual, ft.lpips_weights))
         fill_s = time.perf_counter() - t - res.finetune.seconds
         out["runs"][label] = {**scores(res.cloud, test_cams, truth_rgb, truth_alpha, never),
                               "proposed": res.proposed, "seconds": time.perf_counter() - t,

@@ -29,6 +29,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from roodi_toolkit.io.lpips_weights import lpips_for_loss  # noqa: E402
 from roodi_toolkit.pipeline.finetune import FinetuneConfig, refine_object  # noqa: E402
 from roodi_toolkit.run.refine import write_refine_debug  # noqa: E402
 from roodi_toolkit.gaussians import GaussianCloud  # noqa: E402
@@ -125,8 +126,9 @@ def run(preset="picnic", seed=0, target_name="basket_3", size=64, train_size=64,
     scene_cloud = GaussianCloud.concatenate([obj, mesh_cloud(nearby(scene, target, reach), seed=1)])
     images = torch.stack([torch.as_tensor(r.rgb, dtype=torch.float32) for r in renders])
     masks = torch.stack([torch.as_tensor(r.ids == target.id) for r in renders])
-    res = refine_object(obj, scene_cloud, images, cams, masks, inpainter=inpainter, occlusion=occ_cfg,
-                        finetune=FinetuneConfig(iterations=iterations, **(finetune or {})), up=(0, 0, 1))
+    ft = FinetuneConfig(iterations=iterations, **(finetune or {}))
+    res = refine_object(obj, scene_cloud, images, cams, masks, inpainter=inpainter, occlusion=occ_cfg, finetune=ft,
+                        up=(0, 0, 1), lpips=lpips_for_loss(ft.perceptual, ft.lpips_weights))
     if debug_dir is not None:
         write_refine_debug(res, debug_dir)
     truth, gt, _ = object_view_truth(scene, target, res.occlusion.cameras)

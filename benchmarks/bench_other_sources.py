@@ -41,7 +41,7 @@ def main() -> None:
     from roodi_toolkit.io.gsplat import gsplat_frames
     from roodi_toolkit.io.other_models import seen_fraction
     from roodi_toolkit.io.ply import write_ply
-    from roodi_toolkit.pipeline.model_frame import settle_model_frame
+    from roodi_toolkit.run.distill import check_model_frame
     from roodi_toolkit.pipeline.train import TrainConfig
     from roodi_toolkit.run.train import train_scene
     from roodi_toolkit.similarity import Similarity, transform_cloud
@@ -88,7 +88,7 @@ def main() -> None:
             which = "nerfstudio" if str(model.config.get("data_dir", "")).startswith(str(ns)) else "colmap"
             cams = ds8[which].cameras
             seen = seen_fraction(model.read_cloud(), cams)
-            report = settle_model_frame(model, ds8[which])
+            report = check_model_frame(model, ds8[which])
             ratio = report["model_check_error"] / report["model_check_empty"]
             print(f"{label}: accepted; {100 * seen:.0f}% in view, error {ratio:.4f} of an empty picture's")
         except RoodiError as exc:

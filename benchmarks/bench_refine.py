@@ -51,6 +51,7 @@ from roodi_toolkit.evaluate.benchmark import MACHINE_SIZE, PRESETS, extract_conf
 from roodi_toolkit.io.dataset import load_dataset  # noqa: E402
 from roodi_toolkit.io.model import find_model  # noqa: E402
 from roodi_toolkit.io.files import read_json, write_json  # noqa: E402
+from roodi_toolkit.io.lpips_weights import lpips_for_loss  # noqa: E402
 from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,  # noqa: E402
                                     refine_object)
 from roodi_toolkit.run.evaluate import evaluate_object  # noqa: E402
@@ -106,7 +107,8 @@ def finetune_originals_only(cloud, cams, images: torch.Tensor, masks: torch.Tens
     originals = object_view_targets(images, cams, masks, depths=depths, centre=occ.centre, radius=occ.radius,
                                     background=config.background)
     no_views = ViewTargets([], torch.zeros(0, 1, 1, 3), torch.zeros(0, 1, 1))
-    return finetune_object(cloud, originals, no_views, config).cloud
+    return finetune_object(cloud, originals, no_views, config,
+                           lpips=lpips_for_loss(config.perceptual, config.lpips_weights)).cloud
 
 
 def hidden_seen(target, occ, truth: np.ndarray, alone_depth: np.ndarray, cams, train_renders) -> dict:
@@ -155,8 +157,9 @@ def measure_target(data_dir: Path, out_dir: Path, scene, dataset, scene_cloud, o
     if scene_depths is not None:
         clouds["originals_only"] = finetune_originals_only(before, cams, images, masks, scene_depths, occ, fine)
     for label, overrides in (variants or {}).items():
-        clouds[label] = refine_object(before, scene_cloud, images, cams, masks, occlusion=config,
-                                      finetune=replace(fine, **overrides)).cloud
+        variant = replace(fine, **overrides)
+        clouds[label] = refine_object(before, scene_cloud, images, cams, masks, occlusion=config, finetune=variant,
+                                      lpips=lpips_for_loss(variant.perceptual, variant.lpips_weights)).cloud
     psnr = {}
     for label, cloud in clouds.items():
         figures = psnr_figures(cloud, cams, images, masks, occ.cameras, gt, truth)

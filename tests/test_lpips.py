@@ -3,6 +3,8 @@
 import pytest
 import torch
 
+from roodi_toolkit.errors import ConfigError
+from roodi_toolkit.io.lpips_weights import lpips_for_loss
 from roodi_toolkit.evaluate.lpips import (ALEXNET_CHECKPOINT, ENV_WEIGHTS, LPIPS, LPIPSUnavailable, read_lpips,
                                           write_lpips)
 
@@ -70,3 +72,23 @@ def test_missing_or_wrong_weights_say_what_is_missing(tmp_path, monkeypatch):
         read_lpips(tmp_path / "bad.pt")
     with pytest.raises(ValueError, match="32x32"):
         LPIPS()(torch.rand(1, 3, 16, 16), torch.rand(1, 3, 16, 16))
+
+
+def test_lpips_for_loss_reads_what_the_perceptual_kind_needs(tmp_path, monkeypatch):
+    """The fine-tuning's network as the run layer reads it: none for laplacian (whatever is here), the local weights
+    for auto and lpips; without them none for auto, and lpips says where it looked."""
+    monkeypatch.delenv(ENV_WEIGHTS, raising=False)
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "empty_hub"))
+    assert lpips_for_loss("auto") is None and lpips_for_loss("laplacian") is None
+    assert lpips_for_loss("auto", tmp_path / "missing.pt") is None
+    with pytest.raises(ConfigError, match="perceptual loss 'lpips' unavailable: no local LPIPS weights; looked at"):
+        lpips_for_loss("lpips")
+    with pytest.raises(ConfigError, match="missing.pt: LPIPS weights file not found"):
+        lpips_for_loss("lpips", tmp_path / "missing.pt")
+    reference = LPIPS.from_state_dicts(*random_upstream_pair(5))
+    weights = write_lpips(reference, tmp_path / "lpips.pt")
+    assert lpips_for_loss("laplacian", weights) is None
+    x, y = torch.rand(1, 3, 40, 40), torch.rand(1, 3, 40, 40)
+    assert torch.allclose(lpips_for_loss("lpips", weights)(x, y), reference(x, y))
+    monkeypatch.setenv(ENV_WEIGHTS, str(weights))
+    assert torch.allclose(lpips_for_loss("auto")(x, y), reference(x, y))

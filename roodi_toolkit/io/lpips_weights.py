@@ -21,14 +21,14 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from ..errors import RoodiError
+from ..errors import ConfigError, RoodiError
 from ..lpips import LPIPS, LPIPSUnavailable
 from .files import check_torch_archive, save_checkpoint
 
 ENV_WEIGHTS = "ROODI_LPIPS_WEIGHTS"
 ALEXNET_CHECKPOINT = "alexnet-owt-7be5be79.pth"
 
-__all__ = ["ALEXNET_CHECKPOINT", "ENV_WEIGHTS", "read_lpips", "write_lpips"]
+__all__ = ["ALEXNET_CHECKPOINT", "ENV_WEIGHTS", "lpips_for_loss", "read_lpips", "write_lpips"]
 
 
 def read_lpips(path: str | os.PathLike | None = None) -> LPIPS:
@@ -52,6 +52,24 @@ def read_lpips(path: str | os.PathLike | None = None) -> LPIPS:
     if lin_path is not None and lin_path.is_file() and alex_path.is_file():
         return LPIPS.from_state_dicts(_load(lin_path), _load(alex_path))
     raise LPIPSUnavailable("no local LPIPS weights; looked at " + ", ".join(looked))
+
+
+def lpips_for_loss(kind: str, path: str | os.PathLike | None = None) -> LPIPS | None:
+    """Return the LPIPS network a perceptual loss of ``kind`` uses (fine-tuning's ``perceptual``, handed to
+    :func:`roodi_toolkit.pipeline.perceptual.perceptual_loss`): None for ``"laplacian"``, and for ``"auto"`` when no
+    local weights are usable; else read as :func:`read_lpips` reads it.
+
+    Raises:
+        ConfigError: ``kind="lpips"`` and no usable local weights (the message says where it looked).
+    """
+    if kind == "laplacian":
+        return None
+    try:
+        return read_lpips(path)
+    except LPIPSUnavailable as exc:
+        if kind == "lpips":
+            raise ConfigError(f"perceptual loss 'lpips' unavailable: {exc}") from None
+    return None
 
 
 def _lpips_package_weights() -> Path | None:

@@ -118,9 +118,10 @@ def select_stage(cloud: GaussianCloud, classifier: ObjectClassifier, object_id: 
 
 def refine_stage(selected: GaussianCloud, scene: GaussianCloud, dataset: Any, masks: torch.Tensor, object_id: int,
                  config: ExtractConfig, *, renderer: Renderer,
-                 progress: ProgressFactory = null_progress) -> RefineResult:
+                 progress: ProgressFactory = null_progress, lpips: torch.nn.Module | None = None) -> RefineResult:
     """Return the selected object after occlusion reasoning, inpainting and fine-tuning on the dataset's training
-    views (``masks``: the class maps ``[N, H, W]`` the features were distilled from).
+    views (``masks``: the class maps ``[N, H, W]`` the features were distilled from; ``lpips``: the network of the
+    fine-tuning's perceptual loss, :func:`roodi_toolkit.pipeline.finetune.finetune_object`).
 
     Raises:
         ResourceError: the refinement would not fit in memory (checked before anything is allocated).
@@ -131,4 +132,4 @@ def refine_stage(selected: GaussianCloud, scene: GaussianCloud, dataset: Any, ma
     return refine_object(selected, scene, photos, [dataset.cameras[v] for v in views],
                          object_masks(masks, int(object_id), views), inpainter=config.inpainter,
                          inpainter_options=config.inpainter_options, occlusion=config.occlusion,
-                         finetune=config.finetune, progress=progress, renderer=renderer)
+                         finetune=config.finetune, progress=progress, renderer=renderer, lpips=lpips)

@@ -10,8 +10,9 @@ returning what the debug images are made of (renders, masks, grids before and af
 and after; :func:`roodi_toolkit.run.refine.write_refine_debug` writes them and ``refine.json``). Nothing here opens a
 file.
 
-The perceptual loss is :mod:`roodi_toolkit.pipeline.perceptual`'s (LPIPS with local weights, else a Laplacian-pyramid
-L1; its classes are re-exported here); :attr:`FinetuneResult.perceptual` says which one ran.
+The perceptual loss is :mod:`roodi_toolkit.pipeline.perceptual`'s (LPIPS with the network the caller hands in as
+``lpips``, else a Laplacian-pyramid L1; its classes are re-exported here); :attr:`FinetuneResult.perceptual` says which
+one ran.
 """
 
 from __future__ import annotations
@@ -209,7 +210,8 @@ def _l1(render: Tensor, target: Tensor, weight: Optional[Tensor] = None) -> Tens
 
 def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: ViewTargets,
                     config: FinetuneConfig = FinetuneConfig(), *,
-                    progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> FinetuneResult:
+                    progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
+                    lpips: torch.nn.Module | None = None) -> FinetuneResult:
     """Return the object model fine-tuned to the original views and the inpainted views (no densification).
 
     Args:
@@ -219,11 +221,13 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
         config: hyperparameters.
         progress: progress factory.
         renderer: draws every view (default: the built-in CPU renderer).
+        lpips: the LPIPS network of the perceptual loss (``config.perceptual`` ``"auto"`` or ``"lpips"``; read by
+            :func:`roodi_toolkit.io.lpips_weights.lpips_for_loss`); None: the Laplacian loss, unless ``"lpips"``.
     """
     if len(originals.cameras) == 0:
         raise DatasetError("fine-tuning needs at least one original view of the object")
     t0 = time.perf_counter()
-    perceptual = perceptual_loss(config.perceptual, config.lpips_weights)
+    perceptual = perceptual_loss(config.perceptual, lpips)
     renderer = resolve_renderer(renderer)
     params = GaussianParams.from_cloud(cloud, requires_grad=True)  # copies: the caller's cloud is left as it was
     _, radius = object_extent(cloud)
@@ -445,7 +449,8 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                   object_masks: Tensor, *, inpainter: Any = "opencv", inpainter_options: Optional[dict] = None,
                   occlusion: OcclusionConfig = OcclusionConfig(), finetune: FinetuneConfig = FinetuneConfig(),
                   up: Optional[Sequence[float]] = None, prompt: Optional[str] = None,
-                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None) -> RefineResult:
+                  progress: ProgressFactory = null_progress, renderer: Renderer | None = None,
+                  lpips: torch.nn.Module | None = None) -> RefineResult:
     """Return the object model after occlusion reasoning, inpainting (one 2x2 grid) and fine-tuning.
 
     Args:
@@ -463,6 +468,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
         prompt: inpainting prompt (the paper uses none).
         progress: progress factory.
         renderer: draws every view of occlusion reasoning and fine-tuning (default: the built-in CPU renderer).
+        lpips: the LPIPS network of fine-tuning's perceptual loss (:func:`finetune_object`).
     """
     inpainter = _resolve_inpainter(inpainter, inpainter_options, occlusion)
     cameras = list(cameras)
@@ -495,7 +501,7 @@ def refine_object(object_cloud: GaussianCloud, scene_cloud: GaussianCloud, image
                                     radius=occ.radius, background=bg)
     inpainted_targets = ViewTargets(occ.cameras, inpainted, torch.ones(inpainted.shape[:3]))
     result = finetune_object(grown, originals, inpainted_targets, finetune, progress=progress,
-                             renderer=renderer)
+                             renderer=renderer, lpips=lpips)
     after_params = GaussianParams.from_cloud(result.cloud)
     with torch.no_grad():
         after = torch.stack([renderer.render(after_params, c, background=bg).rgb.clamp(0, 1) for c in occ.cameras])

@@ -4,7 +4,8 @@
 (an Inria ``cameras.json``, gsplat's normalisation recomputed from the data, nerfstudio's data-parser transform). The
 photos settle what the files cannot: which of two gsplat versions' normalisations a checkpoint used, and whether the
 scene, rendered from a few training cameras, explains their photos at all (a scene in another frame, or of other
-photos, renders something unrelated).
+photos, renders something unrelated). The scene comes in memory, as its file holds it (the run layer reads it:
+:func:`roodi_toolkit.run.distill.check_model_frame`).
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError
+from ..gaussians import GaussianCloud
 from ..io.dataset import Dataset, split_views
-from ..io.model import read_scene
 from ..render.renderer import render_cloud
 from ..similarity import transform_cloud
 
@@ -64,9 +65,16 @@ def _errors(cloud: Any, dataset: Dataset, views: list[int], renderer: Any) -> tu
     return float(err[best]) / len(views), float(empty[best]) / len(views)
 
 
-def settle_model_frame(model: Any, dataset: Dataset, renderer: Any = None) -> dict[str, Any]:
+def settle_model_frame(model: Any, raw: GaussianCloud, dataset: Dataset, renderer: Any = None) -> dict[str, Any]:
     """Check a model from another tool against its photos and pick its frame where the files leave two; return what
     was measured (for the report). A model this toolkit trained is not checked.
+
+    Args:
+        model: the model (:class:`roodi_toolkit.io.model.ModelFolder`): its kind, record, candidate frames and notes
+            (its frame and notes are updated here); its ``ply_path`` names it in messages.
+        raw: its scene as the file holds it, before any move into the data's frame.
+        dataset: the photos it is used with.
+        renderer: draws the check views (default: the built-in CPU renderer).
 
     Raises:
         ConfigError: rendered from the training cameras, the scene's error on the photos is not below
@@ -78,7 +86,6 @@ def settle_model_frame(model: Any, dataset: Dataset, renderer: Any = None) -> di
     train, _ = split_views(dataset, int(model.config.get("holdout_every", 8) or 0))
     views = train or list(range(len(dataset)))
     views = [views[int(i)] for i in np.linspace(0, len(views) - 1, min(CHECK_VIEWS, len(views))).round()]
-    raw = read_scene(model.ply_path)
     candidates = model.frames or [model.to_data]
     results = [_errors(raw if frame is None else transform_cloud(raw, frame), dataset, views, renderer)
                for frame in candidates]

@@ -1,11 +1,11 @@
 """The perceptual loss of fine-tuning against the inpainted views (paper, Sec. 3.3).
 
-LPIPS (Zhang et al. 2018), as in the paper, when its weights are on this machine
-(:func:`roodi_toolkit.io.lpips_weights.read_lpips`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the upstream files in
-the local caches; nothing is downloaded). Otherwise a
-Laplacian-pyramid L1 ("Lap1", Bojanowski et al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass
-levels of the two images, each level weighted equally, so that edges and texture at every scale count as much as
-flat colour. It needs no weights and is not D-SSIM.
+LPIPS (Zhang et al. 2018), as in the paper, when the caller hands in the network (the run layer reads its weights
+with :func:`roodi_toolkit.io.lpips_weights.lpips_for_loss`: ``lpips_weights``, ``$ROODI_LPIPS_WEIGHTS`` or the
+upstream files in the local caches; nothing is downloaded). Otherwise a Laplacian-pyramid L1 ("Lap1", Bojanowski et
+al. 2018, proposed as a weight-free perceptual proxy): L1 between band-pass levels of the two images, each level
+weighted equally, so that edges and texture at every scale count as much as flat colour. It needs no weights and is
+not D-SSIM.
 """
 
 from __future__ import annotations
@@ -18,8 +18,6 @@ import torch
 from torch import Tensor
 
 from ..errors import ConfigError
-from ..io.lpips_weights import read_lpips
-from ..lpips import LPIPSUnavailable
 
 __all__ = ["LaplacianLoss", "LPIPSLoss", "perceptual_loss"]
 
@@ -51,29 +49,39 @@ class LaplacianLoss(torch.nn.Module):
 
 
 class LPIPSLoss(torch.nn.Module):
-    """Return LPIPS between two ``[H, W, 3]`` images in [0, 1] (:mod:`roodi_toolkit.lpips`, local weights only)."""
+    """Return LPIPS between two ``[H, W, 3]`` images in [0, 1].
+
+    Args:
+        model: the LPIPS network (:class:`roodi_toolkit.lpips.LPIPS` with its weights), taking two ``[B, 3, H, W]``
+            batches and returning ``[B]`` distances.
+    """
 
     name = "lpips"
 
-    def __init__(self, weights: Optional[str] = None) -> None:
+    def __init__(self, model: torch.nn.Module) -> None:
         super().__init__()
-        self.model = read_lpips(weights)
+        self.model = model
 
     def forward(self, a: Tensor, b: Tensor) -> Tensor:
         return self.model(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]).mean()
 
 
-def perceptual_loss(kind: str = "auto", weights: Optional[str] = None) -> torch.nn.Module:
-    """Return the perceptual loss module to use: LPIPS from local weights if possible (or required), else Laplacian.
+def perceptual_loss(kind: str = "auto", lpips: Optional[torch.nn.Module] = None) -> torch.nn.Module:
+    """Return the perceptual loss module to use: LPIPS with the network given (``kind`` ``"auto"`` or ``"lpips"``),
+    else the Laplacian one.
+
+    Args:
+        kind: ``"auto"`` (LPIPS when ``lpips`` is given), ``"lpips"`` (required) or ``"laplacian"``.
+        lpips: the LPIPS network, as :func:`roodi_toolkit.io.lpips_weights.lpips_for_loss` reads it for ``kind``.
 
     Raises:
-        ConfigError: ``kind="lpips"`` but no local LPIPS weights were found (the message says where it looked).
+        ConfigError: ``kind="lpips"`` without a network.
     """
     if kind == "laplacian":
         return LaplacianLoss()
-    try:
-        return LPIPSLoss(weights)
-    except LPIPSUnavailable as exc:
-        if kind == "lpips":
-            raise ConfigError(f"perceptual loss 'lpips' unavailable: {exc}") from None
+    if lpips is not None:
+        return LPIPSLoss(lpips)
+    if kind == "lpips":
+        raise ConfigError("perceptual loss 'lpips' needs the LPIPS network: read its local weights with "
+                          "roodi_toolkit.io.lpips_weights.lpips_for_loss and pass it as lpips=")
     return LaplacianLoss()

@@ -5,14 +5,13 @@ Segmenting and distilling a 1000 px capture at full size costs four times the re
 the same selection (``benchmarks/RESULTS.md``, "Working resolution of the mask stages"), so these stages work on the
 dataset scaled down by the smallest integer factor that brings each view under ``max_pixels``; the stages after them
 (occlusion, inpainting, fine-tuning) use the full-size photos, and masks are brought back to full size by repeating
-each pixel.
+each pixel (:func:`roodi_toolkit.masks.full_size_masks`).
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -67,16 +66,3 @@ def working_dataset(dataset: Dataset, max_pixels: int) -> tuple[Dataset, int]:
     return Dataset(pool(dataset.images, True), cameras, list(dataset.splits), dataset.background, dataset.bounds,
                    pool(dataset.alphas, False), masks, pool(dataset.depths, False), dataset.points,
                    dataset.point_colors, dataset.root, dataset.format, meta), f
-
-
-def full_size_masks(masks: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Return ``[N, H, W]`` masks of a working resolution brought to ``width`` x ``height`` by repeating each pixel
-    (and the last row and column into the strip the reduction dropped); masks already that size are returned."""
-    n, h, w = masks.shape
-    if (h, w) == (height, width):
-        return masks
-    f = width // w
-    if f < 1 or width // f != w or height // f != h:
-        raise ConfigError(f"masks of {w}x{h} are no integer reduction of {width}x{height}")
-    up = np.repeat(np.repeat(masks, f, axis=1), f, axis=2)
-    return np.pad(up, ((0, 0), (0, height - h * f), (0, width - w * f)), mode="edge")

@@ -14,7 +14,8 @@ dataset, either binary (0 = rest, 1 = the target) or instance ids (0 = backgroun
 
 Built-ins:
 
-- ``files`` (default): masks or instance-id maps from a folder of PNGs matched to the views by name, or the
+- ``files`` (default): masks or instance-id maps given in memory, keyed by view name (its ``masks`` option: the run
+  layer reads the folder of PNGs the prompt names with :func:`roodi_toolkit.io.masks.read_mask_folder`), or the
   dataset's own masks (Blender frames with ``mask_path``, as the generated benchmark scenes have).
 - ``click``: clicks in one view, positive on the target and optionally negative on what is not; the clicked surface's
   Gaussians (by their compositing weights there) are grown through a 3D neighbour graph of the trained scene's
@@ -25,11 +26,11 @@ Built-ins:
 from __future__ import annotations
 
 import math
+import os
 import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 import torch
@@ -37,10 +38,9 @@ import torch
 from ..errors import ConfigError, DatasetError, PluginError, RoodiError
 from ..gaussians import GaussianCloud
 from ..io.dataset import Dataset, to_loaded_pixel
-from ..io.files import read_image
+from ..masks import mask_from_array
 from ..plugins import discover, instantiate
 from ..progress import ProgressFactory, null_progress
-from .resolution import full_size_masks
 
 MASK_KINDS = ("binary", "instances")
 
@@ -92,11 +92,13 @@ class SegmentPrompt:
     Attributes:
         clicks: clicks in one view (``click``, ``sam2``): at least one positive (on the target), and negative ones
             (``positive=False``) on what must not be selected.
-        mask_dir: a folder of mask PNGs named like the views (``files``); None: the dataset's own masks.
+        mask_dir: a folder of mask PNGs named like the views, as the user named it (recorded with the run). For the
+            ``files`` segmenter the run layer reads it (:func:`roodi_toolkit.io.masks.read_mask_folder`) and hands the
+            masks over as that segmenter's ``masks`` option; None: the dataset's own masks.
     """
 
     clicks: tuple[Click, ...] = ()
-    mask_dir: Optional[Path] = None
+    mask_dir: Optional[str | os.PathLike] = None
 
 
 MAX_MASK_ID = 1023
@@ -175,7 +177,7 @@ class Segmenter(ABC):
 
         Args:
             dataset: the posed images (all of its views get a mask).
-            prompt: clicks and/or a mask folder.
+            prompt: clicks and/or the mask folder the user named.
             scene: the trained scene model, for segmenters that use its geometry.
             progress: progress factory.
         """
@@ -249,8 +251,9 @@ def resolve_prompt(prompt: SegmentPrompt, dataset: Dataset) -> tuple[SegmentProm
     given, clicks = [], []
     for c in prompt.clicks:
         name = c.view or dataset.names[(dataset.train_indices or [0])[0]]
-        if name not in dataset.names and Path(name).stem in dataset.names:  # given with its file extension
-            name = Path(name).stem
+        stem = os.path.splitext(os.path.basename(name))[0]
+        if name not in dataset.names and stem in dataset.names:  # given with its file extension
+            name = stem
         name = dataset.names[view_index(dataset, name)]
         given.append(Click(name, c.x, c.y, c.positive))
         clicks.append(Click(name, *to_loaded_pixel(dataset, name, c.x, c.y), c.positive))
@@ -260,111 +263,84 @@ def resolve_prompt(prompt: SegmentPrompt, dataset: Dataset) -> tuple[SegmentProm
 # ------------------------------------------------------------------------------------------------------ files
 
 
-def _mask_file(folder: Path, name: str) -> Optional[Path]:
-    for ext in (".png", ".PNG"):
-        p = folder / f"{name}{ext}"
-        if p.is_file():
-            return p
-    return None
-
-
-def mask_from_array(arr: np.ndarray, size: tuple[int, int], where: str) -> np.ndarray:
-    """Return ``[H, W]`` int64 ids from a mask image, resized (nearest) when it is a larger copy of the view or an
-    integer reduction of it.
-
-    Args:
-        arr: the image: ``[h, w]`` ids (8 or 16 bit) or ``[h, w, 3|4]`` grey stored as colour.
-        size: the view's ``(width, height)``.
-        where: the file, for messages.
-
-    Raises:
-        DatasetError: colour masks, or a size that is not the view's (nor an exact multiple of it, as when the
-            dataset is loaded downscaled, nor its size divided by an integer, as the mask stages write them).
-    """
-    a = np.asarray(arr)
-    if a.ndim == 3:
-        rgb = a[..., :3]
-        if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
-            raise DatasetError(f"{where}: mask is a colour image; expected 8- or 16-bit grey instance ids "
-                               "(0 = background) or a black-and-white binary mask")
-        a = rgb[..., 0]
-    a = a.astype(np.int64)
-    w, h = size
-    f = w // max(a.shape[1], 1)
-    if a.shape[1] < w and f >= 1 and (w // f, h // f) == (a.shape[1], a.shape[0]):
-        # made at a working resolution (pipeline/resolution.py): each pixel stands for an f x f block
-        return full_size_masks(a[None], w, h)[0]
-    if a.shape != (h, w):
-        fy, fx = a.shape[0] / h, a.shape[1] / w
-        if not (a.shape[0] > h and abs(fx - fy) < 1e-6 and abs(fx - round(fx)) < 1e-6 and a.shape[1] % w == 0):
-            raise DatasetError(f"{where}: mask is {a.shape[1]}x{a.shape[0]} but its view is {w}x{h}; masks must "
-                               "have the view's size (or an exact multiple of it)")
-        f = int(round(fx))
-        a = a[f // 2::f, f // 2::f]  # nearest: the sample at the centre of each block
-    return a
-
-
 class FilesSegmenter(Segmenter):
-    """Masks read from files: a folder of PNGs named like the views, or the dataset's own masks.
+    """Masks given in memory, one per view keyed by view name, or the dataset's own masks; opens no file.
 
-    A folder's masks may be binary (0 and 255, or 0 and 1: the target is 1) or instance ids (any other values,
-    0 = background). Without a folder the dataset's masks are used (``mask_path`` in Blender transforms).
+    The masks may be binary (0 and 255, or 0 and 1: the target is 1) or instance ids (any other values,
+    0 = background). Without ``masks`` the dataset's masks are used (``mask_path`` in Blender transforms).
 
     Args:
-        mask_dir: default folder when the prompt gives none.
+        masks: the mask of every view, keyed by view name: ``[H, W]`` ids (8 or 16 bit) at the view's size, an exact
+            multiple of it or its size divided by an integer (brought to the view's size as
+            :func:`roodi_toolkit.masks.mask_from_array` does: the dataset given to :meth:`segment` may be the mask
+            stages' working resolution); as :func:`roodi_toolkit.io.masks.read_mask_folder` reads a folder of PNGs.
+        source: where the masks came from, for messages and reports (the folder).
+
+    Example (a folder: ``masks=read_mask_folder(folder, dataset.names, (dataset.width, dataset.height))``):
+        >>> from types import SimpleNamespace
+        >>> views = SimpleNamespace(names=["r_000"], width=2, height=1, masks=None)  # a Dataset's names and size
+        >>> found = FilesSegmenter({"r_000": np.array([[0, 255]], np.uint8)}).segment(views)
+        >>> found.kind, found.masks.tolist()
+        ('binary', [[[0, 1]]])
     """
 
     name = "files"
 
-    def __init__(self, mask_dir: str | Path | None = None) -> None:
-        self.mask_dir = None if mask_dir is None else Path(mask_dir)
+    def __init__(self, masks: Optional[Mapping[str, np.ndarray]] = None, source: str = "") -> None:
+        if masks is not None and not isinstance(masks, Mapping):
+            raise PluginError(f"the files segmenter's masks must map view names to arrays, got "
+                              f"{type(masks).__name__}; give a mask folder with --masks DIR")
+        self.masks = masks
+        self.source = source
 
     def segment(self, dataset: Dataset, prompt: SegmentPrompt = SegmentPrompt(), *,
                 scene: Optional[GaussianCloud] = None, progress: ProgressFactory = null_progress) -> ViewMasks:
-        """Return the masks of every view from the folder (or the dataset's own masks).
+        """Return the masks of every view (those given, or the dataset's own masks).
 
         Raises:
-            DatasetError: no folder and no dataset masks, missing files (listed), colour or mis-sized masks.
+            ConfigError: the prompt names a mask folder but no masks were given (this segmenter reads no folder).
+            DatasetError: no masks given and none in the dataset, a view without a mask (listed), colour or
+                mis-sized masks.
         """
-        folder = prompt.mask_dir if prompt.mask_dir is not None else self.mask_dir
-        if folder is None:
+        if self.masks is None:
+            if prompt.mask_dir is not None:
+                raise ConfigError(f"{prompt.mask_dir}: the files segmenter reads no folder; read it with "
+                                  "roodi_toolkit.io.masks.read_mask_folder and give the masks as its masks option")
             if dataset.masks is None:
                 raise DatasetError("the dataset has no masks (its transforms frames have no mask_path); give a "
                                    "folder of mask PNGs named like the views, or use --segmenter click")
             masks = dataset.masks.clone()
             return ViewMasks(masks, dataset.names, "instances", int(masks.max()) + 1, source="dataset masks")
-        folder = Path(folder)
-        if not folder.is_dir():
-            raise DatasetError(f"{folder}: mask folder not found")
-        names = dataset.names
-        paths = {n: _mask_file(folder, n) for n in names}
-        missing = [n for n, p in paths.items() if p is None]
-        if missing:
-            shown = ", ".join(f"{n}.png" for n in missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5
-                                                                 else "")
-            raise DatasetError(f"{folder}: no mask for {len(missing)} of {len(names)} views: {shown}; masks are "
-                               "matched to views by name (the image's file stem)")
-        # a byte a pixel while the ids fit (every 8-bit mask): 300 views of 800 px are 192 MB, not the 1.5 GB of
-        # int64 and the copies a whole-array unique and a cast made of it
-        out = np.zeros((len(names), dataset.height, dataset.width), dtype=np.uint8)
-        values: set[int] = set()
-        with progress(total=len(names), desc="read masks") as bar:
-            for i, n in enumerate(names):
-                p = paths[n]
-                m = mask_from_array(read_image(p), (dataset.width, dataset.height), str(p))
-                ids = np.unique(m)
-                if out.dtype == np.uint8 and (ids.min() < 0 or ids.max() > 255):
-                    out = out.astype(np.int64)  # ids of a 16-bit mask
-                out[i] = m
-                values.update(ids.tolist())
-                bar.update(1)
-        if values <= {0, 255}:
-            out //= 255  # 255 -> 1, in place
-            kind = "binary"
-        elif values <= {0, 1}:
-            kind = "binary"
-        else:
-            kind = "instances"
-        return ViewMasks(torch.from_numpy(out), names, kind, int(out.max()) + 1, source=str(folder))
+        return _given_masks(self.masks, dataset, self.source or "the given masks")
 
 
+def _given_masks(given: Mapping[str, np.ndarray], dataset: Dataset, source: str) -> ViewMasks:
+    """Return the masks keyed by view name as the dataset's :class:`ViewMasks` (binary or instance ids).
+
+    Raises:
+        DatasetError: a view without a mask (listed), colour or mis-sized masks.
+    """
+    names = dataset.names
+    missing = [n for n in names if n not in given]
+    if missing:
+        shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        raise DatasetError(f"{source}: no mask for {len(missing)} of {len(names)} views: {shown}")
+    # a byte a pixel while the ids fit (every 8-bit mask): 300 views of 800 px are 192 MB, not the 1.5 GB of
+    # int64 and the copies a whole-array unique and a cast made of it
+    out = np.zeros((len(names), dataset.height, dataset.width), dtype=np.uint8)
+    values: set[int] = set()
+    for i, n in enumerate(names):
+        m = mask_from_array(given[n], (dataset.width, dataset.height), f"{source}: the mask of view {n}")
+        ids = np.unique(m)
+        if out.dtype == np.uint8 and (ids.min() < 0 or ids.max() > 255):
+            out = out.astype(np.int64)  # ids of a 16-bit mask
+        out[i] = m
+        values.update(ids.tolist())
+    if values <= {0, 255}:
+        out //= 255  # 255 -> 1, in place
+        kind = "binary"
+    elif values <= {0, 1}:
+        kind = "binary"
+    else:
+        kind = "instances"
+    return ViewMasks(torch.from_numpy(out), names, kind, int(out.max()) + 1, source=source)

@@ -16,15 +16,30 @@ import numpy as np
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
 from ..io import files
-from ..io.dataset import load_dataset
-from ..io.model import DISTILL_RECORD, Distillation, open_model, read_distillation, write_distillation
+from ..io.dataset import Dataset, load_dataset
+from ..io.model import (DISTILL_RECORD, Distillation, ModelFolder, open_model, read_distillation, read_scene,
+                        write_distillation)
 from ..pipeline.distill import (DistillConfig, DistilledScene, ObjectClassifier, cloud_features, distill_scene,
                                 with_features, without_features)
 from ..pipeline.model_frame import settle_model_frame
 from ..pipeline.segment import SegmentPrompt, resolve_prompt
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import Renderer
+from .masks import options_with_masks
 from .records import scene_labels
+
+
+def check_model_frame(model: ModelFolder, dataset: Dataset, renderer: Renderer | None = None) -> dict[str, Any]:
+    """Return what checking another tool's model against its photos measured, its scene file read for it
+    (:func:`~roodi_toolkit.pipeline.model_frame.settle_model_frame`, which picks its frame where the files leave
+    two); {} for a model this toolkit trained (not checked, not read).
+
+    Raises:
+        ConfigError: the scene does not explain the photos (another frame, or other photos).
+    """
+    if model.kind == "roodi":
+        return {}
+    return settle_model_frame(model, read_scene(model.ply_path), dataset, renderer)
 
 
 def save_distilled(out_dir: str | Path, distilled: DistilledScene, model_ply: str | Path,
@@ -69,7 +84,7 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
 
     Reads ``MODEL_DIR`` as :func:`~roodi_toolkit.io.model.open_model` does (``point_cloud/iteration_N``, ``cfg.json``
     with the downscale and held-out views, also scored here; or another tool's model, checked against the photos
-    by :func:`~roodi_toolkit.pipeline.model_frame.settle_model_frame`). Writes into ``out_dir`` only (the module's
+    by :func:`check_model_frame`). Writes into ``out_dir`` only (the module's
     docstring). The model folder and the data folder are inputs and are never written.
     """
     model = open_model(model_dir, data_dir, dataparser_transforms=dataparser_transforms)
@@ -77,12 +92,14 @@ def run_distill(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path
     files.check_output_dir(out_dir, overwrite=overwrite, inputs=inputs)
     ds_scale = float(downscale if downscale is not None else model.config.get("downscale", 1) or 1)
     dataset = load_dataset(data_dir, ds_scale, progress=progress)
-    settle_model_frame(model, dataset, renderer)  # another tool's scene: does it fit the photos?
+    check_model_frame(model, dataset, renderer)  # another tool's scene: does it fit the photos?
     # clicks come in the photos' own pixels, whatever the downscale (as extract takes them)
     _, prompt = resolve_prompt(SegmentPrompt(tuple(clicks), None if mask_dir is None else Path(mask_dir)), dataset)
     out = files.prepare_output_dir(out_dir, overwrite=overwrite, inputs=inputs)
+    options = options_with_masks(segmenter, segmenter_options, prompt, dataset, max_pixels=config.max_pixels,
+                                 progress=progress)
     distilled = distill_scene(model.read_cloud(), dataset, segmenter=segmenter, prompt=prompt,
-                              segmenter_options=segmenter_options, config=config,
+                              segmenter_options=options, config=config,
                               holdout_every=int(model.config.get("holdout_every", 8)), labels=scene_labels(data_dir),
                               progress=progress, renderer=renderer)
     save_distilled(out, distilled, model.ply_path, {"data_dir": str(Path(data_dir).resolve()), "downscale": ds_scale,

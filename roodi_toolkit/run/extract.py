@@ -37,18 +37,19 @@ from ..errors import ConfigError
 from ..gaussians import GaussianCloud
 from ..io import files
 from ..io.dataset import load_dataset
+from ..io.lpips_weights import lpips_for_loss
 from ..io.model import DISTILL_RECORD, checkpoint_file, find_model, open_model
 from ..io.ply import read_ply, write_ply
 from ..pipeline.distill import distill_scene, without_features
 from ..pipeline.extract import ExtractConfig, object_ids, refine_stage, select_stage
-from ..pipeline.model_frame import settle_model_frame
 from ..pipeline.occlusion import fill_picture
-from ..pipeline.segment import FilesSegmenter, SegmentPrompt, resolve_prompt
+from ..pipeline.segment import resolve_prompt
 from ..progress import ProgressFactory, null_progress
 from ..render.renderer import render_cloud, resolve_renderer
 from ..render.upright import cameras_up
 from ..render.views import framing_orbit
-from .distill import load_distillation, save_distilled
+from .distill import check_model_frame, load_distillation, save_distilled
+from .masks import folder_masks, options_with_masks
 from .refine import write_refine_debug
 from .records import Stages, changed_error, read_record, scene_labels, settings, train_record
 from .train import train_joint, train_scene
@@ -202,8 +203,10 @@ def _distill_stage(config: ExtractConfig, distill_out: Path, distill_old: dict[s
         _, cloud, classifier = load_distillation(distill_out, scene)
         return cloud, classifier
     if distilled is None:
+        options = options_with_masks(config.segmenter, config.segmenter_options, prompt, dataset,
+                                     max_pixels=config.distill.max_pixels, progress=progress)
         distilled = distill_scene(scene, dataset, segmenter=config.segmenter, prompt=prompt,
-                                  segmenter_options=config.segmenter_options, config=config.distill,
+                                  segmenter_options=options, config=config.distill,
                                   holdout_every=int(model.config.get("holdout_every", 8)),
                                   labels=scene_labels(data_dir), progress=progress, renderer=renderer)
     save_distilled(distill_out, distilled, model.ply_path,
@@ -256,7 +259,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     report["downscale"] = downscale
     dataset = load_dataset(data_dir, downscale, progress=progress)  # decoded once; every stage reads it from memory
     if model is not None:
-        report.update(settle_model_frame(model, dataset, renderer))  # another tool's scene: does it fit the photos?
+        report.update(check_model_frame(model, dataset, renderer))  # another tool's scene: does it fit the photos?
     given, prompt = resolve_prompt(config.prompt, dataset)  # checked now, before any training
     distill_out = out / "distill"
     distill_wanted = {"config": settings(config.distill), "segmenter": config.segmenter,
@@ -285,7 +288,7 @@ def prepare_scene(data_dir: str | Path | None, out_dir: str | Path, *, model_dir
     timings["distill_s"] = time.perf_counter() - t
     masks = dataset.masks
     if masks is None and config.inpaint:  # the masks the features were distilled from
-        masks = FilesSegmenter(distill_out / "object_masks").segment(dataset, SegmentPrompt()).masks
+        masks = folder_masks(distill_out / "object_masks", dataset).masks
     report["model"] = str(model.root)
     if model.notes:
         report["model_notes"] = list(model.notes)
@@ -328,8 +331,9 @@ def extract_object(prepared: PreparedScene, object_id: int, *, config: ExtractCo
     final = selected
     t = time.perf_counter()
     if config.inpaint:
+        lpips = lpips_for_loss(config.finetune.perceptual, config.finetune.lpips_weights)
         res = refine_stage(selected, prepared.scene, prepared.dataset, prepared.masks, object_id, config,
-                           renderer=prepared.renderer, progress=progress)
+                           renderer=prepared.renderer, progress=progress, lpips=lpips)
         write_refine_debug(res, odir / "debug", prepared.renderer)
         final = res.cloud
         files.write_image(fill_picture(res.occlusion.object_rgb, res.after_views, res.filled, res.occlusion.occluded),

@@ -15,7 +15,6 @@ from ..io.model import Distillation
 from ..io.ply import write_ply
 from ..params import GaussianParams
 from ..pipeline.distill import ObjectClassifier, cloud_features, picture_views, render_features
-from ..pipeline.segment import FilesSegmenter, SegmentPrompt
 from ..pipeline.select import Selection, select_object
 from ..progress import ProgressFactory, null_progress
 from ..prune.outliers import PruneConfig
@@ -23,6 +22,7 @@ from ..gaussians import GaussianCloud
 from ..render.pictures import heat, probability_grid
 from ..render.renderer import Renderer, render_cloud, resolve_renderer
 from .distill import load_distillation
+from .masks import folder_masks
 
 PICTURE_COLUMNS = ["image", "mask of the object", "rendered probability", "selection alone"]
 
@@ -68,7 +68,7 @@ def _selection_picture(distillation: Distillation, cloud: GaussianCloud, classif
     dataset and masks."""
     record = distillation.record
     dataset = load_dataset(record["data_dir"], float(record.get("downscale", 1)))
-    masks = FilesSegmenter(distillation.masks_dir).segment(dataset, SegmentPrompt())
+    masks = folder_masks(distillation.masks_dir, dataset)
     train_views, eval_views = split_views(dataset, int(record.get("holdout_every", 8)))
     feats = cloud_features(cloud)
     frozen = GaussianParams.from_cloud(cloud, sh_degree=0)

@@ -112,6 +112,34 @@ def test_a_mask_id_above_the_bound_is_refused(top: int, world, run_cli, tmp_path
     assert world.unchanged()
 
 
+@pytest.mark.parametrize("command", ["distill", "extract"])
+def test_a_mask_folder_names_the_file_at_fault(command: str, world, run_cli, tmp_path: Path) -> None:
+    """The run layer reads --masks (the files segmenter takes arrays): missing files are listed, a mis-sized or colour
+    mask is named, as when the segmenter read the folder itself."""
+    from roodi_toolkit.io.files import read_image, write_image
+
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    found = sorted((world.data / "train" / "masks").glob("*.png"))
+    for f in found[2:]:
+        write_image(read_image(f), masks / f.name)
+
+    def run(out: str):
+        if command == "distill":
+            return run_cli("distill", world.model, world.data, tmp_path / out, "--masks", masks, "--iterations", "1",
+                           "-q")
+        return run_cli("extract", world.data, tmp_path / out, "--model", world.model, "--object", "1", "--masks",
+                       masks, "--distill-iterations", "1", "-q")
+
+    expect_failure(run("a"), 1, str(masks), f"no mask for 2 of {len(found)} views: {found[0].name}, {found[1].name}")
+    write_image(np.zeros((5, 16), np.uint8), masks / found[0].name)
+    write_image(np.zeros((16, 16, 3), np.uint8) + np.array([255, 0, 0], np.uint8), masks / found[1].name)
+    expect_failure(run("b"), 1, str(masks / found[0].name), "mask is 16x5 but its view is 16x16")
+    write_image(read_image(found[0]), masks / found[0].name)
+    expect_failure(run("c"), 1, str(masks / found[1].name), "colour image")
+    assert world.unchanged()
+
+
 @pytest.mark.parametrize("change", ["downscale", "data"])
 def test_resume_refuses_other_settings(change: str, world, run_cli, tmp_path: Path) -> None:
     import shutil

@@ -247,6 +247,7 @@ def test_photos_pick_between_two_frames(scene, colmap_scene) -> None:
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.io.model import ModelFolder
     from roodi_toolkit.pipeline.model_frame import settle_model_frame
+    from roodi_toolkit.run.distill import check_model_frame
 
     root, data, cloud = scene
     path = root / "true_scene.ply"
@@ -255,12 +256,14 @@ def test_photos_pick_between_two_frames(scene, colmap_scene) -> None:
     ds = load_dataset(colmap_scene)
     for frames, pick in (([flip, Similarity()], 1), ([Similarity(), flip], 0)):
         model = ModelFolder(path, path, 0, {"holdout_every": 0}, kind="gsplat", to_data=frames[0], frames=frames)
-        report = settle_model_frame(model, ds)
+        report = settle_model_frame(model, cloud, ds)  # the scene in memory, as its file holds it
         assert model.to_data is frames[pick] and model.frames == []
         assert report["model_check_error"] < 0.1 * report["model_check_empty"]
     wrong = ModelFolder(path, path, 0, {}, kind="splat", to_data=Similarity(scale=0.37))  # another scene's size
     with pytest.raises(ConfigError, match="explains their photos less than 3 dB better than an empty picture"):
-        settle_model_frame(wrong, ds)
+        check_model_frame(wrong, ds)  # the run layer reads the file for it
+    absent = root / "absent.ply"  # a scene this toolkit trained is not checked: its file is not even read
+    assert check_model_frame(ModelFolder(absent, absent, 0, {}), ds) == {}
 
 
 # ------------------------------------------------------------------------------------------------------- nerfstudio

@@ -13,6 +13,7 @@ from roodi_toolkit.errors import ConfigError
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.pipeline.finetune import (FinetuneConfig, ViewTargets, finetune_object, object_view_targets,
                                     refine_object, seed_hole_gaussians)
+from roodi_toolkit.lpips import LPIPS
 from roodi_toolkit.pipeline.perceptual import LaplacianLoss, LPIPSLoss, perceptual_loss
 from roodi_toolkit.run.refine import write_refine_debug
 from roodi_toolkit.gaussians import GaussianCloud
@@ -36,32 +37,43 @@ def test_laplacian_loss_is_zero_on_equal_images_and_differentiable():
     assert float(loss(base + 0.1, base)) == pytest.approx(0.1 / 3, rel=1e-3)
 
 
-def test_perceptual_choice_without_local_lpips(monkeypatch, tmp_path):
-    monkeypatch.delenv("ROODI_LPIPS_WEIGHTS", raising=False)
+def test_perceptual_choice_takes_the_network_it_is_given():
+    """The stage reads no weights: LPIPS runs with the network handed in, the Laplacian loss without one, and
+    ``"lpips"`` without one is an error (the run layer reads the weights: io.lpips_weights.lpips_for_loss)."""
     assert perceptual_loss("auto").name == "laplacian"
     assert perceptual_loss("laplacian").name == "laplacian"
-    with pytest.raises(ConfigError, match="lpips"):
+    with pytest.raises(ConfigError, match="'lpips' needs the LPIPS network"):
         perceptual_loss("lpips")
-    with pytest.raises(ConfigError, match="not found"):
-        perceptual_loss("lpips", str(tmp_path / "missing.pth"))
-
-
-def test_lpips_is_used_when_local_weights_exist(monkeypatch, tmp_path):
-    """Random weights written in the test stand in for the real file; the local-weights path is the one taken."""
-    from roodi_toolkit.evaluate.lpips import LPIPS, write_lpips
-
     torch.manual_seed(0)
     reference = LPIPS()
     for p in reference.parameters():
         p.data.uniform_(0, 0.1)
-    weights = write_lpips(reference, tmp_path / "lpips.pt")
-    monkeypatch.setenv("ROODI_LPIPS_WEIGHTS", str(weights))
-    loss = perceptual_loss("auto")
-    assert isinstance(loss, LPIPSLoss) and loss.name == "lpips"
+    assert perceptual_loss("laplacian", reference).name == "laplacian"
+    for kind in ("auto", "lpips"):
+        loss = perceptual_loss(kind, reference)
+        assert isinstance(loss, LPIPSLoss) and loss.name == "lpips" and loss.model is reference
     a, b = torch.rand(40, 40, 3), torch.rand(40, 40, 3)
     expected = reference(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None])
     assert float(loss(a, b)) == pytest.approx(float(expected), rel=1e-6)
     assert float(loss(a, a)) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_finetune_uses_the_lpips_network_it_is_given():
+    """finetune_object hands its ``lpips`` to the perceptual loss (and the result says which ran)."""
+    obj, scene, images, cams, masks = tiny_refine_inputs()
+    originals = object_view_targets(images, cams, masks)
+    inpainted = ViewTargets(cams[:1], images[:1], torch.ones(images.shape[1:3])[None])
+    config = FinetuneConfig(iterations=2, inpaint_every=1)
+    assert finetune_object(obj, originals, inpainted, config).perceptual == "laplacian"
+    calls = []
+
+    class Counted(torch.nn.Module):
+        def forward(self, x, y):
+            calls.append(x.shape)
+            return (x - y).abs().mean((1, 2, 3))
+
+    assert finetune_object(obj, originals, inpainted, config, lpips=Counted()).perceptual == "lpips"
+    assert len(calls) == 2 and calls[0][:2] == (1, 3)
 
 
 def test_targets_keep_the_object_and_ignore_where_it_may_hide():

@@ -10,8 +10,8 @@ from roodi_toolkit.errors import ConfigError
 from roodi_toolkit.evaluate.metrics import alpha_iou
 from roodi_toolkit.params import GaussianParams
 from roodi_toolkit.pipeline.distill import DistillConfig, distill_scene
-from roodi_toolkit.pipeline.resolution import full_size_masks, working_dataset, working_factor
-from roodi_toolkit.pipeline.segment import mask_from_array
+from roodi_toolkit.masks import full_size_masks, mask_from_array
+from roodi_toolkit.pipeline.resolution import working_dataset, working_factor
 from roodi_toolkit.pipeline.select import select_object
 from roodi_toolkit.render.renderer import NumbaRenderer
 

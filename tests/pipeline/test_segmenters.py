@@ -8,7 +8,6 @@ import torch
 
 from roodi_toolkit.errors import ConfigError, DatasetError, PluginError
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.io.files import write_image
 from roodi_toolkit.render.renderer import render_cloud
 from roodi_toolkit.imaging import mask_iou
 from roodi_toolkit.pipeline import click as click_segmenter
@@ -69,45 +68,43 @@ def test_files_uses_the_dataset_masks(scene):
         FilesSegmenter().segment(no_masks, SegmentPrompt())
 
 
-def test_files_reads_a_folder_by_view_name(scene, tmp_path):
+def test_files_takes_masks_by_view_name(scene):
+    """The masks come in memory, keyed by view name (in any order, extra names ignored): 0/255 is binary, other ids
+    are instances; a mask at twice the view's size takes the centre sample of each block."""
     ds, _, _ = scene
-    folder = tmp_path / "masks"
-    folder.mkdir()
-    for i, name in reversed(list(enumerate(ds.names))):  # written in another order: matched by name
-        write_image(((ds.masks[i] == 2).numpy() * 255).astype(np.uint8), folder / f"{name}.png")
-    write_image(np.zeros((32, 32), np.uint8), folder / "unrelated.png")
-    m = get_segmenter("files").segment(ds, SegmentPrompt(mask_dir=folder))
-    assert m.kind == "binary" and m.num_classes == 2
-    assert torch.equal(m.masks, (ds.masks == 2).to(torch.int64))
+    given = {name: ((ds.masks[i] == 2).numpy() * 255).astype(np.uint8)
+             for i, name in reversed(list(enumerate(ds.names)))}
+    given["unrelated"] = np.zeros((32, 32), np.uint8)
+    m = get_segmenter("files", masks=given, source="my masks").segment(ds, SegmentPrompt(mask_dir="my masks"))
+    assert m.kind == "binary" and m.num_classes == 2 and m.source == "my masks"
+    assert torch.equal(m.masks, (ds.masks == 2).to(torch.uint8))
     assert m.masks.dtype == torch.uint8  # a byte a pixel from the start (300 views of 800 px: 192 MB, not 1.5 GB)
-    # instance ids, stored at twice the size (a dataset loaded downscaled): resized by nearest neighbour
-    big = tmp_path / "big"
-    big.mkdir()
-    for i, name in enumerate(ds.names):
-        write_image(np.kron(ds.masks[i].numpy(), np.ones((2, 2), np.int64)).astype(np.uint8), big / f"{name}.png")
-    m = FilesSegmenter(big).segment(ds, SegmentPrompt())
+    big = {name: np.kron(ds.masks[i].numpy(), np.ones((2, 2), np.int64)).astype(np.uint8)
+           for i, name in enumerate(ds.names)}
+    m = FilesSegmenter(big).segment(ds)
     assert m.kind == "instances" and torch.equal(m.masks, ds.masks)
+    wide = {name: ds.masks[i].numpy().astype(np.uint16) * 300 for i, name in enumerate(ds.names)}  # 16-bit ids
+    assert FilesSegmenter(wide).segment(ds).present_ids() == [300, 600]
 
 
-def test_files_errors(scene, tmp_path):
+def test_files_errors_name_the_view_and_open_no_folder(scene, tmp_path):
     ds, _, _ = scene
-    with pytest.raises(DatasetError, match="not found"):
-        FilesSegmenter(tmp_path / "missing").segment(ds, SegmentPrompt())
-    folder = tmp_path / "m"
-    folder.mkdir()
-    for name in ds.names[:-2]:
-        write_image(np.zeros((32, 32), np.uint8), folder / f"{name}.png")
-    with pytest.raises(DatasetError, match=f"no mask for 2 of 12 views: {ds.names[-2]}.png, {ds.names[-1]}.png"):
-        FilesSegmenter(folder).segment(ds, SegmentPrompt())
-    write_image(np.zeros((30, 32), np.uint8), folder / f"{ds.names[-2]}.png")
-    write_image(np.zeros((32, 32), np.uint8), folder / f"{ds.names[-1]}.png")
-    with pytest.raises(DatasetError, match="mask is 32x30 but its view is 32x32"):
-        FilesSegmenter(folder).segment(ds, SegmentPrompt())
+    zeros = {name: np.zeros((32, 32), np.uint8) for name in ds.names}
+    with pytest.raises(DatasetError, match=f"my masks: no mask for 2 of 12 views: {ds.names[-2]}, {ds.names[-1]}$"):
+        FilesSegmenter({n: zeros[n] for n in ds.names[:-2]}, source="my masks").segment(ds)
+    with pytest.raises(DatasetError, match=f"the mask of view {ds.names[-1]}: mask is 32x30 but its view is 32x32"):
+        FilesSegmenter({**zeros, ds.names[-1]: np.zeros((30, 32), np.uint8)}).segment(ds)
     colour = np.zeros((32, 32, 3), np.uint8)
     colour[..., 0] = 255
-    write_image(colour, folder / f"{ds.names[-2]}.png")
     with pytest.raises(DatasetError, match="colour image"):
-        FilesSegmenter(folder).segment(ds, SegmentPrompt())
+        FilesSegmenter({**zeros, ds.names[0]: colour}).segment(ds)
+    with pytest.raises(PluginError, match="must map view names to arrays, got str"):
+        get_segmenter("files", masks="masks/")  # as --segmenter-option masks=masks/ gives it
+    folder = tmp_path / "masks"
+    folder.mkdir()
+    with pytest.raises(ConfigError, match="the files segmenter reads no folder; read it with "
+                                          "roodi_toolkit.io.masks.read_mask_folder"):
+        FilesSegmenter().segment(ds, SegmentPrompt(mask_dir=folder))
 
 
 def test_click_checks(scene):

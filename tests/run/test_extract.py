@@ -15,7 +15,7 @@ def tiny_scene(tiny_kitchen):
     return tiny_kitchen, record["targets"][0]["id"]
 
 
-def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cli):
+def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cli, monkeypatch):
     from dataclasses import replace
 
     from roodi_toolkit.pipeline.distill import DistillConfig
@@ -77,6 +77,24 @@ def test_extract_chains_every_stage_and_reuses_them(tiny_scene, tmp_path, run_cl
     assert {d: tree_digest(d) for d in (scene, out / "scene", out / "distill")} == inputs
     with pytest.raises(OutputError, match="inside the input folder"):
         extract_objects(scene, out / "scene" / "x", [target], model_dir=out / "scene", config=config)
+    # the run reads fine-tuning's LPIPS weights and hands the network in: used when there, required by "lpips"
+    import torch
+
+    from roodi_toolkit.errors import ConfigError
+    from roodi_toolkit.io.lpips_weights import ENV_WEIGHTS, write_lpips
+    from roodi_toolkit.lpips import LPIPS
+
+    lpips_config = replace(config, finetune=replace(config.finetune, perceptual="lpips"))
+    monkeypatch.delenv(ENV_WEIGHTS, raising=False)
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "empty_hub"))
+    with pytest.raises(ConfigError, match="perceptual loss 'lpips' unavailable: no local LPIPS weights"):
+        extract_objects(scene, tmp_path / "lpips", [target], model_dir=out / "scene", distill_dir=out / "distill",
+                        config=lpips_config)
+    torch.manual_seed(0)
+    monkeypatch.setenv(ENV_WEIGHTS, str(write_lpips(LPIPS(), tmp_path / "lpips.pt")))
+    used = extract_objects(scene, tmp_path / "lpips", [target], model_dir=out / "scene", distill_dir=out / "distill",
+                           config=lpips_config)
+    assert used["objects"][str(target)]["perceptual_loss"] == "lpips"
 
 
 def test_extract_command_replaces_an_object_only_with_overwrite(tiny_scene, tmp_path, run_cli):

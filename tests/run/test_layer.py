@@ -4,16 +4,19 @@ callback, the distillation makes its frozen geometry once, and the run layer's t
 from __future__ import annotations
 
 import ast
+import importlib
 import inspect
+import pkgutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+import roodi_toolkit.pipeline
 from roodi_toolkit.evaluate import benchmark as evaluate_benchmark, metrics
 from roodi_toolkit.io.dataset import load_dataset
-from roodi_toolkit.pipeline import distill, extract, finetune, joint, occlusion, select, train
+from roodi_toolkit.pipeline import distill, train
 from roodi_toolkit.pipeline.distill import DistillConfig, distill_scene
 from roodi_toolkit.pipeline.strategy import MCMCStrategy
 from roodi_toolkit.pipeline.train import TrainConfig, Trainer
@@ -23,8 +26,12 @@ from ..paths import REPO
 
 # the modules of the package that read or write files: a stage imports none of them
 FILE_MODULES = {"roodi_toolkit.io.files", "roodi_toolkit.io.model", "roodi_toolkit.io.ply", "roodi_toolkit.io.atomic",
-                "roodi_toolkit.io.generated", "roodi_toolkit.io.splat", "roodi_toolkit.io.lpips_weights"}
-STAGES = (train, distill, select, extract, joint, finetune, occlusion, metrics, evaluate_benchmark)
+                "roodi_toolkit.io.generated", "roodi_toolkit.io.splat", "roodi_toolkit.io.lpips_weights",
+                "roodi_toolkit.io.masks"}
+# every module of pipeline/ (train, segment and the click segmenter, distill, select, occlusion, inpaint, fine-tune
+# and its perceptual loss, another tool's model frame, ...), no exception, and the metrics and scoring of evaluate/
+PIPELINE = sorted(f"roodi_toolkit.pipeline.{m.name}" for m in pkgutil.iter_modules(roodi_toolkit.pipeline.__path__))
+STAGES = tuple(importlib.import_module(name) for name in PIPELINE) + (metrics, evaluate_benchmark)
 
 
 def _imported(module) -> set[str]:
@@ -49,10 +56,17 @@ def _imported(module) -> set[str]:
 
 @pytest.mark.parametrize("module", STAGES, ids=lambda m: m.__name__.rsplit(".", 1)[1])
 def test_stages_open_name_and_check_no_file(module):
-    """train, distill, select, extract, joint training, occlusion, fine-tuning and evaluation are functions of
-    in-memory values: no file module, no path (their folders and pictures are the run layer's, roodi_toolkit/run)."""
+    """train, segment, distill, select, extract, joint training, occlusion, inpainting, fine-tuning (LPIPS handed
+    in), the model-frame check (the scene handed in) and evaluation are functions of in-memory values: no file module,
+    no path (their folders, mask folders, weights and pictures are the run layer's, roodi_toolkit/run)."""
     bad = _imported(module) & (FILE_MODULES | {"open", "Path", "pathlib", "pathlib.Path"})
     assert not bad, f"{module.__name__} touches files through {sorted(bad)}"
+
+
+def test_the_stages_cover_what_read_files():
+    """The modules that read a mask folder, another tool's model file and LPIPS weights until issue 35 are checked."""
+    assert {"roodi_toolkit.pipeline.segment", "roodi_toolkit.pipeline.model_frame",
+            "roodi_toolkit.pipeline.perceptual", "roodi_toolkit.pipeline.click"} <= set(PIPELINE)
 
 
 def test_the_run_layer_is_where_the_commands_go():

@@ -1,0 +1,46 @@
+"""Mask folders in a run: the folder a user names for the ``files`` segmenter (``--masks DIR``) and a distillation's
+``object_masks/``, read (:func:`roodi_toolkit.io.masks.read_mask_folder`, which names the file at fault) and handed
+to the segmenter in memory (:class:`roodi_toolkit.pipeline.segment.FilesSegmenter`'s ``masks`` option)."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from ..io.dataset import Dataset
+from ..io.masks import read_mask_folder
+from ..pipeline.resolution import working_factor
+from ..pipeline.segment import FilesSegmenter, SegmentPrompt, ViewMasks
+from ..progress import ProgressFactory, null_progress
+
+
+def options_with_masks(segmenter: str, options: dict[str, Any] | None, prompt: SegmentPrompt, dataset: Dataset,
+                       *, max_pixels: int | None = None, progress: ProgressFactory = null_progress) -> dict[str, Any]:
+    """Return the segmenter's options, with the masks of the prompt's folder read for the ``files`` segmenter (the
+    masks of ``dataset``'s views); other segmenters, and ``files`` without a folder, get ``options`` as they are.
+
+    ``max_pixels``: the pixel budget of the mask stages (``DistillConfig.max_pixels``): the masks are read at the
+    working size the segmenter sees (:func:`roodi_toolkit.pipeline.resolution.working_factor`), not held at full size
+    beside it; None: the dataset's size.
+
+    Raises:
+        DatasetError: no such folder, missing files (listed), colour or mis-sized masks (the file named).
+    """
+    options = dict(options or {})
+    if segmenter != "files" or prompt.mask_dir is None:
+        return options
+    f = 1 if max_pixels is None else working_factor(dataset.width, dataset.height, max_pixels)
+    size = (dataset.width // f, dataset.height // f)
+    masks = read_mask_folder(prompt.mask_dir, dataset.names, size, progress=progress)
+    return {**options, "masks": masks, "source": str(prompt.mask_dir)}
+
+
+def folder_masks(folder: str | os.PathLike, dataset: Dataset, *,
+                 progress: ProgressFactory = null_progress) -> ViewMasks:
+    """Return the masks of a folder of PNGs named like ``dataset``'s views (binary or instance ids), at its size.
+
+    Raises:
+        DatasetError: no such folder, missing files (listed), colour or mis-sized masks (the file named).
+    """
+    masks = read_mask_folder(folder, dataset.names, (dataset.width, dataset.height), progress=progress)
+    return FilesSegmenter(masks, source=str(folder)).segment(dataset)
