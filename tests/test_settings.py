@@ -180,3 +180,42 @@ def test_a_flag_on_by_default_is_offered_as_no_name():
 
     assert [(d.option, d.negated) for d in declared(Flags)] == [("--no-prune", True), ("--quick", False),
                                                                  ("--this/--that", False)]
+
+
+@dataclass(frozen=True)
+class Sized:
+    width: int = setting(20, "Image size WIDTHxHEIGHT.", low=8, option="--size", joins=("height",),
+                         parse=lambda t: tuple(int(v) for v in t.split("x")), write=lambda v: f"{v[0]}x{v[1]}")
+    height: int = setting(10, "Image height.", low=8, cli=False)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+def test_a_setting_that_joins_others_needs_parse_and_write_and_each_field_keeps_its_range():
+    from roodi_toolkit.settings import documented
+
+    width = declared(Sized)[0]
+    assert width.meta.joins == ("height",) and parse_text(width, "30x9") == (30, 9)
+    with pytest.raises(ConfigError, match="height must be a whole number >= 8, got 4"):
+        Sized(height=4)
+    with pytest.raises(TypeError, match="joins others needs parse= and write="):
+        @dataclass
+        class Broken:
+            width: int = setting(20, "W.", joins=("height",))
+            height: int = setting(10, "H.", cli=False)
+
+        declared(Broken)
+    doc = documented(type("Doc", (Sized,), {"__doc__": "Sized."})).__doc__
+    assert "height: Image height. (default 10; a whole number >= 8; with --size)" in doc
+
+
+def test_image_sizes_are_read_as_width_x_height_or_one_number():
+    from roodi_toolkit.settings import parse_image_size, write_image_size
+
+    assert parse_image_size("64x48") == (64, 48) and parse_image_size(" 32 ") == (32, 32)
+    assert parse_image_size(write_image_size((7, 9))) == (7, 9)
+    for text, message in (("wide", "expected WIDTHxHEIGHT"), ("0", "between 1 and 16384"),
+                          ("8x7", "between 8 and 20")):
+        with pytest.raises(ValueError, match=message):
+            parse_image_size(text, *((8, 20) if text == "8x7" else ()))
