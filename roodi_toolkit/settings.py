@@ -258,17 +258,22 @@ def check_settings(config: Any) -> None:
                               f"{value!r}")
 
 
-def documented(cls: type) -> type:
+def documented(cls: type | None = None, *, given: str | None = None) -> Any:
     """Return the dataclass ``cls`` with its settings listed under ``Attributes:`` in its docstring (name, default,
     value space, help: from the declarations, so ``help(cls)`` and ``--help`` say the same), each wrapped at 116
     characters. A nested config's default is written as its class with the settings that differ from the class's
-    own defaults (``MCMCStrategy(cap_max=60000)``)."""
+    own defaults (``MCMCStrategy(cap_max=60000)``). ``given``: how a command line gives each setting of a config
+    that has no options of its own (``"--segmenter-option {name}=VALUE"``); then ``@documented(given=...)``."""
+    if cls is None:
+        return lambda c: documented(c, given=given)
     lines = []
     settings = declared(cls)
     joined = {name: d.option for d in settings if d.meta.cli for name in d.meta.joins}
     for d in settings:
         space = describe_range(d) + (" or None" if d.optional else "")
         option = f"; {d.option}" if d.meta.cli else f"; with {joined[d.name]}" if d.name in joined else "; library only"
+        if given is not None and d.meta.cli:
+            option = "; " + given.format(name=d.name)
         if d.nested and d.meta.cli:
             option = f"; its settings' options{f' as --{d.meta.prefix}-NAME' if d.meta.prefix else ''}"
         lines.append(textwrap.fill(f"{d.name}: {d.meta.help} (default {_short_repr(d.default)}; {space}{option})",
@@ -347,3 +352,62 @@ def parse_text(d: Declared, text: str) -> Any:
     if d.meta.parse is not None:
         return d.meta.parse(text)
     return parse_floats(text, d.size)
+
+
+_TRUE, _FALSE = ("true", "yes", "on", "1"), ("false", "no", "off", "0")
+
+
+def parse_value(d: Declared, text: str) -> Any:
+    """Return the value of setting ``d`` written as ``text`` (a ``KEY=VALUE`` option such as ``--segmenter-option``,
+    or a manifest cell): a number, ``true``/``false``, text, ``none`` for an unset optional setting, or a tuple as
+    :func:`parse_text` reads it. Its range is checked by the dataclass (:func:`check_settings`).
+
+    Raises:
+        ValueError: text that is no value of the setting's type (the message says what was expected).
+    """
+    t = str(text).strip()
+    if d.optional and t.lower() in ("none", ""):
+        return None
+    if d.kind is tuple or d.meta.joins:
+        return parse_text(d, t)
+    expected = describe_range(d) + (" or none" if d.optional else "")
+    if d.kind is bool:
+        if t.lower() not in _TRUE + _FALSE:
+            raise ValueError(f"expected {expected}")
+        return t.lower() in _TRUE
+    if d.kind in (int, float):
+        try:
+            return d.kind(t)
+        except ValueError:
+            raise ValueError(f"expected {expected}") from None
+    if d.kind is str:
+        return t
+    raise ValueError(f"{d.name} cannot be given as text")
+
+
+def config_from_text(cls: type, values: dict[str, Any], what: str) -> Any:
+    """Return the config dataclass ``cls`` built from ``values`` (field -> value; text is read by
+    :func:`parse_value`, other values are taken as they are), each error one line starting with ``what`` (``click
+    segmenter option``) and naming the setting.
+
+    Raises:
+        ConfigError: a key that is no setting of ``cls`` (the settings listed), text that is no value of its
+            setting, or a value outside the setting's range.
+    """
+    settings = {d.name: d for d in declared(cls)}
+    unknown = sorted(set(values) - set(settings))
+    if unknown:
+        raise ConfigError(f"{what} {', '.join(unknown)}: no setting of {cls.__name__}; its settings are "
+                          f"{', '.join(settings)}")
+    parsed = {}
+    for name, value in values.items():
+        if isinstance(value, str):
+            try:
+                value = parse_value(settings[name], value)
+            except ValueError as exc:
+                raise ConfigError(f"{what} {name}={value!r}: {exc}") from None
+        parsed[name] = value
+    try:
+        return cls(**parsed)
+    except ConfigError as exc:
+        raise ConfigError(f"{what}: {exc}") from None

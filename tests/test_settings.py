@@ -219,3 +219,37 @@ def test_image_sizes_are_read_as_width_x_height_or_one_number():
                           ("8x7", "between 8 and 20")):
         with pytest.raises(ValueError, match=message):
             parse_image_size(text, *((8, 20) if text == "8x7" else ()))
+
+
+def test_key_value_text_is_read_by_each_settings_type_and_checked_by_the_class():
+    """``--segmenter-option KEY=VALUE`` text: config_from_text reads it by the declaration and names the option."""
+    from roodi_toolkit.settings import config_from_text, parse_value
+
+    by_name = {d.name: d for d in declared(Toy)}
+    assert [parse_value(by_name[n], t) for n, t in (("count", "7"), ("share", "0.25"), ("strict", "yes"),
+                                                     ("strict", "off"), ("colour", "blue"), ("cap", "none"),
+                                                     ("where", "1,2,3"))] == [7, 0.25, True, False, "blue", None,
+                                                                              (1.0, 2.0, 3.0)]
+    assert config_from_text(Toy, {"count": "7", "cap": "2", "share": 0.1}, "toy option") == Toy(count=7, cap=2.0,
+                                                                                                share=0.1)
+    for values, message in (({"count": "many"}, "toy option count='many': expected a whole number >= 1"),
+                            ({"strict": "maybe"}, "toy option strict='maybe': expected true or false"),
+                            ({"count": "0"}, "toy option: count must be a whole number >= 1, got 0"),
+                            ({"colour": "green"}, "toy option: colour must be one of red, blue, got 'green'"),
+                            ({"size": "1"}, "toy option size: no setting of Toy; its settings are count, share")):
+        with pytest.raises(ConfigError) as err:
+            config_from_text(Toy, values, "toy option")
+        assert str(err.value).startswith(message), str(err.value)
+
+
+def test_documented_can_say_how_a_command_line_gives_each_setting():
+    from roodi_toolkit.settings import documented
+
+    @documented(given="--thing-option {name}=VALUE")
+    @dataclass(frozen=True)
+    class Thing:
+        """A thing."""
+
+        size: int = setting(3, "Its size.", low=1)
+
+    assert "size: Its size. (default 3; a whole number >= 1; --thing-option size=VALUE)" in Thing.__doc__
