@@ -23,12 +23,14 @@ EXAMPLE = """Example:
   roodi-toolkit demo demo-out                       # about 5 minutes on 2 cores
   roodi-toolkit demo demo-out --overwrite --preset livingroom --seed 5
   roodi-toolkit demo small --size 64 --train-views 24 --iterations 800 --max-gaussians 8000
+  roodi-toolkit demo seed1 --train-seed 1           # the same scene trained again: how much the figures move
+                                                    # from run to run (docs/benchmark.md, "Run to run")
   roodi-toolkit demo prune-out --prune-only         # the planted-floater pruning demo (seconds)
 """
 
 # parameter -> flag of the demo's own options that only the extraction demo takes (None when not given: the
 # library's default); the options of EXTRACT_OPTIONS are the extraction demo's too
-EXTRACT_ONLY = {"max_gaussians": "--max-gaussians", "train_seed": "--train-seed"}
+EXTRACT_ONLY = {"max_gaussians": "--max-gaussians"}
 
 
 def _duration(seconds: float) -> str:
@@ -62,12 +64,16 @@ DEMO_REFINE_SETTINGS = Options(DEMO_CONFIG, within="extract", unset=True,
 """The demo's settings of its refinement (--finetune-iterations, --view-size), unset as DEMO_SETTINGS' (a second set
 only to keep them where ``--help`` lists them)."""
 
+TRAIN_SEED_SETTING = Options(DEMO_CONFIG, within="extract", unset=True, only=("train.seed",),
+                             flags={"train.seed": "--train-seed"})
+"""The seed of the scene training, TrainConfig.seed, as --train-seed (the demo's --seed is the scene's)."""
+
 OCCLUDED_SETTING = Options(DEMO_CONFIG, within="scene", unset=True, only=("occluded",),
                            flags={"occluded": "--occluded/--no-occluded"})
 """The scene's occluded variant: the demo's default, so the demo offers --no-occluded too."""
 
-EXTRACT_OPTIONS = (PRESET_SETTING, OBJECT_SETTING, SCENE_SETTINGS, DEMO_SETTINGS, DEMO_REFINE_SETTINGS,
-                   OCCLUDED_SETTING)
+EXTRACT_OPTIONS = (PRESET_SETTING, OBJECT_SETTING, SCENE_SETTINGS, DEMO_SETTINGS, TRAIN_SEED_SETTING,
+                   DEMO_REFINE_SETTINGS, OCCLUDED_SETTING)
 """The options of the demo's settings, all the extraction demo's (--prune-only refuses them)."""
 
 
@@ -87,9 +93,7 @@ def _extract_only(params: dict[str, Any]) -> list[str]:
 @OBJECT_SETTING
 @SCENE_SETTINGS
 @DEMO_SETTINGS
-@click.option("--train-seed", type=click.IntRange(0), default=None,
-              help="Seed of the scene training [0]; the scene stays the same (--seed). Runs with other seeds show "
-                   "how much the figures move from run to run (docs/benchmark.md, \"Run to run\").")
+@TRAIN_SEED_SETTING
 @click.option("--max-gaussians", type=click.IntRange(2), default=None,
               help="Most Gaussians the scene may grow to; it starts from half as many [30000].")
 @DEMO_REFINE_SETTINGS
@@ -100,8 +104,8 @@ def _extract_only(params: dict[str, Any]) -> list[str]:
 @overwrite_option
 @renderer_option
 @quiet_option
-def demo(out_dir: str, seed: int | None, train_seed: int | None, max_gaussians: int | None, prune_only: bool,
-         surface: str | None, overwrite: bool, renderer: Any, quiet: bool, **settings: Any) -> None:
+def demo(out_dir: str, seed: int | None, max_gaussians: int | None, prune_only: bool, surface: str | None,
+         overwrite: bool, renderer: Any, quiet: bool, **settings: Any) -> None:
     """Extract one object from a generated scene into OUT_DIR, score it, and say where the PLY and pictures are.
 
     Generates a cluttered scene (make-scene), trains it, distils its instance masks, then selects, prunes, completes
@@ -123,8 +127,10 @@ def demo(out_dir: str, seed: int | None, train_seed: int | None, max_gaussians: 
         raise click.UsageError("--surface is an option of --prune-only")
     base = ExtractDemoConfig()
     scene = OCCLUDED_SETTING.config(params, base=SCENE_SETTINGS.config(params, base=base.scene))
-    ex = DEMO_REFINE_SETTINGS.config(params, base=DEMO_SETTINGS.config(params, base=base.extract))
-    train = config_with(ex.train, cap_max=max_gaussians, seed=train_seed,
+    ex = base.extract
+    for options in (DEMO_SETTINGS, TRAIN_SEED_SETTING, DEMO_REFINE_SETTINGS):
+        ex = options.config(params, base=ex)
+    train = config_with(ex.train, cap_max=max_gaussians,
                         init_num_points=None if max_gaussians is None else max(1, max_gaussians // 2))
     extract = replace(ex, train=train)
     if extract.inpaint:  # an unknown or broken --inpainter fails now, not after the scene has been trained

@@ -6,12 +6,13 @@ from typing import Any
 
 import click
 
+from roodi_toolkit.synth.objects import PRESETS
 from roodi_toolkit.synth.scene import SceneSettings, make_scene as run
 
 from .common import overwrite_option, progress_factory, quiet_option
 from .settings import Options
 
-PRESET_NAMES = ("bedroom", "kitchen", "livingroom", "picnic")
+PRESET_NAMES = tuple(PRESETS)
 
 SCENE_SETTINGS = Options(SceneSettings)
 """The generator's settings (--size, --train-views, --test-views, --objects, --targets, --supersample,
