@@ -633,3 +633,26 @@ def test_flags_rename_a_setting_for_one_command():
     assert opts.config(cmd.make_context("cmd", ["--steps-inside", "3"]).params) == Outer(inner=Inner(steps=3))
     with pytest.raises(TypeError, match="flags= of settings not offered: flat.steps"):
         Options(Outer, only=("inner.steps",), flags={"flat.steps": "--x"}).offered()
+
+
+def test_demo_train_seed_is_the_train_configs_seed():
+    """--train-seed is TrainConfig.seed under the demo's own flag (its --seed is the scene's): its range and
+    default come from the field; unset it keeps the demo's training seed."""
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_demo import TRAIN_SEED_SETTING
+    from roodi_toolkit.pipeline.train import TrainConfig
+
+    base = _demo_extract()
+    (offered,) = TRAIN_SEED_SETTING.offered()
+    assert (offered.option, offered.param, offered.path) == ("--train-seed", "train_seed", ("train", "seed"))
+    assert offered.setting == next(d for d in declared(TrainConfig) if d.name == "seed")
+    cmd = _command("demo")
+    assert TRAIN_SEED_SETTING.config(cmd.make_context("demo", ["out"]).params, base=base) == base
+    values = cmd.make_context("demo", ["out", "--train-seed", "5", "--seed", "7"]).params
+    assert TRAIN_SEED_SETTING.config(values, base=base) == replace(base, train=replace(base.train, seed=5))
+    assert values["seed"] == 7  # the scene's, a parameter of its own
+    for bad in ("-1", str(2 ** 32)):
+        assert CliRunner().invoke(cmd, ["out", "--train-seed", bad]).exit_code == 2, bad
+    with pytest.raises(ConfigError, match="seed must be a whole number in"):
+        TrainConfig(seed=-1)
