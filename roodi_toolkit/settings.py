@@ -61,6 +61,10 @@ class Setting:
         show_default: whether ``--help`` shows the default (never for None, False or an empty tuple).
         prefix: a nested config's prefix of its settings' options and click parameters (``"distill"``:
             ``--distill-iterations``, ``distill_iterations``; ``""``: none); None for a plain setting.
+        joins: the other fields of the config that this setting's option sets with it (``SceneSettings.width``'s
+            ``--size 64x48`` sets ``height`` too): ``parse`` returns the values of all, this field's first, and
+            ``write`` writes them back as the option's text; the joined fields declare ``cli=False``.
+        write: how ``--help`` writes the default of a setting with ``joins`` (the inverse of ``parse``).
     """
 
     help: str
@@ -76,13 +80,16 @@ class Setting:
     parse: Callable[[str], Any] | None = None
     show_default: bool = True
     prefix: str | None = None
+    joins: tuple[str, ...] = ()
+    write: Callable[[tuple[Any, ...]], str] | None = None
 
 
 def setting(default: Any = dataclasses.MISSING, help: str = "", *, factory: Callable[[], Any] | None = None,
             prefix: str | None = None, low: float | None = None, high: float | None = None, low_open: bool = False,
             high_open: bool = False, choices: tuple[str, ...] | None = None, finite: bool = True,
             option: str | None = None, cli: bool = True, metavar: str | None = None,
-            parse: Callable[[str], Any] | None = None, show_default: bool = True) -> Any:
+            parse: Callable[[str], Any] | None = None, show_default: bool = True, joins: tuple[str, ...] = (),
+            write: Callable[[tuple[Any, ...]], str] | None = None) -> Any:
     """Return a dataclass field declaring a setting: its default (or ``factory``, which makes it: a nested config or
     a dict) and its :class:`Setting` (the other arguments)."""
     if not help:
@@ -91,7 +98,8 @@ def setting(default: Any = dataclasses.MISSING, help: str = "", *, factory: Call
         raise TypeError("a setting has a default or a factory, one of them")
     meta = Setting(help=help, low=low, high=high, low_open=low_open, high_open=high_open,
                    choices=tuple(choices) if choices is not None else None, finite=finite, option=option, cli=cli,
-                   metavar=metavar, parse=parse, show_default=show_default, prefix=prefix)
+                   metavar=metavar, parse=parse, show_default=show_default, prefix=prefix, joins=tuple(joins),
+                   write=write)
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata={KEY: meta})
     return dataclasses.field(default=default, metadata={KEY: meta})
@@ -175,6 +183,8 @@ def _declare(owner: str, f: dataclasses.Field, hint: Any, meta: Setting) -> Decl
         repeated, kind = True, tuple
     elif origin is tuple and args and all(a is float for a in args):
         size, kind = len(args), tuple
+    if meta.joins and (meta.parse is None or meta.write is None):
+        raise TypeError(f"{owner}.{f.name}: a setting that joins others needs parse= and write=")
     if meta.prefix is not None and not (isinstance(kind, type) and dataclasses.is_dataclass(kind)):
         raise TypeError(f"{owner}.{f.name}: prefix= is for a nested config dataclass, not {hint!r}")
     if kind not in (bool, int, float, str, tuple) and not (isinstance(kind, type) and (
@@ -248,15 +258,22 @@ def check_settings(config: Any) -> None:
                               f"{value!r}")
 
 
-def documented(cls: type) -> type:
+def documented(cls: type | None = None, *, given: str | None = None) -> Any:
     """Return the dataclass ``cls`` with its settings listed under ``Attributes:`` in its docstring (name, default,
     value space, help: from the declarations, so ``help(cls)`` and ``--help`` say the same), each wrapped at 116
     characters. A nested config's default is written as its class with the settings that differ from the class's
-    own defaults (``MCMCStrategy(cap_max=60000)``)."""
+    own defaults (``MCMCStrategy(cap_max=60000)``). ``given``: how a command line gives each setting of a config
+    that has no options of its own (``"--segmenter-option {name}=VALUE"``); then ``@documented(given=...)``."""
+    if cls is None:
+        return lambda c: documented(c, given=given)
     lines = []
-    for d in declared(cls):
+    settings = declared(cls)
+    joined = {name: d.option for d in settings if d.meta.cli for name in d.meta.joins}
+    for d in settings:
         space = describe_range(d) + (" or None" if d.optional else "")
-        option = f"; {d.option}" if d.meta.cli else "; library only"
+        option = f"; {d.option}" if d.meta.cli else f"; with {joined[d.name]}" if d.name in joined else "; library only"
+        if given is not None and d.meta.cli:
+            option = "; " + given.format(name=d.name)
         if d.nested and d.meta.cli:
             option = f"; its settings' options{f' as --{d.meta.prefix}-NAME' if d.meta.prefix else ''}"
         lines.append(textwrap.fill(f"{d.name}: {d.meta.help} (default {_short_repr(d.default)}; {space}{option})",
@@ -297,6 +314,34 @@ def parse_floats(text: str, size: int) -> tuple[float, ...]:
     return values
 
 
+MAX_IMAGE_SIDE = 16384
+"""The longest image side a size option takes (a config may allow less)."""
+
+
+def parse_image_size(text: str, low: int = 1, high: int = MAX_IMAGE_SIDE) -> tuple[int, int]:
+    """Return ``(width, height)`` from ``'WIDTHxHEIGHT'`` or one number (a square), each ``low`` to ``high``.
+
+    Raises:
+        ValueError: not that form, or a side outside that range (the message says which).
+    """
+    t = str(text).lower().strip()
+    try:
+        if "x" in t:
+            w, h = (int(v) for v in t.split("x", 1))
+        else:
+            w = h = int(t)
+    except ValueError:
+        raise ValueError(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}") from None
+    if not (low <= w <= high and low <= h <= high):
+        raise ValueError(f"size must be between {low} and {high} pixels, got {text!r}")
+    return w, h
+
+
+def write_image_size(size: tuple[int, int]) -> str:
+    """Return ``(width, height)`` as :func:`parse_image_size` reads it: ``'WIDTHxHEIGHT'``."""
+    return f"{size[0]}x{size[1]}"
+
+
 def parse_text(d: Declared, text: str) -> Any:
     """Return the value of the tuple setting ``d`` written as ``text`` (one entry of a repeatable setting), as a
     command line writes it (``a,b,c``); its range is checked by the dataclass (:func:`check_settings`).
@@ -307,3 +352,62 @@ def parse_text(d: Declared, text: str) -> Any:
     if d.meta.parse is not None:
         return d.meta.parse(text)
     return parse_floats(text, d.size)
+
+
+_TRUE, _FALSE = ("true", "yes", "on", "1"), ("false", "no", "off", "0")
+
+
+def parse_value(d: Declared, text: str) -> Any:
+    """Return the value of setting ``d`` written as ``text`` (a ``KEY=VALUE`` option such as ``--segmenter-option``,
+    or a manifest cell): a number, ``true``/``false``, text, ``none`` for an unset optional setting, or a tuple as
+    :func:`parse_text` reads it. Its range is checked by the dataclass (:func:`check_settings`).
+
+    Raises:
+        ValueError: text that is no value of the setting's type (the message says what was expected).
+    """
+    t = str(text).strip()
+    if d.optional and t.lower() in ("none", ""):
+        return None
+    if d.kind is tuple or d.meta.joins:
+        return parse_text(d, t)
+    expected = describe_range(d) + (" or none" if d.optional else "")
+    if d.kind is bool:
+        if t.lower() not in _TRUE + _FALSE:
+            raise ValueError(f"expected {expected}")
+        return t.lower() in _TRUE
+    if d.kind in (int, float):
+        try:
+            return d.kind(t)
+        except ValueError:
+            raise ValueError(f"expected {expected}") from None
+    if d.kind is str:
+        return t
+    raise ValueError(f"{d.name} cannot be given as text")
+
+
+def config_from_text(cls: type, values: dict[str, Any], what: str) -> Any:
+    """Return the config dataclass ``cls`` built from ``values`` (field -> value; text is read by
+    :func:`parse_value`, other values are taken as they are), each error one line starting with ``what`` (``click
+    segmenter option``) and naming the setting.
+
+    Raises:
+        ConfigError: a key that is no setting of ``cls`` (the settings listed), text that is no value of its
+            setting, or a value outside the setting's range.
+    """
+    settings = {d.name: d for d in declared(cls)}
+    unknown = sorted(set(values) - set(settings))
+    if unknown:
+        raise ConfigError(f"{what} {', '.join(unknown)}: no setting of {cls.__name__}; its settings are "
+                          f"{', '.join(settings)}")
+    parsed = {}
+    for name, value in values.items():
+        if isinstance(value, str):
+            try:
+                value = parse_value(settings[name], value)
+            except ValueError as exc:
+                raise ConfigError(f"{what} {name}={value!r}: {exc}") from None
+        parsed[name] = value
+    try:
+        return cls(**parsed)
+    except ConfigError as exc:
+        raise ConfigError(f"{what}: {exc}") from None

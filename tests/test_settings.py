@@ -180,3 +180,76 @@ def test_a_flag_on_by_default_is_offered_as_no_name():
 
     assert [(d.option, d.negated) for d in declared(Flags)] == [("--no-prune", True), ("--quick", False),
                                                                  ("--this/--that", False)]
+
+
+@dataclass(frozen=True)
+class Sized:
+    width: int = setting(20, "Image size WIDTHxHEIGHT.", low=8, option="--size", joins=("height",),
+                         parse=lambda t: tuple(int(v) for v in t.split("x")), write=lambda v: f"{v[0]}x{v[1]}")
+    height: int = setting(10, "Image height.", low=8, cli=False)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+def test_a_setting_that_joins_others_needs_parse_and_write_and_each_field_keeps_its_range():
+    from roodi_toolkit.settings import documented
+
+    width = declared(Sized)[0]
+    assert width.meta.joins == ("height",) and parse_text(width, "30x9") == (30, 9)
+    with pytest.raises(ConfigError, match="height must be a whole number >= 8, got 4"):
+        Sized(height=4)
+    with pytest.raises(TypeError, match="joins others needs parse= and write="):
+        @dataclass
+        class Broken:
+            width: int = setting(20, "W.", joins=("height",))
+            height: int = setting(10, "H.", cli=False)
+
+        declared(Broken)
+    doc = documented(type("Doc", (Sized,), {"__doc__": "Sized."})).__doc__
+    assert "height: Image height. (default 10; a whole number >= 8; with --size)" in doc
+
+
+def test_image_sizes_are_read_as_width_x_height_or_one_number():
+    from roodi_toolkit.settings import parse_image_size, write_image_size
+
+    assert parse_image_size("64x48") == (64, 48) and parse_image_size(" 32 ") == (32, 32)
+    assert parse_image_size(write_image_size((7, 9))) == (7, 9)
+    for text, message in (("wide", "expected WIDTHxHEIGHT"), ("0", "between 1 and 16384"),
+                          ("8x7", "between 8 and 20")):
+        with pytest.raises(ValueError, match=message):
+            parse_image_size(text, *((8, 20) if text == "8x7" else ()))
+
+
+def test_key_value_text_is_read_by_each_settings_type_and_checked_by_the_class():
+    """``--segmenter-option KEY=VALUE`` text: config_from_text reads it by the declaration and names the option."""
+    from roodi_toolkit.settings import config_from_text, parse_value
+
+    by_name = {d.name: d for d in declared(Toy)}
+    assert [parse_value(by_name[n], t) for n, t in (("count", "7"), ("share", "0.25"), ("strict", "yes"),
+                                                     ("strict", "off"), ("colour", "blue"), ("cap", "none"),
+                                                     ("where", "1,2,3"))] == [7, 0.25, True, False, "blue", None,
+                                                                              (1.0, 2.0, 3.0)]
+    assert config_from_text(Toy, {"count": "7", "cap": "2", "share": 0.1}, "toy option") == Toy(count=7, cap=2.0,
+                                                                                                share=0.1)
+    for values, message in (({"count": "many"}, "toy option count='many': expected a whole number >= 1"),
+                            ({"strict": "maybe"}, "toy option strict='maybe': expected true or false"),
+                            ({"count": "0"}, "toy option: count must be a whole number >= 1, got 0"),
+                            ({"colour": "green"}, "toy option: colour must be one of red, blue, got 'green'"),
+                            ({"size": "1"}, "toy option size: no setting of Toy; its settings are count, share")):
+        with pytest.raises(ConfigError) as err:
+            config_from_text(Toy, values, "toy option")
+        assert str(err.value).startswith(message), str(err.value)
+
+
+def test_documented_can_say_how_a_command_line_gives_each_setting():
+    from roodi_toolkit.settings import documented
+
+    @documented(given="--thing-option {name}=VALUE")
+    @dataclass(frozen=True)
+    class Thing:
+        """A thing."""
+
+        size: int = setting(3, "Its size.", low=1)
+
+    assert "size: Its size. (default 3; a whole number >= 1; --thing-option size=VALUE)" in Thing.__doc__

@@ -88,18 +88,12 @@ def parse_key_values(items: tuple[str, ...], name: str) -> dict[str, str]:
 
 
 def parse_size(text: str, name: str = "--size") -> tuple[int, int]:
-    """Parse 'WxH' (or a single number for a square) into (width, height)."""
-    t = text.lower().strip()
+    """Parse 'WxH' (or a single number for a square) into (width, height)
+    (:func:`roodi_toolkit.settings.parse_image_size`); what it refuses is a usage error naming ``name``."""
     try:
-        if "x" in t:
-            w, h = (int(v) for v in t.split("x", 1))
-        else:
-            w = h = int(t)
-    except ValueError:
-        raise click.BadParameter(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}", param_hint=name) from None
-    if w <= 0 or h <= 0 or w > 16384 or h > 16384:
-        raise click.BadParameter(f"size must be between 1 and 16384 pixels, got {text!r}", param_hint=name)
-    return w, h
+        return settings.parse_image_size(text)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint=name) from None
 
 
 RENDER_BYTES_PER_PIXEL = 80

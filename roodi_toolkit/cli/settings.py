@@ -59,7 +59,7 @@ def click_type(d: Declared) -> Any:
     m = d.meta
     if m.choices is not None:
         return click.Choice(list(m.choices))
-    if d.kind is tuple:
+    if d.kind is tuple or d.meta.joins:
         return SettingText(d)
     if d.kind in (int, float) and (m.low is not None or m.high is not None):
         cls = click.IntRange if d.kind is int else click.FloatRange
@@ -86,18 +86,24 @@ def make_option(o: "Offered", unset: bool = False) -> click.Option:
     cls: Any = click.Option
     extra: dict[str, Any] = {}
     if unset:
-        cls, extra, shown = UnsetOption, {"shown": _text(o.default) if shown else None}, False
-    default = None if unset else o.default
+        cls, extra, shown = UnsetOption, {"shown": _text(o.default, d) if shown else None}, False
+    default = None if unset else _text(o.default, d) if d.meta.joins else o.default  # --size's: "200x200"
     if d.kind is bool:
         if d.negated:  # --no-prune: given, the setting is False
             return cls([o.option, o.param], is_flag=True, flag_value=False, default=default, help=m.help, **extra)
+        if unset and "/" in o.option and o.option != d.option:  # made two-sided by the command (flags=): the
+            # demo's --occluded/--no-occluded shows [default: occluded], its base's side
+            extra["shown"] = o.option.split("/")[0 if o.default else 1].lstrip("-")
         return cls([o.option, o.param], is_flag=True, default=default, help=m.help, **extra)
     return cls([o.option, o.param], type=click_type(d), default=default, show_default=shown, help=m.help,
                metavar=m.metavar, multiple=d.repeated, **extra)
 
 
-def _text(value: Any) -> str:
-    """Return a default as ``--help`` writes it (``1,2,3`` for numbers in a tuple)."""
+def _text(value: Any, d: Declared) -> str:
+    """Return a default of ``d`` as ``--help`` writes it (``1,2,3`` for numbers in a tuple, ``200x200`` for
+    ``--size``: the setting's ``write``)."""
+    if d.meta.write is not None:
+        return d.meta.write(value)
     if isinstance(value, tuple):
         return ",".join(str(v) for v in value)
     return str(value)
@@ -139,6 +145,14 @@ def config_options(*classes: type) -> Callable[[F], F]:
     return decorate
 
 
+def joined_values(d: Declared, value: Any) -> dict[str, Any]:
+    """Return the fields set by the option of ``d`` given ``value``: ``{d.name: value}``, or for a setting that joins
+    others (``--size``) each field's part of the parsed tuple."""
+    if not d.meta.joins:
+        return {d.name: value}
+    return dict(zip((d.name, *d.meta.joins), value))
+
+
 def option_names(cls: type) -> tuple[str, ...]:
     """Return the parameter names of the command-line settings of ``cls`` (its fields' names)."""
     return tuple(d.name for d in command_settings(cls))
@@ -151,7 +165,10 @@ def config_from_options(cls: type[C], values: Mapping[str, Any]) -> C:
     Raises:
         ConfigError: values the dataclass refuses (exit 1 with one line).
     """
-    return cls(**{name: values[name] for name in option_names(cls)})
+    fields: dict[str, Any] = {}
+    for d in command_settings(cls):
+        fields.update(joined_values(d, values[d.name]))
+    return cls(**fields)
 
 
 @dataclass(frozen=True)
@@ -164,7 +181,8 @@ class Offered:
         param: the click parameter's name (the field's, after its nested configs' prefixes).
         option: the flag(s), e.g. ``--distill-iterations``, ``--no-prune``.
         default: the setting's value in the base config (which may differ from the field's default: the cap of
-            ``TrainConfig``'s strategy is 60,000, the strategy's own 1,000,000).
+            ``TrainConfig``'s strategy is 60,000, the strategy's own 1,000,000); a tuple of its fields' values for a
+            setting that joins others (``--size``: width and height).
     """
 
     path: tuple[str, ...]
@@ -211,6 +229,8 @@ def offered_settings(config: Any, only: Sequence[str] | None = None) -> list[Off
             if twin is not None:
                 raise TypeError(f"{type(config).__name__}: {'.'.join(twin.path)} and {'.'.join(path + (d.name,))} "
                                 f"would both be the parameter {param!r} (give a nested config another prefix)")
+            if d.meta.joins:
+                value = tuple(getattr(obj, name) for name in (d.name, *d.meta.joins))
             found[".".join(path + (d.name,))] = Offered(path + (d.name,), d, param, _prefixed(d.option, prefix),
                                                         value)
 
@@ -253,6 +273,9 @@ class Options:
         unset: options default to None, meaning "the base config's value" (shown as the default in ``--help``).
         within: a dotted path of fields to the config the options are made from, inside the target's base (the
             demo's ``"extract"``: the ExtractConfig of ``ExtractDemoConfig()``, whose defaults are the demo's own).
+        flags: the command's own flag of a setting (dotted path -> flag), where it differs from the declared one:
+            the demo's ``{"train.seed": "--train-seed"}`` (its ``--seed`` is the scene's) or ``{"occluded":
+            "--occluded/--no-occluded"}`` (on by default there); the click parameter is named after the flag.
 
     Example:
         >>> from roodi_toolkit.prune.config import StatisticalSettings
@@ -264,8 +287,9 @@ class Options:
     """
 
     def __init__(self, config: type | str, *, only: Sequence[str] | None = None, unset: bool = False,
-                 within: str = "") -> None:
+                 within: str = "", flags: Mapping[str, str] | None = None) -> None:
         self.target = config
+        self.flags = dict(flags or {})
         self.only = tuple(only) if only is not None else None
         self.unset = unset
         self.within = within
@@ -291,7 +315,12 @@ class Options:
     def offered(self) -> list[Offered]:
         """Return the options offered (see :func:`offered_settings`)."""
         if self._offered is None:
-            self._offered = offered_settings(self.base(), self.only)
+            offered = offered_settings(self.base(), self.only)
+            unknown = set(self.flags) - {".".join(o.path) for o in offered}
+            if unknown:
+                raise TypeError(f"flags= of settings not offered: {', '.join(sorted(unknown))}")
+            self._offered = [dataclasses.replace(o, option=flag, param=flag.split("/")[0][2:].replace("-", "_"))
+                             if (flag := self.flags.get(".".join(o.path))) else o for o in offered]
         return self._offered
 
     def click_options(self) -> list[click.Option]:
@@ -319,7 +348,7 @@ class Options:
         for o in self.offered():
             value = values[o.param]
             if not (self.unset and value is None):
-                changes[o.path] = value
+                changes.update((o.path[:-1] + (name,), v) for name, v in joined_values(o.setting, value).items())
         return _replaced(self.base() if base is None else base, changes)
 
 

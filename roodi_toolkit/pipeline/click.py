@@ -8,7 +8,7 @@ pixel operations on the clicked view (flood fill, GrabCut, holes, components) ar
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Optional, Sequence
 
 import cv2
@@ -26,6 +26,7 @@ from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
+from ..settings import check_settings, config_from_text, documented, setting
 from .click_regions import _component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
@@ -48,78 +49,74 @@ CLICK_PATCH = 2
 """The pixels within this many of a click (a 5x5 patch) are the ones it points at."""
 
 
+@documented(given="--segmenter-option {name}=VALUE")
 @dataclass(frozen=True)
 class ClickSettings:
-    """Parameters of the ``click`` segmenter (ours; chosen on the generated benchmark scenes, see RESULTS.md).
+    """Parameters of the ``click`` segmenter (ours; chosen on the generated benchmark scenes, see RESULTS.md). The
+    command line gives them as ``--segmenter-option NAME=VALUE`` (``extract``, ``distill``), read and checked by
+    :func:`roodi_toolkit.settings.config_from_text`."""
 
-    Attributes:
-        depth_tolerance_min: in the clicked view, neighbouring pixels belong to the same surface when their depths
-            (of each pixel's largest-weight Gaussian) differ by less than a tolerance, as a fraction of the depth (the
-            clicked region's flood fill); the tolerance starts at this value ...
-        depth_tolerance_max: ... and is multiplied by ``depth_tolerance_step`` up to at most this value ...
-        depth_tolerance_step: ... per step,
-        leak_ratio: stopping before the step that multiplies the region's area by more than this (a leak through a
-            contact onto the ground or a neighbouring object) ...
-        leak_min_pixels: ... once the region has at least this many pixels.
-        region_radius: the clicked region stays within this fraction of the scene box diagonal of the click's 3D
-            point (keeps the flood fill from running along the ground). None: 0.15 for a dataset without sparse
-            points, whose box holds the whole scene (a generated room; chosen there), and 0.5 for a capture with
-            SfM points, whose box is that of what SfM reconstructed, in an object-centred capture mostly the object
-            itself (the statue: 0.15 stops the fill on the crown's band, alpha IoU 0.08; 0.5 and 1.0 give the same
-            0.72, the leak check stopping the fill first).
-        min_alpha: pixels with rendered alpha below this have no usable depth, and a click there is refused.
-        grabcut_iterations: GrabCut iterations on the clicked view's region.
-        grabcut_min_keep: GrabCut refines the depth fill's region; when it keeps less than this fraction of it (a
-            small, flat-coloured or reflective object whose colours it cannot tell from the background's), the depth
-            fill's region is used as it is.
-        seed_fraction: a Gaussian seeds the object (or the rest) when at least this fraction of its compositing
-            weight in the clicked view falls inside the clicked region (or inside the band around it).
-        min_weight: Gaussians whose summed compositing weight in the clicked view is below this are no seeds.
-        grow_radius: only Gaussians whose centres lie within this multiple of the clicked region's 3D radius (around
-            its centre) can join the object; those beyond are fixed to the rest (so the ground is not followed).
-        neighbours: each Gaussian is linked to this many nearest Gaussians (by centre) in the 3D growth graph.
-        colour_sigma: link strength falls as ``exp(-dist2 / (2 colour_sigma^2))`` of the two Gaussians' DC colours
-            (RGB 0..1), so growth stops at colour edges.
-        colour_weight: strength of each unseeded Gaussian's pull towards the label of the nearest seed colour,
-            relative to one link.
-        threshold: a pixel is in a view's mask when more than this fraction of its rendered alpha comes from the
-            selected Gaussians; a Gaussian is selected when its smoothed label exceeds it.
-        vote_rounds: rounds of the multi-view vote: each Gaussian is re-selected when more than ``threshold`` of its
-            compositing weight over the voting views falls inside their masks, and the masks are rendered again.
-        vote_views: the vote looks at this many views spread evenly over the dataset (and the clicked one); the
-            masks of every view are rendered from its result.
-        part_spacing: Gaussians whose centres are within this multiple of the median spacing of the Gaussians near
-            the click are one piece (:meth:`ClickSegmenter._parts`; 0: never look for a free-standing object) ...
-        part_share: ... a piece holding more than this share of the scene's Gaussians is no free-standing object
-            (the ground; a scene that is one object) ...
-        part_gap: ... a free-standing piece takes the pieces within this multiple of its radius ...
-        part_colour: ... that are no larger and mostly (half their Gaussians) within this RGB distance of its
-            colours. Chosen on the PlayCanvas playbot (its robot's hands float 0.2 body radii from it, its ground
-            slab 0.03 below it); ``benchmarks/RESULTS.md``, "Extraction at scale".
-    """
+    # the clicked region is a flood fill over the depth of each pixel's largest-weight Gaussian; its tolerance grows
+    # from depth_tolerance_min by depth_tolerance_step up to depth_tolerance_max, stopping before a step that leaks
+    depth_tolerance_min: float = setting(0.004, "The clicked region's flood fill joins neighbouring pixels whose "
+                                                "depths differ by less than a tolerance, a fraction of the depth; "
+                                                "the tolerance starts at this value.", low=0, low_open=True)
+    depth_tolerance_max: float = setting(0.03, "The fill's largest depth tolerance.", low=0, low_open=True)
+    depth_tolerance_step: float = setting(1.25, "The fill's tolerance is multiplied by this per step.", low=1,
+                                          low_open=True)
+    leak_ratio: float = setting(2.0, "The fill stops before the step that multiplies the region's area by more "
+                                     "than this (a leak through a contact onto the ground or another object).",
+                                low=1)
+    leak_min_pixels: int = setting(20, "The fill's leak check applies once the region has at least this many pixels.",
+                                   low=0)
+    # None: 0.15 for a dataset without sparse points, whose box holds the whole scene (a generated room; chosen
+    # there), and 0.5 for a capture with SfM points, whose box is that of what SfM reconstructed, in an
+    # object-centred capture mostly the object itself (the statue: 0.15 stops the fill on the crown's band, alpha
+    # IoU 0.08; 0.5 and 1.0 give the same 0.72, the leak check stopping the fill first)
+    region_radius: Optional[float] = setting(None, "The clicked region stays within this fraction of the scene box "
+                                                   "diagonal of the click's 3D point (None: 0.15 without sparse "
+                                                   "points, 0.5 for a capture with SfM points).", low=0,
+                                             low_open=True)
+    min_alpha: float = setting(0.5, "Pixels with rendered alpha below this have no usable depth; a click there is "
+                                    "refused.", low=0, high=1)
+    grabcut_iterations: int = setting(5, "GrabCut iterations on the clicked view's region.", low=1)
+    grabcut_min_keep: float = setting(0.5, "When GrabCut keeps less than this fraction of the depth fill's region "
+                                           "(a small, flat-coloured or reflective object), the fill's region is "
+                                           "used as it is.", low=0, high=1)
+    seed_fraction: float = setting(0.5, "A Gaussian seeds the object (or the rest) when at least this fraction of "
+                                        "its compositing weight in the clicked view falls inside the clicked region "
+                                        "(or the band around it).", low=0, high=1)
+    min_weight: float = setting(1.0, "Gaussians whose summed compositing weight in the clicked view is below this "
+                                     "are no seeds.", low=0)
+    grow_radius: float = setting(1.2, "Only Gaussians within this multiple of the clicked region's 3D radius can "
+                                      "join the object (so the ground is not followed).", low=0, low_open=True)
+    neighbours: int = setting(10, "Each Gaussian is linked to this many nearest Gaussians in the 3D growth graph.",
+                              low=1)
+    colour_sigma: float = setting(0.1, "Link strength falls as exp(-dist2 / (2 colour_sigma^2)) of the two "
+                                       "Gaussians' DC colours (RGB 0..1): growth stops at colour edges.", low=0,
+                                  low_open=True)
+    colour_weight: float = setting(0.1, "Pull of each unseeded Gaussian towards the label of the nearest seed "
+                                        "colour, relative to one link.", low=0)
+    threshold: float = setting(0.5, "A pixel is in a view's mask when more than this fraction of its alpha comes "
+                                    "from the selected Gaussians; a Gaussian is selected when its label exceeds "
+                                    "it.", low=0, high=1)
+    vote_rounds: int = setting(2, "Rounds of the multi-view vote: each Gaussian re-selected when more than "
+                                  "threshold of its weight over the voting views falls inside their masks.", low=0)
+    vote_views: int = setting(32, "The vote looks at this many views spread evenly over the dataset (and the "
+                                  "clicked one).", low=1)
+    # part_*: chosen on the PlayCanvas playbot (its robot's hands float 0.2 body radii from it, its ground slab 0.03
+    # below it); benchmarks/RESULTS.md, "Extraction at scale"
+    part_spacing: float = setting(5.0, "Gaussians within this multiple of the median spacing near the click are one "
+                                       "piece (0: never look for a free-standing object).", low=0)
+    part_share: float = setting(0.5, "A piece holding more than this share of the scene's Gaussians is no "
+                                     "free-standing object (the ground).", low=0, high=1)
+    part_gap: float = setting(0.3, "A free-standing piece takes the pieces within this multiple of its radius that "
+                                   "are no larger and mostly (half their Gaussians) near its colours.", low=0)
+    part_colour: float = setting(0.15, "The RGB distance within which a piece's Gaussians are near a free-standing "
+                                       "piece's colours (part_gap).", low=0)
 
-    depth_tolerance_min: float = 0.004
-    depth_tolerance_max: float = 0.03
-    depth_tolerance_step: float = 1.25
-    leak_ratio: float = 2.0
-    leak_min_pixels: int = 20
-    region_radius: Optional[float] = None
-    min_alpha: float = 0.5
-    grabcut_iterations: int = 5
-    grabcut_min_keep: float = 0.5
-    seed_fraction: float = 0.5
-    min_weight: float = 1.0
-    grow_radius: float = 1.2
-    neighbours: int = 10
-    colour_sigma: float = 0.1
-    colour_weight: float = 0.1
-    threshold: float = 0.5
-    vote_rounds: int = 2
-    vote_views: int = 32
-    part_spacing: float = 5.0
-    part_share: float = 0.5
-    part_gap: float = 0.3
-    part_colour: float = 0.15
+    def __post_init__(self) -> None:
+        check_settings(self)
 
 
 class ClickSegmenter(Segmenter):
@@ -163,18 +160,8 @@ class ClickSegmenter(Segmenter):
     def __init__(self, renderer: Renderer | str | None = None, seed: int = 0, **settings: Any) -> None:
         self.renderer = resolve_renderer(renderer)
         self.seed = seed
-        types = {f.name: float if f.default is None else type(f.default) for f in fields(ClickSettings)}
-        for key, value in settings.items():  # options from the command line arrive as text
-            if key in types and isinstance(value, str):
-                try:
-                    settings[key] = types[key](value)
-                except ValueError:
-                    raise ConfigError(f"click segmenter option {key}={value!r}: expected a "
-                                      f"{types[key].__name__}") from None
-        try:
-            self.settings = ClickSettings(**settings)
-        except TypeError as exc:
-            raise ConfigError(f"click segmenter: {exc}") from None
+        # options from the command line arrive as text (--segmenter-option region_radius=0.5)
+        self.settings = config_from_text(ClickSettings, settings, "click segmenter option")
 
     @classmethod
     def available(cls) -> tuple[bool, str]:

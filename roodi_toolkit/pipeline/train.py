@@ -78,7 +78,8 @@ class TrainConfig:
         "3DGS trainers do; cfg.json records the choice].", option="--random-background/--fixed-background")
     holdout_every: int = setting(8, "Without a test split, hold out every n-th training view (0: none).", low=0,
                                  cli=False)
-    seed: int = setting(0, "Random seed of every random choice.")
+    # NumPy's generators refuse negative seeds; NumPy's legacy seeding stops at 32 bits (the CLI's SEED_RANGE)
+    seed: int = setting(0, "Random seed of every random choice.", low=0, high=2 ** 32 - 1)
     eval_every: int = setting(500, "Evaluate on the held-out views this often (0: only at the end).", low=0)
     checkpoint_every: int = setting(250, "Write a resumable checkpoint this often.", low=1)
     # cap_max sized for the CPU (3DGS-MCMC uses 1-3 million)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import os
 import platform
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Optional
 
@@ -47,6 +47,7 @@ from ..prune.outliers import remove_statistical_outliers
 from ..render.renderer import Renderer, resolve_renderer
 from ..run.evaluate import evaluate_object, find_target
 from ..run.extract import extract_objects
+from ..settings import check_settings, documented, setting
 from ..viz.figures import new_figure
 from .floaters import FloaterMix, planted_floater_cloud, removal_scores
 from .objects import PRESETS
@@ -133,27 +134,29 @@ def _demo_train() -> TrainConfig:
                        eval_every=0)
 
 
+@documented
 @dataclass(frozen=True)
 class ExtractDemoConfig:
     """Settings of the extraction demo; the defaults finish within 20 minutes on 2 CPU cores (benchmarks/RESULTS.md).
+    The demo command offers the settings of ``scene`` and ``extract`` it takes through ``Options(within=...)``."""
 
-    Attributes:
-        preset: the generated scene's preset (kitchen: glossy pots, bowls and vases on and around a table).
-        seed: its seed (kitchen 2: a metal pot by the table, 13% of it hidden by the table top and the bottles on it).
-        object_id: the target to extract; None picks the target with the most hidden pixels in the training views.
-        scene: image size and view counts of the generated scene (the test views are the object-alone views scored).
-        extract: every extraction stage; the offline defaults except the scene training, sized for the CPU.
-    """
-
-    preset: str = "kitchen"
-    seed: int = 2
-    object_id: Optional[int] = None
-    scene: SceneSettings = SceneSettings(width=128, height=128, train_views=50, test_views=12, occluded=True)
-    extract: ExtractConfig = field(default_factory=lambda: ExtractConfig(train=_demo_train(), inpainter="symmetry"))
+    # kitchen: glossy pots, bowls and vases on and around a table
+    preset: str = setting("kitchen", "Generated scene type.", choices=tuple(PRESETS))
+    # kitchen 2: a metal pot by the table, 13% of it hidden by the table top and the bottles on it; not offered by
+    # the demo command, whose --seed is also the pruning demo's
+    seed: int = setting(2, "Seed of the generated scene.", low=0, high=2 ** 32 - 1, cli=False)
+    object_id: Optional[int] = setting(None, "Instance id of the target to extract (default: the target other "
+                                             "objects hide most).", option="--object")
+    # the test views are the object-alone views scored
+    scene: SceneSettings = setting(factory=lambda: SceneSettings(width=128, height=128, train_views=50,
+                                                                 test_views=12, occluded=True),
+                                   help="Image size and view counts of the generated scene.", prefix="")
+    extract: ExtractConfig = setting(factory=lambda: ExtractConfig(train=_demo_train(), inpainter="symmetry"),
+                                     help="Every extraction stage: the offline defaults but the scene training, "
+                                          "sized for the CPU.", prefix="")
 
     def __post_init__(self) -> None:
-        if self.preset not in PRESETS:
-            raise ConfigError(f"unknown preset {self.preset!r}; choose one of {', '.join(PRESETS)}")
+        check_settings(self)
 
 
 @dataclass

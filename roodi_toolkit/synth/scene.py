@@ -37,6 +37,7 @@ from ..io.blender import write_blender_transforms
 from ..io.files import prepare_output_dir, write_image, write_json
 from ..io.generated import SCENE_FILE, SCENE_FORMAT, SCENE_FORMAT_VERSION
 from ..progress import ProgressFactory, null_progress
+from ..settings import check_settings, documented, parse_image_size, setting, write_image_size
 from .layout import build_scene
 from .objects import MAX_OBJECTS, PRESETS, SceneObject
 from .overview import overview_image
@@ -66,40 +67,46 @@ DEPTH_SCALE = 1e-4  # metres per 16-bit depth unit: 0.1 mm resolution, 6.5 m ran
 TEST_FRAMINGS = ("scene", "object")
 
 
+MAX_VIEWS = 1000
+"""The most views of a scene (training, or test views of each target) make-scene generates."""
+MIN_SIDE, MAX_SIDE = 8, 8192
+"""The smallest and largest image side of a generated scene, in pixels."""
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    """Return (width, height) of ``--size`` text (``WIDTHxHEIGHT`` or one number), each within the sides allowed."""
+    return parse_image_size(text, MIN_SIDE, MAX_SIDE)
+
+
+@documented
 @dataclass(frozen=True)
 class SceneSettings:
-    """Generator settings recorded in scene.json; with the preset and seed they reproduce a scene bit for bit.
+    """Generator settings recorded in scene.json; with the preset and seed they reproduce a scene bit for bit."""
 
-    Attributes:
-        width: image width.
-        height: image height.
-        train_views: number of full-scene training views.
-        test_views: number of views of each target alone.
-        fov_x_deg: horizontal field of view of every camera.
-        supersample: rays per pixel along each axis for colour and alpha (masks and depth use the centre ray).
-        n_targets: number of targets, or None for 3 or 4 drawn from the seed.
-        n_objects: number of objects, or None for the preset's range.
-        test_framing: how the targets' test cameras frame them: ``"scene"`` (the paper's protocol: cameras on the
-            training views' hemisphere, at their distance, aimed at the target, so the object is as large as in
-            training and anything kept elsewhere in the scene, such as floaters, shows in the view) or ``"object"``
-            (close-ups in which the target fills the frame: a stricter test of the object's detail).
-        occluded: the occluded variant of the preset: every target stands in a wrap that hides its lower part from
-            every training view (:func:`build_scene`); implies ``never_seen``.
-        never_seen: write each target's never-seen masks (its test views' pixels that no training view sees,
-            :mod:`roodi_toolkit.synth.visibility`) and their share in scene.json.
-    """
-
-    width: int = 200
-    height: int = 200
-    train_views: int = 50
-    test_views: int = 50
-    fov_x_deg: float = 50.0
-    supersample: int = 2
-    n_targets: int | None = None
-    n_objects: int | None = None
-    test_framing: str = "scene"
-    occluded: bool = False
-    never_seen: bool = False
+    width: int = setting(200, "Image size WIDTHxHEIGHT (or one number).", low=MIN_SIDE, high=MAX_SIDE,
+                         option="--size", joins=("height",), parse=_parse_size, write=write_image_size)
+    height: int = setting(200, "Image height in pixels.", low=MIN_SIDE, high=MAX_SIDE, cli=False)
+    train_views: int = setting(50, "Views of the full scene.", low=1, high=MAX_VIEWS)
+    test_views: int = setting(50, "Views of each target alone.", low=1, high=MAX_VIEWS)
+    fov_x_deg: float = setting(50.0, "Horizontal field of view of every camera, in degrees.", low=10.0, high=120.0,
+                               cli=False)
+    supersample: int = setting(2, "Anti-aliasing rays per pixel along each axis (masks and depth always use the "
+                                  "pixel centre).", low=1, high=4)
+    n_targets: int | None = setting(None, "Number of targets (default: 3 or 4).", low=1, high=4, option="--targets")
+    n_objects: int | None = setting(None, "Number of objects (default: drawn from the preset's range).", low=5,
+                                    high=MAX_OBJECTS, option="--objects")
+    # "scene": on the training views' hemisphere, so anything kept elsewhere in the scene (floaters) shows in the
+    # view; "object": a stricter test of the object's detail
+    test_framing: str = setting("scene", "Test cameras: 'scene' = at the training cameras' distance, aimed at the "
+                                         "target (the paper's protocol); 'object' = close-ups in which the target "
+                                         "fills the frame.", choices=TEST_FRAMINGS)
+    # the wraps are build_scene's; implies never_seen
+    occluded: bool = setting(False, "The occluded variant: 4 targets (default), each standing in a wrap that touches "
+                                    "it (a box or sleeve open at the top, or a bowl) and hides its lower part from "
+                                    "every training view; writes the never-seen masks.")
+    # the masks are roodi_toolkit.synth.visibility's
+    never_seen: bool = setting(False, "Write each target's never-seen masks (test-view pixels no training view "
+                                      "sees) and their share (always on with --occluded).")
 
     @property
     def writes_never_seen(self) -> bool:
@@ -112,21 +119,7 @@ class SceneSettings:
         return {k: v for k, v in asdict(self).items() if v or k not in ("occluded", "never_seen")}
 
     def __post_init__(self) -> None:
-        if not (8 <= self.width <= 8192 and 8 <= self.height <= 8192):
-            raise ConfigError(f"image size must be between 8 and 8192 pixels, got {self.width}x{self.height}")
-        if self.train_views < 1 or self.test_views < 1:
-            raise ConfigError(f"need at least one training and one test view, got {self.train_views} and "
-                              f"{self.test_views}")
-        if not 10.0 <= self.fov_x_deg <= 120.0:
-            raise ConfigError(f"fov_x_deg must be in [10, 120] degrees, got {self.fov_x_deg}")
-        if not 1 <= self.supersample <= 4:
-            raise ConfigError(f"supersample must be 1 to 4, got {self.supersample}")
-        if self.n_targets is not None and not 1 <= self.n_targets <= 4:
-            raise ConfigError(f"n_targets must be 1 to 4, got {self.n_targets}")
-        if self.n_objects is not None and not 5 <= self.n_objects <= MAX_OBJECTS:
-            raise ConfigError(f"n_objects must be 5 to {MAX_OBJECTS}, got {self.n_objects}")
-        if self.test_framing not in TEST_FRAMINGS:
-            raise ConfigError(f"test_framing must be one of {', '.join(TEST_FRAMINGS)}, got {self.test_framing!r}")
+        check_settings(self)
 
 
 # ------------------------------------------------------------------------------------------------------ cameras

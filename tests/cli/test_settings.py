@@ -508,3 +508,151 @@ def test_unset_flags_show_no_default():
 
     text = " ".join(CliRunner().invoke(_toy(Options(Outer, unset=True, only=("on",))), ["--help"]).output.split())
     assert "--no-on Do the thing; --no-on skips it." in text and "default" not in text
+
+
+# ------------------------------------------------------------------ the generated scene's settings (make-scene, demo)
+MAKE_SCENE_OWN = {"out_dir", "preset", "seed", "overwrite", "quiet"}
+
+
+def test_make_scene_options_are_the_scene_settings():
+    """Every option of make-scene but its own is a command-line setting of SceneSettings (help, range, default from
+    the field); --size is width's option and sets height too; a full command line round-trips to the settings."""
+    from roodi_toolkit.synth.scene import SceneSettings
+
+    cmd = _command("make-scene")
+    settings = {d.name: d for d in command_settings(SceneSettings)}
+    params = {p.name: p for p in cmd.params}
+    assert set(params) - MAKE_SCENE_OWN == set(settings) == {
+        "width", "train_views", "test_views", "supersample", "n_targets", "n_objects", "test_framing", "occluded",
+        "never_seen"}
+    for d in settings.values():
+        assert params[d.name].opts == [d.option] and params[d.name].help == d.meta.help
+    assert [params[n].opts[0] for n in ("width", "n_objects", "n_targets")] == ["--size", "--objects", "--targets"]
+    args = ["out", "--size", "64x48", "--train-views", "3", "--test-views", "2", "--objects", "6", "--targets", "2",
+            "--supersample", "1", "--test-framing", "object", "--occluded", "--never-seen"]
+    values = cmd.make_context("make-scene", args).params
+    want = SceneSettings(width=64, height=48, train_views=3, test_views=2, n_objects=6, n_targets=2, supersample=1,
+                         test_framing="object", occluded=True, never_seen=True)
+    assert config_from_options(SceneSettings, values) == want
+    assert [f.name for f in fields(SceneSettings) if getattr(want, f.name) == getattr(SceneSettings(), f.name)] == \
+        ["fov_x_deg"]  # every other field differs from its default: each option reached its field
+    assert config_from_options(SceneSettings, cmd.make_context("make-scene", ["out"]).params) == SceneSettings()
+    assert config_from_options(SceneSettings, cmd.make_context("make-scene", ["o", "--size", "40"]).params) == \
+        SceneSettings(width=40, height=40)
+    text = " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    assert "--size TEXT Image size WIDTHxHEIGHT (or one number). [default: 200x200]" in text
+    assert "--train-views INTEGER RANGE Views of the full scene. [default: 50; 1<=x<=1000]" in text
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--size", "4"], "Invalid value for '--size': size must be between 8 and 8192 pixels, got '4'"),
+    (["--size", "8x9000"], "Invalid value for '--size': size must be between 8 and 8192 pixels"),
+    (["--size", "wide"], "Invalid value for '--size': expected WIDTHxHEIGHT"),
+    (["--train-views", "1001"], "'--train-views'"),
+    (["--objects", "21"], "'--objects'"),
+    (["--targets", "0"], "'--targets'"),
+    (["--supersample", "5"], "'--supersample'"),
+    (["--test-framing", "far"], "'--test-framing'"),
+])
+def test_make_scene_refuses_values_outside_the_settings_naming_the_option(run_cli, tmp_path, args, needle):
+    res = run_cli("make-scene", tmp_path / "s", *args, "-q")
+    assert res.exit_code == 2 and needle in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "s").exists()
+
+
+def _extended_scene_class():
+    """SceneSettings with one more setting, as a contributor would add it."""
+    from roodi_toolkit.synth.scene import SceneSettings
+
+    @dataclass(frozen=True)
+    class Extended(SceneSettings):
+        haze: float = setting(0.0, "Haze density.", low=0, high=1)
+
+    return Extended
+
+
+def test_a_new_scene_setting_is_one_field_its_option_follows():
+    from roodi_toolkit.cli.settings import Options
+
+    extended = _extended_scene_class()
+    options = Options(extended)
+    cmd = _toy(options)
+    assert [p.opts[0] for p in cmd.params][-1] == "--haze"
+    param = next(p for p in cmd.params if p.name == "haze")
+    assert param.default == 0.0 and param.help == "Haze density." and isinstance(param.type, click.FloatRange)
+    out = CliRunner().invoke(cmd, ["--haze", "0.5", "--size", "30x20"])
+    assert out.exit_code == 0, out.output
+    assert out.output.strip() == repr(extended(haze=0.5, width=30, height=20))
+    assert CliRunner().invoke(cmd, ["--haze", "2"]).exit_code == 2  # its range, from the field
+    with pytest.raises(ConfigError, match="haze must be a finite number in"):
+        extended(haze=-1.0)
+
+
+def test_demo_scene_options_are_the_scene_settings_with_the_demos_defaults():
+    """The demo's --preset, --object, --size, --train-views, --test-views and --occluded/--no-occluded are settings of
+    ExtractDemoConfig and its SceneSettings: unset they keep the demo's values (kitchen, 128x128, 50, 12, occluded),
+    given they change them, and --prune-only refuses them."""
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_demo import (OBJECT_SETTING, OCCLUDED_SETTING, PRESET_SETTING, SCENE_SETTINGS)
+    from roodi_toolkit.synth.demo import ExtractDemoConfig
+
+    base = ExtractDemoConfig()
+    cmd = _command("demo")
+
+    def configs(args):
+        values = cmd.make_context("demo", ["out", *args]).params
+        scene = OCCLUDED_SETTING.config(values, base=SCENE_SETTINGS.config(values, base=base.scene))
+        return OBJECT_SETTING.config(values, base=PRESET_SETTING.config(values, base=base)), scene
+
+    assert configs([]) == (base, base.scene)
+    assert (base.preset, base.scene.width, base.scene.height, base.scene.train_views, base.scene.test_views,
+            base.scene.occluded) == ("kitchen", 128, 128, 50, 12, True)
+    demo, scene = configs(["--preset", "bedroom", "--object", "3", "--size", "64x48", "--train-views", "7",
+                           "--test-views", "2", "--no-occluded"])
+    assert demo == replace(base, preset="bedroom", object_id=3)
+    assert scene == replace(base.scene, width=64, height=48, train_views=7, test_views=2, occluded=False)
+    assert configs(["--occluded"])[1].occluded
+    text = " ".join(CliRunner().invoke(cmd, ["--help"]).output.split())
+    for expected in ("--size TEXT Image size WIDTHxHEIGHT (or one number). [default: 128x128]",
+                     "Views of each target alone. [default: 12; 1<=x<=1000]", "[default: occluded]",
+                     "--preset [bedroom|kitchen|livingroom|picnic] Generated scene type. [default: kitchen]"):
+        assert expected in text, expected
+    assert CliRunner().invoke(cmd, ["out", "--size", "4"]).exit_code == 2
+    res = CliRunner().invoke(cmd, ["out", "--prune-only", "--size", "64", "--no-occluded", "--object", "1"])
+    assert res.exit_code == 2 and "--object, --size, --occluded/--no-occluded: options of the extraction demo" in \
+        res.output, res.output
+
+
+def test_flags_rename_a_setting_for_one_command():
+    from roodi_toolkit.cli.settings import Options
+
+    opts = Options(Outer, unset=True, only=("inner.steps",), flags={"inner.steps": "--steps-inside"})
+    cmd = _toy(opts)
+    assert [(p.opts, p.name) for p in cmd.params] == [(["--steps-inside"], "steps_inside")]
+    assert opts.config(cmd.make_context("cmd", ["--steps-inside", "3"]).params) == Outer(inner=Inner(steps=3))
+    with pytest.raises(TypeError, match="flags= of settings not offered: flat.steps"):
+        Options(Outer, only=("inner.steps",), flags={"flat.steps": "--x"}).offered()
+
+
+def test_demo_train_seed_is_the_train_configs_seed():
+    """--train-seed is TrainConfig.seed under the demo's own flag (its --seed is the scene's): its range and
+    default come from the field; unset it keeps the demo's training seed."""
+    from dataclasses import replace
+
+    from roodi_toolkit.cli.cmd_demo import TRAIN_SEED_SETTING
+    from roodi_toolkit.pipeline.train import TrainConfig
+
+    base = _demo_extract()
+    (offered,) = TRAIN_SEED_SETTING.offered()
+    assert (offered.option, offered.param, offered.path) == ("--train-seed", "train_seed", ("train", "seed"))
+    assert offered.setting == next(d for d in declared(TrainConfig) if d.name == "seed")
+    cmd = _command("demo")
+    assert TRAIN_SEED_SETTING.config(cmd.make_context("demo", ["out"]).params, base=base) == base
+    values = cmd.make_context("demo", ["out", "--train-seed", "5", "--seed", "7"]).params
+    assert TRAIN_SEED_SETTING.config(values, base=base) == replace(base, train=replace(base.train, seed=5))
+    assert values["seed"] == 7  # the scene's, a parameter of its own
+    for bad in ("-1", str(2 ** 32)):
+        assert CliRunner().invoke(cmd, ["out", "--train-seed", bad]).exit_code == 2, bad
+    with pytest.raises(ConfigError, match="seed must be a whole number in"):
+        TrainConfig(seed=-1)

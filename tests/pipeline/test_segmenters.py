@@ -229,13 +229,46 @@ def test_click_keeps_the_depth_region_when_grabcut_throws_it_away(scene, monkeyp
 
 
 def test_click_settings_from_the_command_line_are_converted():
-    """extract --segmenter-option region_radius=0.5 arrives as text."""
+    """extract --segmenter-option region_radius=0.5 arrives as text, read by the settings' declarations."""
     seg = ClickSegmenter(region_radius="0.5", vote_rounds="3")
     assert seg.settings.region_radius == 0.5 and seg.settings.vote_rounds == 3
-    with pytest.raises(ConfigError, match="region_radius='wide': expected a float"):
+    assert ClickSegmenter(region_radius="none", part_spacing=0).settings.region_radius is None
+    with pytest.raises(ConfigError, match="click segmenter option region_radius='wide': expected a finite number > 0"):
         ClickSegmenter(region_radius="wide")
-    with pytest.raises(ConfigError, match="click segmenter"):
+    with pytest.raises(ConfigError, match="vote_views='2.5': expected a whole number >= 1"):
+        ClickSegmenter(vote_views="2.5")
+    with pytest.raises(ConfigError, match="click segmenter option no_such_setting: no setting of ClickSettings; its "
+                                          "settings are depth_tolerance_min"):
         ClickSegmenter(no_such_setting="1")
+
+
+@pytest.mark.parametrize("options,message", [
+    ({"depth_tolerance_step": "1"}, "depth_tolerance_step must be a finite number > 1, got 1.0"),  # no endless fill
+    ({"depth_tolerance_min": "0"}, "depth_tolerance_min must be a finite number > 0"),
+    ({"threshold": "1.5"}, "threshold must be a finite number in [0, 1], got 1.5"),
+    ({"colour_sigma": "0"}, "colour_sigma must be a finite number > 0"),
+    ({"neighbours": "0"}, "neighbours must be a whole number >= 1"),
+    ({"vote_views": 0}, "vote_views must be a whole number >= 1"),
+    ({"region_radius": "-1"}, "region_radius must be a finite number > 0 or None, got -1.0"),
+    ({"min_alpha": "nan"}, "min_alpha must be a finite number in [0, 1], got nan"),
+])
+def test_click_settings_outside_their_declared_range_are_refused_by_name(options, message):
+    with pytest.raises(ConfigError) as err:
+        ClickSegmenter(**options)
+    assert str(err.value).startswith(f"click segmenter option: {message}"), str(err.value)
+
+
+def test_click_settings_are_declared_and_documented():
+    from dataclasses import fields
+
+    from roodi_toolkit.pipeline.click import ClickSettings
+    from roodi_toolkit.settings import declared
+
+    assert [d.name for d in declared(ClickSettings)] == [f.name for f in fields(ClickSettings)]
+    assert ClickSettings() == ClickSegmenter().settings
+    for f in fields(ClickSettings):
+        assert f"        {f.name}: " in ClickSettings.__doc__ and f"--segmenter-option {f.name}=VALUE" in \
+            " ".join(ClickSettings.__doc__.split())
 
 
 def test_the_default_region_radius_follows_what_the_scene_box_is(scene):

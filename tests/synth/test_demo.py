@@ -67,8 +67,8 @@ def test_demo_bad_input_is_one_line(tmp_path, run_cli):
     res = run_cli("demo", tmp_path / "a", "--object", "9", "-q")
     assert res.exit_code == 1 and "not a target" in res.stderr and "2 (bottle_1)" in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "a").exists()
-    res = run_cli("demo", tmp_path / "b", "--size", "4", "-q")
-    assert res.exit_code == 1 and "image size" in res.stderr
+    res = run_cli("demo", tmp_path / "b", "--size", "4", "-q")  # SceneSettings' range, a usage error naming --size
+    assert res.exit_code == 2 and "'--size': size must be between 8 and 8192 pixels" in res.stderr
     res = run_cli("demo", tmp_path / "c", "--prune-only", "--preset", "bedroom", "--iterations", "5")
     assert res.exit_code == 2 and "--preset, --iterations" in res.stderr
     res = run_cli("demo", tmp_path / "d", "--surface", "torus")

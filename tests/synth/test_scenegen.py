@@ -200,7 +200,7 @@ def test_settings_and_preset_errors(tmp_path: Path) -> None:
         build_scene("garage", 0)
     with pytest.raises(ConfigError, match="n_objects"):
         SceneSettings(n_objects=30)
-    with pytest.raises(ConfigError, match="size"):
+    with pytest.raises(ConfigError, match="width must be"):
         SceneSettings(width=4)
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x").write_text("keep")
@@ -230,3 +230,22 @@ def test_full_size_scene(tmp_path: Path, preset: str) -> None:
     assert ds.images.shape == (50, 200, 200, 3)
     for t in rec["targets"]:
         assert len(load_dataset(tmp_path / preset / t["path"])) == 50
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"width": 7}, "width must be a whole number in [8, 8192], got 7"),
+    ({"height": 8193}, "height must be a whole number in [8, 8192], got 8193"),
+    ({"train_views": 0}, "train_views must be a whole number in [1, 1000]"),
+    ({"test_views": 1001}, "test_views must be a whole number in [1, 1000]"),
+    ({"fov_x_deg": 5.0}, "fov_x_deg must be a finite number in [10, 120]"),
+    ({"supersample": 5}, "supersample must be a whole number in [1, 4]"),
+    ({"n_targets": 5}, "n_targets must be a whole number in [1, 4] or None"),
+    ({"n_objects": 4}, "n_objects must be a whole number in [5, 20] or None"),
+    ({"test_framing": "far"}, "test_framing must be one of scene, object"),
+    ({"occluded": 1}, "occluded must be true or false"),
+])
+def test_scene_settings_outside_their_declared_range_are_refused_by_name(kwargs, message):
+    with pytest.raises(ConfigError) as err:
+        SceneSettings(**kwargs)
+    assert str(err.value).startswith(message), str(err.value)
+    assert "Attributes:" in SceneSettings.__doc__ and "width: Image size WIDTHxHEIGHT" in SceneSettings.__doc__
