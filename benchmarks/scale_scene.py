@@ -14,6 +14,12 @@ roodi-toolkit model folder: ``point_cloud/iteration_0/point_cloud.ply`` and ``cf
 Run: ``.venv/bin/python benchmarks/scale_scene.py /tmp/splats/playbot0/meta.json /tmp/scale/p500 --views 90
 --size 800 --object above:0.177`` (``--copies 3`` for 1.5M Gaussians). The playbot comes from
 github.com/playcanvas/engine, ``examples/assets/splats/playbot/0_0``.
+
+``--place SPLAT`` sets another real splat down on the scene's ground as the object instead (turned so that its
+``--place-up`` is the scene's up, ``--place-size`` across, its foot at ``--place-at`` on the surface there): an object
+resting on a surface, where a click's depth fill runs on from the object onto what it stands on, unlike the floating
+robot. ``--place ../shared/data/donut/point_cloud.ply`` puts the real donut (45,624 Gaussians, z up) on the playbot's
+ground beside the robot.
 """
 
 from __future__ import annotations
@@ -42,6 +48,40 @@ def tile(cloud, copies: int, gap: float = 0.1):
         c.means = c.means + np.array([(k - copies // 2) * width, 0.0, 0.0], np.float32)
         parts.append(c)
     return GaussianCloud.concatenate(parts), (copies // 2) * len(cloud)
+
+
+def place_on_ground(obj, scene, up: np.ndarray, args):
+    """Return the splat ``obj`` turned so that its ``--place-up`` is the scene's up, scaled to ``--place-size`` across
+    and set down with its foot (its lowest 1% along up) on the scene's surface at ``--place-at`` (the 90th percentile
+    height of the scene's Gaussians under its footprint), with the scene's SH degree (higher bands zero) and columns."""
+    from roodi_toolkit.gaussians import GaussianCloud
+    from roodi_toolkit.similarity import Similarity, rotation_between, transform_cloud
+
+    R = rotation_between([float(v) for v in args.place_up.split(",")], up)
+    turned = transform_cloud(obj, Similarity(R, np.zeros(3), 1.0))
+    h = turned.means @ up
+    across = turned.means - np.outer(h, up)
+    scale = args.place_size / float(np.max(np.percentile(across, 99, axis=0) - np.percentile(across, 1, axis=0)))
+    at = np.array([float(v) for v in args.place_at.split(",")])
+    at_across = at - up * (at @ up)
+    scene_h = scene.means @ up
+    under = np.linalg.norm(scene.means - np.outer(scene_h, up) - at_across, axis=1) < args.place_size / 2
+    if not under.any():
+        raise SystemExit(f"--place-at {args.place_at}: no scene Gaussian under the object")
+    ground = float(np.percentile(scene_h[under], 90))
+    centre = np.median(across, axis=0)
+    foot = float(np.percentile(h, 1))
+    shift = at_across - scale * centre + up * (ground - scale * foot)
+    placed = transform_cloud(turned, Similarity(np.eye(3), shift, scale))
+    k = scene.sh_rest.shape[1]
+    rest = np.zeros((len(placed), k, 3), placed.sh_rest.dtype)
+    rest[:, :min(k, placed.sh_rest.shape[1])] = placed.sh_rest[:, :k]
+    return GaussianCloud(placed.means.astype(scene.means.dtype), placed.quats_wxyz.astype(scene.quats_wxyz.dtype),
+                         placed.log_scales.astype(scene.log_scales.dtype),
+                         placed.opacity_logits.astype(scene.opacity_logits.dtype),
+                         placed.sh_dc.astype(scene.sh_dc.dtype), rest.astype(scene.sh_rest.dtype),
+                         {k: np.zeros(len(placed), v.dtype) for k, v in scene.extras.items()},
+                         None if scene.normals is None else np.zeros((len(placed), 3), scene.normals.dtype))
 
 
 def ring_cameras(center, radius, n, *, elevations, width, height, fov_deg, up, offset=0.0):
@@ -78,6 +118,12 @@ def main() -> None:
     ap.add_argument("--up", default="0,-1,0")
     ap.add_argument("--fov", type=float, default=50.0)
     ap.add_argument("--distance", type=float, default=1.6, help="camera distance in scene radii of one copy")
+    ap.add_argument("--place", default=None,
+                    help="another splat set down on the scene's ground as the object (instead of --object): an object "
+                         "resting on a surface, the case people click most")
+    ap.add_argument("--place-up", default="0,0,1", help="the placed splat's up")
+    ap.add_argument("--place-at", default="0.7,0,0.55", help="where (a point of the scene) its foot goes")
+    ap.add_argument("--place-size", type=float, default=0.4, help="its width across the ground, scene units")
     args = ap.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     import torch
@@ -85,6 +131,7 @@ def main() -> None:
 
     from roodi_toolkit.io.blender import write_blender_transforms
     from roodi_toolkit.io.ply import write_ply
+    from roodi_toolkit.gaussians import GaussianCloud
     from roodi_toolkit.io.splat import read_cloud
     from roodi_toolkit.params import GaussianParams
     from roodi_toolkit.render.renderer import NumbaRenderer
@@ -104,6 +151,10 @@ def main() -> None:
     cloud, start = tile(one, args.copies)
     truth = np.zeros(len(cloud), bool)
     truth[start:start + len(one)] = marked
+    if args.place is not None:
+        placed = place_on_ground(read_cloud(args.place), cloud, up, args)
+        cloud = GaussianCloud.concatenate([cloud, placed])
+        truth = np.concatenate([np.zeros(len(truth), bool), np.ones(len(placed), bool)])
     # the cameras look at the chosen copy's object from the distance that frames its copy
     centre = cloud.means[truth].mean(axis=0)
     radius = float(np.linalg.norm(np.ptp(one.means, axis=0))) / 2 * args.distance

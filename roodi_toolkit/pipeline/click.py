@@ -27,7 +27,7 @@ from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
 from ..settings import check_settings, config_from_text, documented, setting
-from .click_regions import _component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut
+from .click_regions import _component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, support_leak
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
@@ -125,8 +125,10 @@ class ClickSegmenter(Segmenter):
     1. Clicked view: the region is a flood fill from the clicks over the depth of each pixel's largest-weight
        Gaussian (sharp at object edges, unlike the blended expected depth), within ``region_radius`` of the click in
        3D. Its tolerance grows from ``depth_tolerance_min`` by ``depth_tolerance_step`` and stops before the step
-       where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact); GrabCut on the image
-       then refines it. A negative click's surface (its own fill at the smallest tolerance) is closed to the fill,
+       where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact). A fill that ran on
+       over the object's support up to that reach, with no jump (a donut on the ground: the depth is continuous along
+       the contact), loses the support's plane (:func:`~roodi_toolkit.pipeline.click_regions.support_leak`, as in
+       tabletop segmentation). GrabCut on the image then refines it. A negative click's surface (its own fill at the smallest tolerance) is closed to the fill,
        is sure background for GrabCut and joins the band of rest below.
     2. Seeds: a Gaussian whose compositing weight in the clicked view lies mostly inside the region seeds the
        object; one whose weight lies mostly in the band around the region seeds the rest.
@@ -316,6 +318,7 @@ class ClickSegmenter(Segmenter):
         # the fill's tolerance grows step by step and stops before the step where the region suddenly grows
         # several-fold: it has leaked through a contact onto the ground or a neighbour
         region, not_region = self._competing_fill(depth0, valid0 & near_grid, valid0, seeds, not_seeds)
+        region = self._off_support(cam0, depth0, region, valid0 & ~near_grid, seeds)
         for r, c in seeds:
             region[r, c] = True
         init = np.full((H, W), cv2.GC_BGD, np.uint8)
@@ -330,6 +333,23 @@ class ClickSegmenter(Segmenter):
             mask0 = region
         band = _dilate(mask0, max(2, int(round(0.25 * math.sqrt(mask0.sum()))))) & ~mask0 | not_region
         return mask0, band
+
+    @staticmethod
+    def _off_support(cam0: Any, depth0: np.ndarray, region: np.ndarray, beyond: np.ndarray,
+                     seeds: Sequence[tuple[int, int]]) -> np.ndarray:
+        """Return ``region`` ``[H, W]`` without the support its fill leaked onto (:func:`support_leak`: the table or
+        ground under the clicked object, up to the fill's 3D reach, ``beyond`` ``[H, W]`` being the pixels past it),
+        kept where it joins the clicks; ``region`` itself when it did not leak."""
+        rc = np.argwhere(region)
+        on = support_leak(cam0.backproject(rc, depth0[region]),
+                          cam0.backproject(np.array(seeds), depth0[tuple(np.array(seeds).T)]),
+                          _dilate(beyond, 1)[region])
+        if on is None:
+            return region
+        off = region.copy()
+        off[tuple(rc[on].T)] = False
+        kept = _component_at(off, seeds)
+        return kept if kept.any() else region
 
     def _competing_fill(self, depth: np.ndarray, allowed: np.ndarray, not_allowed: np.ndarray,
                         seeds: Sequence[tuple[int, int]],

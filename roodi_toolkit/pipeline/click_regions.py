@@ -70,3 +70,57 @@ def _disk(radius: int) -> np.ndarray:
 
 def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     return ndimage.binary_dilation(mask, structure=_disk(radius)) if radius > 0 else mask.copy()
+
+
+SUPPORT_SHARE = 0.3
+"""A plane holding at least this share of the clicked region's points can be the support its fill leaked onto ..."""
+SUPPORT_AT_LIMIT = 0.5
+"""... when it also holds at least this share of the region's points where the fill met its 3D reach (a leak runs
+on along the support until the reach stops it; an object's own flat face ends at its edges first) ..."""
+SUPPORT_TOLERANCE = 0.02
+"""... its points being those within this fraction of the region's 3D radius of it ..."""
+SUPPORT_CLEARANCE = 3.0
+"""... and the clicks at least this many tolerances off it (a click on the plane itself asks for the support)."""
+
+
+def support_leak(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, seed: int = 0,
+                 hypotheses: int = 256, sample: int = 4096) -> np.ndarray | None:
+    """Return the clicked region's points ``[P]`` bool that lie on the surface its fill leaked onto, or None.
+
+    A depth fill from a click on an object resting on a table, the ground or a shelf runs from the object onto its
+    support where they meet (the depth is continuous along the contact), and on over the support until the 3D reach
+    stops it. As in tabletop segmentation (a dominant plane, then what stands on it), a RANSAC plane is fitted to the
+    region's points ``[P, 3]``: it is the support when it holds :data:`SUPPORT_SHARE` of them and
+    :data:`SUPPORT_AT_LIMIT` of those where the fill met its reach (``at_limit`` ``[P]`` bool; none: no leak), and
+    the clicks ``[C, 3]`` lie :data:`SUPPORT_CLEARANCE` tolerances off it.
+    """
+    if len(points) < 3 or not at_limit.any():
+        return None
+    pts = np.asarray(points, np.float64)
+    tol = SUPPORT_TOLERANCE * float(np.linalg.norm(pts - pts.mean(axis=0), axis=1).max())
+    if not tol > 0:
+        return None
+    rng = np.random.default_rng(seed)
+    probe = pts[rng.choice(len(pts), min(sample, len(pts)), replace=False)]
+    triples = pts[rng.integers(0, len(pts), (hypotheses, 3))]  # [K, 3, 3]
+    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    keep = length > 1e-12
+    if not keep.any():
+        return None
+    normals = normals[keep] / length[keep, None]
+    offsets = np.einsum("kj,kj->k", normals, triples[keep, 0])
+    support = (np.abs(probe @ normals.T - offsets) < tol).sum(axis=0)  # [K] inliers among the probe points
+    best = int(np.argmax(support))
+    on = np.abs(pts @ normals[best] - offsets[best]) < tol
+    if on.sum() < 3:
+        return None
+    # refit on the inliers (least squares: the smallest principal direction), then take its points again
+    inl = pts[on]
+    mid = inl.mean(axis=0)
+    normal = np.linalg.svd(inl - mid, full_matrices=False)[2][-1]
+    on = np.abs((pts - mid) @ normal) < tol
+    clearance = np.abs((np.asarray(clicks, np.float64) - mid) @ normal)
+    if on.mean() < SUPPORT_SHARE or on[at_limit].mean() < SUPPORT_AT_LIMIT or clearance.min() < SUPPORT_CLEARANCE * tol:
+        return None
+    return on
