@@ -158,7 +158,8 @@ def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, 
     top = np.full((H, W) if want_top else (0, 0), -1, np.int32)
     n_workers = _set_workers()
     kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics,
-                              proj.opacities, channels, W, H, view.tile, n_workers, out, t_final, last, top)
+                              proj.opacities, channels, kernels.channel_groups(C), W, H, view.tile, n_workers, out,
+                              t_final, last, top)
     return out, t_final, last, (top if want_top else None)
 
 
@@ -214,7 +215,8 @@ class _Render(torch.autograd.Function):
         bg = np.concatenate([_numpy(background).astype(np.float64), np.zeros(C - 3)]) if colours else np.zeros(C)
         g_render = g_render.contiguous()
         kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d,
-                                   proj.conics, proj.opacities, channels, view.width, view.height, view.tile,
+                                   proj.conics, proj.opacities, channels, kernels.channel_groups(C), view.width,
+                                   view.height, view.tile,
                                    n_workers, t_final, last, _numpy(g_render),
                                    np.ascontiguousarray(_numpy(g_alpha)[..., 0]), bg, pair_geom, pair_chan, geometry)
         g_chan = kernels.reduce_pairs(bins.lists, pair_chan, n, n_workers)
