@@ -4,7 +4,7 @@ For one view of :func:`scene.scene_cloud` (the scene of ``bench_render.py``: cam
 (0, 0, 0.3), 50 degree field of view, SH 3, float32) it times each stage of a forward and backward pass: projection
 (with SH colours and footprints), depth order, tile binning, compositing forward, compositing backward (geometry and
 channels) and the per-Gaussian reduction of the pair gradients. ``--against CHECKOUT`` loads that checkout's
-``roodi_toolkit/render/kernels.py`` (copied to a temporary folder, so nothing is written into it) and runs its
+``roodi_toolkit/render/kernels.py`` (copied to the temporary folder, so nothing is written into it) and runs its
 compositing kernels on the same projected, binned Gaussians, alternating with this checkout's in every round: the
 two columns see the same load, and the ratio is what counts on a shared machine. It also checks that both give the
 same image (largest difference printed).
@@ -19,10 +19,10 @@ Run:
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import math
 import os
-import shutil
 import statistics
 import sys
 import tempfile
@@ -33,10 +33,14 @@ HERE = Path(__file__).resolve().parent
 
 
 def load_kernels(checkout: Path):
-    """Return ``checkout``'s kernels module, loaded from a temporary copy (numba caches beside the file)."""
-    folder = Path(tempfile.mkdtemp(prefix="bench_kernels_"))
+    """Return ``checkout``'s kernels module, loaded from a copy in the temporary folder (numba caches its compiled
+    code beside the file; a folder named by the file's content lets later runs reuse it)."""
+    source = (checkout / "roodi_toolkit" / "render" / "kernels.py").read_bytes()
+    folder = Path(tempfile.gettempdir()) / f"bench_kernels_{hashlib.sha1(source).hexdigest()[:12]}"
+    folder.mkdir(exist_ok=True)
     target = folder / "kernels_against.py"
-    shutil.copy(checkout / "roodi_toolkit" / "render" / "kernels.py", target)
+    if not target.exists():
+        target.write_bytes(source)
     spec = importlib.util.spec_from_file_location("kernels_against", target)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

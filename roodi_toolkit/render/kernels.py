@@ -6,19 +6,26 @@ once. The arithmetic is that of :mod:`roodi_toolkit.render.rasterizer` (3DGS "cl
 depth order, alpha clamp and cut-offs); :mod:`roodi_toolkit.render.fast` wraps these kernels as a differentiable
 torch function and the tests compare both with the dense reference.
 
-Layout: the image is cut into square tiles (at most 64 pixels wide: a tile row's stopped pixels are bits of an int64); each tile holds the depth-ordered run of the Gaussians whose footprint
-touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every ``workers``-th busy tile (interleaved,
-so the busy parts of an image are shared out evenly) and walks the tile's run front to back (forward) or back to
-front (backward), visiting only the pixels of each Gaussian's footprint box inside the tile. Results do not depend on
-timing or on the number of workers: each tile is written by one worker, and the backward writes one gradient per
-(tile, Gaussian) pair, which :func:`reduce_pairs` adds per Gaussian in pair order.
+Layout: the image is cut into square tiles (1 to 64 pixels wide); each tile holds the depth-ordered run of the
+Gaussians whose footprint touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every
+``workers``-th busy tile (interleaved, so the busy parts of an image are shared out evenly) and composites it in 4x4
+blocks of pixels: each block walks the tile's run front to back (forward) or back to front (backward), skipping the
+Gaussians whose footprint box misses it, and evaluates each Gaussian on its 16 pixels at once (masked to the box). The 16 pixels' state
+(transmittance, walked count, channel sums) lives in stack arrays (:func:`_stack_empty`) that LLVM keeps in vector
+registers, and the per-Gaussian loop over the 16 pixels has no branches (selects), so it compiles to a few vector
+instructions. Blocks at a tile's or the image's edge have their outside pixels stopped from the start. Results do
+not depend on timing or on the number of workers: each tile is written by one worker, and the backward writes one
+gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after block,
+which :func:`reduce_pairs` adds per Gaussian in pair order. A pixel's result does not depend on the tile size either:
+its arithmetic uses only its own coordinates.
 
-Per-pixel work is in float64 whatever the inputs' dtype, so float32 and float64 inputs composite alike. A
-Gaussian's values along a row of its footprint box are computed first, in a loop without branches that LLVM
-vectorises: ``exp(-sigma)`` there is ``(sum_{k<=10} u^k / k!)^16`` with ``u = -sigma / 16`` and sigma clamped to
-``SIGMA_MAX`` (relative error below 1e-11, far under float32 rounding; forward and backward use the same values);
-then the pixels of the row are composited in order. No fast-math flags: the values are IEEE arithmetic in a fixed order,
-so the backward recomputes exactly the forward's alphas and takes exactly its decisions.
+Per-pixel work is in the inputs' dtype (float32 inputs composite in float32, float64 ones, as the gradchecks use, in
+float64, with the same code; every constant comes from an array of that dtype, as a float literal would promote
+float32 to float64). ``exp(-sigma)`` is ``(sum_{k<=10} u^k / k!)^16`` with ``u = -sigma / 16`` and sigma clamped to
+``SIGMA_MAX`` (relative error below 1e-11 in float64, under float32 rounding in float32), one expression
+(:func:`_gauss`) for every walk. No fast-math flags: the values are IEEE arithmetic in a fixed order, so the
+backward recomputes exactly the forward's alphas and takes exactly its decisions. The channels are held four to a
+group (:func:`channel_groups`); the kernels are compiled once per dtype and group count.
 """
 
 from __future__ import annotations
@@ -266,7 +273,7 @@ def _longest(busy, counts):  # pragma: no cover - compiled
 @nb.njit(inline="always")
 def _pack(lists, s, lo, hi, bounds, means2d, conics, opacities, geo, box, gid):  # pragma: no cover - compiled
     """Copy entries ``lo:hi`` of the tile's run (from ``lists[s]``) next to each other: (mx, my, conic a, b, c,
-    opacity) in ``geo`` [n, 6], the footprint box in ``box`` [n, 4], the id in ``gid`` [n]; every 4x4 block of the
+    opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo`` [n, 10], the footprint box in ``box`` [n, 4], the id in ``gid`` [n]; every 4x4 block of the
     tile then reads them in order. Returns ``hi``."""
     for jj in range(lo, hi):
         g = lists[s + jj]
@@ -277,6 +284,10 @@ def _pack(lists, s, lo, hi, bounds, means2d, conics, opacities, geo, box, gid): 
         geo[jj, 3] = conics[g, 1]
         geo[jj, 4] = conics[g, 2]
         geo[jj, 5] = opacities[g]
+        geo[jj, 6] = bounds[g, 0]  # the box's edges as pixel-centre bounds: x0 < px + 0.5 < x1 + 1
+        geo[jj, 7] = bounds[g, 1] + 1
+        geo[jj, 8] = bounds[g, 2]
+        geo[jj, 9] = bounds[g, 3] + 1
         for i in range(4):
             box[jj, i] = bounds[g, i]
     return hi
@@ -312,8 +323,8 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
 
     Each block walks the tile's run, skipping the Gaussians whose footprint box misses it, with its 16 pixels'
     state (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector
-    registers; every Gaussian is evaluated on all 16 pixels without branches (pixels outside the footprint get
-    alpha under 1/255, pixels outside the tile or image start stopped). A stopped pixel keeps its transmittance
+    registers; every Gaussian is evaluated on all 16 pixels without branches, and counts only at those inside its
+    footprint box (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A stopped pixel keeps its transmittance
     negated. The tile's Gaussians are copied next to each other as the first block reaches them, so the other
     blocks read them in order.
     """
@@ -328,7 +339,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
     a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
     cap = _longest(busy, counts)
     for w in nb.prange(workers):
-        geo = np.empty((cap, 6), kc.dtype)
+        geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
         gid = np.empty(cap, np.int32)
         colp = np.empty((cap, NC), kc.dtype)
@@ -379,6 +390,10 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     b = geo[jj, 3]
                     hc = half * geo[jj, 4]
                     o = geo[jj, 5]
+                    x0 = geo[jj, 6]
+                    x1 = geo[jj, 7]
+                    y0 = geo[jj, 8]
+                    y1 = geo[jj, 9]
                     g = gid[jj]
                     walked = np.int32(jj + 1)
                     for i in range(NC):
@@ -387,7 +402,8 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     for q in range(LANES):  # the block's 16 pixels: vectorised, no branches
                         alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
                         Tp = T[q]
-                        ok = (alpha >= a_min) & (Tp > zero)
+                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
+                        ok = (alpha >= a_min) & (Tp > zero) & inside
                         tn = Tp * (one - alpha)
                         blend = ok & (tn >= t_min)
                         stop = ok & (tn < t_min)
@@ -452,7 +468,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
     cap = _longest(busy, counts)
     for w in nb.prange(workers):
-        geo = np.empty((cap, 6), kc.dtype)
+        geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
         gid = np.empty(cap, np.int32)
         colp = np.empty((cap, NC), kc.dtype)
@@ -525,6 +541,10 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                     b = geo[jj, 3]
                     c = geo[jj, 4]
                     o = geo[jj, 5]
+                    x0 = geo[jj, 6]
+                    x1 = geo[jj, 7]
+                    y0 = geo[jj, 8]
+                    y1 = geo[jj, 9]
                     ha = half * a
                     hc = half * c
                     for i in range(NC):
@@ -536,7 +556,8 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                         gauss = _gauss(dx, dy, ha, b, hc, kt)
                         raw = o * gauss  # as the forward's alpha, bit for bit
                         alpha = min(a_max, raw)
-                        act = (jj < L[q]) & (alpha >= a_min)
+                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)
+                        act = (jj < L[q]) & (alpha >= a_min) & inside
                         one_minus = one - alpha
                         Ti = T[q] / one_minus
                         T[q] = Ti if act else T[q]
@@ -604,7 +625,7 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
     a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
     cap = _longest(busy, counts)
     for w in nb.prange(workers):
-        geo = np.empty((cap, 6), kc.dtype)
+        geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
         gid = np.empty(cap, np.int32)
         pxc = _lanes(kc)
@@ -644,12 +665,17 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                     b = geo[jj, 3]
                     hc = half * geo[jj, 4]
                     o = geo[jj, 5]
+                    x0 = geo[jj, 6]
+                    x1 = geo[jj, 7]
+                    y0 = geo[jj, 8]
+                    y1 = geo[jj, 9]
                     blends = 0
                     live = 0
                     for q in range(LANES):  # as the forward
                         alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
                         Tp = T[q]
-                        ok = (alpha >= a_min) & (Tp > zero)
+                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
+                        ok = (alpha >= a_min) & (Tp > zero) & inside
                         tn = Tp * (one - alpha)
                         blend = ok & (tn >= t_min)
                         stop = ok & (tn < t_min)
