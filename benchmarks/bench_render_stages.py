@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import importlib.util
+import importlib
 import math
 import os
 import statistics
@@ -41,10 +41,8 @@ def load_kernels(checkout: Path):
     target = folder / "kernels_against.py"
     if not target.exists():
         target.write_bytes(source)
-    spec = importlib.util.spec_from_file_location("kernels_against", target)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    sys.path.insert(0, str(folder))  # importable by name: numba's cache finds the module again
+    return importlib.import_module("kernels_against")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -39,8 +39,9 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 
 TILE_SIZE = 16
-"""Tile edge in pixels (as gsplat and 3DGS). Each Gaussian visits only its footprint's pixels in a tile, so small
-tiles save no per-pixel work and cost binning work."""
+"""Tile edge in pixels (as gsplat and 3DGS). The compositing works on 4x4 blocks, each walking its tile's run and
+skipping the Gaussians that miss it: smaller tiles skip less but hold more (tile, Gaussian) pairs (binning work and
+the backward's per-pair gradients: 4-pixel tiles have 3.4x the pairs of 16-pixel ones at 500k Gaussians, 800x800)."""
 
 
 def workers() -> int:

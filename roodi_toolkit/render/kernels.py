@@ -133,19 +133,27 @@ def depth_order(ntiles, depths):  # pragma: no cover - compiled
 def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover - compiled
     """Return (lists [M] int32 Gaussian ids grouped by tile in ``order``'s order, starts [T] int64, counts [T]
     int64) for the Gaussians ``order`` (depth-sorted ids of drawn Gaussians): a counting sort by tile, stable, so
-    every tile's run stays in depth order. Each worker counts and places a contiguous stretch of ``order``; a tile's
-    entries from an earlier stretch come first, so the result does not depend on the number of workers."""
+    every tile's run stays in depth order. The tile ranges of the Gaussians are first gathered in ``order``'s order
+    (one pass of random reads; the count and the placement then read them in sequence). Each worker counts and
+    places a contiguous stretch of ``order``; a tile's entries from an earlier stretch come first, so the result
+    does not depend on the number of workers."""
     tiles_x = (width + tile - 1) // tile
     tiles_y = (height + tile - 1) // tile
     T = tiles_x * tiles_y
     n = order.shape[0]
     span = (n + workers - 1) // workers
+    ranges = np.empty((n, 4), np.int32)  # tx0, tx1, ty0, ty1 in depth order
+    for k in nb.prange(n):
+        g = order[k]
+        ranges[k, 0] = bounds[g, 0] // tile
+        ranges[k, 1] = bounds[g, 1] // tile
+        ranges[k, 2] = bounds[g, 2] // tile
+        ranges[k, 3] = bounds[g, 3] // tile
     per = np.zeros((workers, T), np.int64)
     for w in nb.prange(workers):
         for k in range(w * span, min(n, (w + 1) * span)):
-            g = order[k]
-            for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
-                for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
+            for ty in range(ranges[k, 2], ranges[k, 3] + 1):
+                for tx in range(ranges[k, 0], ranges[k, 1] + 1):
                     per[w, ty * tiles_x + tx] += 1
     counts = np.zeros(T, np.int64)
     starts = np.zeros(T, np.int64)
@@ -161,8 +169,8 @@ def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover 
     for w in nb.prange(workers):
         for k in range(w * span, min(n, (w + 1) * span)):
             g = order[k]
-            for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
-                for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
+            for ty in range(ranges[k, 2], ranges[k, 3] + 1):
+                for tx in range(ranges[k, 0], ranges[k, 1] + 1):
                     t = ty * tiles_x + tx
                     lists[per[w, t]] = g
                     per[w, t] += 1
@@ -304,9 +312,14 @@ def _pack_colours(lists, s, lo, hi, colors, colp):  # pragma: no cover - compile
 
 
 def channel_groups(channels: int) -> tuple:
-    """The ``groups`` argument of the compositing kernels for ``channels`` channels: one entry per 4 channels (the
-    kernels hold 4 channels of a block's 16 pixels per group in registers; compiled once per group count)."""
-    return (0,) * max(1, -(-channels // 4))
+    """The ``groups`` argument of the compositing kernels for ``channels`` channels: one entry per group of 4
+    channels, a power of two of them (the kernels hold 4 channels of a block's 16 pixels per group in registers and
+    are compiled once per group count, about a minute each on a busy 2-core machine: 1, 2, 4, 8, ... keeps the
+    count of compilations small; rgb + depth is 1, 16 features 4)."""
+    groups = 1
+    while 4 * groups < channels:
+        groups *= 2
+    return (0,) * groups
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
