@@ -39,8 +39,9 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 
 TILE_SIZE = 16
-"""Tile edge in pixels (as gsplat and 3DGS). Each Gaussian visits only its footprint's pixels in a tile, so small
-tiles save no per-pixel work and cost binning work."""
+"""Tile edge in pixels (as gsplat and 3DGS). The compositing works on 4x4 blocks, each walking its tile's run and
+skipping the Gaussians that miss it: smaller tiles skip less but hold more (tile, Gaussian) pairs (binning work and
+the backward's per-pair gradients: 4-pixel tiles have 3.4x the pairs of 16-pixel ones at 500k Gaussians, 800x800)."""
 
 
 def workers() -> int:
@@ -158,7 +159,8 @@ def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, 
     top = np.full((H, W) if want_top else (0, 0), -1, np.int32)
     n_workers = _set_workers()
     kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics,
-                              proj.opacities, channels, W, H, view.tile, n_workers, out, t_final, last, top)
+                              proj.opacities, channels, kernels.channel_groups(C), W, H, view.tile, n_workers, out,
+                              t_final, last, top)
     return out, t_final, last, (top if want_top else None)
 
 
@@ -214,7 +216,8 @@ class _Render(torch.autograd.Function):
         bg = np.concatenate([_numpy(background).astype(np.float64), np.zeros(C - 3)]) if colours else np.zeros(C)
         g_render = g_render.contiguous()
         kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d,
-                                   proj.conics, proj.opacities, channels, view.width, view.height, view.tile,
+                                   proj.conics, proj.opacities, channels, kernels.channel_groups(C), view.width,
+                                   view.height, view.tile,
                                    n_workers, t_final, last, _numpy(g_render),
                                    np.ascontiguousarray(_numpy(g_alpha)[..., 0]), bg, pair_geom, pair_chan, geometry)
         g_chan = kernels.reduce_pairs(bins.lists, pair_chan, n, n_workers)

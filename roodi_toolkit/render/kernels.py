@@ -6,35 +6,36 @@ once. The arithmetic is that of :mod:`roodi_toolkit.render.rasterizer` (3DGS "cl
 depth order, alpha clamp and cut-offs); :mod:`roodi_toolkit.render.fast` wraps these kernels as a differentiable
 torch function and the tests compare both with the dense reference.
 
-Layout: the image is cut into square tiles (at most 64 pixels wide: a tile row's stopped pixels are bits of an int64); each tile holds the depth-ordered run of the Gaussians whose footprint
-touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every ``workers``-th busy tile (interleaved,
-so the busy parts of an image are shared out evenly) and walks the tile's run front to back (forward) or back to
-front (backward), visiting only the pixels of each Gaussian's footprint box inside the tile. Results do not depend on
-timing or on the number of workers: each tile is written by one worker, and the backward writes one gradient per
-(tile, Gaussian) pair, which :func:`reduce_pairs` adds per Gaussian in pair order.
+Layout: the image is cut into square tiles (1 to 64 pixels wide); each tile holds the depth-ordered run of the
+Gaussians whose footprint touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every
+``workers``-th busy tile (interleaved, so the busy parts of an image are shared out evenly) and composites it in 4x4
+blocks of pixels: each block walks the tile's run front to back (forward) or back to front (backward), skipping the
+Gaussians whose footprint box misses it, and evaluates each Gaussian on its 16 pixels at once (masked to the box). The 16 pixels' state
+(transmittance, walked count, channel sums) lives in stack arrays (:mod:`.lanes`) that LLVM keeps in vector
+registers, and the per-Gaussian loop over the 16 pixels has no branches (selects), so it compiles to a few vector
+instructions. Blocks at a tile's or the image's edge have their outside pixels stopped from the start. Results do
+not depend on timing or on the number of workers: each tile is written by one worker, and the backward writes one
+gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after block,
+which :func:`reduce_pairs` adds per Gaussian in pair order. A pixel's result does not depend on the tile size either:
+its arithmetic uses only its own coordinates.
 
-Per-pixel work is in float64 whatever the inputs' dtype, so float32 and float64 inputs composite alike. A
-Gaussian's values along a row of its footprint box are computed first, in a loop without branches that LLVM
-vectorises: ``exp(-sigma)`` there is ``(sum_{k<=10} u^k / k!)^16`` with ``u = -sigma / 16`` and sigma clamped to
-``SIGMA_MAX`` (relative error below 1e-11, far under float32 rounding; forward and backward use the same values);
-then the pixels of the row are composited in order. No fast-math flags: the values are IEEE arithmetic in a fixed order,
-so the backward recomputes exactly the forward's alphas and takes exactly its decisions.
+Per-pixel work is in the inputs' dtype (float32 inputs composite in float32, float64 ones, as the gradchecks use, in
+float64, with the same code; every constant comes from an array of that dtype, as a float literal would promote
+float32 to float64). ``exp(-sigma)`` is ``(sum_{k<=10} u^k / k!)^16`` with ``u = -sigma / 16`` and sigma clamped to
+``SIGMA_MAX`` (relative error below 1e-11 in float64, under float32 rounding in float32), one expression
+(:func:`_gauss`) for every walk. No fast-math flags: the values are IEEE arithmetic in a fixed order, so the
+backward recomputes exactly the forward's alphas and takes exactly its decisions. The channels are held four to a
+group (:func:`channel_groups`); the kernels are compiled once per dtype and group count.
 """
 
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
-ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
-TRANSMITTANCE_MIN = 1e-4
-SIGMA_MAX = 6.0
-"""Beyond this Mahalanobis half-square, ``opacity * exp(-sigma) < 1/255`` for any opacity: the alpha test drops the
-pixel, so the Gaussian's value there is computed on ``SIGMA_MAX`` instead (keeps the polynomial in its range)."""
-I3, I4, I5, I6, I7, I8, I9, I10 = (1.0 / math.factorial(k) for k in range(3, 11))  # Taylor coefficients of exp
+from .lanes import (ALPHA_MIN, LANES, _constant_tuple, _constants, _gauss, _lane_sum, _lanes, _longest, _pack,
+                    _pack_colours, _stack_empty)
+from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -121,19 +122,27 @@ def depth_order(ntiles, depths):  # pragma: no cover - compiled
 def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover - compiled
     """Return (lists [M] int32 Gaussian ids grouped by tile in ``order``'s order, starts [T] int64, counts [T]
     int64) for the Gaussians ``order`` (depth-sorted ids of drawn Gaussians): a counting sort by tile, stable, so
-    every tile's run stays in depth order. Each worker counts and places a contiguous stretch of ``order``; a tile's
-    entries from an earlier stretch come first, so the result does not depend on the number of workers."""
+    every tile's run stays in depth order. The tile ranges of the Gaussians are first gathered in ``order``'s order
+    (one pass of random reads; the count and the placement then read them in sequence). Each worker counts and
+    places a contiguous stretch of ``order``; a tile's entries from an earlier stretch come first, so the result
+    does not depend on the number of workers."""
     tiles_x = (width + tile - 1) // tile
     tiles_y = (height + tile - 1) // tile
     T = tiles_x * tiles_y
     n = order.shape[0]
     span = (n + workers - 1) // workers
+    ranges = np.empty((n, 4), np.int32)  # tx0, tx1, ty0, ty1 in depth order
+    for k in nb.prange(n):
+        g = order[k]
+        ranges[k, 0] = bounds[g, 0] // tile
+        ranges[k, 1] = bounds[g, 1] // tile
+        ranges[k, 2] = bounds[g, 2] // tile
+        ranges[k, 3] = bounds[g, 3] // tile
     per = np.zeros((workers, T), np.int64)
     for w in nb.prange(workers):
         for k in range(w * span, min(n, (w + 1) * span)):
-            g = order[k]
-            for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
-                for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
+            for ty in range(ranges[k, 2], ranges[k, 3] + 1):
+                for tx in range(ranges[k, 0], ranges[k, 1] + 1):
                     per[w, ty * tiles_x + tx] += 1
     counts = np.zeros(T, np.int64)
     starts = np.zeros(T, np.int64)
@@ -149,8 +158,8 @@ def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover 
     for w in nb.prange(workers):
         for k in range(w * span, min(n, (w + 1) * span)):
             g = order[k]
-            for ty in range(bounds[g, 2] // tile, bounds[g, 3] // tile + 1):
-                for tx in range(bounds[g, 0] // tile, bounds[g, 1] // tile + 1):
+            for ty in range(ranges[k, 2], ranges[k, 3] + 1):
+                for tx in range(ranges[k, 0], ranges[k, 1] + 1):
                     t = ty * tiles_x + tx
                     lists[per[w, t]] = g
                     per[w, t] += 1
@@ -158,110 +167,132 @@ def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover 
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, width, height, tile,
-                      workers, out, t_final, last, top):  # pragma: no cover - compiled
-    """Composite every busy tile front to back.
+def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, groups, width, height,
+                      tile, workers, out, t_final, last, top):  # pragma: no cover - compiled
+    """Composite every busy tile front to back, one 4x4 block of pixels at a time.
 
     Writes ``out`` [H, W, C] (colours without the background), ``t_final`` [H, W] (transmittance after the last
     blended Gaussian), ``last`` [H, W] (how many entries of the tile's run the pixel walked up to and including its
     last blended Gaussian: the backward starts there) and, when ``top`` is [H, W] rather than empty, the id of each
     pixel's largest-weight Gaussian (-1 where none). Pixels of tiles with no Gaussian are left as they are (the
-    caller initialises ``out`` to 0, ``t_final`` to 1, ``last`` to 0 and ``top`` to -1).
+    caller initialises ``out`` to 0, ``t_final`` to 1, ``last`` to 0 and ``top`` to -1). ``groups``:
+    :func:`channel_groups` of ``C``.
+
+    Each block walks the tile's run, skipping the Gaussians whose footprint box misses it, with its 16 pixels'
+    state (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector
+    registers; every Gaussian is evaluated on all 16 pixels without branches, and counts only at those inside its
+    footprint box (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A stopped pixel keeps its transmittance
+    negated. The tile's Gaussians are copied next to each other as the first block reaches them, so the other
+    blocks read them in order.
     """
     C = colors.shape[1]
+    NC = 4 * len(groups)
     tiles_x = (width + tile - 1) // tile
-    P = tile * tile
+    nbx = (tile + 3) // 4
     want_top = top.shape[0] > 0
+    nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
+    kc = _constants(opacities)
+    kt = _constant_tuple(kc)
+    a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
+    cap = _longest(busy, counts)
     for w in nb.prange(workers):
-        T = np.empty(P)
-        acc = np.empty((P, C))
-        lst = np.empty(P, np.int32)
-        done = np.empty(P, np.bool_)
-        best = np.empty(P)
-        best_id = np.empty(P, np.int32)
-        col = np.empty(C)
-        row_alpha = np.empty(tile)
-        done_rows = np.empty(tile, np.int64)
+        geo = np.empty((cap, 10), kc.dtype)
+        box = np.empty((cap, 4), np.int32)
+        gid = np.empty(cap, np.int32)
+        colp = np.empty((cap, NC), kc.dtype)
+        acc = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))
+        cp = nb.carray(_stack_empty(groups, kc.dtype), (NC * LANES,))  # the pair's channels (first NC used)
+        pxc = _lanes(kc)
+        pyc = _lanes(kc)
+        T = _lanes(kc)
+        W = _lanes(kc)
+        best = _lanes(kc)
+        L = _lanes(gid)
+        bid = _lanes(gid)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo = (t % tiles_x) * tile
             y_lo = (t // tiles_x) * tile
             x_hi = min(x_lo + tile, width) - 1
             y_hi = min(y_lo + tile, height) - 1
-            T[:] = 1.0
-            acc[:] = 0.0
-            lst[:] = 0
-            done[:] = False
-            done_rows[:] = 0
-            best[:] = 0.0
-            best_id[:] = -1
-            remaining = (x_hi - x_lo + 1) * (y_hi - y_lo + 1)
             s = starts[t]
-            for j in range(s, s + counts[t]):
-                g = lists[j]
-                mx = np.float64(means2d[g, 0])
-                my = np.float64(means2d[g, 1])
-                a = np.float64(conics[g, 0])
-                b = np.float64(conics[g, 1])
-                c = np.float64(conics[g, 2])
-                o = np.float64(opacities[g])
-                for ch in range(C):
-                    col[ch] = colors[g, ch]
-                x0 = max(bounds[g, 0], x_lo)
-                nx = min(bounds[g, 1], x_hi) - x0 + 1
-                dx0 = x0 + 0.5 - mx
-                cols = ((1 << nx) - 1) << (x0 - x_lo)  # the box's columns as bits of a tile row
-                for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
-                    if done_rows[py - y_lo] & cols == cols:  # every pixel of the box in this row has stopped
+            n = counts[t]
+            packed = 0
+            for blk in range(nbx * nbx):
+                bx = x_lo + 4 * (blk % nbx)
+                by = y_lo + 4 * (blk // nbx)
+                if bx > x_hi or by > y_hi:
+                    continue
+                for q in range(LANES):
+                    px = bx + (q & 3)
+                    py = by + (q >> 2)
+                    pxc[q] = px + 0.5
+                    pyc[q] = py + 0.5
+                    T[q] = one if px <= x_hi and py <= y_hi else -one
+                    L[q] = 0
+                    best[q] = zero
+                    bid[q] = -1
+                    for i in range(NC):
+                        acc[i, q] = zero
+                for jj in range(n):
+                    if jj == packed:
+                        packed = _pack(lists, s, jj, min(n, jj + 64), bounds, means2d, conics, opacities, geo, box,
+                                       gid)
+                        _pack_colours(lists, s, jj, packed, colors, colp)
+                    if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
                         continue
-                    dy = py + 0.5 - my
-                    cdy = 0.5 * c * dy * dy
-                    bdy = b * dy
-                    for q in range(nx):  # the row's Gaussian values, vectorised
-                        dx = dx0 + q
-                        u = -0.0625 * min(0.5 * a * dx * dx + bdy * dx + cdy, SIGMA_MAX)
-                        e = 1.0 + u * (1.0 + u * (0.5 + u * (I3 + u * (I4 + u * (I5 + u * (I6 + u * (I7 + u * (
-                            I8 + u * (I9 + u * I10)))))))))
-                        e *= e
-                        e *= e
-                        e *= e
-                        row_alpha[q] = min(ALPHA_MAX, o * (e * e))
-                    base = (py - y_lo) * tile + x0 - x_lo
-                    for q in range(nx):
-                        p = base + q
-                        alpha = row_alpha[q]
-                        if done[p] or alpha < ALPHA_MIN:
-                            continue
-                        t_next = T[p] * (1.0 - alpha)
-                        if t_next < TRANSMITTANCE_MIN:
-                            done[p] = True
-                            done_rows[py - y_lo] |= 1 << (x0 - x_lo + q)
-                            remaining -= 1
-                            continue
-                        weight = alpha * T[p]
+                    mx = geo[jj, 0]
+                    my = geo[jj, 1]
+                    ha = half * geo[jj, 2]
+                    b = geo[jj, 3]
+                    hc = half * geo[jj, 4]
+                    o = geo[jj, 5]
+                    x0 = geo[jj, 6]
+                    x1 = geo[jj, 7]
+                    y0 = geo[jj, 8]
+                    y1 = geo[jj, 9]
+                    g = gid[jj]
+                    walked = np.int32(jj + 1)
+                    for i in range(NC):
+                        cp[i] = colp[jj, i]
+                    live = 0
+                    for q in range(LANES):  # the block's 16 pixels: vectorised, no branches
+                        alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
+                        Tp = T[q]
+                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
+                        ok = (alpha >= a_min) & (Tp > zero) & inside
+                        tn = Tp * (one - alpha)
+                        blend = ok & (tn >= t_min)
+                        stop = ok & (tn < t_min)
+                        weight = alpha * Tp if blend else zero
+                        W[q] = weight
+                        T[q] = tn if blend else (-Tp if stop else Tp)
+                        L[q] = walked if blend else L[q]
+                        better = weight > best[q]
+                        best[q] = weight if better else best[q]
+                        bid[q] = g if better else bid[q]
+                        live += 1 if T[q] > zero else 0
+                    for i in range(NC):
+                        ci = cp[i]
+                        for q in range(nq):  # a channel's 16 pixels: one vector
+                            acc[i, q] += W[q] * ci
+                    if live == 0:
+                        break
+                for q in range(LANES):
+                    px = bx + (q & 3)
+                    py = by + (q >> 2)
+                    if px <= x_hi and py <= y_hi:
                         for ch in range(C):
-                            acc[p, ch] += weight * col[ch]
-                        if want_top and weight > best[p]:
-                            best[p] = weight
-                            best_id[p] = g
-                        T[p] = t_next
-                        lst[p] = j - s + 1
-                if remaining == 0:
-                    break
-            for py in range(y_lo, y_hi + 1):
-                for px in range(x_lo, x_hi + 1):
-                    p = (py - y_lo) * tile + px - x_lo
-                    for ch in range(C):
-                        out[py, px, ch] = acc[p, ch]
-                    t_final[py, px] = T[p]
-                    last[py, px] = lst[p]
-                    if want_top:
-                        top[py, px] = best_id[p]
+                            out[py, px, ch] = acc[ch, q]
+                        t_final[py, px] = abs(T[q])
+                        last[py, px] = L[q]
+                        if want_top:
+                            top[py, px] = bid[q]
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, width, height, tile,
-                       workers, t_final, last, grad_out, grad_alpha, background, pair_geom, pair_colors,
+def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, groups, width, height,
+                       tile, workers, t_final, last, grad_out, grad_alpha, background, pair_geom, pair_colors,
                        geometry):  # pragma: no cover - compiled
     """Write each (tile, Gaussian) pair's gradient, summed over the tile's pixels walked back to front.
 
@@ -273,131 +304,251 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         pair_geom: per pair of ``lists``, the gradient of (mx, my, conic a, b, c, opacity), zeroed. [M, 6]
         pair_colors: per pair, the gradient of the colours, zeroed. [M, C]
         geometry: whether to compute ``pair_geom`` (False when only colours or features are trained).
+        groups: :func:`channel_groups` of ``C``.
 
-    :func:`reduce_pairs` then sums the pairs per Gaussian in list order: the result does not depend on the number of
-    workers.
+    The tile's 4x4 blocks are walked one after the other, each from the deepest ``last`` of its pixels back to
+    the front, with the forward's expression for every alpha (so the same pixels blend the same Gaussians); a pair's
+    gradient is the sum of its 16 lanes in a fixed tree order, added block after block. :func:`reduce_pairs` then
+    sums the pairs per Gaussian in list order: the result does not depend on the number of workers.
 
     With ``T_i`` the transmittance before Gaussian ``i`` and ``S_i`` the sum over the Gaussians behind it of
     ``w_j (c_j . g)``: ``dL/dc_i = alpha_i T_i g``, ``dL/dalpha_i = T_i (c_i . g) - (S_i + T_final (bg . g -
     g_alpha)) / (1 - alpha_i)``; alpha clamped at 0.99 passes no gradient to the opacity and the footprint.
     """
     C = colors.shape[1]
+    NC = 4 * len(groups)
     tiles_x = (width + tile - 1) // tile
-    P = tile * tile
+    nbx = (tile + 3) // 4
+    kc = _constants(opacities)
+    kt = _constant_tuple(kc)
+    a_min, a_max, half, one, zero = kc[0], kc[1], kc[5], kc[6], kc[7]
+    nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
+    cap = _longest(busy, counts)
     for w in nb.prange(workers):
-        T = np.empty(P)
-        S = np.empty(P)
-        tail = np.empty(P)
-        lst = np.empty(P, np.int32)
-        gpix = np.zeros((P, C))
-        gcol = np.empty(C)
-        col = np.empty(C)
-        row_gauss = np.empty(tile)
-        row_last = np.empty(tile, np.int32)
+        geo = np.empty((cap, 10), kc.dtype)
+        box = np.empty((cap, 4), np.int32)
+        gid = np.empty(cap, np.int32)
+        colp = np.empty((cap, NC), kc.dtype)
+        gpix = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))  # dL/d(channel) of the block's pixels
+        V = _lanes(kc)
+        cp = nb.carray(_stack_empty(groups, kc.dtype), (NC * LANES,))  # the pair's channels (first NC used)
+        pxc = _lanes(kc)
+        pyc = _lanes(kc)
+        T = _lanes(kc)
+        S = _lanes(kc)
+        tail = _lanes(kc)
+        Wt = _lanes(kc)
+        DX = _lanes(kc)
+        DY = _lanes(kc)
+        G = _lanes(kc)
+        A = _lanes(kc)
+        OM = _lanes(kc)
+        TI = _lanes(kc)
+        CG = _lanes(kc)
+        GEO = _lanes(kc)
+        VG = nb.carray(_stack_empty(96, kc.dtype), (6, LANES))  # 6 gradients x 16 pixels
+        L = _lanes(gid)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo = (t % tiles_x) * tile
             y_lo = (t // tiles_x) * tile
             x_hi = min(x_lo + tile, width) - 1
             y_hi = min(y_lo + tile, height) - 1
-            deepest = 0
-            lst[:] = 0
-            row_last[:] = 0
-            for py in range(y_lo, y_hi + 1):
-                for px in range(x_lo, x_hi + 1):
-                    p = (py - y_lo) * tile + px - x_lo
-                    tf = np.float64(t_final[py, px])
-                    T[p] = tf
-                    S[p] = 0.0
-                    bg_dot = 0.0
-                    for ch in range(C):
-                        gpix[p, ch] = grad_out[py, px, ch]
-                        bg_dot += background[ch] * gpix[p, ch]
-                    tail[p] = tf * (bg_dot - grad_alpha[py, px])
-                    lst[p] = last[py, px]
-                    row_last[py - y_lo] = max(row_last[py - y_lo], lst[p])
-                    deepest = max(deepest, lst[p])
             s = starts[t]
-            for j in range(s + deepest - 1, s - 1, -1):
-                g = lists[j]
-                jj = j - s
-                mx = np.float64(means2d[g, 0])
-                my = np.float64(means2d[g, 1])
-                a = np.float64(conics[g, 0])
-                b = np.float64(conics[g, 1])
-                c = np.float64(conics[g, 2])
-                o = np.float64(opacities[g])
-                for ch in range(C):
-                    col[ch] = colors[g, ch]
-                gcol[:] = 0.0
-                g_mx = 0.0
-                g_my = 0.0
-                g_a = 0.0
-                g_b = 0.0
-                g_c = 0.0
-                g_o = 0.0
-                hit = False
-                x0 = max(bounds[g, 0], x_lo)
-                nx = min(bounds[g, 1], x_hi) - x0 + 1
-                dx0 = x0 + 0.5 - mx
-                for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
-                    if jj >= row_last[py - y_lo]:  # no pixel of this row walked this far in the forward
+            packed = 0
+            for blk in range(nbx * nbx):
+                bx = x_lo + 4 * (blk % nbx)
+                by = y_lo + 4 * (blk // nbx)
+                if bx > x_hi or by > y_hi:
+                    continue
+                deepest = 0
+                for q in range(LANES):
+                    px = bx + (q & 3)
+                    py = by + (q >> 2)
+                    pxc[q] = px + 0.5
+                    pyc[q] = py + 0.5
+                    S[q] = zero
+                    for i in range(NC):
+                        gpix[i, q] = zero
+                    if px <= x_hi and py <= y_hi:
+                        tf = t_final[py, px]
+                        T[q] = tf
+                        bg_dot = 0.0
+                        for ch in range(C):
+                            gv = grad_out[py, px, ch]
+                            gpix[ch, q] = gv
+                            bg_dot += background[ch] * gv
+                        tail[q] = tf * (bg_dot - grad_alpha[py, px])
+                        L[q] = last[py, px]
+                        deepest = max(deepest, L[q])
+                    else:
+                        T[q] = one
+                        tail[q] = zero
+                        L[q] = 0
+                if deepest > packed:
+                    lo = packed
+                    packed = _pack(lists, s, lo, deepest, bounds, means2d, conics, opacities, geo, box, gid)
+                    _pack_colours(lists, s, lo, packed, colors, colp)
+                for jj in range(deepest - 1, -1, -1):
+                    if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
                         continue
-                    dy = py + 0.5 - my
-                    cdy = 0.5 * c * dy * dy
-                    bdy = b * dy
-                    for q in range(nx):  # as the forward
-                        dx = dx0 + q
-                        u = -0.0625 * min(0.5 * a * dx * dx + bdy * dx + cdy, SIGMA_MAX)
-                        e = 1.0 + u * (1.0 + u * (0.5 + u * (I3 + u * (I4 + u * (I5 + u * (I6 + u * (I7 + u * (
-                            I8 + u * (I9 + u * I10)))))))))
-                        e *= e
-                        e *= e
-                        e *= e
-                        row_gauss[q] = e * e
-                    base = (py - y_lo) * tile + x0 - x_lo
-                    for q in range(nx):
-                        p = base + q
-                        if jj >= lst[p]:
-                            continue
-                        gauss = row_gauss[q]
-                        raw = o * gauss  # as the forward's o * (e * e), bit for bit
-                        alpha = min(ALPHA_MAX, raw)
-                        if alpha < ALPHA_MIN:
-                            continue
-                        hit = True
-                        one_minus = 1.0 - alpha
-                        Ti = T[p] / one_minus
-                        weight = alpha * Ti
-                        T[p] = Ti
-                        for ch in range(C):
-                            gcol[ch] += weight * gpix[p, ch]
-                        if not geometry:  # colours or features alone: no need for the alpha's gradient
-                            continue
-                        cg = 0.0
-                        for ch in range(C):
-                            cg += col[ch] * gpix[p, ch]
-                        d_alpha = Ti * cg - (S[p] + tail[p]) / one_minus
-                        S[p] += weight * cg
-                        if raw < ALPHA_MAX:
-                            dx = dx0 + q
-                            g_o += d_alpha * gauss
-                            d_sigma = -d_alpha * alpha
-                            g_mx -= d_sigma * (a * dx + b * dy)
-                            g_my -= d_sigma * (c * dy + b * dx)
-                            g_a += d_sigma * 0.5 * dx * dx
-                            g_b += d_sigma * dx * dy
-                            g_c += d_sigma * 0.5 * dy * dy
-                if hit:
-                    for ch in range(C):
-                        pair_colors[j, ch] = gcol[ch]
-                    if geometry:
-                        pair_geom[j, 0] = g_mx
-                        pair_geom[j, 1] = g_my
-                        pair_geom[j, 2] = g_a
-                        pair_geom[j, 3] = g_b
-                        pair_geom[j, 4] = g_c
-                        pair_geom[j, 5] = g_o
+                    mx = geo[jj, 0]
+                    my = geo[jj, 1]
+                    a = geo[jj, 2]
+                    b = geo[jj, 3]
+                    c = geo[jj, 4]
+                    o = geo[jj, 5]
+                    x0 = geo[jj, 6]
+                    x1 = geo[jj, 7]
+                    y0 = geo[jj, 8]
+                    y1 = geo[jj, 9]
+                    ha = half * a
+                    hc = half * c
+                    for i in range(NC):
+                        cp[i] = colp[jj, i]
+                    active = 0
+                    for q in range(LANES):  # as the forward, backwards: recover T_i, the weight, c_i . g
+                        dx = pxc[q] - mx
+                        dy = pyc[q] - my
+                        gauss = _gauss(dx, dy, ha, b, hc, kt)
+                        raw = o * gauss  # as the forward's alpha, bit for bit
+                        alpha = min(a_max, raw)
+                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)
+                        act = (jj < L[q]) & (alpha >= a_min) & inside
+                        one_minus = one - alpha
+                        Ti = T[q] / one_minus
+                        T[q] = Ti if act else T[q]
+                        Wt[q] = alpha * Ti if act else zero
+                        CG[q] = zero
+                        GEO[q] = one if act & (raw < a_max) else zero
+                        DX[q] = dx
+                        DY[q] = dy
+                        G[q] = gauss
+                        A[q] = alpha
+                        OM[q] = one_minus
+                        TI[q] = Ti
+                        active += 1 if act else 0
+                    if active == 0:
+                        continue
+                    j = s + jj
+                    for i in range(NC):  # each channel's 16 pixels: one vector
+                        ci = cp[i]
+                        for q in range(nq):
+                            gv = gpix[i, q]
+                            V[q] = Wt[q] * gv
+                            CG[q] += ci * gv  # c_i . g, channel after channel
+                        value = _lane_sum(V)
+                        if i < C:
+                            pair_colors[j, i] += value
+                    if not geometry:  # colours or features alone: no need for the alpha's gradient
+                        continue
+                    for q in range(LANES):  # d_alpha, S_i for the next Gaussian in front, the pair's gradients
+                        cg = CG[q]
+                        d_alpha = TI[q] * cg - (S[q] + tail[q]) / OM[q]
+                        S[q] += Wt[q] * cg
+                        dx = DX[q]
+                        dy = DY[q]
+                        d_sigma = -d_alpha * A[q]
+                        on = GEO[q] > zero
+                        VG[0, q] = -(d_sigma * (a * dx + b * dy)) if on else zero
+                        VG[1, q] = -(d_sigma * (c * dy + b * dx)) if on else zero
+                        VG[2, q] = d_sigma * half * dx * dx if on else zero
+                        VG[3, q] = d_sigma * dx * dy if on else zero
+                        VG[4, q] = d_sigma * half * dy * dy if on else zero
+                        VG[5, q] = d_alpha * G[q] if on else zero
+                    pair_geom[j, 0] += _lane_sum(VG[0])  # written out: a loop here would be vectorised across
+                    pair_geom[j, 1] += _lane_sum(VG[1])  # the six sums with gathers
+                    pair_geom[j, 2] += _lane_sum(VG[2])
+                    pair_geom[j, 3] += _lane_sum(VG[3])
+                    pair_geom[j, 4] += _lane_sum(VG[4])
+                    pair_geom[j, 5] += _lane_sum(VG[5])
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacities, width, height, tile, workers,
+                    offsets, pixels, ids, weights):  # pragma: no cover - compiled
+    """List every blended (pixel, Gaussian, weight ``alpha T``) of the view, walking the tiles' 4x4 blocks as the
+    forward does.
+
+    With ``pixels`` empty, counts each busy tile's blended pairs into ``offsets[k + 1]`` and writes nothing else;
+    otherwise ``offsets`` [B + 1] holds their cumulative sum and busy tile ``k``'s pairs are written into ``pixels``
+    (row-major pixel index), ``ids`` and ``weights`` [M] from ``offsets[k]``.
+    """
+    tiles_x = (width + tile - 1) // tile
+    nbx = (tile + 3) // 4
+    fill = pixels.shape[0] > 0
+    kc = _constants(opacities)
+    kt = _constant_tuple(kc)
+    a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
+    cap = _longest(busy, counts)
+    for w in nb.prange(workers):
+        geo = np.empty((cap, 10), kc.dtype)
+        box = np.empty((cap, 4), np.int32)
+        gid = np.empty(cap, np.int32)
+        pxc = _lanes(kc)
+        pyc = _lanes(kc)
+        T = _lanes(kc)
+        W = _lanes(kc)
+        for k in range(w, busy.shape[0], workers):
+            t = busy[k]
+            x_lo = (t % tiles_x) * tile
+            y_lo = (t // tiles_x) * tile
+            x_hi = min(x_lo + tile, width) - 1
+            y_hi = min(y_lo + tile, height) - 1
+            s, n = starts[t], counts[t]
+            packed = n_pairs = 0
+            for blk in range(nbx * nbx):
+                bx = x_lo + 4 * (blk % nbx)
+                by = y_lo + 4 * (blk // nbx)
+                if bx > x_hi or by > y_hi:
+                    continue
+                for q in range(LANES):
+                    px = bx + (q & 3)
+                    py = by + (q >> 2)
+                    pxc[q] = px + 0.5
+                    pyc[q] = py + 0.5
+                    T[q] = one if px <= x_hi and py <= y_hi else -one
+                for jj in range(n):
+                    if jj == packed:
+                        packed = _pack(lists, s, jj, min(n, jj + 64), bounds, means2d, conics, opacities, geo, box,
+                                       gid)
+                    if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
+                        continue
+                    mx = geo[jj, 0]
+                    my = geo[jj, 1]
+                    ha = half * geo[jj, 2]
+                    b = geo[jj, 3]
+                    hc = half * geo[jj, 4]
+                    o = geo[jj, 5]
+                    x0 = geo[jj, 6]
+                    x1 = geo[jj, 7]
+                    y0 = geo[jj, 8]
+                    y1 = geo[jj, 9]
+                    blends = live = 0
+                    for q in range(LANES):  # as the forward
+                        alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
+                        Tp = T[q]
+                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
+                        ok = (alpha >= a_min) & (Tp > zero) & inside
+                        tn = Tp * (one - alpha)
+                        blend = ok & (tn >= t_min)
+                        stop = ok & (tn < t_min)
+                        W[q] = alpha * Tp if blend else zero
+                        T[q] = tn if blend else (-Tp if stop else Tp)
+                        blends += 1 if blend else 0
+                        live += 1 if T[q] > zero else 0
+                    at = offsets[k] + n_pairs
+                    for q in range(LANES if blends and fill else 0):
+                        if W[q] > zero:  # blended (alpha >= 1/255 and T >= 1e-4: a positive weight)
+                            pixels[at] = (by + (q >> 2)) * width + bx + (q & 3)
+                            ids[at] = gid[jj]
+                            weights[at] = W[q]
+                            at += 1
+                    n_pairs += blends
+                    if live == 0:
+                        break
+            if not fill:
+                offsets[k + 1] = n_pairs
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -416,84 +567,3 @@ def reduce_pairs(lists, pair_values, n, workers):  # pragma: no cover - compiled
                 for k in range(K):
                     out[g, k] += pair_values[j, k]
     return out
-
-
-@nb.njit(parallel=True, cache=True, nogil=True)
-def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacities, width, height, tile, workers,
-                    offsets, pixels, ids, weights):  # pragma: no cover - compiled
-    """List every blended (pixel, Gaussian, weight ``alpha T``) of the view, walking the tiles as the forward does.
-
-    With ``pixels`` empty, counts each busy tile's blended pairs into ``offsets[k + 1]`` and writes nothing else;
-    otherwise ``offsets`` [B + 1] holds their cumulative sum and busy tile ``k``'s pairs are written into ``pixels``
-    (row-major pixel index), ``ids`` and ``weights`` [M] from ``offsets[k]``.
-    """
-    tiles_x = (width + tile - 1) // tile
-    P = tile * tile
-    fill = pixels.shape[0] > 0
-    for w in nb.prange(workers):
-        T = np.empty(P)
-        done = np.empty(P, np.bool_)
-        row_alpha = np.empty(tile)
-        done_rows = np.empty(tile, np.int64)
-        for k in range(w, busy.shape[0], workers):
-            t = busy[k]
-            x_lo = (t % tiles_x) * tile
-            y_lo = (t // tiles_x) * tile
-            x_hi = min(x_lo + tile, width) - 1
-            y_hi = min(y_lo + tile, height) - 1
-            T[:] = 1.0
-            done[:] = False
-            done_rows[:] = 0
-            remaining = (x_hi - x_lo + 1) * (y_hi - y_lo + 1)
-            n_pairs = 0
-            s = starts[t]
-            for j in range(s, s + counts[t]):
-                g = lists[j]
-                mx = np.float64(means2d[g, 0])
-                my = np.float64(means2d[g, 1])
-                a = np.float64(conics[g, 0])
-                b = np.float64(conics[g, 1])
-                c = np.float64(conics[g, 2])
-                o = np.float64(opacities[g])
-                x0 = max(bounds[g, 0], x_lo)
-                nx = min(bounds[g, 1], x_hi) - x0 + 1
-                dx0 = x0 + 0.5 - mx
-                cols = ((1 << nx) - 1) << (x0 - x_lo)
-                for py in range(max(bounds[g, 2], y_lo), min(bounds[g, 3], y_hi) + 1):
-                    if done_rows[py - y_lo] & cols == cols:
-                        continue
-                    dy = py + 0.5 - my
-                    cdy = 0.5 * c * dy * dy
-                    bdy = b * dy
-                    for q in range(nx):
-                        dx = dx0 + q
-                        u = -0.0625 * min(0.5 * a * dx * dx + bdy * dx + cdy, SIGMA_MAX)
-                        e = 1.0 + u * (1.0 + u * (0.5 + u * (I3 + u * (I4 + u * (I5 + u * (I6 + u * (I7 + u * (
-                            I8 + u * (I9 + u * I10)))))))))
-                        e *= e
-                        e *= e
-                        e *= e
-                        row_alpha[q] = min(ALPHA_MAX, o * (e * e))
-                    base = (py - y_lo) * tile + x0 - x_lo
-                    for q in range(nx):
-                        p = base + q
-                        alpha = row_alpha[q]
-                        if done[p] or alpha < ALPHA_MIN:
-                            continue
-                        t_next = T[p] * (1.0 - alpha)
-                        if t_next < TRANSMITTANCE_MIN:
-                            done[p] = True
-                            done_rows[py - y_lo] |= 1 << (x0 - x_lo + q)
-                            remaining -= 1
-                            continue
-                        if fill:
-                            at = offsets[k] + n_pairs
-                            pixels[at] = py * width + x0 + q
-                            ids[at] = g
-                            weights[at] = alpha * T[p]
-                        n_pairs += 1
-                        T[p] = t_next
-                if remaining == 0:
-                    break
-            if not fill:
-                offsets[k + 1] = n_pairs

@@ -1,0 +1,174 @@
+"""The 4x4 pixel blocks of the compositing kernels (:mod:`roodi_toolkit.render.kernels`): the constants, the stack
+arrays that hold a block's 16 pixels in vector registers, and the arithmetic every walk shares.
+
+LLVM keeps a block's state in registers and turns a loop over its 16 pixels into a few vector instructions when
+(found by reading the assembly): the state lives in stack arrays of a constant size (:func:`_stack_empty`), never on
+the heap, which would need runtime overlap checks; every constant comes in the inputs' dtype as a tuple of values
+(:func:`_constant_tuple`; a float literal would turn float32 arithmetic into float64); no loop over channels sits
+inside the loop over the pixels; and sums over the 16 pixels are written out (:func:`_lane_sum`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+TRANSMITTANCE_MIN = 1e-4
+SIGMA_MAX = 6.0
+"""Beyond this Mahalanobis half-square, ``opacity * exp(-sigma) < 1/255`` for any opacity: the alpha test drops the
+pixel, so the Gaussian's value there is computed on ``SIGMA_MAX`` instead (keeps the polynomial in its range)."""
+I3, I4, I5, I6, I7, I8, I9, I10 = (1.0 / math.factorial(k) for k in range(3, 11))  # Taylor coefficients of exp
+LANES = 16
+"""Pixels of a compositing block (4x4): the vector the compositing works on."""
+
+
+@intrinsic
+def _stack_empty(typingctx, size, dtype):  # pragma: no cover - compiled
+    """A pointer to ``size`` uninitialised values of ``dtype`` on the calling function's stack: ``size`` is an integer
+    literal, or a tuple of ``G`` channel groups for ``G * 4 * 16`` values (four channels of a 4x4 block's pixels per
+    group: the tuple's length is known when compiling, so the kernels are compiled once per group count).
+
+    Arrays made of it (:func:`numba.carray`) are known to alias nothing else, so LLVM keeps them in vector registers
+    and vectorises loops over them without runtime overlap checks; heap arrays would be read and written through
+    memory on every Gaussian."""
+    if isinstance(size, types.IntegerLiteral):
+        n = size.literal_value
+    elif isinstance(size, types.BaseTuple):
+        n = len(size) * 4 * LANES
+    else:
+        return None
+
+    def codegen(context, builder, signature, args):  # the alloca goes to the entry block: its size is a constant
+        return cgutils.alloca_once(builder, context.get_value_type(dtype.dtype),
+                                   size=context.get_constant(types.intp, n))
+
+    return types.CPointer(dtype.dtype)(size, dtype), codegen
+
+
+@nb.njit(inline="always")
+def _lanes(dtype_of):  # pragma: no cover - compiled
+    """16 values of ``dtype_of``'s dtype on the stack: one per pixel of a 4x4 block."""
+    return nb.carray(_stack_empty(16, dtype_of.dtype), (LANES,))
+
+
+@nb.njit(inline="always")
+def _constants(like):  # pragma: no cover - compiled
+    """The compositing constants in ``like``'s dtype (a float literal would turn float32 arithmetic into float64)."""
+    kc = np.empty(16, like.dtype)
+    kc[0] = ALPHA_MIN
+    kc[1] = ALPHA_MAX
+    kc[2] = TRANSMITTANCE_MIN
+    kc[3] = SIGMA_MAX
+    kc[4] = -0.0625
+    kc[5] = 0.5
+    kc[6] = 1.0
+    kc[7] = 0.0
+    kc[8] = I3
+    kc[9] = I4
+    kc[10] = I5
+    kc[11] = I6
+    kc[12] = I7
+    kc[13] = I8
+    kc[14] = I9
+    kc[15] = I10
+    return kc
+
+
+@nb.njit(inline="always")
+def _constant_tuple(kc):  # pragma: no cover - compiled
+    """:func:`_constants` as a tuple: values the compiled loops hold in registers (no loads from memory)."""
+    return (kc[0], kc[1], kc[2], kc[3], kc[4], kc[5], kc[6], kc[7], kc[8], kc[9], kc[10], kc[11], kc[12], kc[13],
+            kc[14], kc[15])
+
+
+@nb.njit(inline="always")
+def _gauss(dx, dy, ha, b, hc, kt):  # pragma: no cover - compiled
+    """``exp(-sigma)`` at offset (dx, dy) from the mean, ``sigma = ha dx^2 + b dx dy + hc dy^2`` clamped to
+    ``SIGMA_MAX``, as ``(sum_{k<=10} u^k / k!)^16`` with ``u = -sigma / 16``: one expression for every walk, so the
+    backward recomputes the forward's values bit for bit."""
+    one = kt[6]
+    u = kt[4] * min(ha * dx * dx + b * dx * dy + hc * dy * dy, kt[3])
+    e = one + u * (one + u * (kt[5] + u * (kt[8] + u * (kt[9] + u * (kt[10] + u * (kt[11] + u * (kt[12] + u * (
+        kt[13] + u * (kt[14] + u * kt[15])))))))))
+    e *= e
+    e *= e
+    e *= e
+    return e * e
+
+
+@nb.njit(inline="always")
+def _lane_sum(v):  # pragma: no cover - compiled
+    """The sum of the 16 lanes of ``v`` in a fixed tree order (lane ``q`` plus lane ``q + 8``, then ``+ 4``, ``+ 2``,
+    ``+ 1``), written out: no loop for the compiler to vectorise the wrong way."""
+    s0 = v[0] + v[8]
+    s1 = v[1] + v[9]
+    s2 = v[2] + v[10]
+    s3 = v[3] + v[11]
+    s4 = v[4] + v[12]
+    s5 = v[5] + v[13]
+    s6 = v[6] + v[14]
+    s7 = v[7] + v[15]
+    t0 = s0 + s4
+    t1 = s1 + s5
+    t2 = s2 + s6
+    t3 = s3 + s7
+    return (t0 + t2) + (t1 + t3)
+
+
+@nb.njit(cache=True, nogil=True)
+def _longest(busy, counts):  # pragma: no cover - compiled
+    longest = 0
+    for k in range(busy.shape[0]):
+        longest = max(longest, counts[busy[k]])
+    return longest
+
+
+@nb.njit(inline="always")
+def _pack(lists, s, lo, hi, bounds, means2d, conics, opacities, geo, box, gid):  # pragma: no cover - compiled
+    """Copy entries ``lo:hi`` of the tile's run (from ``lists[s]``) next to each other: (mx, my, conic a, b, c,
+    opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo`` [n, 10], the footprint box in ``box`` [n, 4], the id in ``gid`` [n]; every 4x4 block of the
+    tile then reads them in order. Returns ``hi``."""
+    for jj in range(lo, hi):
+        g = lists[s + jj]
+        gid[jj] = g
+        geo[jj, 0] = means2d[g, 0]
+        geo[jj, 1] = means2d[g, 1]
+        geo[jj, 2] = conics[g, 0]
+        geo[jj, 3] = conics[g, 1]
+        geo[jj, 4] = conics[g, 2]
+        geo[jj, 5] = opacities[g]
+        geo[jj, 6] = bounds[g, 0]  # the box's edges as pixel-centre bounds: x0 < px + 0.5 < x1 + 1
+        geo[jj, 7] = bounds[g, 1] + 1
+        geo[jj, 8] = bounds[g, 2]
+        geo[jj, 9] = bounds[g, 3] + 1
+        for i in range(4):
+            box[jj, i] = bounds[g, i]
+    return hi
+
+
+@nb.njit(inline="always")
+def _pack_colours(lists, s, lo, hi, colors, colp):  # pragma: no cover - compiled
+    """Copy the channels of entries ``lo:hi`` of the tile's run into ``colp`` [n, 4 G], zero beyond ``C``."""
+    C = colors.shape[1]
+    for jj in range(lo, hi):
+        g = lists[s + jj]
+        for ch in range(colp.shape[1]):
+            colp[jj, ch] = colors[g, ch] if ch < C else 0.0
+
+
+def channel_groups(channels: int) -> tuple:
+    """The ``groups`` argument of the compositing kernels for ``channels`` channels: one entry per group of 4
+    channels, a power of two of them (the kernels hold 4 channels of a block's 16 pixels per group in registers and
+    are compiled once per group count, about a minute each on a busy 2-core machine: 1, 2, 4, 8, ... keeps the
+    count of compilations small; rgb + depth is 1, 16 features 4)."""
+    groups = 1
+    while 4 * groups < channels:
+        groups *= 2
+    return (0,) * groups
