@@ -43,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     args, extra = ap.parse_known_args(argv)  # the rest goes to extract as it is
 
     from roodi_toolkit.evaluate.polygons import polygon_masks
+    from roodi_toolkit.io.polygons import read_polygons
     from roodi_toolkit.imaging import mask_iou
     from roodi_toolkit.io.dataset import load_dataset
     from roodi_toolkit.io.files import write_image, write_json
@@ -69,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
 
     model = find_model(args.model_dir)
     ds = load_dataset(model.config["data_dir"], float(model.config.get("downscale", 1) or 1))
-    masks = polygon_masks(ds, args.polygons)
+    masks = polygon_masks(ds, read_polygons(args.polygons))
     obj = read_ply(out / "object_1" / "object.ply")
     scene = read_ply(model.ply_path)
     rows, tiles = [], []

@@ -5,8 +5,8 @@ import torch
 
 from roodi_toolkit.errors import ConfigError
 from roodi_toolkit.io.lpips_weights import lpips_for_loss
-from roodi_toolkit.evaluate.lpips import (ALEXNET_CHECKPOINT, ENV_WEIGHTS, LPIPS, LPIPSUnavailable, read_lpips,
-                                          write_lpips)
+from roodi_toolkit.evaluate.lpips import LPIPS, LPIPSUnavailable
+from roodi_toolkit.io.lpips_weights import ALEXNET_CHECKPOINT, ENV_WEIGHTS, read_lpips, write_lpips
 
 
 def random_upstream_pair(seed=0):

@@ -4,42 +4,22 @@ Real captures come without masks; a few hand-drawn polygons on held-out photos (
 an extraction of a real object is scored against. The polygons are given in the photo's pixels (what an image
 viewer shows), and the loaded dataset may be downscaled and cropped to a common size, so each vertex goes through
 the same mapping a click does (:func:`roodi_toolkit.io.dataset.to_loaded_pixel`); vertices on the photo's border
-(where a polygon closes along an edge the object runs out of) are mapped without the click's range check.
+(where a polygon closes along an edge the object runs out of) are mapped without the click's range check. The file
+is read by :func:`roodi_toolkit.io.polygons.read_polygons`.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from PIL import Image, ImageDraw
 
 from ..errors import ConfigError, DatasetError
 from ..io.dataset import Dataset, to_loaded_pixel
-from ..io.files import read_json
 
 SUPERSAMPLE = 4
 """Each loaded pixel is covered by SUPERSAMPLE^2 samples; it is inside when at least half of them are."""
-
-
-def read_polygons(path: str | Path) -> dict[str, list[list[float]]]:
-    """Return the polygons ``{view name: [[x, y], ...]}`` of a ``polygons.json`` (``{"polygons": {...}}``).
-
-    Raises:
-        DatasetError: unreadable, or a polygon with fewer than 3 finite vertices.
-    """
-    record = read_json(path, "polygon masks")
-    polys = record.get("polygons") if isinstance(record, dict) else None
-    if not isinstance(polys, dict) or not polys:
-        raise DatasetError(f"{path}: expected {{\"polygons\": {{VIEW: [[x, y], ...]}}}}")
-    out = {}
-    for name, pts in polys.items():
-        arr = np.asarray(pts, dtype=np.float64) if isinstance(pts, list) else np.zeros((0, 2))
-        if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3 or not np.isfinite(arr).all():
-            raise DatasetError(f"{path}: the polygon of {name!r} must be at least 3 finite [x, y] vertices")
-        out[str(name)] = arr.tolist()
-    return out
 
 
 def _loaded_vertex(dataset: Dataset, view: str, x: float, y: float) -> tuple[float, float]:
@@ -68,6 +48,7 @@ def polygon_mask(dataset: Dataset, view: str, polygon: Any) -> np.ndarray:
     return cover >= 0.5
 
 
-def polygon_masks(dataset: Dataset, path: str | Path) -> dict[str, np.ndarray]:
-    """Return ``{view name: [H, W] bool}`` for every polygon of ``path`` (a ``polygons.json``)."""
-    return {name: polygon_mask(dataset, name, pts) for name, pts in read_polygons(path).items()}
+def polygon_masks(dataset: Dataset, polygons: Mapping[str, Sequence[Sequence[float]]]) -> dict[str, np.ndarray]:
+    """Return ``{view name: [H, W] bool}`` for every polygon of ``polygons`` (``{view name: [[x, y], ...]}``, as
+    :func:`roodi_toolkit.io.polygons.read_polygons` reads a ``polygons.json``)."""
+    return {name: polygon_mask(dataset, name, pts) for name, pts in polygons.items()}

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.errors import ConfigError, DatasetError
-from roodi_toolkit.evaluate.polygons import polygon_mask, polygon_masks, read_polygons
+from roodi_toolkit.evaluate.polygons import polygon_mask, polygon_masks
+from roodi_toolkit.io.polygons import read_polygons
 from roodi_toolkit.io.dataset import load_dataset
 
 from ..io.test_formats import DATA
@@ -52,7 +53,7 @@ def test_bad_polygons(half, tmp_path):
 @pytest.mark.skipif(not (DATA / "statue").is_dir(), reason=f"{DATA / 'statue'} not found (the shared real data)")
 def test_the_statue_masks_cover_the_statue_in_the_held_out_views():
     ds = load_dataset(DATA / "statue", 4)
-    masks = polygon_masks(ds, POLYGONS)
+    masks = polygon_masks(ds, read_polygons(POLYGONS))
     assert sorted(masks) == [ds.names[i] for i in ds.test_indices]  # the three held-out photos
     for name, m in masks.items():
         assert m.shape == (164, 250)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import torch
 
+import roodi_toolkit.evaluate
 import roodi_toolkit.pipeline
-from roodi_toolkit.evaluate import benchmark as evaluate_benchmark, metrics
 from roodi_toolkit.io.dataset import load_dataset
 from roodi_toolkit.pipeline import distill, train
 from roodi_toolkit.pipeline.distill import DistillConfig, distill_scene
@@ -27,11 +27,13 @@ from ..paths import REPO
 # the modules of the package that read or write files: a stage imports none of them
 FILE_MODULES = {"roodi_toolkit.io.files", "roodi_toolkit.io.model", "roodi_toolkit.io.ply", "roodi_toolkit.io.atomic",
                 "roodi_toolkit.io.generated", "roodi_toolkit.io.splat", "roodi_toolkit.io.lpips_weights",
-                "roodi_toolkit.io.masks"}
+                "roodi_toolkit.io.masks", "roodi_toolkit.io.polygons"}
 # every module of pipeline/ (train, segment and the click segmenter, distill, select, occlusion, inpaint, fine-tune
-# and its perceptual loss, another tool's model frame, ...), no exception, and the metrics and scoring of evaluate/
+# and its perceptual loss, another tool's model frame, ...) and of evaluate/ (metrics, scoring, baselines, polygon
+# masks, LPIPS), no exception
 PIPELINE = sorted(f"roodi_toolkit.pipeline.{m.name}" for m in pkgutil.iter_modules(roodi_toolkit.pipeline.__path__))
-STAGES = tuple(importlib.import_module(name) for name in PIPELINE) + (metrics, evaluate_benchmark)
+EVALUATE = sorted(f"roodi_toolkit.evaluate.{m.name}" for m in pkgutil.iter_modules(roodi_toolkit.evaluate.__path__))
+STAGES = tuple(importlib.import_module(name) for name in PIPELINE + EVALUATE)
 
 
 def _imported(module) -> set[str]:
@@ -64,9 +66,12 @@ def test_stages_open_name_and_check_no_file(module):
 
 
 def test_the_stages_cover_what_read_files():
-    """The modules that read a mask folder, another tool's model file and LPIPS weights until issue 35 are checked."""
+    """The modules that read a mask folder, another tool's model file, LPIPS weights and polygon files until issue 35
+    are checked."""
     assert {"roodi_toolkit.pipeline.segment", "roodi_toolkit.pipeline.model_frame",
             "roodi_toolkit.pipeline.perceptual", "roodi_toolkit.pipeline.click"} <= set(PIPELINE)
+    assert {"roodi_toolkit.evaluate.polygons", "roodi_toolkit.evaluate.lpips", "roodi_toolkit.evaluate.metrics",
+            "roodi_toolkit.evaluate.benchmark"} <= set(EVALUATE)
 
 
 def test_the_run_layer_is_where_the_commands_go():
