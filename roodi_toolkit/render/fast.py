@@ -14,9 +14,9 @@ Cost of one view: O(N) per-Gaussian work (projection, SH, footprints; ``parallel
 depth (O(N), a compiled radix sort of the depths' bits), a counting sort into 16x16 tiles (O(pairs), each worker a
 stretch of the depth order), and compositing in 4x4 pixel blocks (``parallel`` over tiles): each block evaluates on
 its 16 pixels at once the Gaussians of its tile's run whose box touches it, up to where its pixels stop
-(``docs/rendering.md``, "The 4x4 blocks: what they gave and what they cost"). Memory: a few arrays of N and of (tile, Gaussian) pairs, plus the image;
-the backward adds a [pairs, 6 + channels] gradient array, reduced per Gaussian in pair order, so the gradients do not
-depend on the number of threads either.
+(``docs/rendering.md``, "The 4x4 blocks: what they gave and what they cost"). Memory: a few arrays of N and of (tile,
+Gaussian) pairs, plus the image; the backward adds a [pairs, 6 + channels] gradient array, reduced per Gaussian in
+pair order, so the gradients do not depend on the number of threads either.
 """
 
 from __future__ import annotations
