@@ -128,8 +128,9 @@ class ClickSegmenter(Segmenter):
        where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact). A fill that ran on
        over the object's support up to that reach, with no jump (a donut on the ground: the depth is continuous along
        the contact), loses the support's plane (:func:`~roodi_toolkit.pipeline.click_regions.support_leak`, as in
-       tabletop segmentation). GrabCut on the image then refines it. A negative click's surface (its own fill at the smallest tolerance) is closed to the fill,
-       is sure background for GrabCut and joins the band of rest below.
+       tabletop segmentation). GrabCut on the image then refines it. A negative click's surface (its own fill at
+       the smallest tolerance) is closed to the fill, is sure background for GrabCut and joins the band of rest
+       below.
     2. Seeds: a Gaussian whose compositing weight in the clicked view lies mostly inside the region seeds the
        object; one whose weight lies mostly in the band around the region seeds the rest.
     3. 3D growth: the Gaussians within ``grow_radius`` times the region's 3D radius are linked to their
