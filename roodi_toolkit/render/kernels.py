@@ -10,7 +10,8 @@ Layout: the image is cut into square tiles (1 to 64 pixels wide); each tile hold
 Gaussians whose footprint touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every
 ``workers``-th busy tile (interleaved, so the busy parts of an image are shared out evenly) and composites it in 4x4
 blocks of pixels: each block walks the tile's run front to back (forward) or back to front (backward), skipping the
-Gaussians whose footprint box misses it, and evaluates each Gaussian on its 16 pixels at once (masked to the box). The 16 pixels' state
+Gaussians whose footprint box misses it, and evaluates each Gaussian on its 16 pixels at once (masked to the box).
+The 16 pixels' state
 (transmittance, walked count, channel sums) lives in stack arrays (:mod:`.lanes`) that LLVM keeps in vector
 registers, and the per-Gaussian loop over the 16 pixels has no branches (selects), so it compiles to a few vector
 instructions. Blocks at a tile's or the image's edge have their outside pixels stopped from the start. Results do
@@ -181,7 +182,8 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
     Each block walks the tile's run, skipping the Gaussians whose footprint box misses it, with its 16 pixels'
     state (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector
     registers; every Gaussian is evaluated on all 16 pixels without branches, and counts only at those inside its
-    footprint box (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A stopped pixel keeps its transmittance
+    footprint box (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A
+    stopped pixel keeps its transmittance
     negated. The tile's Gaussians are copied next to each other as the first block reaches them, so the other
     blocks read them in order.
     """
