@@ -11,14 +11,13 @@ Gaussians whose footprint touches it (``lists[starts[t]:starts[t] + counts[t]]``
 ``workers``-th busy tile (interleaved, so the busy parts of an image are shared out evenly) and composites it in 4x4
 blocks of pixels: each block walks the tile's run front to back (forward) or back to front (backward), skipping the
 Gaussians whose footprint box misses it, and evaluates each Gaussian on its 16 pixels at once (masked to the box).
-The 16 pixels' state
-(transmittance, walked count, channel sums) lives in stack arrays (:mod:`.lanes`) that LLVM keeps in vector
-registers, and the per-Gaussian loop over the 16 pixels has no branches (selects), so it compiles to a few vector
-instructions. Blocks at a tile's or the image's edge have their outside pixels stopped from the start. Results do
-not depend on timing or on the number of workers: each tile is written by one worker, and the backward writes one
-gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after block,
-which :func:`reduce_pairs` adds per Gaussian in pair order. A pixel's result does not depend on the tile size either:
-its arithmetic uses only its own coordinates.
+The 16 pixels' state (transmittance, walked count, channel sums) lives in stack arrays (:mod:`.lanes`) that LLVM
+keeps in vector registers, and the per-Gaussian loop over the 16 pixels has no branches (selects), so it compiles to
+a few vector instructions. Blocks at a tile's or the image's edge have their outside pixels stopped from the start.
+Results do not depend on timing or on the number of workers: each tile is written by one worker, and the backward
+writes one gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after
+block, which :func:`reduce_pairs` adds per Gaussian in pair order. A pixel's result does not depend on the tile size
+either: its arithmetic uses only its own coordinates.
 
 Per-pixel work is in the inputs' dtype (float32 inputs composite in float32, float64 ones, as the gradchecks use, in
 float64, with the same code; every constant comes from an array of that dtype, as a float literal would promote
@@ -179,13 +178,12 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
     caller initialises ``out`` to 0, ``t_final`` to 1, ``last`` to 0 and ``top`` to -1). ``groups``:
     :func:`channel_groups` of ``C``.
 
-    Each block walks the tile's run, skipping the Gaussians whose footprint box misses it, with its 16 pixels'
-    state (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector
-    registers; every Gaussian is evaluated on all 16 pixels without branches, and counts only at those inside its
-    footprint box (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A
-    stopped pixel keeps its transmittance
-    negated. The tile's Gaussians are copied next to each other as the first block reaches them, so the other
-    blocks read them in order.
+    Each block walks the tile's run, skipping the Gaussians whose footprint box misses it, with its 16 pixels' state
+    (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector registers;
+    every Gaussian is evaluated on all 16 pixels without branches, and counts only at those inside its footprint box
+    (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A stopped pixel keeps
+    its transmittance negated. The tile's Gaussians are copied next to each other as the first block reaches them, so
+    the other blocks read them in order.
     """
     C = colors.shape[1]
     NC = 4 * len(groups)

@@ -133,9 +133,8 @@ def _longest(busy, counts):  # pragma: no cover - compiled
 @nb.njit(inline="always")
 def _pack(lists, s, lo, hi, bounds, means2d, conics, opacities, geo, box, gid):  # pragma: no cover - compiled
     """Copy entries ``lo:hi`` of the tile's run (from ``lists[s]``) next to each other: (mx, my, conic a, b, c,
-    opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo`` [n, 10], the footprint box in ``box`` [n, 4],
-    the id in ``gid`` [n]; every 4x4 block of the
-    tile then reads them in order. Returns ``hi``."""
+    opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo`` [n, 10], the footprint box in ``box`` [n, 4], the
+    id in ``gid`` [n]; every 4x4 block of the tile then reads them in order. Returns ``hi``."""
     for jj in range(lo, hi):
         g = lists[s + jj]
         gid[jj] = g
