@@ -252,6 +252,8 @@ def main() -> None:
     r.add_argument("--max-pixels", type=int, default=None, help="working size of segmentation and distillation "
                    "(default 512x512 = 262144; the photos' own size: full resolution)")
     r.add_argument("--vote-views", type=int, default=None, help="the click's voting views (default 32)")
+    r.add_argument("--no-support", action="store_true",
+                   help="the click without the support plane of its clicked region (as before it)")
     g = sub.add_parser("grid")
     g.add_argument("splat")
     g.add_argument("--work", type=Path, default=Path("/tmp/scale"))
@@ -260,6 +262,10 @@ def main() -> None:
     g.add_argument("--size", default="800")
     args = ap.parse_args()
     if args.cmd == "run":
+        if args.no_support:
+            from roodi_toolkit.pipeline import click as click_module
+
+            click_module.support_leak = lambda *a, **k: None
         click = tuple(int(v) for v in args.click.split(",")) if args.click else None
         out = args.out or args.scene / "out"
         res = run(args.scene, args.view, click, out, renderer=args.renderer, max_pixels=args.max_pixels,
