@@ -34,15 +34,19 @@ HERE = Path(__file__).resolve().parent
 
 def load_kernels(checkout: Path):
     """Return ``checkout``'s kernels module, loaded from a copy in the temporary folder (numba caches its compiled
-    code beside the file; a folder named by the file's content lets later runs reuse it)."""
-    source = (checkout / "roodi_toolkit" / "render" / "kernels.py").read_bytes()
-    folder = Path(tempfile.gettempdir()) / f"bench_kernels_{hashlib.sha1(source).hexdigest()[:12]}"
-    folder.mkdir(exist_ok=True)
-    target = folder / "kernels_against.py"
-    if not target.exists():
-        target.write_bytes(source)
-    sys.path.insert(0, str(folder))  # importable by name: numba's cache finds the module again
-    return importlib.import_module("kernels_against")
+    code beside the file; a folder named by the content lets later runs reuse it). The kernels and the block helpers
+    they import (``lanes.py``, where the checkout has it) are copied as a package of their own."""
+    render = checkout / "roodi_toolkit" / "render"
+    files = {name: (render / name).read_bytes() for name in ("kernels.py", "lanes.py") if (render / name).exists()}
+    digest = hashlib.sha1(b"".join(files.values())).hexdigest()[:12]
+    package = f"kernels_against_{digest}"
+    folder = Path(tempfile.gettempdir()) / "bench_kernels" / package
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, source in {**files, "__init__.py": b""}.items():
+        if not (folder / name).exists():
+            (folder / name).write_bytes(source)
+    sys.path.insert(0, str(folder.parent))  # importable by name: numba's cache finds the module again
+    return importlib.import_module(f"{package}.kernels")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -23,7 +23,7 @@ from ..sh import SH_C1, SH_C2, SH_C3
 
 ALPHA_MIN = 1.0 / 255.0
 BLOCK = 1024
-"""Gaussians per parallel work item of the backward (its scratch arrays are allocated once per block)."""
+"""Gaussians per parallel work item (its scratch arrays are allocated once per block)."""
 
 C20, C21, C22, C23, C24 = SH_C2
 C30, C31, C32, C33, C34, C35, C36 = SH_C3
@@ -43,8 +43,8 @@ def _rotation(qw, qx, qy, qz):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _sh_basis(n_bases, x, y, z):  # pragma: no cover - compiled
-    """Return the 16 real SH basis values at the unit direction (those past ``n_bases`` are 0)."""
+def _sh_basis_tuple(n_bases, x, y, z):  # pragma: no cover - compiled
+    """Return the 16 real SH basis values at the unit direction (those past ``n_bases`` are 0) as a tuple."""
     b1 = b2 = b3 = b4 = b5 = b6 = b7 = b8 = b9 = b10 = b11 = b12 = b13 = b14 = b15 = 0.0
     if n_bases > 1:
         b1, b2, b3 = -SH_C1 * y, SH_C1 * z, -SH_C1 * x
@@ -65,7 +65,16 @@ def _sh_basis(n_bases, x, y, z):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _sh_basis_grad(n_bases, x, y, z):  # pragma: no cover - compiled
+def _sh_basis(out, n_bases, x, y, z):  # pragma: no cover - compiled
+    """Write the 16 real SH basis values at the unit direction into ``out`` [16] (those past ``n_bases`` are 0):
+    an array, so that the loops over the bases read it at a running index directly (a tuple indexed at run time
+    compiles to a jump table per read; 10% of the projection's time at SH 3)."""
+    (out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8], out[9], out[10], out[11], out[12],
+     out[13], out[14], out[15]) = _sh_basis_tuple(n_bases, x, y, z)
+
+
+@nb.njit(cache=True, nogil=True)
+def _sh_basis_grad_tuple(n_bases, x, y, z):  # pragma: no cover - compiled
     """Return the partial derivatives (d/dx, d/dy, d/dz, 16 each) of the basis w.r.t. the direction's components."""
     x1 = x2 = x3 = x4 = x5 = x6 = x7 = x8 = x9 = x10 = x11 = x12 = x13 = x14 = x15 = 0.0
     y1 = y2 = y3 = y4 = y5 = y6 = y7 = y8 = y9 = y10 = y11 = y12 = y13 = y14 = y15 = 0.0
@@ -93,6 +102,19 @@ def _sh_basis_grad(n_bases, x, y, z):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
+def _sh_basis_grad(out, n_bases, x, y, z):  # pragma: no cover - compiled
+    """Write the partial derivatives of the basis w.r.t. the direction's components into ``out`` [3, 16] (rows d/dx,
+    d/dy, d/dz)."""
+    gx, gy, gz = _sh_basis_grad_tuple(n_bases, x, y, z)
+    (out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[0, 4], out[0, 5], out[0, 6], out[0, 7], out[0, 8], out[0, 9],
+     out[0, 10], out[0, 11], out[0, 12], out[0, 13], out[0, 14], out[0, 15]) = gx
+    (out[1, 0], out[1, 1], out[1, 2], out[1, 3], out[1, 4], out[1, 5], out[1, 6], out[1, 7], out[1, 8], out[1, 9],
+     out[1, 10], out[1, 11], out[1, 12], out[1, 13], out[1, 14], out[1, 15]) = gy
+    (out[2, 0], out[2, 1], out[2, 2], out[2, 3], out[2, 4], out[2, 5], out[2, 6], out[2, 7], out[2, 8], out[2, 9],
+     out[2, 10], out[2, 11], out[2, 12], out[2, 13], out[2, 14], out[2, 15]) = gz
+
+
+@nb.njit(cache=True, nogil=True)
 def _frustum(intr, width, height):  # pragma: no cover - compiled
     fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
     lim_x_pos = (width - cx) / fx + 0.3 * (0.5 * width / fx)
@@ -114,85 +136,87 @@ def project_forward(means, quats, log_scales, opacity_logits, sh, n_bases, view,
     """
     n = means.shape[0]
     fx, fy, cx, cy, lxp, lxn, lyp, lyn = _frustum(intr, width, height)
-    for i in nb.prange(n):
-        r00, r01, r02, r10, r11, r12, r20, r21, r22, _, _, _, _, _ = _rotation(
-            np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]), np.float64(quats[i, 3]))
-        s0 = np.exp(np.float64(log_scales[i, 0]))
-        s1 = np.exp(np.float64(log_scales[i, 1]))
-        s2 = np.exp(np.float64(log_scales[i, 2]))
-        mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-        p0 = view[0, 0] * mu0 + view[0, 1] * mu1 + view[0, 2] * mu2 + view[0, 3]
-        p1 = view[1, 0] * mu0 + view[1, 1] * mu1 + view[1, 2] * mu2 + view[1, 3]
-        p2 = view[2, 0] * mu0 + view[2, 1] * mu1 + view[2, 2] * mu2 + view[2, 3]
-        depths[i] = p2
-        usable = p2 > near and p2 < far
-        z = p2 if usable else 1.0
-        xz = p0 / z
-        yz = p1 / z
-        xc = min(max(xz, -lxn), lxp)
-        yc = min(max(yz, -lyn), lyp)
-        # T = J W R S, row by row: row r of W R S dotted with J's rows
-        a0 = fx / z
-        a1 = fy / z
-        c00 = eps2d
-        c01 = 0.0
-        c11 = eps2d
-        for j in range(3):
-            rj0, rj1, rj2, sj = (r00, r10, r20, s0) if j == 0 else ((r01, r11, r21, s1) if j == 1
-                                                                    else (r02, r12, r22, s2))
-            m0 = (view[0, 0] * rj0 + view[0, 1] * rj1 + view[0, 2] * rj2) * sj
-            m1 = (view[1, 0] * rj0 + view[1, 1] * rj1 + view[1, 2] * rj2) * sj
-            m2 = (view[2, 0] * rj0 + view[2, 1] * rj1 + view[2, 2] * rj2) * sj
-            t0 = a0 * (m0 - xc * m2)
-            t1 = a1 * (m1 - yc * m2)
-            c00 += t0 * t0
-            c01 += t0 * t1
-            c11 += t1 * t1
-        det = max(c00 * c11 - c01 * c01, 1e-30)
-        conics[i, 0] = c11 / det
-        conics[i, 1] = -c01 / det
-        conics[i, 2] = c00 / det
-        mx = fx * xz + cx
-        my = fy * yz + cy
-        means2d[i, 0] = mx
-        means2d[i, 1] = my
-        o = 1.0 / (1.0 + np.exp(-np.float64(opacity_logits[i])))
-        opacities[i] = o
-        if n_bases > 0:
-            d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
-            inv = 1.0 / max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
-            basis = _sh_basis(n_bases, d0 * inv, d1 * inv, d2 * inv)
-            for ch in range(3):
-                v = 0.5
-                for k in range(n_bases):
-                    v += basis[k] * sh[i, k, ch]
-                rgb[i, ch] = max(v, 0.0)
-        # the footprint: where opacity * G >= 1/255
-        ntiles[i] = 0
-        if not usable or not o >= ALPHA_MIN:
-            continue
-        r2 = 2.0 * np.log(max(o * 255.0, 1.0)) * (1.0 + 1e-6)
-        hx = np.sqrt(r2 * c00)
-        hy = np.sqrt(r2 * c11)
-        if not (np.isfinite(mx) and np.isfinite(my) and np.isfinite(hx) and np.isfinite(hy)):
-            continue
-        x0 = np.ceil(mx - hx - 0.5)
-        x1 = np.floor(mx + hx - 0.5)
-        y0 = np.ceil(my - hy - 0.5)
-        y1 = np.floor(my + hy - 0.5)
-        if x0 > x1 or y0 > y1 or x1 < 0 or y1 < 0 or x0 > width - 1 or y0 > height - 1:
-            continue
-        ix0 = int(max(x0, 0.0))
-        ix1 = int(min(x1, width - 1.0))
-        iy0 = int(max(y0, 0.0))
-        iy1 = int(min(y1, height - 1.0))
-        bounds[i, 0] = ix0
-        bounds[i, 1] = ix1
-        bounds[i, 2] = iy0
-        bounds[i, 3] = iy1
-        half[i, 0] = int(np.ceil(hx))
-        half[i, 1] = int(np.ceil(hy))
-        ntiles[i] = (ix1 // tile - ix0 // tile + 1) * (iy1 // tile - iy0 // tile + 1)
+    for blk in nb.prange((n + BLOCK - 1) // BLOCK):
+        basis = np.empty(16)
+        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+            r00, r01, r02, r10, r11, r12, r20, r21, r22, _, _, _, _, _ = _rotation(
+                np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]), np.float64(quats[i, 3]))
+            s0 = np.exp(np.float64(log_scales[i, 0]))
+            s1 = np.exp(np.float64(log_scales[i, 1]))
+            s2 = np.exp(np.float64(log_scales[i, 2]))
+            mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+            p0 = view[0, 0] * mu0 + view[0, 1] * mu1 + view[0, 2] * mu2 + view[0, 3]
+            p1 = view[1, 0] * mu0 + view[1, 1] * mu1 + view[1, 2] * mu2 + view[1, 3]
+            p2 = view[2, 0] * mu0 + view[2, 1] * mu1 + view[2, 2] * mu2 + view[2, 3]
+            depths[i] = p2
+            usable = p2 > near and p2 < far
+            z = p2 if usable else 1.0
+            xz = p0 / z
+            yz = p1 / z
+            xc = min(max(xz, -lxn), lxp)
+            yc = min(max(yz, -lyn), lyp)
+            # T = J W R S, row by row: row r of W R S dotted with J's rows
+            a0 = fx / z
+            a1 = fy / z
+            c00 = eps2d
+            c01 = 0.0
+            c11 = eps2d
+            for j in range(3):
+                rj0, rj1, rj2, sj = (r00, r10, r20, s0) if j == 0 else ((r01, r11, r21, s1) if j == 1
+                                                                        else (r02, r12, r22, s2))
+                m0 = (view[0, 0] * rj0 + view[0, 1] * rj1 + view[0, 2] * rj2) * sj
+                m1 = (view[1, 0] * rj0 + view[1, 1] * rj1 + view[1, 2] * rj2) * sj
+                m2 = (view[2, 0] * rj0 + view[2, 1] * rj1 + view[2, 2] * rj2) * sj
+                t0 = a0 * (m0 - xc * m2)
+                t1 = a1 * (m1 - yc * m2)
+                c00 += t0 * t0
+                c01 += t0 * t1
+                c11 += t1 * t1
+            det = max(c00 * c11 - c01 * c01, 1e-30)
+            conics[i, 0] = c11 / det
+            conics[i, 1] = -c01 / det
+            conics[i, 2] = c00 / det
+            mx = fx * xz + cx
+            my = fy * yz + cy
+            means2d[i, 0] = mx
+            means2d[i, 1] = my
+            o = 1.0 / (1.0 + np.exp(-np.float64(opacity_logits[i])))
+            opacities[i] = o
+            if n_bases > 0:
+                d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
+                inv = 1.0 / max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
+                _sh_basis(basis, n_bases, d0 * inv, d1 * inv, d2 * inv)
+                for ch in range(3):
+                    v = 0.5
+                    for k in range(n_bases):
+                        v += basis[k] * sh[i, k, ch]
+                    rgb[i, ch] = max(v, 0.0)
+            # the footprint: where opacity * G >= 1/255
+            ntiles[i] = 0
+            if not usable or not o >= ALPHA_MIN:
+                continue
+            r2 = 2.0 * np.log(max(o * 255.0, 1.0)) * (1.0 + 1e-6)
+            hx = np.sqrt(r2 * c00)
+            hy = np.sqrt(r2 * c11)
+            if not (np.isfinite(mx) and np.isfinite(my) and np.isfinite(hx) and np.isfinite(hy)):
+                continue
+            x0 = np.ceil(mx - hx - 0.5)
+            x1 = np.floor(mx + hx - 0.5)
+            y0 = np.ceil(my - hy - 0.5)
+            y1 = np.floor(my + hy - 0.5)
+            if x0 > x1 or y0 > y1 or x1 < 0 or y1 < 0 or x0 > width - 1 or y0 > height - 1:
+                continue
+            ix0 = int(max(x0, 0.0))
+            ix1 = int(min(x1, width - 1.0))
+            iy0 = int(max(y0, 0.0))
+            iy1 = int(min(y1, height - 1.0))
+            bounds[i, 0] = ix0
+            bounds[i, 1] = ix1
+            bounds[i, 2] = iy0
+            bounds[i, 3] = iy1
+            half[i, 0] = int(np.ceil(hx))
+            half[i, 1] = int(np.ceil(hy))
+            ntiles[i] = (ix1 // tile - ix0 // tile + 1) * (iy1 // tile - iy0 // tile + 1)
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -218,6 +242,8 @@ def project_backward(means, quats, log_scales, opacity_logits, sh, n_bases, view
         gT1 = np.empty(3)
         gMc = np.empty((3, 3))
         gR = np.empty((3, 3))
+        basis = np.empty(16)
+        bgrad = np.empty((3, 16))
         for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
             if ntiles[i] == 0:
                 continue
@@ -230,8 +256,8 @@ def project_backward(means, quats, log_scales, opacity_logits, sh, n_bases, view
                 norm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
                 inv = 1.0 / max(norm, 1e-12)
                 ux, uy, uz = d0 * inv, d1 * inv, d2 * inv
-                basis = _sh_basis(n_bases, ux, uy, uz)
-                bx, by, bz = _sh_basis_grad(n_bases, ux, uy, uz)
+                _sh_basis(basis, n_bases, ux, uy, uz)
+                _sh_basis_grad(bgrad, n_bases, ux, uy, uz)
                 gux = 0.0
                 guy = 0.0
                 guz = 0.0
@@ -243,9 +269,9 @@ def project_backward(means, quats, log_scales, opacity_logits, sh, n_bases, view
                     for k in range(n_bases):
                         c = sh[i, k, ch]
                         g_sh[i, k, ch] = basis[k] * g
-                        gux += g * c * bx[k]
-                        guy += g * c * by[k]
-                        guz += g * c * bz[k]
+                        gux += g * c * bgrad[0, k]
+                        guy += g * c * bgrad[1, k]
+                        guz += g * c * bgrad[2, k]
                 if norm > 1e-12:  # d(d / |d|) = (I - u u^T) / |d|
                     dot = gux * ux + guy * uy + guz * uz
                     gux -= dot * ux
