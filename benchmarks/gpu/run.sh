@@ -5,7 +5,8 @@
 # kornia, kornia_rs, plyfile, pykdtree, zstandard for CPython 3.12) and the playbot splat in .devrun/playbot0/.
 # Open3D's wheel is too large to travel: benchmarks/gpu/open3d_stand_in answers the prune's neighbour searches.
 #
-#   device run: bash benchmarks/gpu/run.sh        (carry .whl and .devrun; SKIP_AGREE=1 skips bench_gpu.py agree)
+#   device run: bash benchmarks/gpu/run.sh        (carry .whl and .devrun; SKIP_AGREE=1 skips bench_gpu.py agree,
+#                                                  SKIP_EXTRACT=1 the extraction and the plugin's tests)
 set -u
 REPO=$PWD
 OUT=${OUT:-/tmp/gpu_out}
@@ -40,6 +41,7 @@ if [ -z "${SKIP_AGREE:-}" ]; then
   timeout 240 python3 "$REPO/benchmarks/bench_gpu.py" agree /tmp/p500 --repeats 5 >"$OUT/agree.json" 2>>"$LOG"
   step "agree rc=$?"
 fi
+[ -n "${SKIP_EXTRACT:-}" ] && { step "done (no extraction)"; exit 0; }
 step "extraction with --renderer gsplat"
 timeout 420 python3 "$REPO/benchmarks/bench_scale.py" run /tmp/p500 --view r_10 --renderer gsplat \
     --out /tmp/p500/out_gsplat --json >"$OUT/extract_gsplat.json" 2>/tmp/extract.err
