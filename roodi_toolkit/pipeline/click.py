@@ -26,6 +26,7 @@ from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
+from ..render.upright import cameras_up
 from ..settings import check_settings, config_from_text, documented, setting
 from .click_regions import _component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, support_leak
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
@@ -319,7 +320,7 @@ class ClickSegmenter(Segmenter):
         # the fill's tolerance grows step by step and stops before the step where the region suddenly grows
         # several-fold: it has leaked through a contact onto the ground or a neighbour
         region, not_region = self._competing_fill(depth0, valid0 & near_grid, valid0, seeds, not_seeds)
-        region = self._off_support(cam0, depth0, region, valid0 & ~near_grid, seeds)
+        region = self._off_support(cam0, depth0, region, valid0 & ~near_grid, seeds, _scene_up(dataset))
         for r, c in seeds:
             region[r, c] = True
         init = np.full((H, W), cv2.GC_BGD, np.uint8)
@@ -337,14 +338,15 @@ class ClickSegmenter(Segmenter):
 
     @staticmethod
     def _off_support(cam0: Any, depth0: np.ndarray, region: np.ndarray, beyond: np.ndarray,
-                     seeds: Sequence[tuple[int, int]]) -> np.ndarray:
+                     seeds: Sequence[tuple[int, int]], up: np.ndarray | None = None) -> np.ndarray:
         """Return ``region`` ``[H, W]`` without the support its fill leaked onto (:func:`support_leak`: the table or
-        ground under the clicked object, up to the fill's 3D reach, ``beyond`` ``[H, W]`` being the pixels past it),
-        kept where it joins the clicks; ``region`` itself when it did not leak."""
+        ground under the clicked object, up to the fill's 3D reach, ``beyond`` ``[H, W]`` being the pixels past it,
+        or level under the clicks when the scene's ``up`` ``[3]`` is known), kept where it joins the clicks;
+        ``region`` itself when it did not leak."""
         rc = np.argwhere(region)
         on = support_leak(cam0.backproject(rc, depth0[region]),
                           cam0.backproject(np.array(seeds), depth0[tuple(np.array(seeds).T)]),
-                          _dilate(beyond, 1)[region])
+                          _dilate(beyond, 1)[region], up)
         if on is None:
             return region
         off = region.copy()
@@ -546,6 +548,15 @@ class ClickSegmenter(Segmenter):
         out[free] = x
         labels[idx] = out
         return labels
+
+
+def _scene_up(dataset: Dataset) -> np.ndarray | None:
+    """The dataset's up direction ``[3]`` (its cameras' mean up: photographers hold cameras upright), or None when
+    the cameras share none."""
+    try:
+        return cameras_up(dataset.cameras)
+    except ConfigError:
+        return None
 
 
 def _inside_box(points: np.ndarray, point: np.ndarray) -> bool:

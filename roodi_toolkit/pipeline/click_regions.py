@@ -81,20 +81,30 @@ SUPPORT_TOLERANCE = 0.02
 """... its points being those within this fraction of the region's 3D radius of it ..."""
 SUPPORT_CLEARANCE = 3.0
 """... and the clicks at least this many tolerances off it (a click on the plane itself asks for the support)."""
+SUPPORT_LEVEL = 0.9
+"""Without a fill that met its reach, a plane is the support when the scene's up is known and it is level (its
+normal within acos(0.9), 26 degrees, of up), the clicks lie above it by :data:`SUPPORT_CLEARANCE` tolerances ..."""
+SUPPORT_SPREAD = 0.5
+"""... and it holds at least this share of the region's points within twice the tolerance (the fill ran over the
+ground round the object more than over the object: a level face of the object itself, a chair's seat under a click
+on its back, holds less of a region that stopped at the object's edges)."""
 
 
-def support_leak(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, seed: int = 0,
-                 hypotheses: int = 256, sample: int = 4096) -> np.ndarray | None:
+def support_leak(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, up: np.ndarray | None = None,
+                 seed: int = 0, hypotheses: int = 256, sample: int = 4096) -> np.ndarray | None:
     """Return the clicked region's points ``[P]`` bool that lie on the surface its fill leaked onto, or None.
 
     A depth fill from a click on an object resting on a table, the ground or a shelf runs from the object onto its
     support where they meet (the depth is continuous along the contact), and on over the support until the 3D reach
     stops it. As in tabletop segmentation (a dominant plane, then what stands on it), a RANSAC plane is fitted to the
     region's points ``[P, 3]``: it is the support when it holds :data:`SUPPORT_SHARE` of them and
-    :data:`SUPPORT_AT_LIMIT` of those where the fill met its reach (``at_limit`` ``[P]`` bool; none: no leak), and
-    the clicks ``[C, 3]`` lie :data:`SUPPORT_CLEARANCE` tolerances off it.
+    :data:`SUPPORT_AT_LIMIT` of those where the fill met its reach (``at_limit`` ``[P]`` bool), and the clicks
+    ``[C, 3]`` lie :data:`SUPPORT_CLEARANCE` tolerances off it. A fill need not meet its reach to have leaked: from a
+    click at a donut's side it runs over the ground in front of it to the ground's own edge. So with the scene's up
+    ``[3]`` known (the cameras' mean up) a level plane that the clicks stand above, holding :data:`SUPPORT_SPREAD`
+    of the region, is the support too (:data:`SUPPORT_LEVEL`).
     """
-    if len(points) < 3 or not at_limit.any():
+    if len(points) < 3 or not (at_limit.any() or up is not None):
         return None
     pts = np.asarray(points, np.float64)
     tol = SUPPORT_TOLERANCE * float(np.linalg.norm(pts - pts.mean(axis=0), axis=1).max())
@@ -119,8 +129,16 @@ def support_leak(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, s
     inl = pts[on]
     mid = inl.mean(axis=0)
     normal = np.linalg.svd(inl - mid, full_matrices=False)[2][-1]
-    on = np.abs((pts - mid) @ normal) < tol
-    clearance = np.abs((np.asarray(clicks, np.float64) - mid) @ normal)
-    if on.mean() < SUPPORT_SHARE or on[at_limit].mean() < SUPPORT_AT_LIMIT or clearance.min() < SUPPORT_CLEARANCE * tol:
+    height = (pts - mid) @ normal
+    on = np.abs(height) < tol
+    clicks_height = (np.asarray(clicks, np.float64) - mid) @ normal
+    if on.mean() < SUPPORT_SHARE or np.abs(clicks_height).min() < SUPPORT_CLEARANCE * tol:
+        return None
+    if at_limit.any() and on[at_limit].mean() >= SUPPORT_AT_LIMIT:
+        return on
+    if up is None or abs(float(normal @ up)) < SUPPORT_LEVEL:
+        return None
+    above = clicks_height * np.sign(float(normal @ up))  # heights along up
+    if above.min() < SUPPORT_CLEARANCE * tol or (np.abs(height) < 2 * tol).mean() < SUPPORT_SPREAD:
         return None
     return on

@@ -51,6 +51,37 @@ def test_no_support_without_a_leak_or_with_the_click_on_it():
     assert support_leak(points, box[:1], np.repeat([True, False], [len(clutter), len(box)])) is None
 
 
+def test_a_level_support_under_the_clicks_is_found_without_a_reach_when_up_is_known():
+    """A fill from a click at an object's side runs over the ground in front of it to the ground's own edge, meeting
+    no reach: with the scene's up known, the level plane the click stands above is the support."""
+    ground, box, points, at_limit = _leaked_region()
+    stopped = np.zeros(len(points), bool)
+    side_click = box[800:801]  # on the box's side, above the ground
+    up = np.array([0.0, 0.0, 1.0])
+    assert support_leak(points, side_click, stopped) is None  # no up: only a reach tells a leak
+    on = support_leak(points, side_click, stopped, up)
+    assert on is not None
+    assert on[:len(ground)].mean() > 0.99 and on[len(ground):].mean() < 0.1
+    assert support_leak(points, side_click, stopped, np.array([1.0, 0.0, 0.0])) is None  # the plane is not level
+    assert support_leak(points, ground[:1], stopped, up) is None  # a click on the ground asks for the ground
+    below = side_click - np.array([[0.0, 0.0, 1.0]])  # a click under the plane: it hangs from it, not on it
+    assert support_leak(np.concatenate([points, below]), below, np.zeros(len(points) + 1, bool), up) is None
+
+
+def test_a_level_face_of_the_object_itself_is_no_support():
+    """A chair clicked on its back: its seat is level and under the click, but holds less than half of a region
+    that stopped at the chair's edges; a box clicked on its side has its level top above the click."""
+    rng = np.random.default_rng(2)
+    seat = np.column_stack([rng.uniform(-0.25, 0.25, (650, 2)), np.full(650, 0.5)])
+    back = np.column_stack([rng.uniform(-0.25, 0.25, 550), np.full(550, 0.25), rng.uniform(0.55, 1.0, 550)])
+    legs = np.column_stack([np.repeat([[-0.2, -0.2], [0.2, 0.2]], 150, axis=0), rng.uniform(0, 0.45, 300)])
+    chair = np.concatenate([seat, back, legs])
+    up = np.array([0.0, 0.0, 1.0])
+    assert support_leak(chair, back[:1], np.zeros(len(chair), bool), up) is None
+    _, box, _, _ = _leaked_region()
+    assert support_leak(box, box[800:801], np.zeros(len(box), bool), up) is None
+
+
 def test_the_clicked_region_loses_the_ground_it_leaked_onto():
     """A camera looking down on a flat-topped object standing on the ground: a region that ran over the ground up to
     the fill's reach keeps the object's top alone; one that did not reach it is left as it was."""
