@@ -46,6 +46,14 @@ PART_LOOKOUT = 8.0
 REGION_SHARE = 0.1
 """The share of the clicked region's Gaussians a piece must hold to be what the click points at (a speck of a real
 capture in front of the object, under the clicked pixel, holds less)."""
+LABEL_CUT_MIN = 0.15
+"""The growth's labels are never cut below this (the rest's own labels reach 0.1 next to the object)."""
+LABEL_REST = 0.05
+LABEL_REST_SHARE = 0.8
+"""The labels are cut below ``threshold`` only when this share of those under LABEL_CUT_MIN are under LABEL_REST: the
+rest is set apart from the object (the donut on dark ground: 90-96%); where it is not (the statue on white paper, a
+sparse model whose labels spread over 0-0.5 across the whole scene: 44%), a lower cut would take the paper and the
+floor."""
 CLICK_PATCH = 2
 """The pixels within this many of a click (a 5x5 patch) are the ones it points at."""
 
@@ -101,6 +109,10 @@ class ClickSettings:
     threshold: float = setting(0.5, "A pixel is in a view's mask when more than this fraction of its alpha comes "
                                     "from the selected Gaussians; a Gaussian is selected when its label exceeds "
                                     "it.", low=0, high=1)
+    label_split: bool = setting(True, "Select the grown Gaussians whose label exceeds the split of the labels "
+                                      "within the growth's reach into two groups (Otsu's threshold) where it is "
+                                      "lower than threshold: the rest sits near 0, and an object whose hidden side "
+                                      "is joined to its seen side across a colour edge reaches 0.2-0.5.")
     vote_rounds: int = setting(2, "Rounds of the multi-view vote: each Gaussian re-selected when more than "
                                   "threshold of its weight over the voting views falls inside their masks.", low=0)
     vote_views: int = setting(32, "The vote looks at this many views spread evenly over the dataset (and the "
@@ -129,7 +141,8 @@ class ClickSegmenter(Segmenter):
        where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact). A fill that ran on
        over the object's support up to that reach, with no jump (a donut on the ground: the depth is continuous along
        the contact), loses the support's plane (:func:`~roodi_toolkit.pipeline.click_regions.support_leak`, as in
-       tabletop segmentation). GrabCut on the image then refines it. A negative click's surface (its own fill at
+       tabletop segmentation); so does a fill that ran over a level plane under the clicks (the scene's up is the
+       cameras' mean up) to the plane's own edge. GrabCut on the image then refines it. A negative click's surface (its own fill at
        the smallest tolerance) is closed to the fill, is sure background for GrabCut and joins the band of rest
        below.
     2. Seeds: a Gaussian whose compositing weight in the clicked view lies mostly inside the region seeds the
@@ -138,7 +151,8 @@ class ClickSegmenter(Segmenter):
        ``neighbours`` nearest Gaussians, links weakened across colour edges (``colour_sigma``). Each Gaussian's label
        is the smooth solution of this graph (a sparse linear solve, as in random-walker segmentation) with the
        seeds held at 1 and 0, the Gaussians beyond the radius at 0, and a weak pull of the others towards the label
-       of the nearest seed colour; labels above ``threshold`` form the selection. This reaches the object's hidden
+       of the nearest seed colour; labels above ``threshold``, or above the split of the labels within the radius
+       into two groups where that is lower (``label_split``), form the selection. This reaches the object's hidden
        back, which no pixel of the clicked view shows.
     4. Masks: in every view a pixel is the object when more than ``threshold`` of its alpha comes from the selected
        Gaussians (occlusion is the full scene's compositing). ``vote_rounds`` times, the selection is re-estimated as
@@ -208,9 +222,11 @@ class ClickSegmenter(Segmenter):
             info["free_standing"] = True
         else:  # an object that touches the rest: grown from the seeds, stopping at colour edges
             labels = self._grow(scene, fg, bg, centre, s.grow_radius * radius0)
-            selected = labels > s.threshold
             candidates = np.linalg.norm(scene.means - centre, axis=1) <= s.grow_radius * radius0
+            cut = _label_cut(labels[candidates], s.threshold) if s.label_split else s.threshold
+            selected = labels > cut
             info["free_standing"] = False
+            info["label_cut"] = round(float(cut), 4)
         info["grown_gaussians"] = int(selected.sum())
         masks, sel = self._vote_and_render(dataset, params, (selected & candidates).astype(np.float32), candidates,
                                            v0, progress)
@@ -548,6 +564,28 @@ class ClickSegmenter(Segmenter):
         out[free] = x
         labels[idx] = out
         return labels
+
+
+def _label_cut(labels: np.ndarray, threshold: float) -> float:
+    """Return the label above which a grown Gaussian is selected: Otsu's split of ``labels`` ``[n]`` (those within
+    the growth's reach, the ones above ``threshold`` taken as ``threshold``) into two groups, at least
+    :data:`LABEL_CUT_MIN` and at most ``threshold``, where the rest sits near 0 (:data:`LABEL_REST_SHARE`); else
+    ``threshold``.
+
+    The growth holds the seeds of the rest, the Gaussians past its reach and a pull towards the nearest seed colour
+    at 0, so its labels are not balanced around 0.5: on the donut resting on the playbot's ground, clicked where only
+    its icing shows, the ground near it comes out below 0.05 and the donut's unseen tan underside at 0.2-0.5,
+    joined to the icing across a colour edge (benchmarks/RESULTS.md, "The growth's labels")."""
+    if len(labels) < 2 or not threshold > LABEL_CUT_MIN:
+        return threshold
+    # labels above the threshold are selected anyway: as one level, they do not pull the split up into the object
+    levels = np.round(np.clip(labels / threshold, 0.0, 1.0) * 255.0).astype(np.uint8).reshape(-1, 1)
+    otsu, _ = cv2.threshold(levels, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    cut = min(threshold, max(LABEL_CUT_MIN, (float(otsu) + 0.5) / 255.0 * threshold))
+    below = labels[labels < LABEL_CUT_MIN]
+    if not len(below) or (below < LABEL_REST).mean() < LABEL_REST_SHARE:
+        return threshold  # the rest does not sit near 0: labels fall off smoothly into colours like the object's
+    return cut
 
 
 def _scene_up(dataset: Dataset) -> np.ndarray | None:

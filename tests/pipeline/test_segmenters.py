@@ -431,3 +431,26 @@ def test_a_model_in_specks_has_no_free_standing_object():
     assert ClickSegmenter()._parts(cloud, at_click, centre, 0.4, limit=5.0, region=region) is None
     before = ClickSegmenter()._parts(cloud, at_click, centre, 0.4, limit=5.0)  # as before this rule: one speck
     assert before is not None and before.sum() == 3
+
+
+def test_the_grown_labels_are_cut_between_the_rest_and_the_object():
+    """The growth's labels sit near 0 for the rest and spread over 0.25-1 for an object whose unseen side lies
+    beyond a colour edge: the cut falls between them, never above ``threshold`` nor below LABEL_CUT_MIN."""
+    rng = np.random.default_rng(0)
+    rest = rng.uniform(0.0, 0.05, 3000)
+    hidden = rng.uniform(0.25, 0.5, 1500)
+    seen = rng.uniform(0.8, 1.0, 1500)
+    cut = click_segmenter._label_cut(np.concatenate([rest, hidden, seen]), 0.5)
+    assert 0.05 < cut < 0.25
+    assert cut >= click_segmenter.LABEL_CUT_MIN
+    assert click_segmenter._label_cut(np.concatenate([rest, seen]), 0.1) == 0.1  # a threshold under the floor stands
+    assert click_segmenter._label_cut(rest, 0.5) == click_segmenter.LABEL_CUT_MIN  # nothing grew: no cut in the rest
+    assert click_segmenter._label_cut(np.array([0.7]), 0.5) == 0.5
+
+
+def test_the_grown_labels_keep_the_threshold_where_the_rest_does_not_sit_near_zero():
+    """A sparse model on a background of the object's colours (the statue on white paper): the labels fall off
+    smoothly over the whole scene, and a lower cut would take the background."""
+    rng = np.random.default_rng(1)
+    labels = np.clip(np.concatenate([rng.normal(0.42, 0.1, 20000), rng.uniform(0.8, 1.0, 2000)]), 0, 1)
+    assert click_segmenter._label_cut(labels, 0.5) == 0.5
