@@ -2,11 +2,13 @@
 
 For one view of :func:`scene.scene_cloud` (the scene of ``bench_render.py``: camera at (3, -3, 2) looking at
 (0, 0, 0.3), 50 degree field of view, SH 3, float32) it times each stage of a forward and backward pass: projection
-(with SH colours and footprints), depth order, tile binning, compositing forward, compositing backward (geometry and
-channels) and the per-Gaussian reduction of the pair gradients. ``--against CHECKOUT`` loads that checkout's
-``roodi_toolkit/render/kernels.py`` (copied to the temporary folder, so nothing is written into it) and runs its
-compositing kernels on the same projected, binned Gaussians, alternating with this checkout's in every round: the
-two columns see the same load, and the ratio is what counts on a shared machine. It also checks that both give the
+(with SH colours and footprints) and its backward, depth order, tile binning, compositing forward, compositing
+backward (geometry and channels) and the per-Gaussian reduction of the pair gradients. ``--against CHECKOUT`` loads
+that checkout's ``roodi_toolkit/render/kernels.py`` and ``projection_kernels.py`` (copied to the temporary folder, so
+nothing is written into it) and runs its projection and compositing kernels on the same Gaussians (the compositing on
+the same projected, binned ones), alternating with this checkout's in every round, each going first every other round (the
+first of two identical kernels read 0.88x against the second when this checkout always went first): the two columns
+see the same load, and the ratio is what counts on a shared machine. It also checks that both give the
 same image (largest difference printed).
 
 ``--channels 4`` composites rgb + depth (rendering, training); ``--channels 16`` 16 features alone (distillation).
@@ -33,11 +35,17 @@ HERE = Path(__file__).resolve().parent
 
 
 def load_kernels(checkout: Path):
-    """Return ``checkout``'s kernels module, loaded from a copy in the temporary folder (numba caches its compiled
-    code beside the file; a folder named by the content lets later runs reuse it). The kernels and the block helpers
-    they import (``lanes.py``, where the checkout has it) are copied as a package of their own."""
+    """Return ``checkout``'s kernels module and its projection kernels module, loaded from a copy in the temporary
+    folder (numba caches its compiled code beside the file; a folder named by the content lets later runs reuse it).
+    The kernels, the block helpers they import (``lanes.py``, where the checkout has it) and the projection kernels
+    (their package imports made absolute: the constants come from this checkout's package) are copied as a package of
+    their own."""
     render = checkout / "roodi_toolkit" / "render"
-    files = {name: (render / name).read_bytes() for name in ("kernels.py", "lanes.py") if (render / name).exists()}
+    files = {name: (render / name).read_bytes() for name in ("kernels.py", "lanes.py", "projection_kernels.py")
+             if (render / name).exists()}
+    files["projection_kernels.py"] = files["projection_kernels.py"].replace(
+        b"from ..gaussians import", b"from roodi_toolkit.gaussians import").replace(
+        b"from ..sh import", b"from roodi_toolkit.sh import")
     digest = hashlib.sha1(b"".join(files.values())).hexdigest()[:12]
     package = f"kernels_against_{digest}"
     folder = Path(tempfile.gettempdir()) / "bench_kernels" / package
@@ -46,7 +54,7 @@ def load_kernels(checkout: Path):
         if not (folder / name).exists():
             (folder / name).write_bytes(source)
     sys.path.insert(0, str(folder.parent))  # importable by name: numba's cache finds the module again
-    return importlib.import_module(f"{package}.kernels")
+    return importlib.import_module(f"{package}.kernels"), importlib.import_module(f"{package}.projection_kernels")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     from scene import scene_cloud
 
     from roodi_toolkit.cameras import intrinsics_from_fov, look_at
-    from roodi_toolkit.render import fast, kernels
+    from roodi_toolkit.render import fast, kernels, projection_kernels
 
     torch.set_num_threads(1)
     scene = scene_cloud(args.n)
@@ -79,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     W = H = args.size
     workers = fast.workers()
     rng = np.random.default_rng(0)
-    sides = {"this": kernels}
+    sides = {"this": (kernels, projection_kernels)}
     if args.against is not None:
         sides["against"] = load_kernels(args.against)
 
@@ -91,9 +99,45 @@ def main(argv: list[str] | None = None) -> int:
         times.setdefault(key, []).append(time.perf_counter() - t0)
         return result
 
+    n = args.n
+    grads = rng.standard_normal((n, 10)).astype(np.float32)  # dL/d(means2d, conic, opacity, rgb, depth)
+
+    f32 = np.float32
+    buffers = {}  # per side: the projection's outputs and gradients, allocated once (page faults are not the code's)
+
+    def project_both(name, pk):
+        """Time ``pk``'s projection forward and backward (SH 3, every gradient) as the renderer calls them, into
+        arrays that are written once before (fresh arrays' page faults weigh the same for both sides, and swing a
+        backward by 2x between rounds on this machine)."""
+        if name not in buffers:
+            buffers[name] = ((np.empty((n, 2), f32), np.empty((n, 3), f32), np.empty(n, f32), np.empty((n, 3), f32),
+                              np.empty(n, f32), np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32),
+                              np.zeros(n, np.int64)),
+                             (np.zeros((n, 3), f32), np.zeros((n, 4), f32), np.zeros((n, 3), f32), np.zeros(n, f32),
+                              np.zeros(arrays[4].shape, f32)))
+        outs, g_out = buffers[name]
+        for a in g_out:
+            a.fill(0)
+        t0 = time.perf_counter()
+        pk.project_forward(*arrays, 16, view.view, view.center, view.intr, W, H, view.near, view.far, view.eps2d,
+                           view.tile, *outs)
+        t1 = time.perf_counter()
+        pk.project_backward(*arrays, 16, view.view, view.center, view.intr, W, H, view.near, view.far, view.eps2d,
+                            outs[7], *grads_in, *g_out, True)
+        t2 = time.perf_counter()
+        return t1 - t0, t2 - t1
+
+    grads_in = [np.ascontiguousarray(grads[:, a:b]) for a, b in ((0, 2), (2, 5))] + \
+        [np.ascontiguousarray(grads[:, 5]), np.ascontiguousarray(grads[:, 6:9]), np.ascontiguousarray(grads[:, 9])]
+
     images = {}
     for rnd in range(args.repeats + 1):  # round 0 compiles and warms up; dropped
-        proj = clock("projection", lambda: fast.project(*arrays, 16, view))
+        proj = fast.project(*arrays, 16, view)
+        turn = list(sides.items())[::-1 if rnd % 2 else 1]  # each side goes first every other round
+        for name, (_, pk) in turn:
+            fwd, bwd = project_both(name, pk)
+            times.setdefault(f"{name} projection fwd", []).append(fwd)
+            times.setdefault(f"{name} projection bwd", []).append(bwd)
         order = clock("depth order", lambda: kernels.depth_order(proj.ntiles, proj.depths))
         lists, starts, counts = clock("binning", lambda: kernels.bin_tiles(order, proj.bounds, W, H, view.tile,
                                                                             workers))
@@ -106,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         g_out = np.ones((H, W, C), np.float32)
         g_alpha = np.zeros((H, W), np.float32)
         bg = np.zeros(C)
-        for name, mod in sides.items():
+        for name, (mod, _) in turn:
             out = np.zeros((H, W, C), np.float32)
             t_final = np.ones((H, W), np.float32)
             last = np.zeros((H, W), np.int32)
@@ -127,14 +171,16 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.n} Gaussians, {W}x{H}, tile {view.tile}, {C} channels, {workers} thread(s); "
           f"{len(lists):,} (tile, Gaussian) pairs; median of {args.repeats} rounds (seconds); "
           f"load average {' '.join(f'{v:.1f}' for v in os.getloadavg())}")
-    for key in ("projection", "depth order", "binning"):
+    for key in ("depth order", "binning"):
         print(f"  {key:<22} {statistics.median(times[key]):.3f}")
-    for stage in ("fwd", "bwd", "reduce"):
-        row = "  " + f"compositing {stage}".ljust(22)
+    for stage in ("projection fwd", "projection bwd", "compositing fwd", "compositing bwd", "compositing reduce"):
+        key = stage.replace("compositing ", "")
+        row = "  " + stage.ljust(22)
         for name in sides:
-            row += f" {name} {statistics.median(times[f'{name} {stage}']):.3f}"
+            row += f" {name} {statistics.median(times[f'{name} {key}']):.3f}"
         if "against" in sides:
-            row += f"  ratio {statistics.median(times[f'against {stage}']) / statistics.median(times[f'this {stage}']):.2f}x"
+            ratio = statistics.median(times[f"against {key}"]) / statistics.median(times[f"this {key}"])
+            row += f"  ratio {ratio:.2f}x"
         print(row)
     if "against" in sides:
         (a, ta), (b, tb) = images["this"], images["against"]

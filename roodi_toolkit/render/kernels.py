@@ -37,10 +37,10 @@ from .lanes import (ALPHA_MIN, LANES, _constant_tuple, _constants, _gauss, _lane
                     _pack_colours, _stack_empty)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 2
+LANES_REVISION = 3
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
-would leave a checkout that compiled them before with stale kernels (2: Estrin's scheme for the exponential)."""
+would leave a checkout that compiled them before with stale kernels (3: Horner's rule again, after Estrin's)."""
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
