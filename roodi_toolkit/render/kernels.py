@@ -1,4 +1,4 @@
-"""Compiled CPU kernels of the default renderer: footprints, tile binning, compositing forward and backward.
+"""Compiled CPU kernels of the default renderer: depth order, tile binning, compositing forward and backward.
 
 Numba's parallel JIT (installed as a wheel with LLVM inside: no compiler on the user's machine) compiles these loops
 to native code on first use and caches the result beside this file (``cache=True``), so later processes start at
@@ -33,57 +33,14 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .lanes import (ALPHA_MIN, LANES, _constant_tuple, _constants, _gauss, _lane_sum, _lanes, _longest, _pack,
-                    _pack_colours, _stack_empty)
+from .lanes import (LANES, _constant_tuple, _constants, _gauss, _lane_sum, _lanes, _longest, _pack, _pack_colours,
+                    _stack_empty)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
 LANES_REVISION = 3
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (3: Horner's rule again, after Estrin's)."""
-
-
-@nb.njit(parallel=True, cache=True, nogil=True)
-def footprints(means2d, cov_xx, cov_yy, opacities, usable, width, height, tile):  # pragma: no cover - compiled
-    """Return (bounds [N, 4] int32 inclusive pixel box x0, x1, y0, y1; half [N, 2] int32 half-extents; tiles [N]
-    int64 number of tiles touched, 0 where the Gaussian is not drawn).
-
-    The footprint is the ellipse where ``opacity * G >= 1/255`` (Mahalanobis radius^2 ``2 ln(255 opacity)``), with a
-    relative margin of 1e-6 so that pixels on its boundary are left to the alpha test.
-    """
-    n = means2d.shape[0]
-    bounds = np.zeros((n, 4), np.int32)
-    half = np.zeros((n, 2), np.int32)
-    ntiles = np.zeros(n, np.int64)
-    for i in nb.prange(n):
-        o = np.float64(opacities[i])
-        if not usable[i] or not o >= ALPHA_MIN:
-            continue
-        r2 = 2.0 * np.log(max(o * 255.0, 1.0)) * (1.0 + 1e-6)
-        hx = np.sqrt(r2 * np.float64(cov_xx[i]))
-        hy = np.sqrt(r2 * np.float64(cov_yy[i]))
-        mx = np.float64(means2d[i, 0])
-        my = np.float64(means2d[i, 1])
-        if not (np.isfinite(mx) and np.isfinite(my) and np.isfinite(hx) and np.isfinite(hy)):
-            continue
-        x0 = np.ceil(mx - hx - 0.5)
-        x1 = np.floor(mx + hx - 0.5)
-        y0 = np.ceil(my - hy - 0.5)
-        y1 = np.floor(my + hy - 0.5)
-        if x0 > x1 or y0 > y1 or x1 < 0 or y1 < 0 or x0 > width - 1 or y0 > height - 1:
-            continue
-        ix0 = int(max(x0, 0.0))
-        ix1 = int(min(x1, width - 1.0))
-        iy0 = int(max(y0, 0.0))
-        iy1 = int(min(y1, height - 1.0))
-        bounds[i, 0] = ix0
-        bounds[i, 1] = ix1
-        bounds[i, 2] = iy0
-        bounds[i, 3] = iy1
-        half[i, 0] = int(np.ceil(hx))
-        half[i, 1] = int(np.ceil(hy))
-        ntiles[i] = (ix1 // tile - ix0 // tile + 1) * (iy1 // tile - iy0 // tile + 1)
-    return bounds, half, ntiles
 
 
 @nb.njit(cache=True, nogil=True)

@@ -124,6 +124,21 @@ def _frustum(intr, width, height):  # pragma: no cover - compiled
     return fx, fy, cx, cy, lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg
 
 
+@nb.njit(cache=True, nogil=True)
+def _camera_point(view, mu0, mu1, mu2, near, far, lxp, lxn, lyp, lyn):  # pragma: no cover - compiled
+    """Return the mean in camera space (p0, p1, p2), whether it is drawable (``near < z < far``), the ``z`` divided
+    by (``p2``, or 1 when it is not, so nothing is infinite), ``x/z``, ``y/z`` and the two clamped to the frustum
+    widened by 30% (the Jacobian's): what the forward computes and the backward recomputes."""
+    p0 = view[0, 0] * mu0 + view[0, 1] * mu1 + view[0, 2] * mu2 + view[0, 3]
+    p1 = view[1, 0] * mu0 + view[1, 1] * mu1 + view[1, 2] * mu2 + view[1, 3]
+    p2 = view[2, 0] * mu0 + view[2, 1] * mu1 + view[2, 2] * mu2 + view[2, 3]
+    usable = p2 > near and p2 < far
+    z = p2 if usable else 1.0
+    xz = p0 / z
+    yz = p1 / z
+    return p0, p1, p2, usable, z, xz, yz, min(max(xz, -lxn), lxp), min(max(yz, -lyn), lyp)
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
 def project_forward(means, quats, log_scales, opacity_logits, sh, n_bases, view, center, intr, width, height, near,
                     far, eps2d, tile, means2d, conics, depths, rgb, opacities, bounds, half,
@@ -145,16 +160,8 @@ def project_forward(means, quats, log_scales, opacity_logits, sh, n_bases, view,
             s1 = np.exp(np.float64(log_scales[i, 1]))
             s2 = np.exp(np.float64(log_scales[i, 2]))
             mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-            p0 = view[0, 0] * mu0 + view[0, 1] * mu1 + view[0, 2] * mu2 + view[0, 3]
-            p1 = view[1, 0] * mu0 + view[1, 1] * mu1 + view[1, 2] * mu2 + view[1, 3]
-            p2 = view[2, 0] * mu0 + view[2, 1] * mu1 + view[2, 2] * mu2 + view[2, 3]
+            p0, p1, p2, usable, z, xz, yz, xc, yc = _camera_point(view, mu0, mu1, mu2, near, far, lxp, lxn, lyp, lyn)
             depths[i] = p2
-            usable = p2 > near and p2 < far
-            z = p2 if usable else 1.0
-            xz = p0 / z
-            yz = p1 / z
-            xc = min(max(xz, -lxn), lxp)
-            yc = min(max(yz, -lyn), lyp)
             # T = J W R S, row by row: row r of W R S dotted with J's rows
             a0 = fx / z
             a1 = fy / z
@@ -291,15 +298,7 @@ def project_backward(means, quats, log_scales, opacity_logits, sh, n_bases, view
                           np.float64(quats[i, 3]))
             for j in range(3):
                 s[j] = np.exp(np.float64(log_scales[i, j]))
-            p0 = view[0, 0] * mu0 + view[0, 1] * mu1 + view[0, 2] * mu2 + view[0, 3]
-            p1 = view[1, 0] * mu0 + view[1, 1] * mu1 + view[1, 2] * mu2 + view[1, 3]
-            p2 = view[2, 0] * mu0 + view[2, 1] * mu1 + view[2, 2] * mu2 + view[2, 3]
-            usable = p2 > near and p2 < far
-            z = p2 if usable else 1.0
-            xz = p0 / z
-            yz = p1 / z
-            xc = min(max(xz, -lxn), lxp)
-            yc = min(max(yz, -lyn), lyp)
+            p0, p1, p2, usable, z, xz, yz, xc, yc = _camera_point(view, mu0, mu1, mu2, near, far, lxp, lxn, lyp, lyn)
             for j in range(3):  # Mc = W R S, camera-space columns j
                 for r in range(3):
                     Mc[r, j] = (view[r, 0] * R[0, j] + view[r, 1] * R[1, j] + view[r, 2] * R[2, j]) * s[j]
