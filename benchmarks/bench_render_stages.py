@@ -6,9 +6,9 @@ For one view of :func:`scene.scene_cloud` (the scene of ``bench_render.py``: cam
 backward (geometry and channels) and the per-Gaussian reduction of the pair gradients. ``--against CHECKOUT`` loads
 that checkout's ``roodi_toolkit/render/kernels.py`` and ``projection_kernels.py`` (copied to the temporary folder, so
 nothing is written into it) and runs its projection and compositing kernels on the same Gaussians (the compositing on
-the same projected, binned ones), alternating with this checkout's in every round, each going first every other round (the
-first of two identical kernels read 0.88x against the second when this checkout always went first): the two columns
-see the same load, and the ratio is what counts on a shared machine. It also checks that both give the
+the same projected, binned ones), alternating with this checkout's in every round, each going first every other
+round (the first of two identical kernels read 0.88x against the second when this checkout always went first): the
+two columns see the same load, and the ratio is what counts on a shared machine. It also checks that both give the
 same image (largest difference printed).
 
 ``--channels 4`` composites rgb + depth (rendering, training); ``--channels 16`` 16 features alone (distillation).

@@ -49,8 +49,9 @@ capture in front of the object, under the clicked pixel, holds less)."""
 LABEL_CUT_MIN = 0.15
 """The growth's labels are never cut below this (the rest's own labels reach 0.1 next to the object)."""
 LABEL_REST = 0.05
+"""A label under this is the rest's, set apart from the object ..."""
 LABEL_REST_SHARE = 0.8
-"""The labels are cut below ``threshold`` only when this share of those under LABEL_CUT_MIN are under LABEL_REST: the
+"""... and the labels are cut below ``threshold`` only when this share of those under LABEL_CUT_MIN are under it: the
 rest is set apart from the object (the donut on dark ground: 90-96%); where it is not (the statue on white paper, a
 sparse model whose labels spread over 0-0.5 across the whole scene: 44%), a lower cut would take the paper and the
 floor."""
@@ -142,9 +143,9 @@ class ClickSegmenter(Segmenter):
        over the object's support up to that reach, with no jump (a donut on the ground: the depth is continuous along
        the contact), loses the support's plane (:func:`~roodi_toolkit.pipeline.click_regions.support_leak`, as in
        tabletop segmentation); so does a fill that ran over a level plane under the clicks (the scene's up is the
-       cameras' mean up) to the plane's own edge. GrabCut on the image then refines it. A negative click's surface (its own fill at
-       the smallest tolerance) is closed to the fill, is sure background for GrabCut and joins the band of rest
-       below.
+       cameras' mean up) to the plane's own edge. GrabCut on the image then refines it. A negative click's surface
+       (its own fill at the smallest tolerance) is closed to the fill, is sure background for GrabCut and joins the
+       band of rest below.
     2. Seeds: a Gaussian whose compositing weight in the clicked view lies mostly inside the region seeds the
        object; one whose weight lies mostly in the band around the region seeds the rest.
     3. 3D growth: the Gaussians within ``grow_radius`` times the region's 3D radius are linked to their
@@ -575,7 +576,7 @@ def _label_cut(labels: np.ndarray, threshold: float) -> float:
     The growth holds the seeds of the rest, the Gaussians past its reach and a pull towards the nearest seed colour
     at 0, so its labels are not balanced around 0.5: on the donut resting on the playbot's ground, clicked where only
     its icing shows, the ground near it comes out below 0.05 and the donut's unseen tan underside at 0.2-0.5,
-    joined to the icing across a colour edge (benchmarks/RESULTS.md, "The growth's labels")."""
+    joined to the icing across a colour edge (benchmarks/RESULTS.md, "A click anywhere on a resting object")."""
     if len(labels) < 2 or not threshold > LABEL_CUT_MIN:
         return threshold
     # labels above the threshold are selected anyway: as one level, they do not pull the split up into the object
