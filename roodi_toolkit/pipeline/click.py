@@ -26,9 +26,9 @@ from ..params import GaussianParams
 from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
-from ..render.upright import cameras_up
 from ..settings import check_settings, config_from_text, documented, setting
-from .click_regions import _component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, support_leak
+from .click_regions import (_component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, label_cut, scene_up,
+                            support_leak)
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
@@ -46,15 +46,6 @@ PART_LOOKOUT = 8.0
 REGION_SHARE = 0.1
 """The share of the clicked region's Gaussians a piece must hold to be what the click points at (a speck of a real
 capture in front of the object, under the clicked pixel, holds less)."""
-LABEL_CUT_MIN = 0.15
-"""The growth's labels are never cut below this (the rest's own labels reach 0.1 next to the object)."""
-LABEL_REST = 0.05
-"""A label under this is the rest's, set apart from the object ..."""
-LABEL_REST_SHARE = 0.8
-"""... and the labels are cut below ``threshold`` only when this share of those under LABEL_CUT_MIN are under it: the
-rest is set apart from the object (the donut on dark ground: 90-96%); where it is not (the statue on white paper, a
-sparse model whose labels spread over 0-0.5 across the whole scene: 44%), a lower cut would take the paper and the
-floor."""
 CLICK_PATCH = 2
 """The pixels within this many of a click (a 5x5 patch) are the ones it points at."""
 
@@ -224,7 +215,7 @@ class ClickSegmenter(Segmenter):
         else:  # an object that touches the rest: grown from the seeds, stopping at colour edges
             labels = self._grow(scene, fg, bg, centre, s.grow_radius * radius0)
             candidates = np.linalg.norm(scene.means - centre, axis=1) <= s.grow_radius * radius0
-            cut = _label_cut(labels[candidates], s.threshold) if s.label_split else s.threshold
+            cut = label_cut(labels[candidates], s.threshold) if s.label_split else s.threshold
             selected = labels > cut
             info["free_standing"] = False
             info["label_cut"] = round(float(cut), 4)
@@ -337,7 +328,7 @@ class ClickSegmenter(Segmenter):
         # the fill's tolerance grows step by step and stops before the step where the region suddenly grows
         # several-fold: it has leaked through a contact onto the ground or a neighbour
         region, not_region = self._competing_fill(depth0, valid0 & near_grid, valid0, seeds, not_seeds)
-        region = self._off_support(cam0, depth0, region, valid0 & ~near_grid, seeds, _scene_up(dataset))
+        region = self._off_support(cam0, depth0, region, valid0 & ~near_grid, seeds, scene_up(dataset))
         for r, c in seeds:
             region[r, c] = True
         init = np.full((H, W), cv2.GC_BGD, np.uint8)
@@ -565,37 +556,6 @@ class ClickSegmenter(Segmenter):
         out[free] = x
         labels[idx] = out
         return labels
-
-
-def _label_cut(labels: np.ndarray, threshold: float) -> float:
-    """Return the label above which a grown Gaussian is selected: Otsu's split of ``labels`` ``[n]`` (those within
-    the growth's reach, the ones above ``threshold`` taken as ``threshold``) into two groups, at least
-    :data:`LABEL_CUT_MIN` and at most ``threshold``, where the rest sits near 0 (:data:`LABEL_REST_SHARE`); else
-    ``threshold``.
-
-    The growth holds the seeds of the rest, the Gaussians past its reach and a pull towards the nearest seed colour
-    at 0, so its labels are not balanced around 0.5: on the donut resting on the playbot's ground, clicked where only
-    its icing shows, the ground near it comes out below 0.05 and the donut's unseen tan underside at 0.2-0.5,
-    joined to the icing across a colour edge (benchmarks/RESULTS.md, "A click anywhere on a resting object")."""
-    if len(labels) < 2 or not threshold > LABEL_CUT_MIN:
-        return threshold
-    # labels above the threshold are selected anyway: as one level, they do not pull the split up into the object
-    levels = np.round(np.clip(labels / threshold, 0.0, 1.0) * 255.0).astype(np.uint8).reshape(-1, 1)
-    otsu, _ = cv2.threshold(levels, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    cut = min(threshold, max(LABEL_CUT_MIN, (float(otsu) + 0.5) / 255.0 * threshold))
-    below = labels[labels < LABEL_CUT_MIN]
-    if not len(below) or (below < LABEL_REST).mean() < LABEL_REST_SHARE:
-        return threshold  # the rest does not sit near 0: labels fall off smoothly into colours like the object's
-    return cut
-
-
-def _scene_up(dataset: Dataset) -> np.ndarray | None:
-    """The dataset's up direction ``[3]`` (its cameras' mean up: photographers hold cameras upright), or None when
-    the cameras share none."""
-    try:
-        return cameras_up(dataset.cameras)
-    except ConfigError:
-        return None
 
 
 def _inside_box(points: np.ndarray, point: np.ndarray) -> bool:

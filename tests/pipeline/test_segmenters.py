@@ -11,6 +11,7 @@ from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.render.renderer import render_cloud
 from roodi_toolkit.imaging import mask_iou
 from roodi_toolkit.pipeline import click as click_segmenter
+from roodi_toolkit.pipeline import click_regions
 from roodi_toolkit.pipeline.click import ClickSegmenter
 from roodi_toolkit.pipeline.segment import (Click, FilesSegmenter, SegmentationError, SegmentPrompt, Segmenter,
                                             ViewMasks, get_segmenter, segmenter_names)
@@ -440,12 +441,12 @@ def test_the_grown_labels_are_cut_between_the_rest_and_the_object():
     rest = rng.uniform(0.0, 0.05, 3000)
     hidden = rng.uniform(0.25, 0.5, 1500)
     seen = rng.uniform(0.8, 1.0, 1500)
-    cut = click_segmenter._label_cut(np.concatenate([rest, hidden, seen]), 0.5)
+    cut = click_regions.label_cut(np.concatenate([rest, hidden, seen]), 0.5)
     assert 0.05 < cut < 0.25
-    assert cut >= click_segmenter.LABEL_CUT_MIN
-    assert click_segmenter._label_cut(np.concatenate([rest, seen]), 0.1) == 0.1  # a threshold under the floor stands
-    assert click_segmenter._label_cut(rest, 0.5) == click_segmenter.LABEL_CUT_MIN  # nothing grew: no cut in the rest
-    assert click_segmenter._label_cut(np.array([0.7]), 0.5) == 0.5
+    assert cut >= click_regions.LABEL_CUT_MIN
+    assert click_regions.label_cut(np.concatenate([rest, seen]), 0.1) == 0.1  # a threshold under the floor stands
+    assert click_regions.label_cut(rest, 0.5) == click_regions.LABEL_CUT_MIN  # nothing grew: no cut in the rest
+    assert click_regions.label_cut(np.array([0.7]), 0.5) == 0.5
 
 
 def test_the_grown_labels_keep_the_threshold_where_the_rest_does_not_sit_near_zero():
@@ -453,4 +454,4 @@ def test_the_grown_labels_keep_the_threshold_where_the_rest_does_not_sit_near_ze
     smoothly over the whole scene, and a lower cut would take the background."""
     rng = np.random.default_rng(1)
     labels = np.clip(np.concatenate([rng.normal(0.42, 0.1, 20000), rng.uniform(0.8, 1.0, 2000)]), 0, 1)
-    assert click_segmenter._label_cut(labels, 0.5) == 0.5
+    assert click_regions.label_cut(labels, 0.5) == 0.5
