@@ -33,14 +33,14 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .lanes import (LANES, _constant_tuple, _constants, _gauss, _lane_sum, _lanes, _longest, _pack, _pack_colours,
-                    _stack_empty)
+from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_sum, _lanes, _longest, _pack,
+                    _pack_colours, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 3
+LANES_REVISION = 4
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
-would leave a checkout that compiled them before with stale kernels (3: Horner's rule again, after Estrin's)."""
+would leave a checkout that compiled them before with stale kernels (4: the tile, block and pair helpers)."""
 
 
 @nb.njit(cache=True, nogil=True)
@@ -173,10 +173,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
         bid = _lanes(gid)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
-            x_lo = (t % tiles_x) * tile
-            y_lo = (t // tiles_x) * tile
-            x_hi = min(x_lo + tile, width) - 1
-            y_hi = min(y_lo + tile, height) - 1
+            x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s = starts[t]
             n = counts[t]
             packed = 0
@@ -185,12 +182,8 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                 by = y_lo + 4 * (blk // nbx)
                 if bx > x_hi or by > y_hi:
                     continue
+                _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one)
                 for q in range(LANES):
-                    px = bx + (q & 3)
-                    py = by + (q >> 2)
-                    pxc[q] = px + 0.5
-                    pyc[q] = py + 0.5
-                    T[q] = one if px <= x_hi and py <= y_hi else -one
                     L[q] = 0
                     best[q] = zero
                     bid[q] = -1
@@ -203,16 +196,9 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         _pack_colours(lists, s, jj, packed, colors, colp)
                     if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
                         continue
-                    mx = geo[jj, 0]
-                    my = geo[jj, 1]
-                    ha = half * geo[jj, 2]
-                    b = geo[jj, 3]
-                    hc = half * geo[jj, 4]
-                    o = geo[jj, 5]
-                    x0 = geo[jj, 6]
-                    x1 = geo[jj, 7]
-                    y0 = geo[jj, 8]
-                    y1 = geo[jj, 9]
+                    mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
+                    ha = half * a
+                    hc = half * c
                     g = gid[jj]
                     walked = np.int32(jj + 1)
                     for i in range(NC):
@@ -312,10 +298,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         L = _lanes(gid)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
-            x_lo = (t % tiles_x) * tile
-            y_lo = (t // tiles_x) * tile
-            x_hi = min(x_lo + tile, width) - 1
-            y_hi = min(y_lo + tile, height) - 1
+            x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s = starts[t]
             packed = 0
             for blk in range(nbx * nbx):
@@ -354,16 +337,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                 for jj in range(deepest - 1, -1, -1):
                     if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
                         continue
-                    mx = geo[jj, 0]
-                    my = geo[jj, 1]
-                    a = geo[jj, 2]
-                    b = geo[jj, 3]
-                    c = geo[jj, 4]
-                    o = geo[jj, 5]
-                    x0 = geo[jj, 6]
-                    x1 = geo[jj, 7]
-                    y0 = geo[jj, 8]
-                    y1 = geo[jj, 9]
+                    mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     ha = half * a
                     hc = half * c
                     for i in range(NC):
@@ -453,10 +427,7 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
         W = _lanes(kc)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
-            x_lo = (t % tiles_x) * tile
-            y_lo = (t // tiles_x) * tile
-            x_hi = min(x_lo + tile, width) - 1
-            y_hi = min(y_lo + tile, height) - 1
+            x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s, n = starts[t], counts[t]
             packed = n_pairs = 0
             for blk in range(nbx * nbx):
@@ -464,28 +435,16 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                 by = y_lo + 4 * (blk // nbx)
                 if bx > x_hi or by > y_hi:
                     continue
-                for q in range(LANES):
-                    px = bx + (q & 3)
-                    py = by + (q >> 2)
-                    pxc[q] = px + 0.5
-                    pyc[q] = py + 0.5
-                    T[q] = one if px <= x_hi and py <= y_hi else -one
+                _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one)
                 for jj in range(n):
                     if jj == packed:
                         packed = _pack(lists, s, jj, min(n, jj + 64), bounds, means2d, conics, opacities, geo, box,
                                        gid)
                     if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
                         continue
-                    mx = geo[jj, 0]
-                    my = geo[jj, 1]
-                    ha = half * geo[jj, 2]
-                    b = geo[jj, 3]
-                    hc = half * geo[jj, 4]
-                    o = geo[jj, 5]
-                    x0 = geo[jj, 6]
-                    x1 = geo[jj, 7]
-                    y0 = geo[jj, 8]
-                    y1 = geo[jj, 9]
+                    mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
+                    ha = half * a
+                    hc = half * c
                     blends = live = 0
                     for q in range(LANES):  # as the forward
                         alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))

@@ -122,6 +122,33 @@ def _lane_sum(v):  # pragma: no cover - compiled
     return (t0 + t2) + (t1 + t3)
 
 
+@nb.njit(inline="always")
+def _tile_box(t, tiles_x, tile, width, height):  # pragma: no cover - compiled
+    """Return tile ``t``'s first and last pixel column and row (x_lo, y_lo, x_hi, y_hi), clipped to the image."""
+    x_lo = (t % tiles_x) * tile
+    y_lo = (t // tiles_x) * tile
+    return x_lo, y_lo, min(x_lo + tile, width) - 1, min(y_lo + tile, height) - 1
+
+
+@nb.njit(inline="always")
+def _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one):  # pragma: no cover - compiled
+    """Set the pixel centres ``pxc``, ``pyc`` of the 4x4 block at (bx, by) and its transmittances ``T``: 1, or -1
+    (stopped from the start) for pixels past the tile's or image's last column ``x_hi`` or row ``y_hi``."""
+    for q in range(LANES):
+        px = bx + (q & 3)
+        py = by + (q >> 2)
+        pxc[q] = px + 0.5
+        pyc[q] = py + 0.5
+        T[q] = one if px <= x_hi and py <= y_hi else -one
+
+
+@nb.njit(inline="always")
+def _geometry(geo, jj):  # pragma: no cover - compiled
+    """Return entry ``jj`` of the packed run (:func:`_pack`): mx, my, conic a, b, c, opacity, box x0, x1, y0, y1."""
+    return (geo[jj, 0], geo[jj, 1], geo[jj, 2], geo[jj, 3], geo[jj, 4], geo[jj, 5], geo[jj, 6], geo[jj, 7],
+            geo[jj, 8], geo[jj, 9])
+
+
 @nb.njit(cache=True, nogil=True)
 def _longest(busy, counts):  # pragma: no cover - compiled
     longest = 0
