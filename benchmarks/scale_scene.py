@@ -19,7 +19,8 @@ github.com/playcanvas/engine, ``examples/assets/splats/playbot/0_0``.
 ``--place-up`` is the scene's up, ``--place-size`` across, its foot at ``--place-at`` on the surface there): an object
 resting on a surface, where a click's depth fill runs on from the object onto what it stands on, unlike the floating
 robot. ``--place ../shared/data/donut/point_cloud.ply`` puts the real donut (45,624 Gaussians, z up) on the playbot's
-ground beside the robot.
+ground beside the robot. ``--neighbour-at X,Y,Z`` (repeatable) sets down more copies of it there, not part of the
+object: look-alikes that touch it, which a click must leave out.
 """
 
 from __future__ import annotations
@@ -124,6 +125,9 @@ def main() -> None:
     ap.add_argument("--place-up", default="0,0,1", help="the placed splat's up")
     ap.add_argument("--place-at", default="0.7,0,0.55", help="where (a point of the scene) its foot goes")
     ap.add_argument("--place-size", type=float, default=0.4, help="its width across the ground, scene units")
+    ap.add_argument("--neighbour-at", action="append", default=[],
+                    help="a copy of the placed splat set down here too, not part of the object (repeatable): a "
+                         "look-alike touching the object, as two cups side by side on a table")
     args = ap.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     import torch
@@ -152,9 +156,13 @@ def main() -> None:
     truth = np.zeros(len(cloud), bool)
     truth[start:start + len(one)] = marked
     if args.place is not None:
-        placed = place_on_ground(read_cloud(args.place), cloud, up, args)
-        cloud = GaussianCloud.concatenate([cloud, placed])
-        truth = np.concatenate([np.zeros(len(truth), bool), np.ones(len(placed), bool)])
+        source = read_cloud(args.place)
+        placed = place_on_ground(source, cloud, up, args)
+        others = [place_on_ground(source, cloud, up, argparse.Namespace(**{**vars(args), "place_at": at}))
+                  for at in args.neighbour_at]
+        cloud = GaussianCloud.concatenate([cloud, placed, *others])
+        truth = np.concatenate([np.zeros(len(truth), bool), np.ones(len(placed), bool),
+                                np.zeros(sum(len(o) for o in others), bool)])
     # the cameras look at the chosen copy's object from the distance that frames its copy
     centre = cloud.means[truth].mean(axis=0)
     radius = float(np.linalg.norm(np.ptp(one.means, axis=0))) / 2 * args.distance
