@@ -28,7 +28,7 @@ from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
 from ..settings import check_settings, config_from_text, documented, setting
 from .click_regions import (_component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, label_cut, scene_up,
-                            support_leak)
+                            click_sides, support_leak)
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
@@ -48,6 +48,11 @@ REGION_SHARE = 0.1
 capture in front of the object, under the clicked pixel, holds less)."""
 CLICK_PATCH = 2
 """The pixels within this many of a click (a 5x5 patch) are the ones it points at."""
+
+NEGATIVE_SHARE = 0.1
+"""A free-standing piece holding more than this share of the compositing weight under the negative clicks is no
+free-standing object (:func:`clicked_off`): the user says a part of it is not the object, so the growth from the
+seeds decides. A negative click on the ground under a floating object leaves the object free-standing."""
 
 
 @documented(given="--segmenter-option {name}=VALUE")
@@ -135,8 +140,9 @@ class ClickSegmenter(Segmenter):
        the contact), loses the support's plane (:func:`~roodi_toolkit.pipeline.click_regions.support_leak`, as in
        tabletop segmentation); so does a fill that ran over a level plane under the clicks (the scene's up is the
        cameras' mean up) to the plane's own edge. GrabCut on the image then refines it. A negative click's surface
-       (its own fill at the smallest tolerance) is closed to the fill, is sure background for GrabCut and joins the
-       band of rest below.
+       (its own fill, growing step by step with the object's; pixels both reach at one step go to the click nearer
+       across the surface's creases) is closed to the fill, is sure background for GrabCut and joins the band of
+       rest below; a free-standing piece that holds what a negative click points at is not taken whole.
     2. Seeds: a Gaussian whose compositing weight in the clicked view lies mostly inside the region seeds the
        object; one whose weight lies mostly in the band around the region seeds the rest.
     3. 3D growth: the Gaussians within ``grow_radius`` times the region's 3D radius are linked to their
@@ -196,19 +202,19 @@ class ClickSegmenter(Segmenter):
         seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if c.positive]
         not_seeds = [(min(int(c.y), H - 1), min(int(c.x), W - 1)) for c in prompt.clicks if not c.positive]
         mask0, band0 = self._clicked_region(dataset, v0, scene, seeds, not_seeds)
-        fg, bg, at_click, depth0 = self._seed_gaussians(scene, params, cam0, mask0, band0, seeds)
+        fg, bg, at_click, at_not, depth0 = self._seed_gaussians(scene, params, cam0, mask0, band0, seeds, not_seeds)
         rc = np.argwhere(mask0 & (depth0 > 0))
         points = cam0.backproject(rc, depth0[mask0 & (depth0 > 0)])
         centre = points.mean(axis=0)
         radius0 = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-6)
         info: dict[str, Any] = {"clicked_view": names[v0], "seed_gaussians": int(fg.sum())}
-        # negative clicks say the object touches what they hit: only the growth keeps that out
         diag = float(np.linalg.norm(np.asarray(dataset.bounds[1]) - np.asarray(dataset.bounds[0])))
         # what the click points at: its pixels' Gaussians that belong to the clicked region (a click at the object's
         # edge has the ground behind it in its pixels too)
         pointed = np.maximum(np.where(fg, at_click, 0.0), 0.0)
         pointed = pointed if pointed.any() else np.maximum(at_click, 0.0)
-        parts = self._parts(scene, pointed, centre, radius0, diag, region=fg) if not not_seeds else None
+        parts = self._parts(scene, pointed, centre, radius0, diag, region=fg)
+        parts = None if parts is not None and clicked_off(parts, at_not) else parts
         if parts is not None:  # a free-standing object: its connected pieces, whatever their colours
             selected = candidates = parts
             info["free_standing"] = True
@@ -231,33 +237,38 @@ class ClickSegmenter(Segmenter):
         return ViewMasks(torch.from_numpy(masks), names, "binary", 2, source=f"click in {names[v0]}", info=info)
 
     def _seed_gaussians(self, scene: GaussianCloud, params: GaussianParams, cam0: Any, mask0: np.ndarray,
-                        band0: np.ndarray, seeds: Sequence[tuple[int, int]]) -> tuple[np.ndarray, ...]:
+                        band0: np.ndarray, seeds: Sequence[tuple[int, int]],
+                        not_seeds: Sequence[tuple[int, int]] = ()) -> tuple[np.ndarray, ...]:
         """Return the seeds of the object and of the rest ``[N]`` bool (most of a Gaussian's weight in the clicked
-        view inside the region, or in the band round it), each Gaussian's weight under the clicks ``[N]`` and the
-        clicked view's expected depth ``[H, W]`` (0 where nothing is rendered)."""
+        view inside the region, or in the band round it), each Gaussian's weight under the clicks and under the
+        negative clicks ``[N]``, and the clicked view's expected depth ``[H, W]`` (0 where nothing is rendered)."""
         s = self.settings
         # per Gaussian, the sum over the pixels of its compositing weight times the region, the band and 1 is the
         # gradient of the rendered feature image times those pixel factors: one rendering and its backward, for any
         # differentiable renderer, without listing (pixel, Gaussian) weights (gigabytes at 1000 px). The last
-        # feature, each Gaussian's camera-space depth, composites the expected depth.
+        # feature but one, each Gaussian's camera-space depth, composites the expected depth (its gradient is the
+        # weight whatever the feature's value: its pixel factor is the negative clicks' pixels).
         z = scene.means @ cam0.world_to_camera[2, :3] + cam0.world_to_camera[2, 3]
         feats = torch.zeros(len(scene), 5, dtype=params.dtype)
         feats[:, 3] = torch.as_tensor(z, dtype=params.dtype)
         feats.requires_grad_()
         rendered, alpha = render_features(self.renderer, params, feats, cam0)
         # the last factor: the pixels under the clicks themselves, whose Gaussians are what the user pointed at
-        at = np.zeros_like(mask0)
-        for r, c in seeds:
-            at[max(r - CLICK_PATCH, 0):r + CLICK_PATCH + 1, max(c - CLICK_PATCH, 0):c + CLICK_PATCH + 1] = True
-        pixel_factors = np.stack([mask0, band0, np.ones_like(mask0), np.zeros_like(mask0), at], -1)
+        def patches(points: Sequence[tuple[int, int]]) -> np.ndarray:
+            at = np.zeros_like(mask0)
+            for r, c in points:
+                at[max(r - CLICK_PATCH, 0):r + CLICK_PATCH + 1, max(c - CLICK_PATCH, 0):c + CLICK_PATCH + 1] = True
+            return at
+
+        pixel_factors = np.stack([mask0, band0, np.ones_like(mask0), patches(not_seeds), patches(seeds)], -1)
         (rendered * torch.as_tensor(pixel_factors, dtype=params.dtype)).sum().backward()
-        inside, around, total, _, at_click = feats.grad.numpy().T
+        inside, around, total, at_not, at_click = feats.grad.numpy().T
         seen = total >= s.min_weight
         fg = seen & (inside >= s.seed_fraction * total)
         bg = seen & (around >= s.seed_fraction * total)
         a0 = alpha[..., 0].detach().numpy()
         depth0 = np.where(a0 > 1e-10, rendered[..., 3].detach().numpy() / np.maximum(a0, 1e-10), 0.0)
-        return fg, bg, at_click, depth0
+        return fg, bg, at_click, at_not, depth0
 
     def _vote_and_render(self, dataset: Dataset, params: GaussianParams, sel: np.ndarray, candidates: np.ndarray,
                          v0: int, progress: ProgressFactory) -> tuple[np.ndarray, np.ndarray]:
@@ -370,14 +381,31 @@ class ClickSegmenter(Segmenter):
         Both are flood fills over ``depth`` whose tolerance grows from ``depth_tolerance_min`` step by step; the
         object's fill stops before the step where its area jumps by more than ``leak_ratio`` (it has leaked through
         a contact). With negative clicks the two fills compete, as seeded region growing does: neither may enter
-        what the other holds, and pixels both reach at the same step go to neither, so the rest (the table under
-        the object) is claimed at a small tolerance before the object's fill would leak into it.
+        what the other holds, so the rest (the table under the object) is claimed at a small tolerance before the
+        object's fill would leak into it. Pixels both reach at one step go to the side whose clicks are nearer
+        across the surface (:func:`click_sides`: a watershed that meets at creases and occluding edges), and while
+        the object's fill is stuck at its click (fewer than ``leak_min_pixels``: a click on an object's steep edge
+        has no neighbour within the first tolerances), the negative clicks' fill does not enter the click's side.
+        Before, such pixels went to neither and a stuck fill lost the object to the negative click's fill: a click
+        at a resting object's edge with a negative click on the ground round it failed, and a negative click on a
+        look-alike touching the object was lost in the object's first fill.
         """
         s = self.settings
         tol = s.depth_tolerance_min
         none = np.zeros(depth.shape, bool)
+        mine, theirs = click_sides(depth, allowed | not_allowed, seeds, not_seeds) if not_seeds else (none, none)
+
+        def split(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            both = a & b
+            return a & ~(both & ~mine), b & ~(both & ~theirs)
+
+        def rest_allowed() -> np.ndarray:  # while the object's fill is stuck at its click (a click on a steep
+            # edge), the negative clicks do not take what lies on the click's side of the creases
+            return not_allowed & ~mine if region.sum() < s.leak_min_pixels else not_allowed
+
         region = _depth_flood_fill(depth, allowed, seeds, tol)
-        not_region = _depth_flood_fill(depth, not_allowed & ~region, not_seeds, tol) if not_seeds else none
+        not_region = _depth_flood_fill(depth, rest_allowed(), not_seeds, tol) if not_seeds else none
+        region, not_region = split(region, not_region)
         leaked = False
         while tol * s.depth_tolerance_step <= s.depth_tolerance_max * (1 + 1e-9):
             tol *= s.depth_tolerance_step
@@ -386,11 +414,9 @@ class ClickSegmenter(Segmenter):
                 leaked = region.sum() >= s.leak_min_pixels and grown.sum() > s.leak_ratio * region.sum()
             elif not not_seeds:
                 break
-            not_grown = _depth_flood_fill(depth, not_allowed & ~region, not_seeds, tol) if not_seeds else none
+            not_grown = _depth_flood_fill(depth, rest_allowed() & ~region, not_seeds, tol) if not_seeds else none
             if not leaked:
-                both = grown & not_grown
-                region = grown & ~both
-                not_grown = not_grown & ~both
+                region, not_grown = split(grown, not_grown)
             not_region = not_grown & ~region
         for r, c in not_seeds:
             not_region[r, c] = True
@@ -556,6 +582,12 @@ class ClickSegmenter(Segmenter):
         out[free] = x
         labels[idx] = out
         return labels
+
+
+def clicked_off(piece: np.ndarray, at_not: np.ndarray) -> bool:
+    """Whether the free-standing ``piece`` ``[N]`` bool holds more than :data:`NEGATIVE_SHARE` of the compositing
+    weight under the negative clicks ``at_not`` ``[N]``: the user said a part of it is not the object."""
+    return bool(at_not[piece].sum() > NEGATIVE_SHARE * at_not.sum())
 
 
 def _inside_box(points: np.ndarray, point: np.ndarray) -> bool:

@@ -9,7 +9,7 @@ import pytest
 
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
 from roodi_toolkit.pipeline.click import ClickSegmenter
-from roodi_toolkit.pipeline.click_regions import support_leak
+from roodi_toolkit.pipeline.click_regions import click_sides, support_leak
 
 
 def _leaked_region(tilt: float = 0.0):
@@ -98,3 +98,19 @@ def test_the_clicked_region_loses_the_ground_it_leaked_onto():
     kept = ClickSegmenter._off_support(cam, depth, region, beyond, seeds)
     assert np.array_equal(kept, top)
     assert np.array_equal(ClickSegmenter._off_support(cam, depth, top, beyond, seeds), top)  # no leak: unchanged
+
+
+def test_the_click_sides_meet_at_a_crease():
+    """Two faces meeting in a ridge (a box's edge, two look-alikes' sides), one depth fill over both: the pixels go
+    to the click on each face up to the ridge, though the negative click is much nearer it than the click; on one
+    flat face the negative click takes pixels short of that column. (OpenCV's watershed leaves the image's border
+    pixels to neither.)"""
+    h, w = 24, 60
+    cols = np.broadcast_to(np.arange(w, dtype=float), (h, w))
+    ridge = np.where(cols < 30, 3.0 - 0.01 * cols, 2.7 + 0.01 * (cols - 30))  # the faces turn at column 30
+    area = np.ones((h, w), bool)
+    mine, theirs = click_sides(ridge, area, [(12, 3)], [(12, 34)])
+    assert mine[1:-1, 1:30].all() and theirs[1:-1, 31:-1].all()
+    assert not (mine & theirs).any()
+    mine, theirs = click_sides(3.0 - 0.01 * cols, area, [(12, 3)], [(12, 34)])
+    assert theirs[1:-1, 27:30].all() and mine[1:-1, 1:20].all()

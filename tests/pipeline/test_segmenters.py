@@ -455,3 +455,16 @@ def test_the_grown_labels_keep_the_threshold_where_the_rest_does_not_sit_near_ze
     rng = np.random.default_rng(1)
     labels = np.clip(np.concatenate([rng.normal(0.42, 0.1, 20000), rng.uniform(0.8, 1.0, 2000)]), 0, 1)
     assert click_regions.label_cut(labels, 0.5) == 0.5
+
+
+def test_a_negative_click_on_a_free_piece_sends_it_to_the_growth():
+    """A free-standing piece is taken whole unless it holds what a negative click points at: a negative click on the
+    ground under a floating robot leaves the robot free-standing, one on its hand does not."""
+    _, labels = _robot_scene()
+    robot = labels <= 1
+    on_ground = np.where(labels == 2, 1.0, 0.0) * (np.arange(len(labels)) % 50 == 0)
+    assert not click_segmenter.clicked_off(robot, on_ground)
+    on_hand = np.where(labels == 1, 1.0, 0.0)
+    assert click_segmenter.clicked_off(robot, on_hand)
+    assert click_segmenter.clicked_off(robot, on_ground + on_hand)  # one of two negative clicks on it is enough
+    assert not click_segmenter.clicked_off(robot, np.zeros(len(labels)))  # no negative click
