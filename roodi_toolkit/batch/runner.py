@@ -24,6 +24,7 @@ import os
 import signal
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import process as pool_process
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -264,6 +265,7 @@ class _Pool:
         if pool is None:
             return []
         workers = list((getattr(pool, "_processes", None) or {}).values())  # the pool offers no public handle
+        manager = getattr(pool, "_executor_manager_thread", None)
         # queued items are cancelled by the pool itself (cancelling them here as well made its manager thread set
         # an exception on a cancelled future when the workers went: InvalidStateError on stderr)
         with contextlib.suppress(Exception):
@@ -279,6 +281,11 @@ class _Pool:
                     proc.kill()
         with contextlib.suppress(Exception):
             pool.shutdown(wait=True, cancel_futures=True)
+        # CPython's exit hook wakes every pool's manager thread through a pipe that this shutdown has closed; at times
+        # (a SIGTERM test, 1 run in many) that wrote "Exception ignored ... OSError: Bad file descriptor" to stderr.
+        # The thread is joined: nothing is left to wake.
+        with contextlib.suppress(Exception):
+            pool_process._threads_wakeups.pop(manager, None)
         finished = []
         for fut, item in self.futures.items():
             if fut in self.reported or not fut.done() or fut.cancelled():
