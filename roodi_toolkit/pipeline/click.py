@@ -27,8 +27,8 @@ from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
 from ..settings import check_settings, config_from_text, documented, setting
-from .click_regions import (_component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, label_cut, scene_up,
-                            click_sides, support_leak)
+from .click_regions import (_component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, click_sides, label_cut,
+                            scene_up, support_leak)
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
