@@ -163,7 +163,6 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
         gid = np.empty(cap, np.int32)
         colp = np.empty((cap, NC), kc.dtype)
         acc = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))
-        cp = nb.carray(_stack_empty(groups, kc.dtype), (NC * LANES,))  # the pair's channels (first NC used)
         pxc = _lanes(kc)
         pyc = _lanes(kc)
         T = _lanes(kc)
@@ -201,8 +200,6 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     hc = half * c
                     g = gid[jj]
                     walked = np.int32(jj + 1)
-                    for i in range(NC):
-                        cp[i] = colp[jj, i]
                     live = 0
                     for q in range(LANES):  # the block's 16 pixels: vectorised, no branches
                         alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
@@ -221,7 +218,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         bid[q] = g if better else bid[q]
                         live += 1 if T[q] > zero else 0
                     for i in range(NC):
-                        ci = cp[i]
+                        ci = colp[jj, i]
                         for q in range(nq):  # a channel's 16 pixels: one vector
                             acc[i, q] += W[q] * ci
                     if live == 0:
@@ -279,7 +276,6 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         colp = np.empty((cap, NC), kc.dtype)
         gpix = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))  # dL/d(channel) of the block's pixels
         V = _lanes(kc)
-        cp = nb.carray(_stack_empty(groups, kc.dtype), (NC * LANES,))  # the pair's channels (first NC used)
         pxc = _lanes(kc)
         pyc = _lanes(kc)
         T = _lanes(kc)
@@ -340,8 +336,6 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     ha = half * a
                     hc = half * c
-                    for i in range(NC):
-                        cp[i] = colp[jj, i]
                     active = 0
                     for q in range(LANES):  # as the forward, backwards: recover T_i, the weight, c_i . g
                         dx = pxc[q] - mx
@@ -368,7 +362,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                         continue
                     j = s + jj
                     for i in range(NC):  # each channel's 16 pixels: one vector
-                        ci = cp[i]
+                        ci = colp[jj, i]
                         for q in range(nq):
                             gv = gpix[i, q]
                             V[q] = Wt[q] * gv
