@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> None:
     from roodi_toolkit.render.renderer import render_cloud
 
     if args.no_support:
-        click_module.support_leak = lambda *a, **k: None
+        click_module.off_support = lambda cam0, depth0, region, *a, **k: (region, np.zeros_like(region))
     truth = np.load(f"{args.scene}/truth.npz")["object"]
     model = read_ply(f"{args.scene}/model/point_cloud/iteration_0/point_cloud.ply")
     ds = load_dataset(f"{args.scene}/data", 1)

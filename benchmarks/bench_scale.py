@@ -265,7 +265,7 @@ def main() -> None:
         if args.no_support:
             from roodi_toolkit.pipeline import click as click_module
 
-            click_module.support_leak = lambda *a, **k: None
+            click_module.off_support = lambda cam0, depth0, region, *a, **k: (region, np.zeros_like(region))
         click = tuple(int(v) for v in args.click.split(",")) if args.click else None
         out = args.out or args.scene / "out"
         res = run(args.scene, args.view, click, out, renderer=args.renderer, max_pixels=args.max_pixels,

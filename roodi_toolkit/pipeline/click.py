@@ -27,8 +27,8 @@ from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
 from ..settings import check_settings, config_from_text, documented, setting
-from .click_regions import (_component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, click_sides, label_cut,
-                            scene_up, support_leak)
+from .click_regions import (_component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, click_sides, cut_by_reach,
+                            label_cut, level_at, off_support, scene_up)
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
@@ -83,6 +83,8 @@ class ClickSettings:
                                                    "diagonal of the click's 3D point (None: 0.15 without sparse "
                                                    "points, 0.5 for a capture with SfM points).", low=0,
                                              low_open=True)
+    reach_doublings: int = setting(3, "Where that reach cuts the object across a smooth surface (a tall object), the "
+                                      "fill goes on from its region twice as far, up to this many times.", low=0)
     min_alpha: float = setting(0.5, "Pixels with rendered alpha below this have no usable depth; a click there is "
                                     "refused.", low=0, high=1)
     grabcut_iterations: int = setting(5, "GrabCut iterations on the clicked view's region.", low=1)
@@ -139,10 +141,13 @@ class ClickSegmenter(Segmenter):
        over the object's support up to that reach, with no jump (a donut on the ground: the depth is continuous along
        the contact), loses the support's plane (:func:`~roodi_toolkit.pipeline.click_regions.support_leak`, as in
        tabletop segmentation); so does a fill that ran over a level plane under the clicks (the scene's up is the
-       cameras' mean up) to the plane's own edge. GrabCut on the image then refines it. A negative click's surface
-       (its own fill, growing step by step with the object's; pixels both reach at one step go to the click nearer
-       across the surface's creases) is closed to the fill, is sure background for GrabCut and joins the band of
-       rest below; a free-standing piece that holds what a negative click points at is not taken whole.
+       cameras' mean up) to the plane's own edge, or that holds less of the fill but nothing under it (a person on
+       the ground clicked on a leg). A fill the reach cut (a tall object) fills again twice as far, off the support
+       (``reach_doublings``, :func:`~roodi_toolkit.pipeline.click_regions.cut_by_reach`). GrabCut on the image then
+       refines it. A negative click's surface (its own fill, growing step by step with the object's;
+       pixels both reach at one step go to the click nearer across the surface's creases) is closed to the fill, is
+       sure background for GrabCut and joins the band of rest below; a free-standing piece that holds what a
+       negative click points at is not taken whole.
     2. Seeds: a Gaussian whose compositing weight in the clicked view lies mostly inside the region seeds the
        object; one whose weight lies mostly in the band around the region seeds the rest.
     3. 3D growth: the Gaussians within ``grow_radius`` times the region's 3D radius are linked to their
@@ -332,14 +337,27 @@ class ClickSegmenter(Segmenter):
         reach = s.region_radius if s.region_radius is not None else (
             CAPTURE_REGION_RADIUS if dataset.points is not None else SCENE_REGION_RADIUS)
         pts_all = cam0.backproject(np.argwhere(valid0), depth0[valid0])
-        near_grid = np.zeros((H, W), bool)
+        dist = np.full((H, W), np.inf)
         for r, c in seeds:
             p0 = cam0.backproject(np.array([[r, c]]), depth0[[r], [c]])[0]
-            near_grid[valid0] |= np.linalg.norm(pts_all - p0, axis=1) <= reach * diag
-        # the fill's tolerance grows step by step and stops before the step where the region suddenly grows
-        # several-fold: it has leaked through a contact onto the ground or a neighbour
-        region, not_region = self._competing_fill(depth0, valid0 & near_grid, valid0, seeds, not_seeds)
-        region = self._off_support(cam0, depth0, region, valid0 & ~near_grid, seeds, scene_up(dataset))
+            dist[valid0] = np.minimum(dist[valid0], np.linalg.norm(pts_all - p0, axis=1))
+        up, radius, flat, starts, previous = scene_up(dataset), reach * diag, np.zeros((H, W), bool), list(seeds), None
+        # a tall object goes on past the reach: twice as far, off the support (not from a click on a level surface)
+        doublings = 0 if any(level_at(cam0, depth0, valid0, rc, up) for rc in seeds) else s.reach_doublings
+        for doubling in range(doublings + 1):
+            near_grid = dist <= radius  # the fill (its tolerance raised until the region leaks) within the reach
+            region, not_region = self._competing_fill(depth0, valid0 & near_grid & ~flat, valid0, starts, not_seeds)
+            region, plane = off_support(cam0, depth0, region, valid0 & ~near_grid, seeds, up, valid0)
+            if previous is not None and region.sum() > s.leak_ratio * previous[0].sum():
+                region, not_region = previous  # twice as far it ran on over a surface: the last reach holds
+                break
+            flat |= plane
+            if doubling == doublings or radius >= diag or not cut_by_reach(depth0, region, valid0 & ~near_grid & ~flat,
+                                                                           s.depth_tolerance_max):
+                break
+            radius *= 2.0
+            starts = list(seeds) + [tuple(rc) for rc in np.argwhere(region)]
+            previous = region, not_region
         for r, c in seeds:
             region[r, c] = True
         init = np.full((H, W), cv2.GC_BGD, np.uint8)
@@ -354,24 +372,6 @@ class ClickSegmenter(Segmenter):
             mask0 = region
         band = _dilate(mask0, max(2, int(round(0.25 * math.sqrt(mask0.sum()))))) & ~mask0 | not_region
         return mask0, band
-
-    @staticmethod
-    def _off_support(cam0: Any, depth0: np.ndarray, region: np.ndarray, beyond: np.ndarray,
-                     seeds: Sequence[tuple[int, int]], up: np.ndarray | None = None) -> np.ndarray:
-        """Return ``region`` ``[H, W]`` without the support its fill leaked onto (:func:`support_leak`: the table or
-        ground under the clicked object, up to the fill's 3D reach, ``beyond`` ``[H, W]`` being the pixels past it,
-        or level under the clicks when the scene's ``up`` ``[3]`` is known), kept where it joins the clicks;
-        ``region`` itself when it did not leak."""
-        rc = np.argwhere(region)
-        on = support_leak(cam0.backproject(rc, depth0[region]),
-                          cam0.backproject(np.array(seeds), depth0[tuple(np.array(seeds).T)]),
-                          _dilate(beyond, 1)[region], up)
-        if on is None:
-            return region
-        off = region.copy()
-        off[tuple(rc[on].T)] = False
-        kept = _component_at(off, seeds)
-        return kept if kept.any() else region
 
     def _competing_fill(self, depth: np.ndarray, allowed: np.ndarray, not_allowed: np.ndarray,
                         seeds: Sequence[tuple[int, int]],

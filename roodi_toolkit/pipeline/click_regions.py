@@ -1,8 +1,8 @@
 """Pixel regions of the click segmenter's clicked view (:mod:`roodi_toolkit.pipeline.click`): a depth flood fill from
 the clicks, OpenCV's GrabCut, hole filling, the components at the clicks and disc dilation, each on ``[H, W]`` masks;
 and what the segmenter decides from the points and labels behind them: the support a fill leaked onto
-(:func:`support_leak`, with the scene's up, :func:`scene_up`) and where the 3D growth's labels are cut
-(:func:`label_cut`).
+(:func:`support_plane`, :func:`off_support`, with the scene's up, :func:`scene_up`), whether the fill's reach cut the
+object (:func:`cut_by_reach`, :func:`level_at`) and where the 3D growth's labels are cut (:func:`label_cut`).
 """
 
 from __future__ import annotations
@@ -119,12 +119,25 @@ normal within acos(0.9), 26 degrees, of up), the clicks lie above it by :data:`S
 SUPPORT_SPREAD = 0.5
 """... and it holds at least this share of the region's points within twice the tolerance (the fill ran over the
 ground round the object more than over the object: a level face of the object itself, a chair's seat under a click
-on its back, holds less of a region that stopped at the object's edges)."""
+on its back, holds less of a region that stopped at the object's edges) ..."""
+SUPPORT_BELOW = 0.05
+"""... unless at most this share of the region lies under it: what stands on a support is above it (a person on the
+ground, clicked on a leg, makes a region of legs and some ground; a chair's legs are under its seat)."""
 
 
 def support_leak(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, up: np.ndarray | None = None,
-                 seed: int = 0, hypotheses: int = 256, sample: int = 4096) -> np.ndarray | None:
-    """Return the clicked region's points ``[P]`` bool that lie on the surface its fill leaked onto, or None.
+                 seed: int = 0) -> np.ndarray | None:
+    """Return the clicked region's points ``[P]`` bool that lie on the surface its fill leaked onto, or None
+    (:func:`support_plane`'s first value)."""
+    plane = support_plane(points, clicks, at_limit, up, seed)
+    return None if plane is None else plane[0]
+
+
+def support_plane(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, up: np.ndarray | None = None,
+                  seed: int = 0, hypotheses: int = 256,
+                  sample: int = 4096) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """Return the surface the clicked region's fill leaked onto, as (its points ``[P]`` bool, a point on the plane
+    ``[3]``, its unit normal ``[3]``, its tolerance), or None.
 
     A depth fill from a click on an object resting on a table, the ground or a shelf runs from the object onto its
     support where they meet (the depth is continuous along the contact), and on over the support until the 3D reach
@@ -134,7 +147,8 @@ def support_leak(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, u
     ``[C, 3]`` lie :data:`SUPPORT_CLEARANCE` tolerances off it. A fill need not meet its reach to have leaked: from a
     click at a donut's side it runs over the ground in front of it to the ground's own edge. So with the scene's up
     ``[3]`` known (the cameras' mean up) a level plane that the clicks stand above, holding :data:`SUPPORT_SPREAD`
-    of the region, is the support too (:data:`SUPPORT_LEVEL`).
+    of the region, or with at most :data:`SUPPORT_BELOW` of the region under it, is the support too
+    (:data:`SUPPORT_LEVEL`).
     """
     if len(points) < 3 or not (at_limit.any() or up is not None):
         return None
@@ -167,14 +181,80 @@ def support_leak(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, u
     if on.mean() < SUPPORT_SHARE or np.abs(clicks_height).min() < SUPPORT_CLEARANCE * tol:
         return None
     if at_limit.any() and on[at_limit].mean() >= SUPPORT_AT_LIMIT:
-        return on
+        return on, mid, normal, tol
     if up is None or abs(float(normal @ up)) < SUPPORT_LEVEL:
         return None
-    above = clicks_height * np.sign(float(normal @ up))  # heights along up
-    if above.min() < SUPPORT_CLEARANCE * tol or (np.abs(height) < 2 * tol).mean() < SUPPORT_SPREAD:
+    sign = np.sign(float(normal @ up))
+    if (clicks_height * sign).min() < SUPPORT_CLEARANCE * tol:  # the clicks must stand above it
         return None
-    return on
+    if (np.abs(height) < 2 * tol).mean() < SUPPORT_SPREAD and (height * sign < -tol).mean() > SUPPORT_BELOW:
+        return None
+    return on, mid, normal, tol
 
+
+def off_support(cam0: Any, depth0: np.ndarray, region: np.ndarray, beyond: np.ndarray,
+                seeds: Sequence[tuple[int, int]], up: np.ndarray | None = None,
+                surface: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``region`` ``[H, W]`` without the support its fill leaked onto (:func:`support_plane`: the table or
+    ground under the clicked object, up to the fill's 3D reach, ``beyond`` ``[H, W]`` being the pixels past it, or
+    level under the clicks when the scene's ``up`` ``[3]`` is known), kept where it joins the clicks (``region``
+    itself when it did not leak), and the pixels of ``surface`` ``[H, W]`` (default: the region) on that plane."""
+    rc = np.argwhere(region)
+    clicks = cam0.backproject(np.array(seeds), depth0[tuple(np.array(seeds).T)])
+    plane = support_plane(cam0.backproject(rc, depth0[region]), clicks, _dilate(beyond, 1)[region], up)
+    surface = region if surface is None else surface
+    if plane is None:
+        return region, np.zeros_like(region)
+    on, mid, normal, tol = plane
+    off = region.copy()
+    off[tuple(rc[on].T)] = False
+    kept = _component_at(off, seeds)
+    flat = np.zeros_like(region)
+    at = np.argwhere(surface & (depth0 > 0))
+    flat[tuple(at.T)] = np.abs((cam0.backproject(at, depth0[tuple(at.T)]) - mid) @ normal) < tol
+    return (kept if kept.any() else region), flat
+
+
+REACH_CUT = 0.1
+"""A fill was cut by its reach when at least this many of its pixels per pixel of its region's square root (its
+width) border the pixels past the reach on one surface with them."""
+
+
+def cut_by_reach(depth: np.ndarray, region: np.ndarray, beyond: np.ndarray, tolerance: float) -> bool:
+    """Whether the clicked ``region`` ``[H, W]`` goes on past the fill's 3D reach: :data:`REACH_CUT` of its width
+    in pixels have a 4-neighbour in ``beyond`` ``[H, W]`` (valid pixels past the reach, off the support) whose depth
+    differs by less than ``tolerance`` (relative), the fill's largest: the reach, not an edge, stopped it there."""
+    if not region.any():
+        return False
+    logd = np.log(np.maximum(depth, 1e-12))
+    step = np.log1p(tolerance)
+    cut = np.zeros_like(region)
+    for axis in (0, 1):
+        for shift in (1, -1):
+            other = np.roll(beyond, shift, axis) & (np.abs(logd - np.roll(logd, shift, axis)) < step)
+            edge = np.ones_like(region)  # np.roll wraps round: the image's first/last row or column has no neighbour
+            index = [slice(None)] * 2
+            index[axis] = 0 if shift == 1 else -1
+            edge[tuple(index)] = False
+            cut |= region & other & edge
+    return bool(cut.sum() >= REACH_CUT * np.sqrt(region.sum()))
+
+
+def level_at(cam0: Any, depth: np.ndarray, valid: np.ndarray, rc: tuple[int, int], up: np.ndarray | None,
+             radius: int = 3) -> bool:
+    """Whether the surface at pixel ``rc`` (row, col) is level: the plane through its neighbours' points (the
+    ``2 radius + 1`` square's valid pixels of ``depth`` ``[H, W]``) has its normal within :data:`SUPPORT_LEVEL` of
+    ``up``; a click on the ground or a table top, not on what stands on it."""
+    if up is None:
+        return False
+    r, c = rc
+    patch = np.argwhere(valid[max(r - radius, 0):r + radius + 1, max(c - radius, 0):c + radius + 1])
+    if len(patch) < 6:
+        return False
+    patch += [max(r - radius, 0), max(c - radius, 0)]
+    pts = cam0.backproject(patch, depth[tuple(patch.T)])
+    normal = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)[2][-1]
+    return abs(float(normal @ up)) >= SUPPORT_LEVEL
 
 LABEL_CUT_MIN = 0.15
 """The growth's labels are never cut below this (the rest's own labels reach 0.1 next to the object)."""

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.pipeline.click import ClickSegmenter
-from roodi_toolkit.pipeline.click_regions import click_sides, support_leak
+from roodi_toolkit.pipeline.click_regions import click_sides, cut_by_reach, off_support, support_leak
 
 
 def _leaked_region(tilt: float = 0.0):
@@ -82,6 +81,41 @@ def test_a_level_face_of_the_object_itself_is_no_support():
     assert support_leak(box, box[800:801], np.zeros(len(box), bool), up) is None
 
 
+
+def test_a_level_support_under_a_tall_object_is_found_though_it_holds_less_of_the_region():
+    """A person on the ground clicked on a leg: the fill runs up the legs and over some ground round the feet, so the
+    ground holds less than half of the region; nothing of the region lies under it, so it is the support still
+    (a chair's seat under a click on its back has the chair's legs under it: not the support, above)."""
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-0.4, 0.4, size=(1500, 2))
+    ground = np.column_stack([xy, rng.normal(0, 0.002, len(xy))])
+    legs = np.column_stack([rng.uniform(-0.15, 0.15, 3500), rng.uniform(-0.05, 0.05, 3500), rng.uniform(0, 0.9, 3500)])
+    points = np.concatenate([ground, legs])
+    up = np.array([0.0, 0.0, 1.0])
+    on = support_leak(points, legs[legs[:, 2] > 0.3][:1], np.zeros(len(points), bool), up)
+    assert on is not None
+    assert on[:len(ground)].mean() > 0.99 and on[len(ground):].mean() < 0.05
+    hanging = np.concatenate([points, legs - np.array([0.0, 0.0, 0.95])])  # as much again under the plane
+    assert support_leak(hanging, legs[legs[:, 2] > 0.3][:1], np.zeros(len(hanging), bool), up) is None
+
+
+def test_a_region_cut_by_the_reach_is_told_from_one_that_ends_at_an_edge():
+    """The fill reached the reach across a smooth surface (the same depth on both sides): cut; where the depth jumps
+    there (an occluding edge), or only a few pixels touch it, not cut."""
+    depth = np.full((40, 40), 2.0)
+    region = np.zeros((40, 40), bool)
+    region[5:35, 5:20] = True
+    beyond = np.zeros((40, 40), bool)
+    beyond[5:35, 20:30] = True  # right of the region, past the reach
+    assert cut_by_reach(depth, region, beyond, 0.03)
+    stepped = depth.copy()
+    stepped[:, 20:] = 3.0
+    assert not cut_by_reach(stepped, region, beyond, 0.03)
+    corner = np.zeros((40, 40), bool)
+    corner[5, 20] = True
+    assert not cut_by_reach(depth, region, corner, 0.03)
+    assert not cut_by_reach(depth, np.zeros((40, 40), bool), beyond, 0.03)
+
 def test_the_clicked_region_loses_the_ground_it_leaked_onto():
     """A camera looking down on a flat-topped object standing on the ground: a region that ran over the ground up to
     the fill's reach keeps the object's top alone; one that did not reach it is left as it was."""
@@ -95,9 +129,11 @@ def test_the_clicked_region_loses_the_ground_it_leaked_onto():
     region = r < 40  # the fill ran on over the ground to its reach
     beyond = r >= 40
     seeds = [(size // 2, size // 2)]
-    kept = ClickSegmenter._off_support(cam, depth, region, beyond, seeds)
+    kept, flat = off_support(cam, depth, region, beyond, seeds, surface=depth > 0)
     assert np.array_equal(kept, top)
-    assert np.array_equal(ClickSegmenter._off_support(cam, depth, top, beyond, seeds), top)  # no leak: unchanged
+    assert np.array_equal(flat, ~top)  # the ground's plane over the whole image
+    kept, flat = off_support(cam, depth, top, beyond, seeds)
+    assert np.array_equal(kept, top) and not flat.any()  # no leak: unchanged
 
 
 def test_the_click_sides_meet_at_a_crease():

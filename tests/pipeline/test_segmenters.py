@@ -280,7 +280,7 @@ def test_the_default_region_radius_follows_what_the_scene_box_is(scene):
     v = 3
     ys, xs = np.nonzero((ds.masks[v] == 1).numpy())
     prompt = SegmentPrompt((Click(ds.names[v], xs[0] + 0.5, ys[0] + 0.5),))
-    kw = dict(leak_ratio=1e9, depth_tolerance_max=0.5)  # a fill that the radius alone stops
+    kw = dict(leak_ratio=1e9, depth_tolerance_max=0.5, reach_doublings=0)  # a fill that the radius alone stops
     default = ClickSegmenter(**kw).segment(ds, prompt, scene=cloud).masks
     assert torch.equal(default, ClickSegmenter(region_radius=SCENE_REGION_RADIUS, **kw).segment(
         ds, prompt, scene=cloud).masks)
@@ -290,6 +290,9 @@ def test_the_default_region_radius_follows_what_the_scene_box_is(scene):
     assert torch.equal(wide, ClickSegmenter(region_radius=CAPTURE_REGION_RADIUS, **kw).segment(
         capture, prompt, scene=cloud).masks)
     assert not torch.equal(default, wide)  # the two radii do differ on this scene
+    # a fill the radius cut across a smooth surface goes on from its region twice as far, up to reach_doublings times
+    twice = ClickSegmenter(**{**kw, "reach_doublings": 1}).segment(ds, prompt, scene=cloud).masks
+    assert (twice[v] > 0).sum() > (default[v] > 0).sum()
 
 
 def test_click_votes_on_a_few_views_and_renders_every_view(scene):
