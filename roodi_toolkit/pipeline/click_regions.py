@@ -256,6 +256,7 @@ def level_at(cam0: Any, depth: np.ndarray, valid: np.ndarray, rc: tuple[int, int
     normal = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)[2][-1]
     return abs(float(normal @ up)) >= SUPPORT_LEVEL
 
+
 LABEL_CUT_MIN = 0.15
 """The growth's labels are never cut below this (the rest's own labels reach 0.1 next to the object)."""
 LABEL_REST = 0.05
