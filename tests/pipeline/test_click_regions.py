@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.pipeline.click_regions import click_sides, cut_by_reach, off_support, support_leak
+from roodi_toolkit.pipeline.click_regions import click_sides, cut_by_reach, level_at, off_support, support_leak
 
 
 def _leaked_region(tilt: float = 0.0):
@@ -81,7 +81,6 @@ def test_a_level_face_of_the_object_itself_is_no_support():
     assert support_leak(box, box[800:801], np.zeros(len(box), bool), up) is None
 
 
-
 def test_a_level_support_under_a_tall_object_is_found_though_it_holds_less_of_the_region():
     """A person on the ground clicked on a leg: the fill runs up the legs and over some ground round the feet, so the
     ground holds less than half of the region; nothing of the region lies under it, so it is the support still
@@ -115,6 +114,27 @@ def test_a_region_cut_by_the_reach_is_told_from_one_that_ends_at_an_edge():
     corner[5, 20] = True
     assert not cut_by_reach(depth, region, corner, 0.03)
     assert not cut_by_reach(depth, np.zeros((40, 40), bool), beyond, 0.03)
+
+
+def test_a_click_on_the_ground_is_level_and_one_on_a_wall_is_not():
+    """The reach is not doubled from a click on a level surface (the ground, a table top): the surface round the
+    clicked pixel, seen by a camera 45 degrees above it, is level; a wall facing the camera is not; without the
+    scene's up nothing is."""
+    size = 64
+    cam = Camera(look_at([0.0, -2.0, 2.0], [0.0, 0.0, 0.0]), intrinsics_from_fov(math.radians(60), size, size),
+                 size, size, 0.01, 100.0, "v0")
+    rows, cols = np.mgrid[0:size, 0:size]
+    rays = cam.backproject(np.column_stack([rows.ravel(), cols.ravel()]), np.ones(size * size))  # at depth 1
+    centre = np.asarray(cam.backproject(np.array([[0, 0]]), np.zeros(1)))[0]  # the camera centre (depth 0)
+    # the depth at which each pixel's ray meets the ground z = 0: camera z + t (ray z - camera z) = 0 at depth t
+    ground = (centre[2] / (centre[2] - rays[:, 2])).reshape(size, size)
+    up = np.array([0.0, 0.0, 1.0])
+    valid = np.ones((size, size), bool)
+    assert level_at(cam, ground, valid, (size // 2, size // 2), up)
+    wall = np.full((size, size), 2.0)  # a fronto-parallel surface: its normal is the viewing direction
+    assert not level_at(cam, wall, valid, (size // 2, size // 2), up)
+    assert not level_at(cam, ground, valid, (size // 2, size // 2), None)
+
 
 def test_the_clicked_region_loses_the_ground_it_leaked_onto():
     """A camera looking down on a flat-topped object standing on the ground: a region that ran over the ground up to
