@@ -3,7 +3,7 @@
 For each named view: the object's visible pixel nearest its centre, the one farthest from it and a random one (seed
 0) are clicked at the working size (512x512 pixels at most); each click's masks are scored (IoU) against the object's
 true alpha (> 0.5) in every ``STEP``-th view. With ``--no-support`` the support plane of the clicked region
-(:func:`roodi_toolkit.pipeline.click_regions.support_leak`) is switched off: the click as it was before it. With
+(:func:`roodi_toolkit.pipeline.click_regions.support_plane`) is switched off: the click as it was before it. With
 ``--negative PX`` each click comes with a negative click on the surface nearest the object's centre at least PX
 pixels from it (what a user adds to keep the ground out).
 

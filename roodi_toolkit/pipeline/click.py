@@ -139,7 +139,7 @@ class ClickSegmenter(Segmenter):
        3D. Its tolerance grows from ``depth_tolerance_min`` by ``depth_tolerance_step`` and stops before the step
        where the area jumps by more than ``leak_ratio`` (the fill has leaked through a contact). A fill that ran on
        over the object's support up to that reach, with no jump (a donut on the ground: the depth is continuous along
-       the contact), loses the support's plane (:func:`~roodi_toolkit.pipeline.click_regions.support_leak`, as in
+       the contact), loses the support's plane (:func:`~roodi_toolkit.pipeline.click_regions.support_plane`, as in
        tabletop segmentation); so does a fill that ran over a level plane under the clicks (the scene's up is the
        cameras' mean up) to the plane's own edge, or that holds less of the fill but nothing under it (a person on
        the ground clicked on a leg). A fill the reach cut (a tall object) fills again twice as far, off the support

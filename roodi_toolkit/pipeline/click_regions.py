@@ -125,14 +125,6 @@ SUPPORT_BELOW = 0.05
 ground, clicked on a leg, makes a region of legs and some ground; a chair's legs are under its seat)."""
 
 
-def support_leak(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, up: np.ndarray | None = None,
-                 seed: int = 0) -> np.ndarray | None:
-    """Return the clicked region's points ``[P]`` bool that lie on the surface its fill leaked onto, or None
-    (:func:`support_plane`'s first value)."""
-    plane = support_plane(points, clicks, at_limit, up, seed)
-    return None if plane is None else plane[0]
-
-
 def support_plane(points: np.ndarray, clicks: np.ndarray, at_limit: np.ndarray, up: np.ndarray | None = None,
                   seed: int = 0, hypotheses: int = 256,
                   sample: int = 4096) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:

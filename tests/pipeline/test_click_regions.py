@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.pipeline.click_regions import click_sides, cut_by_reach, level_at, off_support, support_leak
+from roodi_toolkit.pipeline.click_regions import click_sides, cut_by_reach, level_at, off_support, support_plane
 
 
 def _leaked_region(tilt: float = 0.0):
@@ -32,22 +32,23 @@ def _leaked_region(tilt: float = 0.0):
 @pytest.mark.parametrize("tilt", [0.0, 0.3])
 def test_the_ground_a_fill_leaked_onto_is_found_and_the_object_is_not_on_it(tilt):
     ground, box, points, at_limit = _leaked_region(tilt)
-    on = support_leak(points, box[:1], at_limit)  # clicked on the box's top
-    assert on is not None
+    plane = support_plane(points, box[:1], at_limit)  # clicked on the box's top
+    assert plane is not None
+    on = plane[0]
     assert on[:len(ground)].mean() > 0.99
     assert on[len(ground):].mean() < 0.1  # the box's foot only
 
 
 def test_no_support_without_a_leak_or_with_the_click_on_it():
     ground, box, points, at_limit = _leaked_region()
-    assert support_leak(points, box[:1], np.zeros(len(points), bool)) is None  # the fill stopped by itself
-    assert support_leak(points, ground[:1], at_limit) is None  # the click is on the ground: it asks for it
+    assert support_plane(points, box[:1], np.zeros(len(points), bool)) is None  # the fill stopped by itself
+    assert support_plane(points, ground[:1], at_limit) is None  # the click is on the ground: it asks for it
     # a region that is the box alone, its top a plane holding most of it, meets no reach: no support
-    assert support_leak(box, box[:1], np.zeros(len(box), bool)) is None
+    assert support_plane(box, box[:1], np.zeros(len(box), bool)) is None
     # a leak over no plane (a heap of clutter up to the reach): none either
     clutter = np.random.default_rng(1).uniform(-1.5, 1.5, size=(4000, 3))
     points = np.concatenate([clutter, box])
-    assert support_leak(points, box[:1], np.repeat([True, False], [len(clutter), len(box)])) is None
+    assert support_plane(points, box[:1], np.repeat([True, False], [len(clutter), len(box)])) is None
 
 
 def test_a_level_support_under_the_clicks_is_found_without_a_reach_when_up_is_known():
@@ -57,14 +58,15 @@ def test_a_level_support_under_the_clicks_is_found_without_a_reach_when_up_is_kn
     stopped = np.zeros(len(points), bool)
     side_click = box[800:801]  # on the box's side, above the ground
     up = np.array([0.0, 0.0, 1.0])
-    assert support_leak(points, side_click, stopped) is None  # no up: only a reach tells a leak
-    on = support_leak(points, side_click, stopped, up)
-    assert on is not None
+    assert support_plane(points, side_click, stopped) is None  # no up: only a reach tells a leak
+    plane = support_plane(points, side_click, stopped, up)
+    assert plane is not None
+    on = plane[0]
     assert on[:len(ground)].mean() > 0.99 and on[len(ground):].mean() < 0.1
-    assert support_leak(points, side_click, stopped, np.array([1.0, 0.0, 0.0])) is None  # the plane is not level
-    assert support_leak(points, ground[:1], stopped, up) is None  # a click on the ground asks for the ground
+    assert support_plane(points, side_click, stopped, np.array([1.0, 0.0, 0.0])) is None  # the plane is not level
+    assert support_plane(points, ground[:1], stopped, up) is None  # a click on the ground asks for the ground
     below = side_click - np.array([[0.0, 0.0, 1.0]])  # a click under the plane: it hangs from it, not on it
-    assert support_leak(np.concatenate([points, below]), below, np.zeros(len(points) + 1, bool), up) is None
+    assert support_plane(np.concatenate([points, below]), below, np.zeros(len(points) + 1, bool), up) is None
 
 
 def test_a_level_face_of_the_object_itself_is_no_support():
@@ -76,9 +78,9 @@ def test_a_level_face_of_the_object_itself_is_no_support():
     legs = np.column_stack([np.repeat([[-0.2, -0.2], [0.2, 0.2]], 150, axis=0), rng.uniform(0, 0.45, 300)])
     chair = np.concatenate([seat, back, legs])
     up = np.array([0.0, 0.0, 1.0])
-    assert support_leak(chair, back[:1], np.zeros(len(chair), bool), up) is None
+    assert support_plane(chair, back[:1], np.zeros(len(chair), bool), up) is None
     _, box, _, _ = _leaked_region()
-    assert support_leak(box, box[800:801], np.zeros(len(box), bool), up) is None
+    assert support_plane(box, box[800:801], np.zeros(len(box), bool), up) is None
 
 
 def test_a_level_support_under_a_tall_object_is_found_though_it_holds_less_of_the_region():
@@ -91,11 +93,12 @@ def test_a_level_support_under_a_tall_object_is_found_though_it_holds_less_of_th
     legs = np.column_stack([rng.uniform(-0.15, 0.15, 3500), rng.uniform(-0.05, 0.05, 3500), rng.uniform(0, 0.9, 3500)])
     points = np.concatenate([ground, legs])
     up = np.array([0.0, 0.0, 1.0])
-    on = support_leak(points, legs[legs[:, 2] > 0.3][:1], np.zeros(len(points), bool), up)
-    assert on is not None
+    plane = support_plane(points, legs[legs[:, 2] > 0.3][:1], np.zeros(len(points), bool), up)
+    assert plane is not None
+    on = plane[0]
     assert on[:len(ground)].mean() > 0.99 and on[len(ground):].mean() < 0.05
     hanging = np.concatenate([points, legs - np.array([0.0, 0.0, 0.95])])  # as much again under the plane
-    assert support_leak(hanging, legs[legs[:, 2] > 0.3][:1], np.zeros(len(hanging), bool), up) is None
+    assert support_plane(hanging, legs[legs[:, 2] > 0.3][:1], np.zeros(len(hanging), bool), up) is None
 
 
 def test_a_region_cut_by_the_reach_is_told_from_one_that_ends_at_an_edge():
