@@ -25,8 +25,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gaussians", type=int, default=2000)
     ap.add_argument("--size", type=int, default=256, help="image width and height (a multiple of 16)")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--asm", default=None, help="write the forward kernel's assembly here")
+    ap.add_argument("--asm", default=None, help="write the forward kernel's assembly to this new file")
     args = ap.parse_args(argv)
+    if args.asm and os.path.lexists(args.asm):
+        print(f"bench_compositing_peak: --asm {args.asm} exists; give a new path", file=sys.stderr)
+        return 2
     os.environ.setdefault("ROODI_THREADS", "1")
 
     import numpy as np
@@ -73,8 +76,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {name:<9} {t:.3f} s  {t / evaluations * 1e9:.1f} ns per block and Gaussian")
     if args.asm:
         asm = kernels.composite_forward.inspect_asm(kernels.composite_forward.signatures[-1])
-        with open(args.asm, "w") as fh:
-            fh.write(asm)
+        try:
+            with open(args.asm, "x") as fh:  # never replaces a file
+                fh.write(asm)
+        except FileExistsError:  # it appeared while the kernels ran
+            print(f"bench_compositing_peak: --asm {args.asm} exists; give a new path", file=sys.stderr)
+            return 2
         calls = sum(1 for line in asm.splitlines() if "call" in line and "memcpy" in line)
         print(f"  forward assembly -> {args.asm} ({len(asm.splitlines())} lines, {calls} memcpy calls)")
     return 0
