@@ -27,8 +27,8 @@ from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
 from ..settings import check_settings, config_from_text, documented, setting
-from .click_regions import (_component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut, click_sides, cut_by_reach,
-                            label_cut, level_at, off_support, scene_up)
+from .click_regions import (LEAK_MIN_GAUSSIANS, _component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut,
+                            click_sides, cut_by_reach, fill_leaked, label_cut, level_at, off_support, scene_up)
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
@@ -73,8 +73,8 @@ class ClickSettings:
     leak_ratio: float = setting(2.0, "The fill stops before the step that multiplies the region's area by more "
                                      "than this (a leak through a contact onto the ground or another object).",
                                 low=1)
-    leak_min_pixels: int = setting(20, "The fill's leak check applies once the region has at least this many pixels.",
-                                   low=0)
+    leak_min_pixels: int = setting(20, "The fill's leak check applies once the region has at least this many pixels "
+                                       f"(and shows at least {LEAK_MIN_GAUSSIANS} Gaussians).", low=0)
     # None: 0.15 for a dataset without sparse points, whose box holds the whole scene (a generated room; chosen
     # there), and 0.5 for a capture with SfM points, whose box is that of what SfM reconstructed, in an
     # object-centred capture mostly the object itself (the statue: 0.15 stops the fill on the crown's band, alpha
@@ -411,7 +411,7 @@ class ClickSegmenter(Segmenter):
             tol *= s.depth_tolerance_step
             if not leaked:
                 grown = _depth_flood_fill(depth, allowed & ~not_region, seeds, tol)
-                leaked = region.sum() >= s.leak_min_pixels and grown.sum() > s.leak_ratio * region.sum()
+                leaked = fill_leaked(region, grown, depth, s.leak_min_pixels, s.leak_ratio)
             elif not not_seeds:
                 break
             not_grown = _depth_flood_fill(depth, rest_allowed() & ~region, not_seeds, tol) if not_seeds else none

@@ -57,6 +57,26 @@ def _depth_flood_fill(depth: np.ndarray, allowed: np.ndarray, seeds: Sequence[tu
     return region
 
 
+LEAK_MIN_GAUSSIANS = 4
+"""The fill's leak check applies once its region shows at least this many Gaussians (distinct depths)."""
+
+
+def fill_leaked(region: np.ndarray, grown: np.ndarray, depth: np.ndarray, min_pixels: int, ratio: float) -> bool:
+    """Whether the next step of a depth fill, ``grown`` ``[H, W]`` from ``region`` ``[H, W]``, has leaked: it
+    multiplies the area by more than ``ratio``, from a region of at least ``min_pixels`` that shows at least
+    :data:`LEAK_MIN_GAUSSIANS` Gaussians.
+
+    ``depth`` is each pixel's largest-weight Gaussian's depth, constant over its footprint: a click on a trained
+    splat's surface seen at an angle (a man's black leather: flat ellipses a few hundredths of a unit across, steps
+    of 1-1.5% of the depth between them) fills the clicked Gaussian's footprint alone at the smallest tolerances, a
+    plateau of one depth that the next step leaves for the whole surface (23 pixels, then 8,696). That is not a leak:
+    a surface is the footprints of several Gaussians."""
+    n = int(region.sum())
+    if n < min_pixels or grown.sum() <= ratio * n:
+        return False
+    return len(np.unique(depth[region])) >= LEAK_MIN_GAUSSIANS
+
+
 def click_sides(depth: np.ndarray, area: np.ndarray, seeds: Sequence[tuple[int, int]],
                 not_seeds: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
     """Return the pixels of ``area`` ``[H, W]`` nearer the clicks ``seeds`` and nearer the negative clicks

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
-from roodi_toolkit.pipeline.click_regions import click_sides, cut_by_reach, level_at, off_support, support_plane
+from roodi_toolkit.pipeline.click import ClickSegmenter
+from roodi_toolkit.pipeline.click_regions import (LEAK_MIN_GAUSSIANS, click_sides, cut_by_reach, fill_leaked, level_at,
+                                               off_support, support_plane)
 
 
 def _leaked_region(tilt: float = 0.0):
@@ -173,3 +175,38 @@ def test_the_click_sides_meet_at_a_crease():
     assert not (mine & theirs).any()
     mine, theirs = click_sides(3.0 - 0.01 * cols, area, [(12, 3)], [(12, 34)])
     assert theirs[1:-1, 27:30].all() and mine[1:-1, 1:20].all()
+
+
+def _staircase(steps: float = 0.012) -> np.ndarray:
+    """The depth [60, 60] of a trained splat's surface seen at an angle, as the click's fill sees it: each pixel the
+    depth of its largest-weight Gaussian, constant over 5x5-pixel footprints, ``steps`` (relative) deeper row of
+    footprints after row; a wall 20% behind it on the right."""
+    depth = np.repeat(np.repeat(2.0 * (1.0 + steps) ** np.arange(12), 5)[:, None], 60, axis=1)
+    depth[:, 40:] = 3.0
+    return depth
+
+
+def test_a_fill_from_one_gaussians_footprint_has_not_leaked_when_it_reaches_the_surface():
+    """The clicked Gaussian's footprint is a plateau of one depth at small tolerances; the step onto the footprints
+    round it (the whole surface) is no leak. The same jump from a region of several Gaussians is one."""
+    depth = _staircase()
+    plateau = np.zeros(depth.shape, bool)
+    plateau[20:25, 10:15] = True
+    surface = np.zeros(depth.shape, bool)
+    surface[:, :40] = True
+    assert not fill_leaked(plateau, surface, depth, 20, 2.0)
+    several = np.zeros(depth.shape, bool)
+    several[15:30, 10:15] = True  # three rows of footprints: three depths
+    assert not fill_leaked(several, surface, depth, 20, 2.0)  # under LEAK_MIN_GAUSSIANS: a plateau still
+    several[10:30, 10:15] = True
+    assert LEAK_MIN_GAUSSIANS == 4 and fill_leaked(several, surface, depth, 20, 2.0)
+    assert not fill_leaked(several, several | plateau, depth, 20, 2.0)  # grew by less than the ratio
+
+
+def test_a_click_on_one_gaussians_footprint_fills_the_surface_and_stops_at_the_wall():
+    depth = _staircase()
+    fill, _ = ClickSegmenter()._competing_fill(depth, np.ones(depth.shape, bool), np.ones(depth.shape, bool),
+                                               [(22, 12)], [])
+    surface = np.zeros(depth.shape, bool)
+    surface[:, :40] = True
+    assert (fill == surface).all()
