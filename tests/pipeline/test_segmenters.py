@@ -453,9 +453,9 @@ def test_the_grown_labels_are_cut_between_the_rest_and_the_object():
 
 
 def test_the_grown_labels_are_cut_where_the_rest_falls_off_from_zero():
-    """A man standing on the ground (benchmarks/RESULTS.md, "The biker: ..."): the ground round his boots falls off
-    from 0 over 0.05-0.15 (two thirds of the labels under 0.15 are under 0.05), his body spreads over 0.15-0.5. The
-    cut falls between them; the fixed 0.5 kept a quarter of him."""
+    """A man standing on the ground (benchmarks/RESULTS.md, "The biker: the label cut, ..."): the ground round his
+    boots falls off from 0 over 0.05-0.15 (two thirds of the labels under 0.15 are under 0.05), his body spreads over
+    0.15-0.5. The cut falls between them; the fixed 0.5 kept a quarter of him."""
     rng = np.random.default_rng(2)
     rest = np.concatenate([rng.uniform(0.0, 0.025, 23000), rng.uniform(0.025, 0.05, 5000),
                            rng.uniform(0.05, 0.15, 14000)])
