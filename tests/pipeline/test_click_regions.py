@@ -210,3 +210,16 @@ def test_a_click_on_one_gaussians_footprint_fills_the_surface_and_stops_at_the_w
     surface = np.zeros(depth.shape, bool)
     surface[:, :40] = True
     assert (fill == surface).all()
+
+
+def test_a_fill_from_a_strip_under_a_thousandth_of_the_image_has_not_leaked():
+    """A click at a steep edge fills a strip along it (the man's back: 79 pixels at 400 x 400), then the surface
+    behind: under LEAK_MIN_SHARE of the image, no leak; above it, the same jump is one."""
+    depth = np.repeat(np.linspace(2.0, 2.4, 400)[:, None], 400, axis=1)  # a distinct depth in every row
+    strip = np.zeros(depth.shape, bool)
+    strip[100:108, 200:210] = True  # 80 pixels, 8 depths
+    surface = np.zeros(depth.shape, bool)
+    surface[50:250, 100:300] = True
+    assert not fill_leaked(strip, surface, depth, 20, 2.0)
+    strip[100:120, 200:210] = True  # 200 pixels: over 0.1% of 160,000
+    assert fill_leaked(strip, surface, depth, 20, 2.0)
