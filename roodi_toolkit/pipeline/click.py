@@ -27,8 +27,9 @@ from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
 from ..settings import check_settings, config_from_text, documented, setting
-from .click_regions import (LEAK_MIN_GAUSSIANS, _component_at, _depth_flood_fill, _dilate, _fill_holes, _grabcut,
-                            click_sides, cut_by_reach, fill_leaked, label_cut, level_at, off_support, scene_up)
+from .click_regions import (LEAK_MIN_GAUSSIANS, LEAK_MIN_SHARE, _component_at, _depth_flood_fill, _dilate,
+                            _fill_holes, _grabcut, click_sides, clicked_off, cut_by_reach, fill_leaked, label_cut,
+                            level_at, off_support, scene_up)
 from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, check_clicks
 
 
@@ -49,11 +50,6 @@ capture in front of the object, under the clicked pixel, holds less)."""
 CLICK_PATCH = 2
 """The pixels within this many of a click (a 5x5 patch) are the ones it points at."""
 
-NEGATIVE_SHARE = 0.1
-"""A free-standing piece holding more than this share of the compositing weight under the negative clicks is no
-free-standing object (:func:`clicked_off`): the user says a part of it is not the object, so the growth from the
-seeds decides. A negative click on the ground under a floating object leaves the object free-standing."""
-
 
 @documented(given="--segmenter-option {name}=VALUE")
 @dataclass(frozen=True)
@@ -73,8 +69,8 @@ class ClickSettings:
     leak_ratio: float = setting(2.0, "The fill stops before the step that multiplies the region's area by more "
                                      "than this (a leak through a contact onto the ground or another object).",
                                 low=1)
-    leak_min_pixels: int = setting(20, "The fill's leak check applies once the region has at least this many pixels "
-                                       f"(and shows at least {LEAK_MIN_GAUSSIANS} Gaussians).", low=0)
+    leak_min_pixels: int = setting(20, "The fill's leak check waits for a region of this many pixels, "
+                                       f"{LEAK_MIN_SHARE:.1%} of the image and {LEAK_MIN_GAUSSIANS} Gaussians.", low=0)
     # None: 0.15 for a dataset without sparse points, whose box holds the whole scene (a generated room; chosen
     # there), and 0.5 for a capture with SfM points, whose box is that of what SfM reconstructed, in an
     # object-centred capture mostly the object itself (the statue: 0.15 stops the fill on the crown's band, alpha
@@ -584,10 +580,6 @@ class ClickSegmenter(Segmenter):
         return labels
 
 
-def clicked_off(piece: np.ndarray, at_not: np.ndarray) -> bool:
-    """Whether the free-standing ``piece`` ``[N]`` bool holds more than :data:`NEGATIVE_SHARE` of the compositing
-    weight under the negative clicks ``at_not`` ``[N]``: the user said a part of it is not the object."""
-    return bool(at_not[piece].sum() > NEGATIVE_SHARE * at_not.sum())
 
 
 def _inside_box(points: np.ndarray, point: np.ndarray) -> bool:

@@ -2,7 +2,9 @@
 the clicks, OpenCV's GrabCut, hole filling, the components at the clicks and disc dilation, each on ``[H, W]`` masks;
 and what the segmenter decides from the points and labels behind them: the support a fill leaked onto
 (:func:`support_plane`, :func:`off_support`, with the scene's up, :func:`scene_up`), whether the fill's reach cut the
-object (:func:`cut_by_reach`, :func:`level_at`) and where the 3D growth's labels are cut (:func:`label_cut`).
+object (:func:`cut_by_reach`, :func:`level_at`), whether a step of the fill leaked (:func:`fill_leaked`), where the 3D
+growth's labels are cut (:func:`label_cut`) and whether a negative click points at a free-standing piece
+(:func:`clicked_off`).
 """
 
 from __future__ import annotations
@@ -314,3 +316,15 @@ def scene_up(dataset: Any) -> np.ndarray | None:
         return cameras_up(dataset.cameras)
     except ConfigError:
         return None
+
+
+NEGATIVE_SHARE = 0.1
+"""A free-standing piece holding more than this share of the compositing weight under the negative clicks is no
+free-standing object (:func:`clicked_off`): the user says a part of it is not the object, so the growth from the
+seeds decides. A negative click on the ground under a floating object leaves the object free-standing."""
+
+
+def clicked_off(piece: np.ndarray, at_not: np.ndarray) -> bool:
+    """Whether the free-standing ``piece`` ``[N]`` bool holds more than :data:`NEGATIVE_SHARE` of the compositing
+    weight under the negative clicks ``at_not`` ``[N]``: the user said a part of it is not the object."""
+    return bool(at_not[piece].sum() > NEGATIVE_SHARE * at_not.sum())

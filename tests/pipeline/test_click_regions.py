@@ -204,6 +204,8 @@ def test_a_fill_from_one_gaussians_footprint_has_not_leaked_when_it_reaches_the_
 
 
 def test_a_click_on_one_gaussians_footprint_fills_the_surface_and_stops_at_the_wall():
+    """The click's fill from one footprint of the staircase: the whole surface (its steps, 1.2%, within the largest
+    tolerance), not the wall behind it; it stopped at the footprint when the step onto the surface was a leak."""
     depth = _staircase()
     fill, _ = ClickSegmenter()._competing_fill(depth, np.ones(depth.shape, bool), np.ones(depth.shape, bool),
                                                [(22, 12)], [])

@@ -480,8 +480,8 @@ def test_a_negative_click_on_a_free_piece_sends_it_to_the_growth():
     _, labels = _robot_scene()
     robot = labels <= 1
     on_ground = np.where(labels == 2, 1.0, 0.0) * (np.arange(len(labels)) % 50 == 0)
-    assert not click_segmenter.clicked_off(robot, on_ground)
+    assert not click_regions.clicked_off(robot, on_ground)
     on_hand = np.where(labels == 1, 1.0, 0.0)
-    assert click_segmenter.clicked_off(robot, on_hand)
-    assert click_segmenter.clicked_off(robot, on_ground + on_hand)  # one of two negative clicks on it is enough
-    assert not click_segmenter.clicked_off(robot, np.zeros(len(labels)))  # no negative click
+    assert click_regions.clicked_off(robot, on_hand)
+    assert click_regions.clicked_off(robot, on_ground + on_hand)  # one of two negative clicks on it is enough
+    assert not click_regions.clicked_off(robot, np.zeros(len(labels)))  # no negative click
