@@ -580,8 +580,6 @@ class ClickSegmenter(Segmenter):
         return labels
 
 
-
-
 def _inside_box(points: np.ndarray, point: np.ndarray) -> bool:
     """Whether ``point`` ``[3]`` lies in the box of ``points`` ``[n, 3]`` along their principal axes."""
     sample = points[:: max(1, len(points) // 20000)]
