@@ -27,7 +27,7 @@ from ..progress import ProgressFactory, null_progress
 from ..render import fast
 from ..render.renderer import Renderer, render_features, resolve_renderer
 from ..settings import check_settings, config_from_text, documented, setting
-from .click_parts import free_standing
+from .click_parts import GROWTH_AGREES, free_standing, standing_free, support_layer
 from .click_regions import (LEAK_MIN_GAUSSIANS, LEAK_MIN_SHARE, _component_at, _depth_flood_fill, _dilate,
                             _fill_holes, _grabcut, click_sides, clicked_off, cut_by_reach, fill_leaked, label_cut,
                             level_at, off_support, scene_up)
@@ -146,7 +146,10 @@ class ClickSegmenter(Segmenter):
        seeds held at 1 and 0, the Gaussians beyond the radius at 0, and a weak pull of the others towards the label
        of the nearest seed colour; labels above ``threshold``, or above the split of the labels within the radius
        into two groups where that is lower (``label_split``), form the selection. This reaches the object's hidden
-       back, which no pixel of the clicked view shows.
+       back, which no pixel of the clicked view shows. An object standing on a level support (a person on the
+       ground) stands free without the support's layer (:func:`~roodi_toolkit.pipeline.click_parts.support_layer`):
+       where the growth differs from that free piece, off the support's layer, by ``GROWTH_AGREES`` of it or more
+       (it stopped on the person's own torso behind a clicked arm), the piece is the selection.
     4. Masks: in every view a pixel is the object when more than ``threshold`` of its alpha comes from the selected
        Gaussians (occlusion is the full scene's compositing). ``vote_rounds`` times, the selection is re-estimated as
        the Gaussians whose weight over ``vote_views`` views falls mostly inside their masks; then the masks of
@@ -220,6 +223,18 @@ class ClickSegmenter(Segmenter):
             selected = labels > cut
             info["free_standing"] = False
             info["label_cut"] = round(float(cut), 4)
+            # standing on a level support (a person on the ground): free without the support's layer; that piece
+            # replaces a growth that differs from it, off the layer (stopped on the person's own torso behind a
+            # clicked arm, or ran onto the ground's stones round his boots)
+            # (a region of fewer seeds than LEAK_MIN_GAUSSIANS gives no scale for the support's layer)
+            spread = float(np.median(np.linalg.norm(points - centre, axis=1)))
+            support = support_layer(scene.means, centre, scene_up(dataset), spread, diag, pointed) \
+                if fg.sum() >= LEAK_MIN_GAUSSIANS else None
+            free = None if support is None else standing_free(s, scene, pointed, centre, radius0, diag, fg, *support)
+            if free is not None and not clicked_off(free[0], at_not) and \
+                    (free[0] ^ (selected & ~free[1])).sum() >= GROWTH_AGREES * free[0].sum():
+                info.update(free_standing=True, support_layer=int(free[1].sum()), grown_first=int(selected.sum()))
+                selected = candidates = free[0]
         info["grown_gaussians"] = int(selected.sum())
         masks, sel = self._vote_and_render(dataset, params, (selected & candidates).astype(np.float32), candidates,
                                            v0, progress)
@@ -414,9 +429,9 @@ class ClickSegmenter(Segmenter):
 
 
     def _parts(self, scene: GaussianCloud, at_click: np.ndarray, centre: np.ndarray, radius0: float,
-               limit: float, region: np.ndarray | None = None) -> np.ndarray | None:
+               limit: float, region: np.ndarray | None = None, cut: np.ndarray | None = None) -> np.ndarray | None:
         """:func:`~roodi_toolkit.pipeline.click_parts.free_standing` with this segmenter's settings."""
-        return free_standing(self.settings, scene, at_click, centre, radius0, limit, region)
+        return free_standing(self.settings, scene, at_click, centre, radius0, limit, region, cut)
 
     def _grow(self, scene: GaussianCloud, fg: np.ndarray, bg: np.ndarray, centre: np.ndarray,
               radius: float) -> np.ndarray:

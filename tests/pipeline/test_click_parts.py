@@ -1,0 +1,116 @@
+"""The click segmenter's free-standing test with a support's layer taken out (`click_parts.support_layer`): a person
+standing on rough ground, a vase on a table over the floor, a mat lying on the ground."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from roodi_toolkit.gaussians import GaussianCloud
+from roodi_toolkit.pipeline.click import ClickSegmenter
+from roodi_toolkit.pipeline.click_parts import standing_free, support_layer
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _cloud(parts: list[np.ndarray]) -> tuple[GaussianCloud, np.ndarray]:
+    means = np.concatenate(parts)
+    labels = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
+    cloud = GaussianCloud.from_activated(means, scales=np.full((len(means), 3), 0.01),
+                                         opacities=np.full(len(means), 0.9), rgb=np.full((len(means), 3), 0.2))
+    return cloud, labels
+
+
+def _person_on_ground():
+    """A person (a body on the surfaces of two legs, 1.5 tall, the ground's dark colour) standing on a ground whose
+    stones touch the feet, with a second ground far away (copies side by side: the first is not most of the scene).
+    As in a splat, the ground holds more Gaussians per height than the legs."""
+    rng = np.random.default_rng(0)
+
+    def tube(x, n):  # a leg's surface
+        a, z = rng.uniform(0, 2 * np.pi, n), rng.uniform(0.0, 0.8, n)
+        return np.stack([x + 0.08 * np.cos(a), 0.08 * np.sin(a), z], axis=1)
+
+    body = rng.uniform((-0.25, -0.15, 0.8), (0.25, 0.15, 1.5), (8000, 3))
+    legs = np.concatenate([tube(-0.12, 2000), tube(0.12, 2000)])
+    ground = rng.uniform((-2.0, -2.0, -0.005), (2.0, 2.0, 0.005), (80000, 3))
+    stones = rng.uniform((-0.3, -0.3, 0.0), (0.3, 0.3, 0.02), (400, 3))  # rough ground at the feet
+    other = rng.uniform((10.0, -2.0, -0.01), (14.0, 2.0, 0.01), (80000, 3))
+    return _cloud([body, legs, ground, stones, other])
+
+
+def _click(cloud: GaussianCloud, picked: np.ndarray):
+    at_click = np.zeros(len(cloud))
+    at_click[picked] = 1.0
+    centre = cloud.means[picked].mean(axis=0)
+    dist = np.linalg.norm(cloud.means[picked] - centre, axis=1)
+    return at_click, centre, float(dist.max()), float(np.median(dist))
+
+
+def test_a_person_on_the_ground_stands_free_without_the_grounds_layer():
+    """A click on the chest: the person touches the ground (one piece with it, no free object), but without the
+    ground's layer, found under the click in 3D, the whole person stands free: legs and body, not the ground."""
+    cloud, labels = _person_on_ground()
+    chest = np.flatnonzero((labels == 0) & (np.abs(cloud.means[:, 0]) < 0.08) & (cloud.means[:, 2] > 1.1)
+                           & (cloud.means[:, 2] < 1.25))
+    at_click, centre, radius0, spread = _click(cloud, chest)
+    seg = ClickSegmenter()
+    assert seg._parts(cloud, at_click, centre, radius0, limit=20.0) is None
+    height, thickness = support_layer(cloud.means, centre, UP, spread, 20.0, at_click)
+    round_feet = np.linalg.norm(cloud.means[:, :2], axis=1) < 0.6
+    assert np.abs(height[(labels == 2) & round_feet]).max() < 0.02  # the ground's plane
+    got, layer = standing_free(seg.settings, cloud, at_click, centre, radius0, 20.0, at_click > 0, height, thickness)
+    assert layer[(labels == 2) & round_feet].all() and not layer[(labels <= 1) & (cloud.means[:, 2] > 0.2)].any()
+    person = labels <= 1
+    assert got[person & ~layer].all() and not got[labels == 2].any() and not got[labels == 4].any()
+
+
+def test_an_object_lying_on_the_support_is_left_to_the_growth():
+    """A flat slab lying on the ground (a mat): without the ground's layer it is a piece, but most of it lies just
+    over the layer at every thickness: no object standing on the support."""
+    rng = np.random.default_rng(3)
+    mat = rng.uniform((-0.5, -0.5, 0.005), (0.5, 0.5, 0.04), (6000, 3))
+    ground = rng.uniform((-2.0, -2.0, -0.005), (2.0, 2.0, 0.005), (80000, 3))
+    other = rng.uniform((10.0, -2.0, -0.005), (14.0, 2.0, 0.005), (80000, 3))
+    cloud, labels = _cloud([mat, ground, other])
+    picked = np.flatnonzero((labels == 0) & (np.linalg.norm(cloud.means[:, :2], axis=1) < 0.15))
+    at_click, centre, radius0, spread = _click(cloud, picked)
+    support = support_layer(cloud.means, centre, UP, spread, 20.0, at_click)
+    assert support is None or standing_free(ClickSegmenter().settings, cloud, at_click, centre, radius0, 20.0,
+                                            at_click > 0, *support) is None
+
+
+def test_the_support_is_the_table_under_the_vase_not_the_floor():
+    """A vase on a table top 0.7 over a wide floor: its support is the table top, the highest level plane under it,
+    and without it the vase stands free; the table and the floor stay out."""
+    rng = np.random.default_rng(1)
+    a = rng.uniform(0, 2 * np.pi, 3000)
+    h = rng.uniform(0.7, 1.1, 3000)
+    vase = np.stack([0.08 * np.cos(a), 0.08 * np.sin(a), h], axis=1)
+    top = rng.uniform((-0.5, -0.5, 0.698), (0.5, 0.5, 0.702), (20000, 3))
+    legs = np.concatenate([rng.uniform((x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.69), (800, 3))
+                           for x in (-0.45, 0.45) for y in (-0.45, 0.45)])
+    floor = rng.uniform((-4.0, -4.0, -0.01), (4.0, 4.0, 0.01), (80000, 3))
+    other = rng.uniform((10.0, -4.0, -0.01), (18.0, 4.0, 0.01), (80000, 3))
+    cloud, labels = _cloud([vase, top, legs, floor, other])
+    side = np.flatnonzero((labels == 0) & (cloud.means[:, 0] < -0.03) & (cloud.means[:, 2] > 0.8))
+    at_click, centre, radius0, spread = _click(cloud, side)
+    limit = 2.0  # a tabletop capture's box
+    height, thickness = support_layer(cloud.means, centre, UP, spread, limit, at_click)
+    assert np.abs(height[(labels == 1) & (np.abs(cloud.means[:, :2]).max(axis=1) < 0.2)]).max() < 0.01
+    got, layer = standing_free(ClickSegmenter().settings, cloud, at_click, centre, radius0, limit, at_click > 0,
+                               height, thickness)
+    assert not layer[(labels == 0) & (cloud.means[:, 2] > 0.73)].any()
+    assert got is not None and got[(labels == 0) & ~layer].all() and not got[labels >= 1].any()
+
+
+def test_no_support_layer_for_a_click_on_the_ground_or_without_an_up():
+    """A click on the ground is in the layer it would take out; without the scene's up nothing is level."""
+    cloud, labels = _person_on_ground()
+    ground = np.flatnonzero((labels == 2) & (np.abs(cloud.means[:, 0] - 1.5) < 0.1) & (np.abs(cloud.means[:, 1]) < 0.1))
+    at_click, centre, radius0, spread = _click(cloud, ground)
+    support = support_layer(cloud.means, centre, UP, spread, 20.0, at_click)
+    assert support is None or standing_free(ClickSegmenter().settings, cloud, at_click, centre, radius0, 20.0,
+                                            at_click > 0, *support) is None
+    chest = np.flatnonzero((labels == 0) & (cloud.means[:, 2] > 1.1) & (cloud.means[:, 2] < 1.25))
+    at_click, centre, _, spread = _click(cloud, chest)
+    assert support_layer(cloud.means, centre, None, spread, 20.0, at_click) is None
