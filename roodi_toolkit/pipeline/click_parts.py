@@ -1,6 +1,8 @@
 """Free-standing objects for the click segmenter (:mod:`roodi_toolkit.pipeline.click`): the Gaussians near a click
 cut into connected pieces, and the piece the click points at taken whole when it ends inside a sphere round the click
-(:func:`free_standing`), with the pieces that belong to it (:func:`is_part`, :func:`whole`).
+(:func:`free_standing`), with the pieces that belong to it (:func:`with_parts`, :func:`whole`); and an object
+standing on a level support (a person on the ground), free once the support's layer is left out
+(:func:`support_layer`, :func:`standing_free`).
 """
 
 from __future__ import annotations
@@ -102,7 +104,7 @@ def free_standing(settings: Any, scene: GaussianCloud, at_click: np.ndarray, cen
 
 def pieces(pos: np.ndarray, spacing: float) -> np.ndarray:
     """Return the connected piece of each position ``[n]``: each linked to those of its 16 nearest within
-    ``part_spacing`` times their median spacing."""
+    ``spacing`` times their median spacing (the ``part_spacing`` setting)."""
     near, nb = cKDTree(pos).query(pos, k=min(17, len(pos)))
     link = near[:, 1:] <= spacing * float(np.median(near[:, 1]))
     rows = np.repeat(np.arange(len(pos)), link.sum(axis=1))

@@ -1,5 +1,5 @@
 """The click segmenter's free-standing test with a support's layer taken out (`click_parts.support_layer`): a person
-standing on rough ground, a vase on a table over the floor, a mat lying on the ground."""
+standing on rough ground, a vase on a table over the floor, a mat lying on the ground; the parts test (`with_parts`) against one test per piece."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 
 from roodi_toolkit.gaussians import GaussianCloud
 from roodi_toolkit.pipeline.click import ClickSegmenter
-from roodi_toolkit.pipeline.click_parts import standing_free, support_layer
+from roodi_toolkit.pipeline.click_parts import is_part, pieces, standing_free, support_layer, with_parts
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -114,3 +114,25 @@ def test_no_support_layer_for_a_click_on_the_ground_or_without_an_up():
     chest = np.flatnonzero((labels == 0) & (cloud.means[:, 2] > 1.1) & (cloud.means[:, 2] < 1.25))
     at_click, centre, _, spread = _click(cloud, chest)
     assert support_layer(cloud.means, centre, None, spread, 20.0, at_click) is None
+
+
+def test_with_parts_takes_the_pieces_is_part_takes():
+    """The parts test with the body's trees built once takes exactly the pieces that one test per piece takes: near
+    the body and mostly of its colours, on a slab with pieces round it of its colour or of others."""
+    s = ClickSegmenter().settings
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        pos = np.concatenate([rng.uniform(-1, 1, (3000, 3)) * [1, 1, 0.05]] +
+                             [rng.normal(size=(rng.integers(3, 60), 3)) * 0.02 + rng.uniform(-1.5, 1.5, 3)
+                              for _ in range(80)])
+        rgb = np.full((len(pos), 3), 0.5)
+        rgb[3000:] = np.where(rng.random((len(pos) - 3000, 1)) < 0.5, 0.5, rng.uniform(0, 1, (len(pos) - 3000, 3)))
+        piece = pieces(pos, s.part_spacing)
+        main = int(np.bincount(piece).argmax())
+        sizes = np.bincount(piece)
+        want = piece == main
+        for other in np.flatnonzero((sizes >= 3) & (sizes <= sizes[main])):
+            if other != main and is_part(s, pos, rgb, piece == other, piece == main):
+                want |= piece == other
+        got = with_parts(s, pos, rgb, piece, main)
+        assert (got == want).all() and want.sum() > (piece == main).sum()
