@@ -1,5 +1,6 @@
 """The click segmenter's free-standing test with a support's layer taken out (`click_parts.support_layer`): a person
-standing on rough ground, a vase on a table over the floor, a mat lying on the ground; the parts test (`with_parts`) against one test per piece."""
+standing on rough ground, a vase on a table over the floor, a mat lying on the ground; and the parts test
+(`with_parts`) against one test per piece."""
 
 from __future__ import annotations
 
