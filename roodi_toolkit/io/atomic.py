@@ -290,8 +290,14 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None, *, replace: 
             _commit(tmp_path, dest, may_replace)
     except BaseException as exc:
         if not handed_over:
-            with contextlib.suppress(OSError):
-                tmp_path.unlink()
+            # a second signal (Ctrl-C to a batch's process group, then the batch's SIGTERM to its workers) must not
+            # cut the removal short: a nested writer's temporary file was left behind, 1 run in many
+            held = _hold_signals()
+            try:
+                with contextlib.suppress(OSError):
+                    tmp_path.unlink()
+            finally:
+                _release_signals(held)  # that signal's handler raises here, once the file is gone
         if isinstance(exc, OSError):
             _raise_environment_problem(exc, dest)
         raise

@@ -80,3 +80,37 @@ def test_outputs_follow_the_umask_not_mkstemps_0600(tmp_path):
         assert (tmp_path / "b.json").stat().st_mode & 0o777 == 0o600
     finally:
         os.umask(old)
+
+
+def test_a_signal_during_the_removal_of_a_temporary_file_waits_for_it(tmp_path, monkeypatch):
+    """Ctrl-C unwinds a write, and a second signal (the batch's SIGTERM to its workers) comes as the temporary file
+    is being removed: the removal finishes first, then the signal's handler raises (a nested writer's temporary file
+    was left behind in a batch stopped by Ctrl-C, 1 run in many)."""
+    import os
+    import signal
+    from pathlib import Path
+
+    from roodi_toolkit import signals
+
+    class Stopped(Exception):
+        pass
+
+    def stop(signum, frame):
+        raise Stopped
+
+    real_unlink = Path.unlink
+
+    def unlink(self, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGUSR1)  # its handler runs at the next bytecode, before the file is gone
+        return real_unlink(self, *args, **kwargs)
+
+    previous = signal.signal(signal.SIGUSR1, signals.deferrable(stop))
+    try:
+        monkeypatch.setattr(Path, "unlink", unlink)
+        with pytest.raises(Stopped):
+            with atomic_path(tmp_path / "out.ply") as tmp:
+                tmp.write_bytes(b"ply")
+                raise KeyboardInterrupt
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+    assert list(tmp_path.iterdir()) == []
