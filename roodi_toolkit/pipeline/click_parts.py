@@ -202,9 +202,9 @@ FOOT_SHARE = 0.1
 (the biker: 1-5%; with the ground round his boots that a thinner layer left, 10% and more)."""
 GROWTH_AGREES = 0.1
 """The colour-weighted growth is kept over the piece freed of its support where the two differ, off the layer, by
-less than this share of the piece (a vase on a table: both find it); more, and the piece is the object (the biker:
-the growth missed 7-16% of him and ran 2-8% onto the ground's stones and the robot beside him, or stopped on his arm
-at 2%)."""
+less than this share of the piece (both found the object); more, and the piece is the object (the biker: from clicks
+on his chest the growth missed 8-16% of the piece and held 2-8% of its own Gaussians off the piece and the layer;
+from his arm it held 4% of him)."""
 
 
 def support_layer(means: np.ndarray, centre: np.ndarray, up: np.ndarray | None, spread: float, limit: float,
