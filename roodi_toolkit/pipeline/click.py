@@ -225,16 +225,18 @@ class ClickSegmenter(Segmenter):
             info["label_cut"] = round(float(cut), 4)
             # standing on a level support (a person on the ground): free without the support's layer; that piece
             # replaces a growth that differs from it, off the layer (stopped on the person's own torso behind a
-            # clicked arm, or ran onto the ground's stones round his boots)
-            # (a region of fewer seeds than LEAK_MIN_GAUSSIANS gives no scale for the support's layer)
+            # clicked arm, or held Gaussians off the piece). A region of fewer seeds than LEAK_MIN_GAUSSIANS gives
+            # no scale for the support's layer.
             spread = float(np.median(np.linalg.norm(points - centre, axis=1)))
             support = support_layer(scene.means, centre, scene_up(dataset), spread, diag, pointed) \
                 if fg.sum() >= LEAK_MIN_GAUSSIANS else None
             free = None if support is None else standing_free(s, scene, pointed, centre, radius0, diag, fg, *support)
-            if free is not None and not clicked_off(free[0], at_not) and \
-                    (free[0] ^ (selected & ~free[1])).sum() >= GROWTH_AGREES * free[0].sum():
-                info.update(free_standing=True, support_layer=int(free[1].sum()), grown_first=int(selected.sum()))
-                selected = candidates = free[0]
+            if free is not None:
+                piece, layer = free
+                if not clicked_off(piece, at_not) and \
+                        (piece ^ (selected & ~layer)).sum() >= GROWTH_AGREES * piece.sum():
+                    info.update(free_standing=True, support_layer=int(layer.sum()), grown_first=int(selected.sum()))
+                    selected = candidates = piece
         info["grown_gaussians"] = int(selected.sum())
         masks, sel = self._vote_and_render(dataset, params, (selected & candidates).astype(np.float32), candidates,
                                            v0, progress)
