@@ -5,7 +5,9 @@ For each named view: the object's visible pixel nearest its centre, the one fart
 true alpha (> 0.5) in every ``STEP``-th view. With ``--no-support`` the support plane of the clicked region
 (:func:`roodi_toolkit.pipeline.click_regions.support_plane`) is switched off: the click as it was before it. With
 ``--negative PX`` each click comes with a negative click on the surface nearest the object's centre at least PX
-pixels from it (what a user adds to keep the ground out).
+pixels from it (what a user adds to keep the ground out). With ``--inside PX`` the three are picked among the object's
+pixels at least PX pixels inside its silhouette: the farthest is then a click on the object, not on its last pixel
+beside the ground (which at the working size can show the ground).
 
     .venv/bin/python benchmarks/bench_click_many.py /tmp/scale/donut500 10 r_0,r_25,r_40,r_70 [--negative 12]
 
@@ -27,6 +29,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("step", type=int, help="score in every STEP-th view")
     ap.add_argument("views", help="the clicked views, comma-separated")
     ap.add_argument("--no-support", action="store_true", help="the click without its support plane (as before)")
+    ap.add_argument("--inside", type=int, default=0, metavar="PX",
+                    help="pick the clicks among the object's pixels at least PX pixels (full size) inside its "
+                         "silhouette (0: any of its pixels, its edge included)")
     ap.add_argument("--negative", type=int, default=None, metavar="PX",
                     help="with each click, a negative click on the surface nearest the object's centre that lies at "
                          "least PX pixels (full size) from the object's pixels: the ground under a resting object")
@@ -60,6 +65,8 @@ def main(argv: list[str] | None = None) -> None:
                                          f32(model.opacity_logits),
                                          fast.make_view(cam.world_to_camera, cam.K, cam.width, cam.height))
         on = (top >= 0) & truth[np.maximum(top, 0)] & (alpha > 0.9)
+        if args.inside > 0:
+            on &= ndimage.distance_transform_edt(on) > args.inside
         ys, xs = np.nonzero(on)
         if not len(ys):
             print(f"{view}: the object shows no opaque pixel")

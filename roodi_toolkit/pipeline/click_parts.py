@@ -191,7 +191,8 @@ LAYER_LEVEL = 0.95
 LAYER_RIVALS = 0.5
 """Level planes holding at least this share of the best one's points are rivals; the highest below the click wins."""
 LAYER_MAX = 0.5
-"""The layer never reaches above this share of the clicked Gaussians' height over the plane."""
+"""The layer never reaches above this share of the piece's height over the plane (the 99th percentile of its
+Gaussians' heights)."""
 LAYER_MIN = 0.005
 """The layer is at least this share of the limit thick (the scene box's diagonal: a rough ground's stones under a
 click whose region is small, a patch of a thigh)."""
@@ -200,6 +201,12 @@ LAYER_THICKER = (1, 2, 4, 8)
 FOOT_SHARE = 0.1
 """A piece stands on the support when less than this share of it lies within two layer thicknesses over the layer
 (the biker: 1-5%; with the ground round his boots that a thinner layer left, 10% and more)."""
+SHAVE_RATE = 2.0
+"""A piece found over a layer is found again over the next, thicker one; the thicker layer's piece is taken where
+what the step shaved off, per unit of height, is more than this many times the thicker piece's Gaussians per unit of
+its height, and lay near the layer: the step cut away the ground's stones that had joined the object's foot (a
+standing person's piece per unit of height is about even), not a slice of the object. The biker from a click on his
+head, over layers 0.022 / 0.044 / 0.087 thick: 556k / 116k Gaussians shaved per unit of height against his 98k."""
 GROWTH_AGREES = 0.1
 """The colour-weighted growth is kept over the piece freed of its support where the two differ, off the layer, by
 less than this share of the piece (both found the object); more, and the piece is the object (the biker: from clicks
@@ -272,22 +279,69 @@ def standing_free(settings: Any, scene: GaussianCloud, at_click: np.ndarray, cen
     ``[N]`` bool, or None.
 
     The layer is every Gaussian up to a thickness over the support's plane (``height`` ``[N]`` over it, from
-    :func:`support_layer`): ``thickness`` first, then each of :data:`LAYER_THICKER` times it (up to
-    :data:`LAYER_MAX` of the clicked Gaussians' height, weighted by ``at_click``), until :func:`free_standing` finds
-    a piece (its arguments as there) that stands on the layer: less than :data:`FOOT_SHARE` of it within two
-    thicknesses over the layer. Over a thin layer a rough ground's stones join the piece round its foot, and so does
-    the ground round an object lying on it (a donut on the ground); a thicker layer leaves them out. An object whose
+    :func:`support_layer`): ``thickness`` first, then each of :data:`LAYER_THICKER` times it, until
+    :func:`free_standing` finds a piece (its arguments as there; the click's weight in the layer moved to what lies
+    just over it, :func:`lifted`) that stands on the layer: less than :data:`FOOT_SHARE` of it within two
+    thicknesses over the layer, and a layer under :data:`LAYER_MAX` of the piece's height. Over a thin layer a rough ground's stones join the piece round its foot, and so does
+    the ground round an object lying on it (a donut on the ground); a thicker layer leaves them out. A piece that
+    stands is tried over the next thickness too, and that one's piece taken while the step shaves off ground that had
+    joined its foot (:func:`_shaved_ground`): the ground round the foot can be under a tenth of it. An object whose
     height is not many thicknesses (a mug in a room-sized scene, a donut lying on the ground) is left to the growth.
     """
-    ceiling = LAYER_MAX * float(np.average(height, weights=np.maximum(at_click, 0)))  # under the click
+    found = None  # (piece, layer, top) standing on the layer, until a thicker layer shaves off its ground
     for times in LAYER_THICKER:
         top = times * thickness
-        if top > ceiling:
-            return None
         layer = height <= top
-        if at_click[layer].sum() > 0.5 * at_click.sum():
-            return None  # the click is on the layer (the support itself, or the object's foot)
-        piece = free_standing(settings, scene, at_click, centre, radius0, limit, region, cut=layer)
-        if piece is not None and (height[piece] <= 3 * top).mean() < FOOT_SHARE:
-            return piece, layer
-    return None
+        anchor = lifted(scene.means, at_click, layer, top)
+        if anchor is None:
+            break  # the click is on the layer, nothing of an object over it (the support itself)
+        piece = free_standing(settings, scene, anchor, centre, radius0, limit, region, cut=layer)
+        if piece is not None and float(np.percentile(height[piece], 99)) < top / LAYER_MAX:
+            break  # the layer reaches half the piece's height: no object standing, or cut through
+        if piece is None or (height[piece] <= 3 * top).mean() >= FOOT_SHARE:
+            if found is None:
+                continue
+            break
+        if found is not None and not _shaved_ground(height, found[0], found[2], piece, top):
+            break
+        found = (piece, layer, top)
+    return None if found is None else found[:2]
+
+
+def lifted(means: np.ndarray, at_click: np.ndarray, layer: np.ndarray, top: float) -> np.ndarray | None:
+    """Return the click's weights ``[N]`` with those of its Gaussians in the support's ``layer`` ``[N]`` bool moved
+    to their nearest Gaussian over the layer, if one lies within its thickness ``top``, or None when most of the
+    weight finds none.
+
+    A click on a person's boot, a hand's width over the ground, points at Gaussians that a layer thick enough to
+    leave out the ground's stones holds too: their weight goes to the boot just over the layer. A click on the
+    ground itself, at the plane, has nothing within the layer's thickness over the layer."""
+    inside = np.flatnonzero((at_click > 0) & layer)
+    if not len(inside):
+        return at_click
+    total = float(at_click[at_click > 0].sum())
+    lo, hi = means[inside].min(axis=0) - top, means[inside].max(axis=0) + top
+    over = np.flatnonzero(~layer & np.all((means >= lo) & (means <= hi), axis=1))
+    anchor = np.where(layer, 0.0, np.maximum(at_click, 0.0))
+    if len(over):
+        dist, near = cKDTree(means[over]).query(means[inside], distance_upper_bound=top)
+        found = np.isfinite(dist)
+        np.add.at(anchor, over[near[found]], at_click[inside[found]])
+    if anchor.sum() <= 0.5 * total:
+        return None
+    return anchor
+
+
+def _shaved_ground(height: np.ndarray, piece: np.ndarray, top: float, thicker: np.ndarray, thicker_top: float
+                   ) -> bool:
+    """Whether the piece over the layer ``thicker_top`` high, ``thicker`` ``[N]`` bool, lost the ground's stones
+    that ``piece``, over ``top``, held round its foot (:data:`SHAVE_RATE`): what the step shaved off lay near the
+    layer and was many more Gaussians per unit of height than the thicker piece holds."""
+    lost = piece & ~thicker
+    if not lost.any() or (thicker & ~piece).sum() > 0.1 * thicker.sum():
+        return False  # the same piece, or another one
+    if (height[lost] <= 3 * thicker_top).mean() < 0.8:
+        return False  # a part of the object came off, not its foot's ground
+    extent = float(np.percentile(height[thicker], 99)) - thicker_top
+    rate = lost.sum() / (thicker_top - top)
+    return extent > 0 and rate > SHAVE_RATE * thicker.sum() / extent

@@ -65,6 +65,51 @@ def test_a_person_on_the_ground_stands_free_without_the_grounds_layer():
     assert got[person & ~layer].all() and not got[labels == 2].any() and not got[labels == 4].any()
 
 
+def test_a_thicker_layer_shaves_the_stones_off_the_feet():
+    """Rough ground round the feet, stones up to 0.035 high, a tenth of the person: over the first layer (0.02,
+    from a click on the head) they join the feet and the piece still stands (its foot under a tenth of it); the next
+    layer leaves them out and loses the legs' slice alone, so that piece is the person."""
+    rng = np.random.default_rng(4)
+    cloud0, labels0 = _person_on_ground()
+    person = cloud0.means[labels0 <= 1]
+    stones = rng.uniform((-0.5, -0.5, 0.0), (0.5, 0.5, 0.035), (1200, 3))
+    stones = stones[np.linalg.norm(stones[:, :2], axis=1) < 0.5]
+    ground = cloud0.means[(labels0 == 2) | (labels0 == 4)]
+    cloud, labels = _cloud([person, stones, ground])
+    head = np.flatnonzero((labels == 0) & (cloud.means[:, 2] > 1.4) & (np.abs(cloud.means[:, 0]) < 0.1))
+    at_click, centre, radius0, spread = _click(cloud, head)
+    limit = 4.0
+    height, thickness = support_layer(cloud.means, centre, UP, spread, limit, at_click)
+    assert thickness < 0.035  # the first layer leaves the tallest stones
+    got, layer = standing_free(ClickSegmenter().settings, cloud, at_click, centre, radius0, limit, at_click > 0,
+                               height, thickness)
+    assert not got[labels >= 1].any()
+    assert got[(labels == 0) & (cloud.means[:, 2] > 0.1)].all()
+
+
+def test_a_click_on_the_foot_in_the_layer_finds_the_person_a_click_beside_it_nothing():
+    """A click on the bottom of a leg, lower than the layer that leaves the stones out: its weight moves to the leg
+    just over the layer, and the person stands free as from the chest. A click on the stones a hand's width from the
+    foot has nothing over them within the layer's thickness: no object."""
+    cloud, labels = _person_on_ground()
+    leg = (labels == 1) & (cloud.means[:, 0] < 0)
+    foot = np.flatnonzero(leg & (cloud.means[:, 2] < 0.03))
+    at_click, centre, radius0, spread = _click(cloud, foot)
+    limit = 4.0
+    height, thickness = support_layer(cloud.means, centre, UP, spread, limit, at_click)
+    assert at_click[height <= thickness].sum() > 0.5 * at_click.sum()  # most of the click is in the layer
+    got, layer = standing_free(ClickSegmenter().settings, cloud, at_click, centre, radius0, limit, at_click > 0,
+                               height, thickness)
+    assert not got[labels >= 2].any() and got[(labels <= 1) & ~layer].all()
+    beside = np.linalg.norm(cloud.means[:, :2] - [-0.12, 0.0], axis=1)
+    stones = np.flatnonzero((labels == 3) & (beside > 0.18) & (beside < 0.22) & (cloud.means[:, 1] < -0.1))
+    at_click, centre, radius0, spread = _click(cloud, stones)
+    support = support_layer(cloud.means, centre, UP, spread, limit, at_click)
+    assert support is not None  # over the plane: the layer's test decides
+    assert standing_free(ClickSegmenter().settings, cloud, at_click, centre, radius0, limit, at_click > 0,
+                         *support) is None
+
+
 def test_an_object_lying_on_the_support_is_left_to_the_growth():
     """A flat slab lying on the ground (a mat): without the ground's layer it is a piece, but most of it lies just
     over the layer at every thickness: no object standing on the support."""
