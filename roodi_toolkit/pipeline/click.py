@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import torch
 from scipy import sparse
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import cg, spsolve
 from scipy.spatial import cKDTree
 
 from ..errors import ConfigError
@@ -35,6 +35,25 @@ from .segment import SegmentationError, Segmenter, SegmentPrompt, ViewMasks, che
 
 
 # ------------------------------------------------------------------------------------------------------ click
+
+
+GROW_RTOL = 1e-8
+"""The growth's labels are solved by conjugate gradients to this relative residual (labels within about 1e-6 of the
+direct solution)."""
+
+
+def solve_labels(system: sparse.csr_matrix, rhs: np.ndarray) -> np.ndarray:
+    """Return the solution of the growth's system ``[n, n]`` (the graph Laplacian's free block plus the colour pull
+    on its diagonal: symmetric positive definite) for ``rhs`` ``[n]``.
+
+    Conjugate gradients with the diagonal as preconditioner: the colour pull keeps the system well conditioned, so
+    a few hundred sparse products solve it. SuperLU's direct solve, used before, fills in the factor of a graph
+    Laplacian: 69 s and most of the click's 5.2 GB peak for the biker's 621,138 unknowns, where this takes 4 s
+    (136 products; labels within 3e-7). The direct solve stays as the fallback where it does not converge."""
+    diagonal = system.diagonal()
+    x, info = cg(system, rhs, rtol=GROW_RTOL, maxiter=max(1000, 10 * int(np.sqrt(len(rhs)))),
+                 M=sparse.diags(1.0 / np.maximum(diagonal, 1e-12)))
+    return np.atleast_1d(x if info == 0 else spsolve(system.tocsc(), rhs))
 
 
 SCENE_REGION_RADIUS = 0.15
@@ -473,7 +492,7 @@ class ClickSegmenter(Segmenter):
         L = sparse.diags(np.asarray(A.sum(axis=1)).ravel()) - A
         Lff = L[free][:, free] + sparse.diags(np.full(int(free.sum()), s.colour_weight))
         rhs = -(L[free][:, fixed] @ target[fixed]) + s.colour_weight * prior[free]
-        x = np.atleast_1d(spsolve(Lff.tocsc(), rhs))
+        x = solve_labels(Lff.tocsr(), rhs)
         out = target.copy()
         out[free] = x
         labels[idx] = out

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from roodi_toolkit.gaussians import GaussianCloud
-from roodi_toolkit.pipeline.click import ClickSegmenter
+from roodi_toolkit.pipeline.click import ClickSegmenter, solve_labels
 from roodi_toolkit.pipeline.click_parts import is_part, pieces, standing_free, support_layer, with_parts
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -182,3 +182,27 @@ def test_with_parts_takes_the_pieces_is_part_takes():
                 want |= piece == other
         got = with_parts(s, pos, rgb, piece, main)
         assert (got == want).all() and want.sum() > (piece == main).sum()
+
+
+def test_the_growths_labels_by_conjugate_gradients_match_the_direct_solve():
+    """The growth's system (a colour-weighted k-nearest-neighbour graph's Laplacian, its free block, plus the colour
+    pull on the diagonal) solved iteratively gives the direct solution's labels."""
+    from scipy import sparse
+    from scipy.sparse.linalg import spsolve
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(5)
+    pos = rng.uniform(0, 1, (4000, 3))
+    rgb = rng.uniform(0, 1, (4000, 3))
+    _, nb = cKDTree(pos).query(pos, k=11)
+    i, j = np.repeat(np.arange(4000), 10), nb[:, 1:].reshape(-1)
+    w = np.exp(-((rgb[i] - rgb[j]) ** 2).sum(1) / (2 * 0.1 ** 2))
+    A = sparse.coo_matrix((w, (i, j)), shape=(4000, 4000)).tocsr()
+    A = A.maximum(A.T)
+    L = sparse.diags(np.asarray(A.sum(axis=1)).ravel()) - A
+    free = pos[:, 0] > 0.2  # the seeds on one side
+    system = (L[free][:, free] + sparse.diags(np.full(int(free.sum()), 0.1))).tocsr()
+    rhs = -(L[free][:, ~free] @ np.ones(int((~free).sum()))) + 0.1 * rng.uniform(0, 1, int(free.sum()))
+    got = solve_labels(system, rhs)
+    assert np.abs(got - spsolve(system.tocsc(), rhs)).max() < 1e-6
+
