@@ -282,13 +282,15 @@ def standing_free(settings: Any, scene: GaussianCloud, at_click: np.ndarray, cen
     :func:`support_layer`): ``thickness`` first, then each of :data:`LAYER_THICKER` times it, until
     :func:`free_standing` finds a piece (its arguments as there; the click's weight in the layer moved to what lies
     just over it, :func:`lifted`) that stands on the layer: less than :data:`FOOT_SHARE` of it within two
-    thicknesses over the layer, and a layer under :data:`LAYER_MAX` of the piece's height. Over a thin layer a rough ground's stones join the piece round its foot, and so does
-    the ground round an object lying on it (a donut on the ground); a thicker layer leaves them out. A piece that
-    stands is tried over the next thickness too, and that one's piece taken while the step shaves off ground that had
-    joined its foot (:func:`_shaved_ground`): the ground round the foot can be under a tenth of it. An object whose
-    height is not many thicknesses (a mug in a room-sized scene, a donut lying on the ground) is left to the growth.
+    thicknesses over the layer, and a layer under :data:`LAYER_MAX` of the piece's height. Over a thin layer a rough
+    ground's stones join the piece round its foot, and so does the ground round an object lying on it (a donut on
+    the ground); a thicker layer leaves them out. A piece that stands is tried over the next thickness too, and that
+    one's piece taken while the step shaves off ground that had joined its foot (:func:`_shaved_ground`): the ground
+    round the foot can be under a tenth of it. An object whose height is not many thicknesses (a mug in a room-sized
+    scene, a donut lying on the ground) is left to the growth.
     """
-    found = None  # (piece, layer, top) standing on the layer, until a thicker layer shaves off its ground
+    found = found_layer = None  # the piece standing on the layer, until a thicker layer shaves off its ground
+    found_top = 0.0
     for times in LAYER_THICKER:
         top = times * thickness
         layer = height <= top
@@ -302,10 +304,10 @@ def standing_free(settings: Any, scene: GaussianCloud, at_click: np.ndarray, cen
             if found is None:
                 continue
             break
-        if found is not None and not _shaved_ground(height, found[0], found[2], piece, top):
+        if found is not None and not _shaved_ground(height, found, found_top, piece, top):
             break
-        found = (piece, layer, top)
-    return None if found is None else found[:2]
+        found, found_layer, found_top = piece, layer, top
+    return None if found is None else (found, found_layer)
 
 
 def lifted(means: np.ndarray, at_click: np.ndarray, layer: np.ndarray, top: float) -> np.ndarray | None:
