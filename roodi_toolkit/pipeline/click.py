@@ -450,9 +450,9 @@ class ClickSegmenter(Segmenter):
 
 
     def _parts(self, scene: GaussianCloud, at_click: np.ndarray, centre: np.ndarray, radius0: float,
-               limit: float, region: np.ndarray | None = None, cut: np.ndarray | None = None) -> np.ndarray | None:
+               limit: float, region: np.ndarray | None = None) -> np.ndarray | None:
         """:func:`~roodi_toolkit.pipeline.click_parts.free_standing` with this segmenter's settings."""
-        return free_standing(self.settings, scene, at_click, centre, radius0, limit, region, cut)
+        return free_standing(self.settings, scene, at_click, centre, radius0, limit, region)
 
     def _grow(self, scene: GaussianCloud, fg: np.ndarray, bg: np.ndarray, centre: np.ndarray,
               radius: float) -> np.ndarray:
