@@ -300,7 +300,7 @@ def standing_free(settings: Any, scene: GaussianCloud, at_click: np.ndarray, cen
         piece = free_standing(settings, scene, anchor, centre, radius0, limit, region, cut=layer)
         if piece is not None and float(np.percentile(height[piece], 99)) < top / LAYER_MAX:
             break  # the layer reaches half the piece's height: no object standing, or cut through
-        if piece is None or (height[piece] <= 3 * top).mean() >= FOOT_SHARE:
+        if piece is None or _near_layer(height[piece], top).mean() >= FOOT_SHARE:
             if found is None:
                 continue
             break
@@ -308,6 +308,12 @@ def standing_free(settings: Any, scene: GaussianCloud, at_click: np.ndarray, cen
             break
         found, found_layer, found_top = piece, layer, top
     return None if found is None else (found, found_layer)
+
+
+def _near_layer(height: np.ndarray, top: float) -> np.ndarray:
+    """Whether each height over the support's plane lies within two layer thicknesses over a layer ``top`` high (an
+    object's foot, or the ground's stones joined to it)."""
+    return height <= 3 * top
 
 
 def lifted(means: np.ndarray, at_click: np.ndarray, layer: np.ndarray, top: float) -> np.ndarray | None:
@@ -342,7 +348,7 @@ def _shaved_ground(height: np.ndarray, piece: np.ndarray, top: float, thicker: n
     lost = piece & ~thicker
     if not lost.any() or (thicker & ~piece).sum() > 0.1 * thicker.sum():
         return False  # the same piece, or another one
-    if (height[lost] <= 3 * thicker_top).mean() < 0.8:
+    if _near_layer(height[lost], thicker_top).mean() < 0.8:
         return False  # a part of the object came off, not its foot's ground
     extent = float(np.percentile(height[thicker], 99)) - thicker_top
     rate = lost.sum() / (thicker_top - top)
