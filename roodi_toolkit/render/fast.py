@@ -41,9 +41,9 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 
 TILE_SIZE = 16
-"""Tile edge in pixels (as gsplat and 3DGS). The compositing works on 4x4 blocks, each walking its tile's run and
-skipping the Gaussians that miss it: smaller tiles skip less but hold more (tile, Gaussian) pairs (binning work and
-the backward's per-pair gradients: 4-pixel tiles have 3.4x the pairs of 16-pixel ones at 500k Gaussians, 800x800)."""
+"""Tile edge in pixels (as gsplat and 3DGS). The compositing works on 4x4 blocks, each walking the entries of its
+tile's run that touch it: smaller tiles hold more (tile, Gaussian) pairs (binning work and the backward's per-pair
+gradients: 4-pixel tiles have 3.4x the pairs of 16-pixel ones at 500k Gaussians, 800x800)."""
 
 
 def workers() -> int:

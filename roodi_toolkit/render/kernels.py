@@ -9,11 +9,14 @@ torch function and the tests compare both with the dense reference.
 Layout: the image is cut into square tiles (1 to 64 pixels wide); each tile holds the depth-ordered run of the
 Gaussians whose footprint touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every
 ``workers``-th busy tile (interleaved, so the busy parts of an image are shared out evenly) and composites it in 4x4
-blocks of pixels: each block walks the tile's run front to back (forward) or back to front (backward), skipping the
-Gaussians whose footprint box misses it, and evaluates each Gaussian on its 16 pixels at once (masked to the box).
-The 16 pixels' state (transmittance, walked count, channel sums) lives in stack arrays (:mod:`.lanes`) that LLVM
-keeps in vector registers, and the per-Gaussian loop over the 16 pixels has no branches (selects), so it compiles to
-a few vector instructions. Blocks at a tile's or the image's edge have their outside pixels stopped from the start.
+blocks of pixels: as the tile's run is copied, each entry is appended to the lists of the blocks its footprint box
+touches (:func:`~.lanes._pack_blocks`); each block walks its list front to back (forward) or back to front
+(backward) and evaluates each Gaussian on its 16 pixels at once (masked to the box). The 16 pixels' state
+(transmittance, walked count, channel sums) lives in stack arrays (:mod:`.lanes`) that LLVM keeps in vector
+registers, and the per-Gaussian loop over the 16 pixels has no branches (selects) and no 64-bit counter, and its
+length is hidden from the compiler (``nq``): LLVM then vectorises it as a loop, eight float32 lanes at a time, where
+a loop of a known 16 was unrolled and re-vectorised four lanes at a time with spills (found in the assembly).
+Blocks at a tile's or the image's edge have their outside pixels stopped from the start.
 Results do not depend on timing or on the number of workers: each tile is written by one worker, and the backward
 writes one gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after
 block, which :func:`reduce_pairs` adds per Gaussian in pair order. A pixel's result does not depend on the tile size
@@ -35,14 +38,15 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_sum, _lanes, _longest, _pack,
-                    _pack_colours, _stack_empty, _start_block, _tile_box)
+from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_max, _lane_sum, _lanes, _longest,
+                    _pack, _pack_blocks, _pack_colours, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 5
+LANES_REVISION = 6
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
-would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds)."""
+would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
+blocks' own lists, the lane maximum)."""
 
 
 @nb.njit(cache=True, nogil=True)
@@ -142,12 +146,13 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
     caller initialises ``out`` to 0, ``t_final`` to 1, ``last`` to 0 and ``top`` to -1). ``groups``:
     :func:`channel_groups` of ``C``.
 
-    Each block walks the tile's run, skipping the Gaussians whose footprint box misses it, with its 16 pixels' state
-    (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector registers;
-    every Gaussian is evaluated on all 16 pixels without branches, and counts only at those inside its footprint box
-    (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A stopped pixel keeps
-    its transmittance negated. The tile's Gaussians are copied next to each other as the first block reaches them, so
-    the other blocks read them in order.
+    Each block walks the entries of the tile's run whose footprint box touches it, in run order, with its 16 pixels'
+    state (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector
+    registers; every Gaussian is evaluated on all 16 pixels without branches, and counts only at those inside its
+    footprint box (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A
+    stopped pixel keeps its transmittance negated. The tile's Gaussians are copied next to each other, 64 at a time,
+    as the first block that has walked all its entries so far needs more, and each copied entry is appended to the
+    lists of the blocks it touches; the other blocks read them in order.
     """
     C = colors.shape[1]
     NC = 4 * len(groups)
@@ -172,12 +177,15 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
         best = _lanes(kc)
         L = _lanes(gid)
         bid = _lanes(gid)
+        blist = np.empty((nbx * nbx, cap), np.int32)
+        bcount = np.zeros(nbx * nbx, np.int64)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s = starts[t]
             n = counts[t]
             packed = 0
+            bcount[:] = 0
             for blk in range(nbx * nbx):
                 bx = x_lo + 4 * (blk % nbx)
                 by = y_lo + 4 * (blk // nbx)
@@ -190,20 +198,25 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     bid[q] = -1
                     for i in range(NC):
                         acc[i, q] = zero
-                for jj in range(n):
-                    if jj == packed:
-                        packed = _pack(lists, s, jj, min(n, jj + 64), bounds, means2d, conics, opacities, geo, box,
+                p = 0
+                while True:
+                    if p == bcount[blk]:
+                        if packed == n:
+                            break
+                        lo = packed
+                        packed = _pack(lists, s, lo, min(n, lo + 64), bounds, means2d, conics, opacities, geo, box,
                                        gid)
-                        _pack_colours(lists, s, jj, packed, colors, colp)
-                    if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
+                        _pack_colours(lists, s, lo, packed, colors, colp)
+                        _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
                         continue
+                    jj = blist[blk, p]
+                    p += 1
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     ha = half * a
                     hc = half * c
                     g = gid[jj]
                     walked = np.int32(jj + 1)
-                    live = 0
-                    for q in range(LANES):  # the block's 16 pixels: vectorised, no branches
+                    for q in range(nq):  # the block's 16 pixels: vectorised, no branches
                         alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
                         Tp = T[q]
                         inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
@@ -218,12 +231,11 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         better = weight > best[q]
                         best[q] = weight if better else best[q]
                         bid[q] = g if better else bid[q]
-                        live += 1 if T[q] > zero else 0
                     for i in range(NC):
                         ci = colp[jj, i]
                         for q in range(nq):  # a channel's 16 pixels: one vector
                             acc[i, q] += W[q] * ci
-                    if live == 0:
+                    if _lane_max(T) <= zero:
                         break
                 for q in range(LANES):
                     px = bx + (q & 3)
@@ -294,11 +306,14 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         GEO = _lanes(kc)
         VG = nb.carray(_stack_empty(96, kc.dtype), (6, LANES))  # 6 gradients x 16 pixels
         L = _lanes(gid)
+        blist = np.empty((nbx * nbx, cap), np.int32)
+        bcount = np.zeros(nbx * nbx, np.int64)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s = starts[t]
             packed = 0
+            bcount[:] = 0
             for blk in range(nbx * nbx):
                 bx = x_lo + 4 * (blk % nbx)
                 by = y_lo + 4 * (blk // nbx)
@@ -332,14 +347,16 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                     lo = packed
                     packed = _pack(lists, s, lo, deepest, bounds, means2d, conics, opacities, geo, box, gid)
                     _pack_colours(lists, s, lo, packed, colors, colp)
-                for jj in range(deepest - 1, -1, -1):
-                    if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
-                        continue
+                    _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
+                p = bcount[blk]
+                while p > 0 and blist[blk, p - 1] >= deepest:
+                    p -= 1
+                for pp in range(p - 1, -1, -1):
+                    jj = blist[blk, pp]
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     ha = half * a
                     hc = half * c
-                    active = 0
-                    for q in range(LANES):  # as the forward, backwards: recover T_i, the weight, c_i . g
+                    for q in range(nq):  # as the forward, backwards: recover T_i, the weight, c_i . g
                         dx = pxc[q] - mx
                         dy = pyc[q] - my
                         gauss = _gauss(dx, dy, ha, b, hc, kt)
@@ -359,8 +376,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                         A[q] = alpha
                         OM[q] = one_minus
                         TI[q] = Ti
-                        active += 1 if act else 0
-                    if active == 0:
+                    if _lane_max(Wt) <= zero:  # no pixel blended it (a weight is positive where it blended)
                         continue
                     j = s + jj
                     for i in range(NC):  # each channel's 16 pixels: one vector
@@ -374,7 +390,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                             pair_colors[j, i] += value
                     if not geometry:  # colours or features alone: no need for the alpha's gradient
                         continue
-                    for q in range(LANES):  # d_alpha, S_i for the next Gaussian in front, the pair's gradients
+                    for q in range(nq):  # d_alpha, S_i for the next Gaussian in front, the pair's gradients
                         cg = CG[q]
                         d_alpha = TI[q] * cg - (S[q] + tail[q]) / OM[q]
                         S[q] += Wt[q] * cg
@@ -412,11 +428,14 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
     kc = _constants(opacities)
     kt = _constant_tuple(kc)
     a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
+    nq = LANES if tile > 0 else 0  # 16, unknown to the compiler (see composite_forward)
     cap = _longest(busy, counts)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
         gid = np.empty(cap, np.int32)
+        blist = np.empty((nbx * nbx, cap), np.int32)
+        bcount = np.zeros(nbx * nbx, np.int64)
         pxc = _lanes(kc)
         pyc = _lanes(kc)
         T = _lanes(kc)
@@ -426,23 +445,30 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
             x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s, n = starts[t], counts[t]
             packed = n_pairs = 0
+            base = offsets[k] if fill else 0  # where this tile's pairs go (read once: other workers write offsets)
+            bcount[:] = 0
             for blk in range(nbx * nbx):
                 bx = x_lo + 4 * (blk % nbx)
                 by = y_lo + 4 * (blk // nbx)
                 if bx > x_hi or by > y_hi:
                     continue
                 _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one)
-                for jj in range(n):
-                    if jj == packed:
-                        packed = _pack(lists, s, jj, min(n, jj + 64), bounds, means2d, conics, opacities, geo, box,
+                p = 0
+                while True:
+                    if p == bcount[blk]:
+                        if packed == n:
+                            break
+                        lo = packed
+                        packed = _pack(lists, s, lo, min(n, lo + 64), bounds, means2d, conics, opacities, geo, box,
                                        gid)
-                    if box[jj, 0] > bx + 3 or box[jj, 1] < bx or box[jj, 2] > by + 3 or box[jj, 3] < by:
+                        _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
                         continue
+                    jj = blist[blk, p]
+                    p += 1
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     ha = half * a
                     hc = half * c
-                    blends = live = 0
-                    for q in range(LANES):  # as the forward
+                    for q in range(nq):  # as the forward
                         alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
                         Tp = T[q]
                         inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
@@ -452,17 +478,17 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                         stop = ok & (tn < t_min)
                         W[q] = alpha * Tp if blend else zero
                         T[q] = tn if blend else (-Tp if stop else Tp)
-                        blends += 1 if blend else 0
-                        live += 1 if T[q] > zero else 0
-                    at = offsets[k] + n_pairs
-                    for q in range(LANES if blends and fill else 0):
-                        if W[q] > zero:  # blended (alpha >= 1/255 and T >= 1e-4: a positive weight)
-                            pixels[at] = (by + (q >> 2)) * width + bx + (q & 3)
-                            ids[at] = gid[jj]
-                            weights[at] = W[q]
-                            at += 1
-                    n_pairs += blends
-                    if live == 0:
+                    if _lane_max(W) > zero:  # blended somewhere (alpha >= 1/255 and T >= 1e-4: a positive weight)
+                        at = base + n_pairs
+                        for q in range(LANES):
+                            if W[q] > zero:
+                                if fill:
+                                    pixels[at] = (by + (q >> 2)) * width + bx + (q & 3)
+                                    ids[at] = gid[jj]
+                                    weights[at] = W[q]
+                                at += 1
+                        n_pairs = at - base
+                    if _lane_max(T) <= zero:
                         break
             if not fill:
                 offsets[k + 1] = n_pairs
