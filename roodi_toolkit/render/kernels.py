@@ -39,7 +39,7 @@ import numba as nb
 import numpy as np
 
 from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_max, _lane_sum, _lanes, _longest,
-                    _pack, _pack_blocks, _pack_colours, _stack_empty, _start_block, _tile_box)
+                    _pack, _pack_blocks, _pack_colours, _records, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
 LANES_REVISION = 6
@@ -164,6 +164,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
     kt = _constant_tuple(kc)
     a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
     cap = _longest(busy, counts)
+    rec = _records(bounds, means2d, conics, opacities, colors, NC if NC == 4 else 0, kc)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
@@ -204,9 +205,8 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         if packed == n:
                             break
                         lo = packed
-                        packed = _pack(lists, s, lo, min(n, lo + 64), bounds, means2d, conics, opacities, geo, box,
-                                       gid)
-                        _pack_colours(lists, s, lo, packed, colors, colp)
+                        packed = _pack(lists, s, lo, min(n, lo + 64), rec, geo, box, gid)
+                        _pack_colours(lists, s, lo, packed, colors, rec, colp)
                         _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
                         continue
                     jj = blist[blk, p]
@@ -283,6 +283,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
     a_min, a_max, half, one, zero = kc[0], kc[1], kc[5], kc[6], kc[7]
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
     cap = _longest(busy, counts)
+    rec = _records(bounds, means2d, conics, opacities, colors, NC if NC == 4 else 0, kc)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
@@ -345,8 +346,8 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                         L[q] = 0
                 if deepest > packed:
                     lo = packed
-                    packed = _pack(lists, s, lo, deepest, bounds, means2d, conics, opacities, geo, box, gid)
-                    _pack_colours(lists, s, lo, packed, colors, colp)
+                    packed = _pack(lists, s, lo, deepest, rec, geo, box, gid)
+                    _pack_colours(lists, s, lo, packed, colors, rec, colp)
                     _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
                 p = bcount[blk]
                 while p > 0 and blist[blk, p - 1] >= deepest:
@@ -430,6 +431,8 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
     a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler (see composite_forward)
     cap = _longest(busy, counts)
+    none = np.empty((1, 1), kc.dtype)  # no channels
+    rec = _records(bounds, means2d, conics, opacities, none, 0, kc)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
@@ -459,8 +462,7 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                         if packed == n:
                             break
                         lo = packed
-                        packed = _pack(lists, s, lo, min(n, lo + 64), bounds, means2d, conics, opacities, geo, box,
-                                       gid)
+                        packed = _pack(lists, s, lo, min(n, lo + 64), rec, geo, box, gid)
                         _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
                         continue
                     jj = blist[blk, p]

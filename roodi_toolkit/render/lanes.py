@@ -234,36 +234,66 @@ def _longest(busy, counts):  # pragma: no cover - compiled
 
 
 @nb.njit(inline="always")
-def _pack(lists, s, lo, hi, bounds, means2d, conics, opacities, geo, box, gid):  # pragma: no cover - compiled
-    """Copy entries ``lo:hi`` of the tile's run (from ``lists[s]``) next to each other: (mx, my, conic a, b, c,
-    opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo`` [n, 10], the footprint box in ``box`` [n, 4], the
-    id in ``gid`` [n]; every 4x4 block of the tile then reads them in order. Returns ``hi``."""
+def _pack(lists, s, lo, hi, rec, geo, box, gid):  # pragma: no cover - compiled
+    """Copy entries ``lo:hi`` of the tile's run (from ``lists[s]``) next to each other from their records
+    (:func:`_records`): (mx, my, conic a, b, c, opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo``
+    [n, 10], the footprint box in ``box`` [n, 4], the id in ``gid`` [n]; every 4x4 block of the tile then reads them
+    in order. Returns ``hi``."""
     for jj in range(lo, hi):
         g = lists[s + jj]
         gid[jj] = g
-        geo[jj, 0] = means2d[g, 0]
-        geo[jj, 1] = means2d[g, 1]
-        geo[jj, 2] = conics[g, 0]
-        geo[jj, 3] = conics[g, 1]
-        geo[jj, 4] = conics[g, 2]
-        geo[jj, 5] = opacities[g]
-        geo[jj, 6] = bounds[g, 0]  # the box's edges as pixel-centre bounds: x0 < px + 0.5 < x1 + 1
-        geo[jj, 7] = bounds[g, 1] + 1
-        geo[jj, 8] = bounds[g, 2]
-        geo[jj, 9] = bounds[g, 3] + 1
-        for i in range(4):
-            box[jj, i] = bounds[g, i]
+        for i in range(10):
+            geo[jj, i] = rec[g, i]
+        box[jj, 0] = np.int32(rec[g, 6])
+        box[jj, 1] = np.int32(rec[g, 7]) - 1
+        box[jj, 2] = np.int32(rec[g, 8])
+        box[jj, 3] = np.int32(rec[g, 9]) - 1
     return hi
 
 
 @nb.njit(inline="always")
-def _pack_colours(lists, s, lo, hi, colors, colp):  # pragma: no cover - compiled
-    """Copy the channels of entries ``lo:hi`` of the tile's run into ``colp`` [n, 4 G], zero beyond ``C``."""
+def _records(bounds, means2d, conics, opacities, colors, nc, dtype_of):  # pragma: no cover - compiled
+    """Return each Gaussian's record ``[N, 16]`` in ``dtype_of``'s dtype (64 bytes in float32): mx, my, conic a, b, c,
+    opacity, the box's x0, x1 + 1, y0, y1 + 1, then its first ``nc`` channels (``nc`` at most 4; zero past
+    ``colors``' own). A run's copy (:func:`_pack`, :func:`_pack_colours`) then gathers one cache line a Gaussian
+    where it gathered one from each of five arrays (the compositing 1.12-1.19x forward and 1.17-1.25x backward at
+    500k Gaussians, 800x800, rgb + depth). More channels (16 features) stay in their own array: copied into 128-byte
+    records they made the forward 0.87x."""
+    n = means2d.shape[0]
     C = colors.shape[1]
-    for jj in range(lo, hi):
-        g = lists[s + jj]
-        for ch in range(colp.shape[1]):
-            colp[jj, ch] = colors[g, ch] if ch < C else 0.0
+    rec = np.empty((n, 16), dtype_of.dtype)
+    for g in nb.prange(n):
+        rec[g, 0] = means2d[g, 0]
+        rec[g, 1] = means2d[g, 1]
+        rec[g, 2] = conics[g, 0]
+        rec[g, 3] = conics[g, 1]
+        rec[g, 4] = conics[g, 2]
+        rec[g, 5] = opacities[g]
+        rec[g, 6] = bounds[g, 0]  # the box's edges as pixel-centre bounds: x0 < px + 0.5 < x1 + 1
+        rec[g, 7] = bounds[g, 1] + 1
+        rec[g, 8] = bounds[g, 2]
+        rec[g, 9] = bounds[g, 3] + 1
+        for ch in range(nc):
+            rec[g, 10 + ch] = colors[g, ch] if ch < C else 0.0
+    return rec
+
+
+@nb.njit(inline="always")
+def _pack_colours(lists, s, lo, hi, colors, rec, colp):  # pragma: no cover - compiled
+    """Copy the channels of entries ``lo:hi`` of the tile's run into ``colp`` [n, 4 G], zero beyond ``C``: from the
+    records (:func:`_records`) where they hold them (four channels), else from ``colors``."""
+    C = colors.shape[1]
+    NC = colp.shape[1]
+    if NC == 4:
+        for jj in range(lo, hi):
+            g = lists[s + jj]
+            for ch in range(4):
+                colp[jj, ch] = rec[g, 10 + ch]
+    else:
+        for jj in range(lo, hi):
+            g = lists[s + jj]
+            for ch in range(NC):
+                colp[jj, ch] = colors[g, ch] if ch < C else 0.0
 
 
 @nb.njit(inline="always")
