@@ -42,11 +42,11 @@ from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane
                     _pack, _pack_blocks, _pack_colours, _records, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 6
+LANES_REVISION = 7
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
-blocks' own lists, the lane maximum)."""
+blocks' own lists, the lane maximum; 7: one record a Gaussian)."""
 
 
 @nb.njit(cache=True, nogil=True)
