@@ -39,14 +39,15 @@ import numba as nb
 import numpy as np
 
 from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_max, _lane_sum, _lanes, _longest,
-                    _pack, _pack_blocks, _pack_colours, _records, _stack_empty, _start_block, _tile_box)
+                    _next_entry, _pack, _pack_blocks, _pack_colours, _records, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 7
+LANES_REVISION = 8
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
-blocks' own lists, the lane maximum; 7: one record a Gaussian)."""
+blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the blocks' walk
+in one helper)."""
 
 
 @nb.njit(cache=True, nogil=True)
@@ -201,15 +202,10 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         acc[i, q] = zero
                 p = 0
                 while True:
-                    if p == bcount[blk]:
-                        if packed == n:
-                            break
-                        lo = packed
-                        packed = _pack(lists, s, lo, min(n, lo + 64), rec, geo, box, gid)
-                        _pack_colours(lists, s, lo, packed, colors, rec, colp)
-                        _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
-                        continue
-                    jj = blist[blk, p]
+                    jj, packed = _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
+                                             y_lo, nbx, blist, bcount)
+                    if jj < 0:
+                        break
                     p += 1
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     ha = half * a
@@ -432,6 +428,7 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler (see composite_forward)
     cap = _longest(busy, counts)
     none = np.empty((1, 1), kc.dtype)  # no channels
+    nocolp = np.empty((1, 0), kc.dtype)
     rec = _records(bounds, means2d, conics, opacities, none, 0, kc)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
@@ -458,14 +455,10 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                 _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one)
                 p = 0
                 while True:
-                    if p == bcount[blk]:
-                        if packed == n:
-                            break
-                        lo = packed
-                        packed = _pack(lists, s, lo, min(n, lo + 64), rec, geo, box, gid)
-                        _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
-                        continue
-                    jj = blist[blk, p]
+                    jj, packed = _next_entry(blk, p, packed, lists, s, n, rec, none, geo, box, gid, nocolp, x_lo,
+                                             y_lo, nbx, blist, bcount)
+                    if jj < 0:
+                        break
                     p += 1
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     ha = half * a

@@ -315,6 +315,22 @@ def _pack_blocks(lo, hi, box, x_lo, y_lo, nbx, blist, bcount):  # pragma: no cov
                 bcount[k] += 1
 
 
+@nb.njit(inline="always")
+def _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo, y_lo, nbx, blist,
+                bcount):  # pragma: no cover - compiled
+    """Return (the run index of block ``blk``'s ``p``-th entry, or -1 past the run's end; how much of the run is
+    copied): a block walking front to back copies the next 64 entries of the run (:func:`_pack`, their channels
+    when ``colp`` has columns, and :func:`_pack_blocks`) when it has walked all of its own so far."""
+    while p == bcount[blk]:
+        if packed == n:
+            return -1, packed
+        lo = packed
+        packed = _pack(lists, s, lo, min(n, lo + 64), rec, geo, box, gid)
+        _pack_colours(lists, s, lo, packed, colors, rec, colp)
+        _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
+    return blist[blk, p], packed
+
+
 def channel_groups(channels: int) -> tuple:
     """The ``groups`` argument of the compositing kernels for ``channels`` channels: one entry per group of 4
     channels, a power of two of them (the kernels hold 4 channels of a block's 16 pixels per group in registers and
