@@ -203,6 +203,25 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
     return parse_json(text, p, what)
 
 
+def file_stems(names: Sequence[str | None]) -> list[str]:
+    """Return a file stem for each view name, unique among them: characters other than letters, digits and ``-_.``
+    become ``_``, a missing name ``view_###`` (its index), and a name met before gains its index (a Blender set's
+    ``test/r_0`` is ``r_0`` as its ``train/r_0`` is, so their files would overwrite each other).
+
+    Example:
+        >>> file_stems(["r_0", "r_1", "r_0", None, "cam/a b"])
+        ['r_0', 'r_1', 'r_0_002', 'view_003', 'cam_a_b']
+    """
+    stems: list[str] = []
+    seen: set[str] = set()
+    for i, name in enumerate(names):
+        base = "".join(c if c.isalnum() or c in "-_." else "_" for c in (name or f"view_{i:03d}"))
+        stem = base if base not in seen else f"{base}_{i:03d}"
+        seen.add(stem)
+        stems.append(stem)
+    return stems
+
+
 def pil_image() -> Any:
     """Return Pillow's ``PIL.Image`` module (its readers and writers of PNG, JPEG and WebP)."""
     from PIL import Image  # lazy: prune, info and convert of splat files never read or write an image

@@ -311,26 +311,29 @@ class FilesSegmenter(Segmenter):
                                    "folder of mask PNGs named like the views, or use --segmenter click")
             masks = dataset.masks.clone()
             return ViewMasks(masks, dataset.names, "instances", int(masks.max()) + 1, source="dataset masks")
-        return _given_masks(self.masks, dataset, self.source or "the given masks")
+        return given_masks(self.masks, dataset, self.source or "the given masks")
 
 
-def _given_masks(given: Mapping[str, np.ndarray], dataset: Dataset, source: str) -> ViewMasks:
-    """Return the masks keyed by view name as the dataset's :class:`ViewMasks` (binary or instance ids).
+def given_masks(given: Mapping[str, np.ndarray], dataset: Dataset, source: str, *,
+                keys: Sequence[str] | None = None) -> ViewMasks:
+    """Return the masks keyed by view name (or by ``keys``, one a view of ``dataset``) as the dataset's
+    :class:`ViewMasks` (binary or instance ids).
 
     Raises:
         DatasetError: a view without a mask (listed), colour or mis-sized masks.
     """
     names = dataset.names
-    missing = [n for n in names if n not in given]
+    keys = names if keys is None else list(keys)
+    missing = [k for k in keys if k not in given]
     if missing:
         shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
-        raise DatasetError(f"{source}: no mask for {len(missing)} of {len(names)} views: {shown}")
+        raise DatasetError(f"{source}: no mask for {len(missing)} of {len(keys)} views: {shown}")
     # a byte a pixel while the ids fit (every 8-bit mask): 300 views of 800 px are 192 MB, not the 1.5 GB of
     # int64 and the copies a whole-array unique and a cast made of it
     out = np.zeros((len(names), dataset.height, dataset.width), dtype=np.uint8)
     values: set[int] = set()
-    for i, n in enumerate(names):
-        m = mask_from_array(given[n], (dataset.width, dataset.height), f"{source}: the mask of view {n}")
+    for i, (n, k) in enumerate(zip(names, keys)):
+        m = mask_from_array(given[k], (dataset.width, dataset.height), f"{source}: the mask of view {n}")
         ids = np.unique(m)
         if out.dtype == np.uint8 and (ids.min() < 0 or ids.max() > 255):
             out = out.astype(np.int64)  # ids of a 16-bit mask

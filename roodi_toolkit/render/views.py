@@ -18,7 +18,7 @@ import torch
 
 from ..cameras import Camera, orbit_cameras
 from ..errors import CloudError, ConfigError
-from ..io.files import write_image, write_json
+from ..io.files import file_stems, write_image, write_json
 from ..gaussians import GaussianCloud
 from ..progress import ProgressFactory, null_progress
 from ..params import GaussianParams
@@ -176,7 +176,7 @@ def render_views(cloud: GaussianCloud, cameras: Sequence[Camera], out_dir: str |
     out = Path(out_dir)
     renderer = resolve_renderer(renderer)
     params = GaussianParams.from_cloud(cloud)
-    names = _view_names(cameras)
+    names = file_stems([cam.name for cam in cameras])
     encoding = depth_encoding_for(cloud, cameras, min_alpha) if what == "depth" else None
     record: dict = {"what": what, "renderer": type(renderer).__name__, "background": list(background),
                     "gaussians": len(cloud), **(extra or {}), "views": []}
@@ -205,13 +205,3 @@ def render_views(cloud: GaussianCloud, cameras: Sequence[Camera], out_dir: str |
             bar.update(1)
     write_json(record, out / "render.json")
     return record
-
-
-def _view_names(cameras: Sequence[Camera]) -> list[str]:
-    names, seen = [], set()
-    for i, cam in enumerate(cameras):
-        base = "".join(c if c.isalnum() or c in "-_." else "_" for c in (cam.name or f"view_{i:03d}"))
-        name = base if base not in seen else f"{base}_{i:03d}"
-        seen.add(name)
-        names.append(name)
-    return names

@@ -51,7 +51,7 @@ def save_distilled(out_dir: str | Path, distilled: DistilledScene, model_ply: st
     return write_distillation(
         out_dir, model_ply=Path(model_ply), features=cloud_features(distilled.cloud).numpy(),
         classifier_state=distilled.classifier.state_dict(), record={**distilled.summary, **(record or {})},
-        masks={name: m.astype(dtype) for name, m in zip(masks.names, masks.masks.numpy())},
+        masks={stem: m.astype(dtype) for stem, m in zip(files.file_stems(masks.names), masks.masks.numpy())},
         picture=distilled.picture)
 
 

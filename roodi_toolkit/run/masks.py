@@ -8,9 +8,10 @@ import os
 from typing import Any
 
 from ..io.dataset import Dataset
+from ..io.files import file_stems
 from ..io.masks import read_mask_folder
 from ..pipeline.resolution import working_factor
-from ..pipeline.segment import FilesSegmenter, SegmentPrompt, ViewMasks
+from ..pipeline.segment import SegmentPrompt, ViewMasks, given_masks
 from ..progress import ProgressFactory, null_progress
 
 
@@ -37,10 +38,13 @@ def options_with_masks(segmenter: str, options: dict[str, Any] | None, prompt: S
 
 def folder_masks(folder: str | os.PathLike, dataset: Dataset, *,
                  progress: ProgressFactory = null_progress) -> ViewMasks:
-    """Return the masks of a folder of PNGs named like ``dataset``'s views (binary or instance ids), at its size.
+    """Return the masks of a distillation's ``object_masks/`` (binary or instance ids) at ``dataset``'s size: one PNG
+    a view, named by :func:`roodi_toolkit.io.files.file_stems` of the views' names as the distillation wrote them
+    (unique where a name repeats, as a Blender set's train and test ``r_0`` do).
 
     Raises:
         DatasetError: no such folder, missing files (listed), colour or mis-sized masks (the file named).
     """
-    masks = read_mask_folder(folder, dataset.names, (dataset.width, dataset.height), progress=progress)
-    return FilesSegmenter(masks, source=str(folder)).segment(dataset)
+    stems = file_stems(dataset.names)
+    masks = read_mask_folder(folder, stems, (dataset.width, dataset.height), progress=progress)
+    return given_masks(masks, dataset, str(folder), keys=stems)

@@ -79,3 +79,33 @@ def test_a_folder_of_the_datasets_masks_gives_the_working_datasets_masks(tmp_pat
 def test_folder_masks_reads_instance_ids(tmp_path):
     masks = folder_masks(_folder(tmp_path, values=(0, 2)), _dataset())
     assert masks.kind == "instances" and masks.present_ids() == [2] and masks.source.endswith("masks")
+
+
+def test_a_distillations_masks_keep_each_view_where_train_and_test_share_names(tmp_path):
+    """A Blender set's ``train/r_0`` and ``test/r_0`` are both ``r_0``: the distillation writes each view's mask under
+    a stem of its own, and the extraction reads every view its own mask back (the test views' masks overwrote the
+    training views' of the same name, and occlusion and fine-tuning took them for the training views)."""
+    from roodi_toolkit.io.files import file_stems
+    from roodi_toolkit.run.distill import save_distilled
+    from roodi_toolkit.io.ply import write_ply
+    from roodi_toolkit.pipeline.distill import DistilledScene, ObjectClassifier, with_features
+    from roodi_toolkit.pipeline.segment import ViewMasks
+
+    from ..conftest import make_cloud
+
+    names = ["r_0", "r_1", "r_0", "r_1"]  # train, then test
+    ds = SimpleNamespace(names=names, width=4, height=3, masks=None)
+    masks = torch.zeros(4, 3, 4, dtype=torch.uint8)
+    for i in range(4):
+        masks[i, i % 3, i] = 1
+    cloud = make_cloud(5)
+    ply = tmp_path / "scene.ply"
+    write_ply(cloud, ply)
+    distilled = DistilledScene(with_features(cloud, np.zeros((5, 2), np.float32)),
+                               ObjectClassifier(torch.zeros(2, 2), torch.zeros(2)), ViewMasks(masks, names, "binary", 2),
+                               None, {})
+    save_distilled(tmp_path / "dist", distilled, ply)
+    assert sorted(p.name for p in (tmp_path / "dist" / "object_masks").iterdir()) == [
+        f"{s}.png" for s in sorted(file_stems(names))]
+    back = folder_masks(tmp_path / "dist" / "object_masks", ds)
+    assert torch.equal(back.masks, masks)
