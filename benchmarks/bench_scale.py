@@ -163,11 +163,12 @@ def object_scores(cloud, truth_cloud, cameras) -> tuple[float, float]:
 
 
 def run(scene: Path, view: str, click: tuple[int, int] | None, out: Path, renderer: str | None = None,
-        max_pixels: int | None = None, vote_views: int | None = None) -> dict:
+        max_pixels: int | None = None, vote_views: int | None = None, distill_views: int | None = None) -> dict:
     """Run the extraction on one built scene (with the registered ``renderer``, default the built-in one); return
     times, peaks and IoUs. The IoUs are scored with the built-in renderer whatever ``renderer`` is. ``max_pixels``
     and ``vote_views`` change the working size of segmentation and distillation and the click's number of voting
-    views (the defaults: 512x512 and 32), to measure what the defaults lose against full size and all views."""
+    views (the defaults: 512x512 and 32), and ``distill_views`` the training views distillation learns from (default
+    32, 0: all), to measure what the defaults lose against full size and all views."""
     sys.path.insert(0, str(ROOT))
     from roodi_toolkit.io.dataset import load_cameras
     from roodi_toolkit.io.model import find_model
@@ -183,7 +184,8 @@ def run(scene: Path, view: str, click: tuple[int, int] | None, out: Path, render
     x, y = click if click is not None else default_click(scene, view)
     instrument(sampler, record)
     config = ExtractConfig(segmenter="click", prompt=SegmentPrompt((Click(view, x + 0.5, y + 0.5),)),
-                           distill=DistillConfig() if max_pixels is None else DistillConfig(max_pixels=max_pixels),
+                           distill=DistillConfig(**{k: v for k, v in (("max_pixels", max_pixels),
+                                                                      ("max_views", distill_views)) if v is not None}),
                            segmenter_options={} if vote_views is None else {"vote_views": vote_views})
     t0 = time.perf_counter()
     with sampler.window(record, "total"):
@@ -252,6 +254,8 @@ def main() -> None:
     r.add_argument("--max-pixels", type=int, default=None, help="working size of segmentation and distillation "
                    "(default 512x512 = 262144; the photos' own size: full resolution)")
     r.add_argument("--vote-views", type=int, default=None, help="the click's voting views (default 32)")
+    r.add_argument("--distill-views", type=int, default=None,
+                   help="the training views distillation learns from (default 32 spread round the scene; 0: all)")
     r.add_argument("--no-support", action="store_true",
                    help="the click without the support plane of its clicked region (as before it)")
     g = sub.add_parser("grid")
@@ -269,7 +273,7 @@ def main() -> None:
         click = tuple(int(v) for v in args.click.split(",")) if args.click else None
         out = args.out or args.scene / "out"
         res = run(args.scene, args.view, click, out, renderer=args.renderer, max_pixels=args.max_pixels,
-                  vote_views=args.vote_views)
+                  vote_views=args.vote_views, distill_views=args.distill_views)
         print(json.dumps(res) if args.json else json.dumps(res, indent=1))
     else:
         grid(args)

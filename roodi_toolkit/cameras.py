@@ -250,3 +250,32 @@ def orbit_cameras(center: Sequence[float], radius: float, n: int, *, elevation_d
         eye = center + radius * direction
         cams.append(Camera(look_at(eye, center, up_v), K, width, height, near, far, name=f"orbit_{i:03d}"))
     return cams
+
+
+def spread_cameras(cameras: Sequence[Camera], k: int) -> list[int]:
+    """Return the indices (ascending) of ``k`` of ``cameras`` spread round the scene: farthest-point sampling from the
+    first camera over each camera's centre (relative to their mean, in units of their mean distance from it) and
+    viewing direction (a unit vector), so that neither a capture's scale nor the order its photos were taken in
+    decides which are chosen. All of them when ``k >= len(cameras)``.
+
+    Example:
+        >>> ring = orbit_cameras((0, 0, 0), 3.0, 8)
+        >>> spread_cameras(ring, 4)
+        [0, 2, 4, 6]
+    """
+    n = len(cameras)
+    if k >= n:
+        return list(range(n))
+    centres = np.stack([c.center for c in cameras])
+    centres = centres - centres.mean(axis=0)
+    centres /= max(float(np.linalg.norm(centres, axis=1).mean()), 1e-12)
+    points = np.concatenate([centres, np.stack([c.world_to_camera[2, :3] for c in cameras])], axis=1)
+    chosen = [0]
+    gap = np.linalg.norm(points - points[0], axis=1)
+    gap[0] = -1.0
+    while len(chosen) < max(int(k), 1):
+        i = int(np.argmax(gap))  # never one already chosen, even among cameras at the same pose
+        chosen.append(i)
+        gap = np.minimum(gap, np.linalg.norm(points - points[i], axis=1))
+        gap[chosen] = -1.0
+    return sorted(chosen)

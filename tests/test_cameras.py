@@ -69,3 +69,18 @@ def test_camera_validation():
         Camera(np.eye(4), np.eye(3), 10, 10, near=2, far=1)
     with pytest.raises(ConfigError, match="NaN"):
         Camera(np.full((4, 4), np.nan), np.eye(3), 10, 10)
+
+
+def test_spread_cameras_cover_the_scene_whatever_its_scale_and_order():
+    from roodi_toolkit.cameras import orbit_cameras, spread_cameras
+
+    ring = orbit_cameras((0, 0, 0), 3.0, 12)
+    assert spread_cameras(ring, 4) == [0, 3, 6, 9]
+    far = orbit_cameras((5, 5, 5), 300.0, 12)  # the same ring, elsewhere and 100 times larger
+    assert spread_cameras(far, 4) == [0, 3, 6, 9]
+    # a capture walked twice round: the second pass adds nothing a spread choice needs
+    twice = ring + orbit_cameras((0, 0, 0), 3.0, 12)
+    assert len(set(i % 12 for i in spread_cameras(twice, 6))) == 6
+    # cameras at one pose are still chosen once each; all of them when k is not below their number
+    same = [ring[0]] * 5
+    assert spread_cameras(same, 3) == [0, 1, 2] and spread_cameras(ring, 12) == list(range(12))

@@ -241,3 +241,17 @@ def test_generated_scene_end_to_end(tmp_path):
     sel = select_object(cloud, classifier, int(target["id"]))
     tds = load_dataset(data / target["path"])
     assert np.mean(alpha_iou(sel.cloud, tds.cameras, tds.alphas)) > 0.3
+
+
+def test_distillation_learns_from_views_spread_round_the_scene(scene):
+    """``max_views`` of the training views, chosen by :func:`spread_cameras` (the record names them); 0: all."""
+    from roodi_toolkit.cameras import spread_cameras
+
+    ds, cloud, _ = scene
+    masks = ViewMasks(ds.masks.clone(), ds.names, "instances", 3)
+    train = [v for v in range(len(ds)) if v not in HELD_OUT]
+    some = distill_object_features(cloud, ds, masks, DistillConfig(iterations=2, max_views=3), train_views=train)
+    assert some.train_views == [train[i] for i in spread_cameras([ds.cameras[v] for v in train], 3)]
+    assert len(set(some.train_views)) == 3 and set(some.train_views) <= set(train)
+    every = distill_object_features(cloud, ds, masks, DistillConfig(iterations=2, max_views=0), train_views=train)
+    assert every.train_views == train
