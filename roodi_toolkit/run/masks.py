@@ -5,8 +5,11 @@ to the segmenter in memory (:class:`roodi_toolkit.pipeline.segment.FilesSegmente
 from __future__ import annotations
 
 import os
+from collections import Counter
+from pathlib import Path
 from typing import Any
 
+from ..errors import DatasetError
 from ..io.dataset import Dataset
 from ..io.files import file_stems
 from ..io.masks import read_mask_folder
@@ -46,5 +49,12 @@ def folder_masks(folder: str | os.PathLike, dataset: Dataset, *,
         DatasetError: no such folder, missing files (listed), colour or mis-sized masks (the file named).
     """
     stems = file_stems(dataset.names)
+    repeated = {n for n, count in Counter(dataset.names).items() if count > 1}
+    older = [s for s, n in zip(stems, dataset.names) if n in repeated and s != n
+             and not (Path(folder) / f"{s}.png").is_file()]
+    if older and Path(folder).is_dir():  # written before a repeated view name had a file of its own
+        raise DatasetError(f"{folder}: no mask for {len(older)} views whose names repeat ({older[0]}, ...): it was "
+                           "written by an older roodi-toolkit, whose masks of repeated names overwrote each other; "
+                           "distil again (--overwrite)")
     masks = read_mask_folder(folder, stems, (dataset.width, dataset.height), progress=progress)
     return given_masks(masks, dataset, str(folder), keys=stems)

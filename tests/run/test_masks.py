@@ -109,3 +109,8 @@ def test_a_distillations_masks_keep_each_view_where_train_and_test_share_names(t
         f"{s}.png" for s in sorted(file_stems(names))]
     back = folder_masks(tmp_path / "dist" / "object_masks", ds)
     assert torch.equal(back.masks, masks)
+    # a folder written before (one file per name) is refused with what to do, not read with the wrong masks
+    for stem in set(file_stems(names)) - set(names):
+        (tmp_path / "dist" / "object_masks" / f"{stem}.png").unlink()
+    with pytest.raises(DatasetError, match="older roodi-toolkit.*distil again"):
+        folder_masks(tmp_path / "dist" / "object_masks", ds)
