@@ -79,9 +79,10 @@ class DistillConfig:
     # rounding)
     cache_weights: bool = setting(True, "Render features from cached compositing weights.", cli=False)
     # counted in bytes held: a map and its transpose in CSR with 32-bit indices, 16 bytes a (pixel, Gaussian) pair (a
-    # real scene's 400 px working view holds about 5-20M pairs, 80-320 MB), and never more than half of what the
-    # machine has available beyond the rest of the stage (budget.cache_bytes)
-    cache_mb: float = setting(2048, "Memory bound of the cached weights in MB.", low=0, cli=False)
+    # real scene's 400-500 px working view holds about 4-20M pairs, 60-320 MB), and never more than half of what the
+    # machine has available beyond the rest of the stage (budget.cache_bytes); 4 GB holds max_views' 32 views of
+    # 650k Gaussians at 400 px (2.0 GB) and of 1.5M at 500 px (110-140 MB a view)
+    cache_mb: float = setting(4096, "Memory bound of the cached weights in MB.", low=0, cli=False)
     # segmentation and distillation work on the views scaled down by the smallest integer factor that brings them to
     # this many pixels (pipeline/resolution.py); a selection needs masks of the object, not sharp ones (measured:
     # benchmarks/RESULTS.md, "Working resolution")
