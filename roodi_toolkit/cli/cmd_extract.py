@@ -34,8 +34,8 @@ EXAMPLE = """Example:
 
 
 EXTRACT_SETTINGS = Options("roodi_toolkit.pipeline.extract:ExtractConfig", only=(
-    "downscale", "train.iterations", "train.init", "distill.iterations", "distill.max_views", "threshold", "prune", "inpaint",
-    "prune_config.distance", "prune_config.rule", "single_stage", "inpainter"))
+    "downscale", "train.iterations", "train.init", "distill.iterations", "distill.max_views", "threshold", "prune",
+    "inpaint", "prune_config.distance", "prune_config.rule", "single_stage", "inpainter"))
 """The settings of ExtractConfig that extract and batch extract offer (--distance and --rule: StatisticalSettings')."""
 
 _OPTIONS = [

@@ -54,8 +54,8 @@ class DistillConfig:
     # paper: 500
     iterations: int = setting(500, "Distillation steps, one training view each.", low=1)
     # the masks are distilled from this many training views spread round the scene (cameras.spread_cameras), not
-    # all: a real scene's view holds 60-200 MB of compositing weights, so 90 views do not fit the cache and most
-    # steps would render; on a 650k-Gaussian scene with 90 views of 400 px, 32 spread views select the object at
+    # all: a real scene's view holds 60-140 MB of compositing weights, so its 90-300 views do not fit the cache and
+    # most steps would render; on a 650k-Gaussian scene with 90 views of 400 px, 32 spread views select the object at
     # IoU 0.983 where all 90 give 0.988, in 97 s instead of 153 s with all cached (benchmarks/RESULTS.md, "The
     # views distillation needs")
     max_views: int = setting(32, "Distil from this many training views spread round the scene (0: all of them).",

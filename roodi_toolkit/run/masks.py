@@ -1,6 +1,7 @@
-"""Mask folders in a run: the folder a user names for the ``files`` segmenter (``--masks DIR``) and a distillation's
-``object_masks/``, read (:func:`roodi_toolkit.io.masks.read_mask_folder`, which names the file at fault) and handed
-to the segmenter in memory (:class:`roodi_toolkit.pipeline.segment.FilesSegmenter`'s ``masks`` option)."""
+"""Mask folders in a run: the folder a user names for the ``files`` segmenter (``--masks DIR``), read
+(:func:`roodi_toolkit.io.masks.read_mask_folder`, which names the file at fault) and handed to the segmenter in memory
+(:class:`roodi_toolkit.pipeline.segment.FilesSegmenter`'s ``masks`` option), and a distillation's ``object_masks/``,
+read back as the masks it was distilled from."""
 
 from __future__ import annotations
 

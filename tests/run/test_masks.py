@@ -102,8 +102,8 @@ def test_a_distillations_masks_keep_each_view_where_train_and_test_share_names(t
     ply = tmp_path / "scene.ply"
     write_ply(cloud, ply)
     distilled = DistilledScene(with_features(cloud, np.zeros((5, 2), np.float32)),
-                               ObjectClassifier(torch.zeros(2, 2), torch.zeros(2)), ViewMasks(masks, names, "binary", 2),
-                               None, {})
+                               ObjectClassifier(torch.zeros(2, 2), torch.zeros(2)),
+                               ViewMasks(masks, names, "binary", 2), None, {})
     save_distilled(tmp_path / "dist", distilled, ply)
     assert sorted(p.name for p in (tmp_path / "dist" / "object_masks").iterdir()) == [
         f"{s}.png" for s in sorted(file_stems(names))]
