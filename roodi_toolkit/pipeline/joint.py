@@ -65,9 +65,9 @@ class JointTrainer(Trainer):
             weight, bias = initial_classifier(C, dim, self.generator)
             self.classifier_params = {"weight": torch.nn.Parameter(weight), "bias": torch.nn.Parameter(bias)}
         self.optimizers["features"] = torch.optim.Adam([self.params.features], lr=self.distill.feature_lr,
-                                                       eps=1e-15)
+                                                       eps=1e-15, fused=True)
         self.optimizers["classifier"] = torch.optim.Adam(list(self.classifier_params.values()),
-                                                         lr=self.distill.classifier_lr)
+                                                         lr=self.distill.classifier_lr, fused=True)
 
     def _extra_loss(self, out: RenderOutput, view: int) -> Tensor | None:
         C = self.masks.num_classes
