@@ -46,8 +46,7 @@ LANES_REVISION = 8
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
-blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the blocks' walk
-in one helper)."""
+blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the blocks' walk in one helper)."""
 
 
 @nb.njit(cache=True, nogil=True)
