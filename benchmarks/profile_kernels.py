@@ -99,8 +99,9 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
         call()
 
 
-def report(folder: Path, samples_file: Path, top: int) -> None:
-    """Print the body's share of the samples per 256-byte stretch and its hottest instructions."""
+def report(folder: Path, samples_file: Path, top: int, context: int = 0) -> None:
+    """Print the body's share of the samples per 256-byte stretch and its hottest instructions (with the ``context``
+    instructions before each of the three hottest: a sample lands after the instruction that waited)."""
     meta = json.loads((folder / "symbols.json").read_text())
     starts = sorted(meta["symbols"].values())
     names = {v: k for k, v in meta["symbols"].items()}
@@ -134,6 +135,12 @@ def report(folder: Path, samples_file: Path, top: int) -> None:
     print(f"hottest {top} instructions (offset, share, instruction)")
     for offset, count in at.most_common(top):
         print(f"  {offset:6x} {100 * count / total:5.1f}%  {code.get(offset, '?')}")
+    ordered = sorted(code)
+    for offset, _ in at.most_common(3) if context else ():
+        i = bisect.bisect_left(ordered, offset)
+        print(f"before {offset:x}:")
+        for o in ordered[max(0, i - context):i + 1]:
+            print(f"  {o:6x} {100 * at[o] / total:5.1f}%  {code[o]}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -143,6 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", type=int, default=800, help="image width and height (default 800)")
     ap.add_argument("--seconds", type=float, default=6.0, help="how long perf samples (default 6)")
     ap.add_argument("--top", type=int, default=20, help="hottest instructions to print (default 20)")
+    ap.add_argument("--context", type=int, default=0, help="instructions to print before each of the 3 hottest")
     ap.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--calls", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -171,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
             proc.kill()
             proc.wait()
         print(f"{args.kernel}: {args.n:,} Gaussians, {args.size}x{args.size}, one thread, {args.seconds:g} s sampled")
-        report(folder, samples, args.top)
+        report(folder, samples, args.top, args.context)
     return 0
 
 
