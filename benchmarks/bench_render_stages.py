@@ -119,12 +119,20 @@ def main(argv: list[str] | None = None) -> int:
         outs, g_out = buffers[name]
         for a in g_out:
             a.fill(0)
-        t0 = time.perf_counter()
-        pk.project_forward(*arrays, 16, view.view, view.center, view.intr, W, H, view.near, view.far, view.eps2d,
-                           view.tile, *outs)
-        t1 = time.perf_counter()
-        pk.project_backward(*arrays, 16, view.view, view.center, view.intr, W, H, view.near, view.far, view.eps2d,
-                            outs[7], *grads_in, *g_out, True)
+        cam = (view.view, view.center, view.intr, W, H, view.near, view.far, view.eps2d)
+        if "scales" in pk.project_forward.py_func.__code__.co_varnames[:3]:  # the activations made outside, timed
+            t0 = time.perf_counter()
+            scales, opacities, r2 = pk.activations(arrays[2], arrays[3])
+            pk.project_forward(arrays[0], arrays[1], scales, opacities, r2, arrays[4], 16, *cam, view.tile,
+                               *outs[:4], *outs[5:])
+            t1 = time.perf_counter()
+            pk.project_backward(arrays[0], arrays[1], scales, opacities, arrays[4], 16, *cam, outs[7], *grads_in,
+                                *g_out, True)
+        else:  # a checkout before 2026-11-28: the kernels take the log-scales and logits
+            t0 = time.perf_counter()
+            pk.project_forward(*arrays, 16, *cam, view.tile, *outs)
+            t1 = time.perf_counter()
+            pk.project_backward(*arrays, 16, *cam, outs[7], *grads_in, *g_out, True)
         t2 = time.perf_counter()
         return t1 - t0, t2 - t1
 

@@ -93,6 +93,7 @@ class Projected:
     bounds: np.ndarray  # [N, 4] int32 inclusive pixel box of each footprint
     half: np.ndarray  # [N, 2] int32
     ntiles: np.ndarray  # [N] int64, 0 where not drawn
+    scales: np.ndarray  # [N, 3] exp(log-scales), what the backward reuses
 
 
 @dataclass
@@ -127,13 +128,13 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
     n, dtype = means.shape[0], means.dtype
     rgb = np.ascontiguousarray(colors) if n_bases == 0 else np.empty((n, 3), dtype)
     sh = colors if n_bases > 0 else np.zeros((n, 1, 3), dtype)
-    out = Projected(np.empty((n, 2), dtype), np.empty((n, 3), dtype), np.empty(n, dtype), rgb, np.empty(n, dtype),
-                    np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32), np.zeros(n, np.int64))
+    scales, opacities, r2 = projection_kernels.activations(log_scales, opacity_logits)
+    out = Projected(np.empty((n, 2), dtype), np.empty((n, 3), dtype), np.empty(n, dtype), rgb, opacities,
+                    np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32), np.zeros(n, np.int64), scales)
     _set_workers()
-    projection_kernels.project_forward(means, quats, log_scales, opacity_logits, sh, n_bases, view.view, view.center,
+    projection_kernels.project_forward(means, quats, scales, opacities, r2, sh, n_bases, view.view, view.center,
                                        view.intr, view.width, view.height, view.near, view.far, view.eps2d, view.tile,
-                                       out.means2d, out.conics, out.depths, out.rgb, out.opacities, out.bounds,
-                                       out.half, out.ntiles)
+                                       out.means2d, out.conics, out.depths, out.rgb, out.bounds, out.half, out.ntiles)
     return out
 
 
@@ -207,7 +208,7 @@ class _Render(torch.autograd.Function):
     def backward(ctx, g_render, g_alpha, *_unused):  # type: ignore[override]
         (background,) = ctx.saved_tensors
         arrays, proj, channels, bins, t_final, last, view, n_bases, n_feat, colours = ctx.state
-        means, quats, log_scales, opacity_logits, colors = arrays
+        means, quats, _, _, colors = arrays  # the scales and opacities are the forward's (``proj``)
         n, C = channels.shape
         dtype = channels.dtype
         geometry = any(ctx.needs_input_grad[i] for i in (0, 1, 2, 3, 7))
@@ -242,7 +243,7 @@ class _Render(torch.autograd.Function):
         g_logits = np.zeros(n, dtype)
         g_sh = np.zeros(colors.shape, dtype) if n_bases > 0 else np.zeros((n, 1, 3), dtype)
         g_rgb = np.ascontiguousarray(g_chan[:, :3])
-        projection_kernels.project_backward(means, quats, log_scales, opacity_logits,
+        projection_kernels.project_backward(means, quats, proj.scales, proj.opacities,
                                             colors if n_bases > 0 else np.zeros((n, 1, 3), dtype), n_bases,
                                             view.view, view.center, view.intr, view.width, view.height, view.near,
                                             view.far, view.eps2d, proj.ntiles, np.ascontiguousarray(g[:, :2]),
