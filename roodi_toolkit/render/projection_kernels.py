@@ -208,11 +208,15 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
                 d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
                 inv = 1.0 / max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
                 _sh_basis(basis, n_bases, d0 * inv, d1 * inv, d2 * inv)
-                for ch in range(3):
-                    v = 0.5
-                    for k in range(n_bases):
-                        v += basis[k] * sh[i, k, ch]
-                    rgb[i, ch] = max(v, 0.0)
+                v0 = v1 = v2 = 0.5
+                for k in range(n_bases):  # the three channels together: one pass over the Gaussian's coefficients
+                    bk = basis[k]
+                    v0 += bk * sh[i, k, 0]
+                    v1 += bk * sh[i, k, 1]
+                    v2 += bk * sh[i, k, 2]
+                rgb[i, 0] = max(v0, 0.0)
+                rgb[i, 1] = max(v1, 0.0)
+                rgb[i, 2] = max(v2, 0.0)
             # the footprint: where opacity * G >= 1/255
             ntiles[i] = 0
             if not usable or not o >= ALPHA_MIN:
@@ -283,20 +287,27 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
                 ux, uy, uz = d0 * inv, d1 * inv, d2 * inv
                 _sh_basis(basis, n_bases, ux, uy, uz)
                 _sh_basis_grad(bgrad, n_bases, ux, uy, uz)
+                v0 = v1 = v2 = 0.5
+                for k in range(n_bases):  # the forward's colours, to know where the clamp at 0 passed no gradient
+                    bk = basis[k]
+                    v0 += bk * sh[i, k, 0]
+                    v1 += bk * sh[i, k, 1]
+                    v2 += bk * sh[i, k, 2]
+                g0 = np.float64(g_rgb[i, 0]) if v0 >= 0.0 else 0.0
+                g1 = np.float64(g_rgb[i, 1]) if v1 >= 0.0 else 0.0
+                g2 = np.float64(g_rgb[i, 2]) if v2 >= 0.0 else 0.0
                 gux = 0.0
                 guy = 0.0
                 guz = 0.0
-                for ch in range(3):
-                    v = 0.5
-                    for k in range(n_bases):
-                        v += basis[k] * sh[i, k, ch]
-                    g = np.float64(g_rgb[i, ch]) if v >= 0.0 else 0.0
-                    for k in range(n_bases):
-                        c = sh[i, k, ch]
-                        g_sh[i, k, ch] = basis[k] * g
-                        gux += g * c * bgrad[0, k]
-                        guy += g * c * bgrad[1, k]
-                        guz += g * c * bgrad[2, k]
+                for k in range(n_bases):  # dL/d(coefficient) and, through the basis, dL/d(direction)
+                    bk = basis[k]
+                    g_sh[i, k, 0] = bk * g0
+                    g_sh[i, k, 1] = bk * g1
+                    g_sh[i, k, 2] = bk * g2
+                    wk = g0 * sh[i, k, 0] + g1 * sh[i, k, 1] + g2 * sh[i, k, 2]
+                    gux += wk * bgrad[0, k]
+                    guy += wk * bgrad[1, k]
+                    guz += wk * bgrad[2, k]
                 if norm > 1e-12:  # d(d / |d|) = (I - u u^T) / |d|
                     dot = gux * ux + guy * uy + guz * uz
                     gux -= dot * ux
