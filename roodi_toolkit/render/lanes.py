@@ -320,7 +320,11 @@ def _pack_colours(lists, s, lo, hi, colors, rec, colp):  # pragma: no cover - co
             for ch in range(4):
                 colp[jj, ch] = rec[g, 10 + ch]
     else:
+        end = lists.shape[0]
         for jj in range(lo, hi):
+            ahead = s + jj + PREFETCH
+            if ahead < end:  # the features of a Gaussian further on in the run, as the records in _pack
+                _prefetch(colors, np.int64(lists[ahead]) * C)
             g = lists[s + jj]
             for ch in range(NC):
                 colp[jj, ch] = colors[g, ch] if ch < C else 0.0
