@@ -3,7 +3,8 @@
 The equations are those of :func:`roodi_toolkit.render.projection.project_gaussians` and
 :func:`roodi_toolkit.sh.eval_sh_colors` (the torch code the reference renderer differentiates with autograd), written
 out per Gaussian with their hand-derived derivatives; the tests check both against autograd in float64 and the whole
-renderer against the dense reference. Work is in float64 whatever the arrays' dtype.
+renderer against the dense reference. Work is in float64 whatever the arrays' dtype, except the scales and opacities
+(:func:`activations`, numpy's vectorised ``exp`` in the inputs' dtype, as the torch reference computes them).
 
 - rotation ``R`` of the normalised quaternion (w, x, y, z; zero gives the identity), ``M = R diag(exp(s))``;
 - camera-space mean ``p = W mu + t``, culled unless ``near < z < far`` (then ``z`` is taken as 1 so nothing is
@@ -36,7 +37,7 @@ def activations(log_scales: np.ndarray, opacity_logits: np.ndarray) -> tuple[np.
     ``opacity * exp(-r2 / 2) = 1/255``; the margin keeps pixels exactly on the edge for the alpha test to decide).
 
     numpy's exponential and logarithm work on whole arrays with the CPU's vector units; called per Gaussian in the
-    compiled kernels they were a third of the projection (500k Gaussians: 0.09 -> 0.06 s for the geometry, one
+    compiled kernels they were a third of the projection's geometry (500k Gaussians: 0.09 -> 0.06 s in a prototype, one
     thread)."""
     with np.errstate(over="ignore"):  # exp(-logit) of a very negative logit: the opacity is 0
         opacities = 1.0 / (1.0 + np.exp(-opacity_logits))
