@@ -23,9 +23,10 @@ from __future__ import annotations
 from ..errors import ConfigError
 from ..limits import MEMORY_SHARE, available_memory, check_memory
 
-PASS_PER_GAUSSIAN = 400
-"""Peak bytes of one rendering and its backward, per Gaussian of SH degree 0: measured 304 MB at 1M and 568 MB at 2M
-Gaussians on a 32x32 view (``benchmarks/bench_stage_memory.py``), rounded up."""
+PASS_PER_GAUSSIAN = 450
+"""Peak bytes of one rendering and its backward, per Gaussian of SH degree 0: measured 373-392 MB at 1M and 603 MB at
+2M Gaussians on a 32x32 view (``benchmarks/bench_stage_memory.py``, 2026-11-28; 304 MB at 1M before the compositing's
+64-byte records), rounded up (400 had left the 1M case at 0.97-1.02 of its estimate)."""
 
 PASS_PER_PIXEL = 250
 """Peak bytes of one rendering and its backward, per pixel, the tile lists' share included: the lists grow with the
