@@ -31,7 +31,7 @@ PASS_PER_GAUSSIAN = 450
 PASS_PER_PIXEL = 250
 """Peak bytes of one rendering and its backward, per pixel, the tile lists' share included: the lists grow with the
 Gaussians a pixel's tile holds, so this is set by the deepest view measured (500k random Gaussians in a ball at
-800x800: 333 MB, where 400 a Gaussian and 250 a pixel give 343 MB; the real 500k playbot at 800x800: 266 MB)."""
+800x800: 333-338 MB, where 450 a Gaussian and 250 a pixel give 367 MB; the real 500k playbot at 800x800: 266 MB)."""
 
 SH_BYTES = 24
 """Extra bytes a Gaussian per SH coefficient beyond the first: its 3 colour values and their gradients in float32."""
