@@ -319,7 +319,7 @@ def _pack_colours(lists, s, lo, hi, colors, rec, colp):  # pragma: no cover - co
             g = lists[s + jj]
             for ch in range(4):
                 colp[jj, ch] = rec[g, 10 + ch]
-    else:
+    elif NC > 0:  # (none where only the weights are listed: composite_pairs)
         end = lists.shape[0]
         for jj in range(lo, hi):
             ahead = s + jj + PREFETCH
