@@ -42,12 +42,12 @@ from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane
                     _next_entry, _pack, _pack_blocks, _pack_colours, _records, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 11
+LANES_REVISION = 12
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
 blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the blocks' walk in one helper; 9: the records
-prefetched; 10: the features too; 11: no channels, no copy)."""
+prefetched; 10: the features too; 11: no channels, no copy; 12: the prefetch in one helper)."""
 
 
 @nb.njit(cache=True, nogil=True)

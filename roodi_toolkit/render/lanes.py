@@ -122,6 +122,13 @@ def _prefetch(typingctx, arr, index):  # pragma: no cover - compiled
     return types.none(arr, index), codegen
 
 
+@nb.njit(inline="always")
+def _prefetch_row(arr, lists, at):  # pragma: no cover - compiled
+    """Prefetch the row of ``arr`` [N, K] of the Gaussian ``lists[at]``, where ``at`` is inside ``lists``."""
+    if at < lists.shape[0]:
+        _prefetch(arr, np.int64(lists[at]) * arr.shape[1])
+
+
 PREFETCH = 32
 """How many entries of a tile's run ahead of the one it copies :func:`_pack` asks the CPU for the record of. The runs
 are in depth order, so their records lie anywhere in memory: the gather's cache misses were an eighth of the
@@ -265,11 +272,8 @@ def _pack(lists, s, lo, hi, rec, geo, box, gid):  # pragma: no cover - compiled
     (:func:`_records`): (mx, my, conic a, b, c, opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo``
     [n, 10], the footprint box in ``box`` [n, 4], the id in ``gid`` [n]; every 4x4 block of the tile then reads them
     in order. Returns ``hi``."""
-    end = lists.shape[0]
     for jj in range(lo, hi):
-        ahead = s + jj + PREFETCH
-        if ahead < end:
-            _prefetch(rec, np.int64(lists[ahead]) * 16)
+        _prefetch_row(rec, lists, s + jj + PREFETCH)
         g = lists[s + jj]
         gid[jj] = g
         for i in range(10):
@@ -320,11 +324,8 @@ def _pack_colours(lists, s, lo, hi, colors, rec, colp):  # pragma: no cover - co
             for ch in range(4):
                 colp[jj, ch] = rec[g, 10 + ch]
     elif NC > 0:  # (none where only the weights are listed: composite_pairs)
-        end = lists.shape[0]
         for jj in range(lo, hi):
-            ahead = s + jj + PREFETCH
-            if ahead < end:  # the features of a Gaussian further on in the run, as the records in _pack
-                _prefetch(colors, np.int64(lists[ahead]) * C)
+            _prefetch_row(colors, lists, s + jj + PREFETCH)  # as the records in _pack
             g = lists[s + jj]
             for ch in range(NC):
                 colp[jj, ch] = colors[g, ch] if ch < C else 0.0
