@@ -38,11 +38,12 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_max, _lane_sum, _lanes, _longest,
-                    _next_entry, _pack, _pack_blocks, _pack_colours, _records, _stack_empty, _start_block, _tile_box)
+from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_dot, _lane_max, _lane_sum, _lanes,
+                    _lanes_axpy, _longest, _next_entry, _pack, _pack_blocks, _pack_colours, _records, _stack_empty,
+                    _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 12
+LANES_REVISION = 13
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
@@ -227,10 +228,8 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         better = weight > best[q]
                         best[q] = weight if better else best[q]
                         bid[q] = g if better else bid[q]
-                    for i in range(NC):
-                        ci = colp[jj, i]
-                        for q in range(nq):  # a channel's 16 pixels: one vector
-                            acc[i, q] += W[q] * ci
+                    for i in range(NC):  # a channel's 16 pixels: two vectors of 8
+                        _lanes_axpy(acc[i], W, colp[jj, i])
                     if (p & 3) == 0 and _lane_max(T) <= zero:  # every 4th entry: a block's pixels stop together
                         break
                 for q in range(LANES):
@@ -286,7 +285,6 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         gid = np.empty(cap, np.int32)
         colp = np.empty((cap, NC), kc.dtype)
         gpix = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))  # dL/d(channel) of the block's pixels
-        V = _lanes(kc)
         pxc = _lanes(kc)
         pyc = _lanes(kc)
         T = _lanes(kc)
@@ -376,13 +374,9 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                     if _lane_max(Wt) <= zero:  # no pixel blended it (a weight is positive where it blended)
                         continue
                     j = s + jj
-                    for i in range(NC):  # each channel's 16 pixels: one vector
-                        ci = colp[jj, i]
-                        for q in range(nq):
-                            gv = gpix[i, q]
-                            V[q] = Wt[q] * gv
-                            CG[q] += ci * gv  # c_i . g, channel after channel
-                        value = _lane_sum(V)
+                    for i in range(NC):  # each channel's 16 pixels: two vectors of 8
+                        value = _lane_dot(Wt, gpix[i])
+                        _lanes_axpy(CG, gpix[i], colp[jj, i])  # c_i . g, channel after channel
                         if i < C:
                             pair_colors[j, i] += value
                     if not geometry:  # colours or features alone: no need for the alpha's gradient

@@ -192,43 +192,121 @@ def _gauss(dx, dy, ha, b, hc, kt):  # pragma: no cover - compiled
     return e * e
 
 
-@nb.njit(inline="always")
-def _lane_sum(v):  # pragma: no cover - compiled
-    """The sum of the 16 lanes of ``v`` in a fixed tree order (lane ``q`` plus lane ``q + 8``, then ``+ 4``, ``+ 2``,
-    ``+ 1``), written out: no loop for the compiler to vectorise the wrong way."""
-    s0 = v[0] + v[8]
-    s1 = v[1] + v[9]
-    s2 = v[2] + v[10]
-    s3 = v[3] + v[11]
-    s4 = v[4] + v[12]
-    s5 = v[5] + v[13]
-    s6 = v[6] + v[14]
-    s7 = v[7] + v[15]
-    t0 = s0 + s4
-    t1 = s1 + s5
-    t2 = s2 + s6
-    t3 = s3 + s7
-    return (t0 + t2) + (t1 + t3)
+def _shuffle(builder, a, b, picks):
+    """LLVM's ``shufflevector``: the lanes ``picks`` of the vectors ``a`` and ``b`` laid end to end."""
+    return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(ir.IntType(32), len(picks)), list(picks)))
 
 
-@nb.njit(inline="always")
-def _lane_max(v):  # pragma: no cover - compiled
-    """The largest of the 16 lanes of ``v``, written out as :func:`_lane_sum`. The kernels test "is any pixel still
-    going" or "did any pixel blend" with it after the loop over the lanes, not by counting inside it: a 64-bit
-    counter in that loop made LLVM vectorise it four lanes at a time (the counter's width) instead of eight."""
-    s0 = max(v[0], v[8])
-    s1 = max(v[1], v[9])
-    s2 = max(v[2], v[10])
-    s3 = max(v[3], v[11])
-    s4 = max(v[4], v[12])
-    s5 = max(v[5], v[13])
-    s6 = max(v[6], v[14])
-    s7 = max(v[7], v[15])
-    t0 = max(s0, s4)
-    t1 = max(s1, s5)
-    t2 = max(s2, s6)
-    t3 = max(s3, s7)
-    return max(max(t0, t2), max(t1, t3))
+def _load_halves(context, builder, arrty, array):
+    """The 16 lanes of the C-contiguous float stack array ``array`` as two LLVM vectors of 8 (lanes 0-7 and 8-15):
+    loaded as the vectorised loops stored them, eight at a time (one 16-wide load of two 8-wide stores waits for
+    both to reach the cache: no store-to-load forwarding)."""
+    ty = context.get_value_type(arrty.dtype)
+    data = context.make_array(arrty)(context, builder, array).data
+    vty = ir.VectorType(ty, LANES // 2)
+    align = arrty.dtype.bitwidth // 8
+    return tuple(builder.load(builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), at)]), vty.as_pointer()),
+                              align=align) for at in (0, LANES // 2))
+
+
+def _fold(builder, halves, combine):
+    """Combine the 16 lanes (``halves``: lanes 0-7 and 8-15) into one value in the kernels' fixed tree order: lane
+    ``q`` with lane ``q + 8`` (``combine(low, high)``), then the first four of those with the last four, two with two,
+    one with one."""
+    vec = combine(*halves)
+    lanes = LANES // 2
+    while lanes > 1:
+        half = lanes // 2
+        vec = combine(_shuffle(builder, vec, vec, range(half)), _shuffle(builder, vec, vec, range(half, lanes)))
+        lanes = half
+    return builder.extract_element(vec, ir.Constant(ir.IntType(32), 0))
+
+
+def _is_lanes(v):
+    return isinstance(v, types.Array) and isinstance(v.dtype, types.Float) and v.ndim == 1 and v.layout == "C"
+
+
+@intrinsic
+def _lane_sum(typingctx, v):  # pragma: no cover - compiled
+    """The sum of the 16 lanes of ``v`` (a C-contiguous float array of 16) in a fixed tree order (:func:`_fold`), as
+    LLVM vector halves added (``shufflevector``: no CPU-specific instruction). Written as scalar code, the same sum
+    was compiled to 16 loads and 15 scalar additions."""
+    if not _is_lanes(v):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return _fold(builder, _load_halves(context, builder, signature.args[0], args[0]), builder.fadd)
+
+    return v.dtype(v), codegen
+
+
+@intrinsic
+def _lane_max(typingctx, v):  # pragma: no cover - compiled
+    """The largest of the 16 lanes of ``v`` in :func:`_lane_sum`'s tree, each step Python's ``max(low, high)`` (the
+    high lane where it is greater, else the low one). The kernels test "is any pixel still going" or "did any pixel
+    blend" with it after the loop over the lanes, not by counting inside it: a 64-bit counter in that loop made LLVM
+    vectorise it four lanes at a time (the counter's width) instead of eight."""
+    if not _is_lanes(v):
+        return None
+
+    def codegen(context, builder, signature, args):
+        def greater(low, high):
+            return builder.select(builder.fcmp_ordered(">", high, low), high, low)
+
+        return _fold(builder, _load_halves(context, builder, signature.args[0], args[0]), greater)
+
+    return v.dtype(v), codegen
+
+
+def _store_halves(context, builder, arrty, array, halves):
+    """Store two LLVM vectors of 8 into the 16 lanes of ``array`` (as :func:`_load_halves` loads them)."""
+    data = context.make_array(arrty)(context, builder, array).data
+    align = arrty.dtype.bitwidth // 8
+    for at, vec in zip((0, LANES // 2), halves):
+        ptr = builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), at)]), vec.type.as_pointer())
+        builder.store(vec, ptr, align=align)
+
+
+def _broadcast(builder, value):
+    """An LLVM vector of 8 copies of the scalar ``value``."""
+    vec = builder.insert_element(ir.Constant(ir.VectorType(value.type, LANES // 2), None), value,
+                                 ir.Constant(ir.IntType(32), 0))
+    return _shuffle(builder, vec, vec, [0] * (LANES // 2))
+
+
+@intrinsic
+def _lanes_axpy(typingctx, y, x, a):  # pragma: no cover - compiled
+    """``y[q] += x[q] * a`` for the 16 lanes (a multiplication, then an addition: the values of the loop written
+    out), as two 8-lane LLVM vector operations: the channel loops of the compositing wrote this as a loop over the
+    lanes inside the loop over the channels, which LLVM vectorised 32 lanes at a time and so ran in its 4-lane
+    remainder."""
+    if not (_is_lanes(y) and _is_lanes(x) and y.dtype == x.dtype and a == y.dtype):
+        return None
+
+    def codegen(context, builder, signature, args):
+        ty_y, ty_x, _ = signature.args
+        ys = _load_halves(context, builder, ty_y, args[0])
+        xs = _load_halves(context, builder, ty_x, args[1])
+        av = _broadcast(builder, args[2])
+        _store_halves(context, builder, ty_y, args[0],
+                      [builder.fadd(yv, builder.fmul(xv, av)) for yv, xv in zip(ys, xs)])
+        return context.get_dummy_value()
+
+    return types.none(y, x, a), codegen
+
+
+@intrinsic
+def _lane_dot(typingctx, x, y):  # pragma: no cover - compiled
+    """The sum of ``x[q] * y[q]`` over the 16 lanes, in :func:`_lane_sum`'s tree order."""
+    if not (_is_lanes(x) and _is_lanes(y) and x.dtype == y.dtype):
+        return None
+
+    def codegen(context, builder, signature, args):
+        xs = _load_halves(context, builder, signature.args[0], args[0])
+        ys = _load_halves(context, builder, signature.args[1], args[1])
+        return _fold(builder, [builder.fmul(xv, yv) for xv, yv in zip(xs, ys)], builder.fadd)
+
+    return x.dtype(x, y), codegen
 
 
 @nb.njit(inline="always")
