@@ -43,7 +43,7 @@ from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane
                     _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 13
+LANES_REVISION = 14
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
@@ -136,6 +136,20 @@ def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover 
     return lists, starts, counts
 
 
+@nb.njit(inline="always")
+def _blend(alpha, inside, Tp, kt):  # pragma: no cover - compiled
+    """One pixel of a forward walk blending a Gaussian of value ``alpha`` (``inside``: the pixel lies in its
+    footprint box) over the transmittance ``Tp`` (negative: the pixel has stopped): (the weight ``alpha Tp`` or 0, the
+    transmittance after, whether it blended). A pixel whose transmittance would fall under ``TRANSMITTANCE_MIN``
+    stops there without blending it, its transmittance negated."""
+    zero = kt[7]
+    ok = (alpha >= kt[0]) & (Tp > zero) & inside
+    tn = Tp * (kt[6] - alpha)
+    blend = ok & (tn >= kt[2])
+    stop = ok & (tn < kt[2])
+    return (alpha * Tp if blend else zero), (tn if blend else (-Tp if stop else Tp)), blend
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
 def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, groups, width, height,
                       tile, workers, out, t_final, last, top):  # pragma: no cover - compiled
@@ -164,7 +178,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
     kc = _constants(opacities)
     kt = _constant_tuple(kc)
-    a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
+    a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     cap = _longest(busy, counts)
     rec = _records(bounds, means2d, conics, opacities, colors, NC if NC == 4 else 0, kc)
     for w in nb.prange(workers):
@@ -177,6 +191,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
         pyc = _lanes(kc)
         T = _lanes(kc)
         W = _lanes(kc)
+        W2 = _lanes(kc)
         best = _lanes(kc)
         L = _lanes(gid)
         bid = _lanes(gid)
@@ -202,34 +217,45 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     for i in range(NC):
                         acc[i, q] = zero
                 p = 0
-                while True:
-                    jj, packed = _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
+                while True:  # two entries at a time: their alphas are independent, so the CPU computes both at once
+                    j1, packed = _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
                                              y_lo, nbx, blist, bcount)
-                    if jj < 0:
+                    if j1 < 0:
                         break
-                    p += 1
-                    mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
-                    ha = half * a
-                    hc = half * c
-                    g = gid[jj]
-                    walked = np.int32(jj + 1)
+                    j2, packed = _next_entry(blk, p + 1, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
+                                             y_lo, nbx, blist, bcount)
+                    p += 2
+                    mx1, my1, a1, b1, c1, o1, x01, x11, y01, y11 = _geometry(geo, j1)
+                    if j2 >= 0:
+                        mx2, my2, a2, b2, c2, o2, x02, x12, y02, y12 = _geometry(geo, j2)
+                    else:  # past the block's last entry: a copy of the first that blends nowhere (opacity 0)
+                        mx2, my2, a2, b2, c2, o2, x02, x12, y02, y12 = mx1, my1, a1, b1, c1, zero, x01, x11, y01, y11
+                    ha1, hc1, ha2, hc2 = half * a1, half * c1, half * a2, half * c2
+                    g1, g2 = gid[j1], gid[max(j2, 0)]
+                    walked1, walked2 = np.int32(j1 + 1), np.int32(j2 + 1)
                     for q in range(nq):  # the block's 16 pixels: vectorised, no branches
-                        alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
-                        Tp = T[q]
-                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
-                        ok = (alpha >= a_min) & (Tp > zero) & inside
-                        tn = Tp * (one - alpha)
-                        blend = ok & (tn >= t_min)
-                        stop = ok & (tn < t_min)
-                        weight = alpha * Tp if blend else zero
-                        W[q] = weight
-                        T[q] = tn if blend else (-Tp if stop else Tp)
-                        L[q] = walked if blend else L[q]
-                        better = weight > best[q]
-                        best[q] = weight if better else best[q]
-                        bid[q] = g if better else bid[q]
+                        alpha1 = min(a_max, o1 * _gauss(pxc[q] - mx1, pyc[q] - my1, ha1, b1, hc1, kt))
+                        alpha2 = min(a_max, o2 * _gauss(pxc[q] - mx2, pyc[q] - my2, ha2, b2, hc2, kt))
+                        in1 = (pxc[q] > x01) & (pxc[q] < x11) & (pyc[q] > y01) & (pyc[q] < y11)  # the footprint box
+                        in2 = (pxc[q] > x02) & (pxc[q] < x12) & (pyc[q] > y02) & (pyc[q] < y12)
+                        w1, t1, blend1 = _blend(alpha1, in1, T[q], kt)
+                        w2, t2, blend2 = _blend(alpha2, in2, t1, kt)
+                        W[q] = w1
+                        W2[q] = w2
+                        T[q] = t2
+                        L[q] = walked2 if blend2 else (walked1 if blend1 else L[q])
+                        better1 = w1 > best[q]
+                        best1 = w1 if better1 else best[q]
+                        bid1 = g1 if better1 else bid[q]
+                        better2 = w2 > best1
+                        best[q] = w2 if better2 else best1
+                        bid[q] = g2 if better2 else bid1
                     for i in range(NC):  # a channel's 16 pixels: two vectors of 8
-                        _lanes_axpy(acc[i], W, colp[jj, i])
+                        _lanes_axpy(acc[i], W, colp[j1, i])
+                    if j2 < 0:
+                        break
+                    for i in range(NC):
+                        _lanes_axpy(acc[i], W2, colp[j2, i])
                     if (p & 3) == 0 and _lane_max(T) <= zero:  # every 4th entry: a block's pixels stop together
                         break
                 for q in range(LANES):
@@ -242,6 +268,23 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         last[py, px] = L[q]
                         if want_top:
                             top[py, px] = bid[q]
+
+
+@nb.njit(inline="always")
+def _recover(pxc, pyc, mx, my, ha, b, hc, o, x0, x1, y0, y1, walked, Tq, kt):  # pragma: no cover - compiled
+    """One pixel of a backward walk: (dx, dy, the Gaussian's value, the unclamped alpha, alpha, whether the pixel
+    blended this Gaussian, 1 - alpha, the transmittance before it), with the forward's expression for alpha (bit for
+    bit: the same pixels blend the same Gaussians). ``walked``: the entry lies before the pixel's last blended one;
+    ``Tq``: the transmittance behind the entry."""
+    dx = pxc - mx
+    dy = pyc - my
+    gauss = _gauss(dx, dy, ha, b, hc, kt)
+    raw = o * gauss
+    alpha = min(kt[1], raw)
+    inside = (pxc > x0) & (pxc < x1) & (pyc > y0) & (pyc < y1)
+    act = walked & (alpha >= kt[0]) & inside
+    one_minus = kt[6] - alpha
+    return dx, dy, gauss, raw, alpha, act, one_minus, Tq / one_minus
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -275,7 +318,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
     nbx = (tile + 3) // 4
     kc = _constants(opacities)
     kt = _constant_tuple(kc)
-    a_min, a_max, half, one, zero = kc[0], kc[1], kc[5], kc[6], kc[7]
+    a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
     cap = _longest(busy, counts)
     rec = _records(bounds, means2d, conics, opacities, colors, NC if NC == 4 else 0, kc)
@@ -291,14 +334,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         S = _lanes(kc)
         tail = _lanes(kc)
         Wt = _lanes(kc)
-        DX = _lanes(kc)
-        DY = _lanes(kc)
-        G = _lanes(kc)
-        A = _lanes(kc)
-        OM = _lanes(kc)
-        TI = _lanes(kc)
         CG = _lanes(kc)
-        GEO = _lanes(kc)
         VG = nb.carray(_stack_empty(96, kc.dtype), (6, LANES))  # 6 gradients x 16 pixels
         L = _lanes(gid)
         blist = np.empty((nbx * nbx, cap), np.int32)
@@ -351,56 +387,46 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     ha = half * a
                     hc = half * c
-                    for q in range(nq):  # as the forward, backwards: recover T_i, the weight, c_i . g
-                        dx = pxc[q] - mx
-                        dy = pyc[q] - my
-                        gauss = _gauss(dx, dy, ha, b, hc, kt)
-                        raw = o * gauss  # as the forward's alpha, bit for bit
-                        alpha = min(a_max, raw)
-                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)
-                        act = (jj < L[q]) & (alpha >= a_min) & inside
-                        one_minus = one - alpha
-                        Ti = T[q] / one_minus
-                        T[q] = Ti if act else T[q]
-                        Wt[q] = alpha * Ti if act else zero
-                        CG[q] = zero
-                        GEO[q] = one if act & (raw < a_max) else zero
-                        DX[q] = dx
-                        DY[q] = dy
-                        G[q] = gauss
-                        A[q] = alpha
-                        OM[q] = one_minus
-                        TI[q] = Ti
+                    if geometry:
+                        for q in range(LANES):
+                            CG[q] = zero
+                        for i in range(NC):  # c_i . g first: the alpha's gradient needs it in the walk's loop
+                            _lanes_axpy(CG, gpix[i], colp[jj, i])
+                        for q in range(nq):  # recover T_i and the weight; d_alpha, S_i, the pair's gradients
+                            dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
+                                pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
+                            T[q] = Ti if act else T[q]
+                            wt = alpha * Ti if act else zero
+                            Wt[q] = wt
+                            cg = CG[q]
+                            d_alpha = Ti * cg - (S[q] + tail[q]) / one_minus
+                            S[q] += wt * cg
+                            d_sigma = -d_alpha * alpha
+                            on = act & (raw < a_max)  # alpha clamped at 0.99 passes no gradient
+                            VG[0, q] = -(d_sigma * (a * dx + b * dy)) if on else zero
+                            VG[1, q] = -(d_sigma * (c * dy + b * dx)) if on else zero
+                            VG[2, q] = d_sigma * half * dx * dx if on else zero
+                            VG[3, q] = d_sigma * dx * dy if on else zero
+                            VG[4, q] = d_sigma * half * dy * dy if on else zero
+                            VG[5, q] = d_alpha * gauss if on else zero
+                    else:  # colours or features alone: no need for the alpha's gradient
+                        for q in range(nq):
+                            dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
+                                pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
+                            T[q] = Ti if act else T[q]
+                            Wt[q] = alpha * Ti if act else zero
                     if _lane_max(Wt) <= zero:  # no pixel blended it (a weight is positive where it blended)
                         continue
                     j = s + jj
-                    for i in range(NC):  # each channel's 16 pixels: two vectors of 8
-                        value = _lane_dot(Wt, gpix[i])
-                        _lanes_axpy(CG, gpix[i], colp[jj, i])  # c_i . g, channel after channel
-                        if i < C:
-                            pair_colors[j, i] += value
-                    if not geometry:  # colours or features alone: no need for the alpha's gradient
-                        continue
-                    for q in range(nq):  # d_alpha, S_i for the next Gaussian in front, the pair's gradients
-                        cg = CG[q]
-                        d_alpha = TI[q] * cg - (S[q] + tail[q]) / OM[q]
-                        S[q] += Wt[q] * cg
-                        dx = DX[q]
-                        dy = DY[q]
-                        d_sigma = -d_alpha * A[q]
-                        on = GEO[q] > zero
-                        VG[0, q] = -(d_sigma * (a * dx + b * dy)) if on else zero
-                        VG[1, q] = -(d_sigma * (c * dy + b * dx)) if on else zero
-                        VG[2, q] = d_sigma * half * dx * dx if on else zero
-                        VG[3, q] = d_sigma * dx * dy if on else zero
-                        VG[4, q] = d_sigma * half * dy * dy if on else zero
-                        VG[5, q] = d_alpha * G[q] if on else zero
-                    pair_geom[j, 0] += _lane_sum(VG[0])  # written out: a loop here would be vectorised across
-                    pair_geom[j, 1] += _lane_sum(VG[1])  # the six sums with gathers
-                    pair_geom[j, 2] += _lane_sum(VG[2])
-                    pair_geom[j, 3] += _lane_sum(VG[3])
-                    pair_geom[j, 4] += _lane_sum(VG[4])
-                    pair_geom[j, 5] += _lane_sum(VG[5])
+                    for i in range(C):  # each channel's 16 pixels: two vectors of 8
+                        pair_colors[j, i] += _lane_dot(Wt, gpix[i])
+                    if geometry:
+                        pair_geom[j, 0] += _lane_sum(VG[0])  # written out: a loop here would be vectorised across
+                        pair_geom[j, 1] += _lane_sum(VG[1])  # the six sums with gathers
+                        pair_geom[j, 2] += _lane_sum(VG[2])
+                        pair_geom[j, 3] += _lane_sum(VG[3])
+                        pair_geom[j, 4] += _lane_sum(VG[4])
+                        pair_geom[j, 5] += _lane_sum(VG[5])
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)

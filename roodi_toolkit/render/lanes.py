@@ -124,9 +124,15 @@ def _prefetch(typingctx, arr, index):  # pragma: no cover - compiled
 
 @nb.njit(inline="always")
 def _prefetch_row(arr, lists, at):  # pragma: no cover - compiled
-    """Prefetch the row of ``arr`` [N, K] of the Gaussian ``lists[at]``, where ``at`` is inside ``lists``."""
+    """Prefetch the row of ``arr`` [N, K] (C-contiguous) of the Gaussian ``lists[at]``, where ``at`` is inside
+    ``lists``: its first cache line, and its last where the row ends on another one (a 64-byte row that does not
+    start on a line straddles two)."""
     if at < lists.shape[0]:
-        _prefetch(arr, np.int64(lists[at]) * arr.shape[1])
+        first = np.int64(lists[at]) * arr.shape[1]
+        _prefetch(arr, first)
+        start = arr.ctypes.data + first * arr.itemsize
+        if (start >> 6) != ((start + arr.shape[1] * arr.itemsize - 1) >> 6):
+            _prefetch(arr, first + arr.shape[1] - 1)
 
 
 PREFETCH = 32
@@ -373,7 +379,9 @@ def _records(bounds, means2d, conics, opacities, colors, nc, dtype_of):  # pragm
     records they made the forward 0.87x."""
     n = means2d.shape[0]
     C = colors.shape[1]
-    rec = np.empty((n, 16), dtype_of.dtype)
+    buf = np.empty(n * 16 + 16, dtype_of.dtype)  # numba aligns arrays to 32 bytes: records start on a cache line
+    skip = (-buf.ctypes.data % 64) // buf.itemsize
+    rec = buf[skip:skip + n * 16].reshape((n, 16))
     for g in nb.prange(n):
         rec[g, 0] = means2d[g, 0]
         rec[g, 1] = means2d[g, 1]
