@@ -231,9 +231,7 @@ def finetune_object(cloud: GaussianCloud, originals: ViewTargets, inpainted: Vie
     renderer = resolve_renderer(renderer)
     params = GaussianParams.from_cloud(cloud, requires_grad=True)  # copies: the caller's cloud is left as it was
     _, radius = object_extent(cloud)
-    lrs = {"means": config.means_lr * radius, "quats_wxyz": config.quats_lr, "log_scales": config.scales_lr,
-           "opacity_logits": config.opacities_lr, "sh_dc": config.sh0_lr, "sh_rest": config.shN_lr}
-    optimizers = [torch.optim.Adam([params[k]], lr=lr, eps=1e-15, fused=True) for k, lr in lrs.items()]
+    optimizers = list(params.adam(config, radius).values())
     bg = torch.as_tensor(config.background, dtype=torch.float32)
     gen = torch.Generator().manual_seed(config.seed)
     order_o = torch.randperm(len(originals.cameras), generator=gen).tolist()

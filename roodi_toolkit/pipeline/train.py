@@ -31,7 +31,7 @@ from ..settings import check_settings, documented, setting
 from ..gaussians import GaussianCloud
 from ..imaging import psnr, ssim as ssim_value
 from ..progress import ProgressFactory, null_progress
-from ..params import PARAM_NAMES, GaussianParams
+from ..params import GaussianParams
 from ..render.renderer import Renderer, RenderOutput, resolve_renderer
 from .strategy import MCMCStrategy, MCMCState
 from .train_kernels import ssim as ssim_loss
@@ -184,13 +184,7 @@ class Trainer:
 
     def _make_optimizers(self, fused: bool = True) -> None:
         cfg = self.config
-        lrs = {"means": cfg.means_lr * self.scale, "quats_wxyz": cfg.quats_lr, "log_scales": cfg.scales_lr,
-               "opacity_logits": cfg.opacities_lr, "sh_dc": cfg.sh0_lr, "sh_rest": cfg.shN_lr}
-        # fused: one compiled pass per parameter instead of about ten tensor operations, the same update to float
-        # rounding (fused=False is the reference that tests/pipeline/test_train_kernels.py and bench_train_step.py
-        # compare)
-        self.optimizers = {name: torch.optim.Adam([self.params[name]], lr=lrs[name], eps=1e-15, fused=fused)
-                           for name in PARAM_NAMES}
+        self.optimizers = self.params.adam(cfg, self.scale, fused=fused)
         gamma = cfg.means_lr_final ** (1.0 / max(cfg.iterations, 1))
         self.scheduler = torch.optim.lr_scheduler.ExponentialLR(self.optimizers["means"], gamma=gamma)
 
