@@ -19,6 +19,7 @@ from scipy import sparse
 from scipy.sparse.linalg import cg, spsolve
 from scipy.spatial import cKDTree
 
+from ..cameras import spread_cameras
 from ..errors import ConfigError
 from ..gaussians import GaussianCloud
 from ..io.dataset import Dataset
@@ -310,9 +311,9 @@ class ClickSegmenter(Segmenter):
         n = len(sel)
         masks = np.zeros((len(dataset), dataset.height, dataset.width), np.uint8)
         rounds = max(int(s.vote_rounds), 0)
-        # the vote is a statistic over views: a few dozen spread round the scene decide it as well as hundreds
-        voters = sorted(set(np.linspace(0, len(dataset) - 1, min(len(dataset), s.vote_views)).round().astype(int))
-                        | {v0})
+        # the vote is a statistic over views: a few dozen spread round the scene (by pose, not by index: a capture's
+        # photos need not be in order) decide it as well as hundreds
+        voters = sorted(set(spread_cameras(dataset.cameras, s.vote_views)) | {v0})
         with progress(total=rounds * len(voters) + len(dataset), desc="render the selection") as bar:
             for r in range(rounds + 1):
                 vote = r < rounds
