@@ -48,7 +48,8 @@ LANES_REVISION = 14
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
 blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the blocks' walk in one helper; 9: the records
-prefetched; 10: the features too; 11: no channels, no copy; 12: the prefetch in one helper)."""
+prefetched; 10: the features too; 11: no channels, no copy; 12: the prefetch in one helper; 13: the lanes'
+sums, maxima and channel updates as vector halves; 14: records on a cache line)."""
 
 
 @nb.njit(cache=True, nogil=True)

@@ -4,8 +4,12 @@ arrays that hold a block's 16 pixels in vector registers, and the arithmetic eve
 LLVM keeps a block's state in registers and turns a loop over its 16 pixels into a few vector instructions when
 (found by reading the assembly): the state lives in stack arrays of a constant size (:func:`_stack_empty`), never on
 the heap, which would need runtime overlap checks; every constant comes in the inputs' dtype as a tuple of values
-(:func:`_constant_tuple`; a float literal would turn float32 arithmetic into float64); no loop over channels sits
-inside the loop over the pixels; and sums over the 16 pixels are written out (:func:`_lane_sum`).
+(:func:`_constant_tuple`; a float literal would turn float32 arithmetic into float64); and no loop over channels sits
+inside the loop over the pixels. What a loop does not express well is written as LLVM vector operations on the 16
+lanes as two halves of 8 (``@intrinsic``: portable IR, no CPU-specific instruction): the sums and maxima over the 16
+lanes in a fixed tree (:func:`_lane_sum`, :func:`_lane_max`, :func:`_lane_dot`; as scalar code, 16 loads and 15
+operations) and a channel's update over the 16 lanes (:func:`_lanes_axpy`; as a loop inside the channels' loop, LLVM
+ran it in its 4-lane remainder).
 """
 
 from __future__ import annotations
