@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numba
+import numpy as np
 import pytest
 import torch
 
@@ -197,3 +198,35 @@ def test_tile_binning_keeps_depth_order_whatever_the_workers():
             want = [g for g in order if bounds[g, 0] // tile <= tx <= bounds[g, 1] // tile
                     and bounds[g, 2] // tile <= ty <= bounds[g, 3] // tile]
             assert lists[starts[t]:starts[t] + counts[t]].tolist() == want, (workers, t)
+
+
+def _tree(v: np.ndarray, op) -> float:
+    """The kernels' fixed tree over 16 lanes: lane q with q + 8, then the first four with the last four, and so on."""
+    while len(v) > 1:
+        v = op(v[: len(v) // 2], v[len(v) // 2:])
+    return v[0]
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_lane_vectors_equal_the_scalar_tree_bit_for_bit(dtype):
+    """The lanes' sums, maxima, dot products and updates (LLVM vector intrinsics) give exactly the values of the
+    scalar tree they replace, in float32 and float64."""
+    import numba as nb
+
+    from roodi_toolkit.render.lanes import _lane_dot, _lane_max, _lane_sum, _lanes_axpy
+
+    @nb.njit
+    def run(x, y, a):
+        z = y.copy()
+        _lanes_axpy(z, x, a)
+        return _lane_sum(x), _lane_max(x), _lane_dot(x, y), z
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x = (rng.standard_normal(16) * 10.0 ** rng.uniform(-3, 3, 16)).astype(dtype)
+        y = rng.standard_normal(16).astype(dtype)
+        a = dtype(rng.standard_normal())
+        s, m, d, z = run(x, y, a)
+        assert s == _tree(x, np.add) and m == x.max() and d == _tree(x * y, np.add)
+        assert np.array_equal(z, y + x * a)
+
