@@ -38,7 +38,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
-
 from ..cameras import spread_cameras
 from ..errors import ConfigError, RoodiError
 from ..io.files import read_json
