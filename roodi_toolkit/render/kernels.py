@@ -445,7 +445,7 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
     fill = pixels.shape[0] > 0
     kc = _constants(opacities)
     kt = _constant_tuple(kc)
-    a_min, a_max, t_min, half, one, zero = kc[0], kc[1], kc[2], kc[5], kc[6], kc[7]
+    a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler (see composite_forward)
     cap = _longest(busy, counts)
     none = np.empty((1, 1), kc.dtype)  # no channels
@@ -486,14 +486,8 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                     hc = half * c
                     for q in range(nq):  # as the forward
                         alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
-                        Tp = T[q]
                         inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
-                        ok = (alpha >= a_min) & (Tp > zero) & inside
-                        tn = Tp * (one - alpha)
-                        blend = ok & (tn >= t_min)
-                        stop = ok & (tn < t_min)
-                        W[q] = alpha * Tp if blend else zero
-                        T[q] = tn if blend else (-Tp if stop else Tp)
+                        W[q], T[q], _ = _blend(alpha, inside, T[q], kt)
                     if _lane_max(W) > zero:  # blended somewhere (alpha >= 1/255 and T >= 1e-4: a positive weight)
                         at = base + n_pairs
                         for q in range(LANES):
