@@ -26,6 +26,9 @@ from .lanes import _stack_empty
 ALPHA_MIN = 1.0 / 255.0
 BLOCK = 1024
 """Gaussians per parallel work item (its scratch arrays are allocated once per block)."""
+GROUP = 16
+"""Gaussians the forward projects together, in one loop that LLVM runs on vectors (:func:`_geometry_group`; 32 were
+no faster)."""
 
 C20, C21, C22, C23, C24 = SH_C2
 C30, C31, C32, C33, C34, C35, C36 = SH_C3
@@ -155,95 +158,157 @@ def _camera_point(view, mu0, mu1, mu2, near, far, lxp, lxn, lyp, lyn):  # pragma
     return p0, p1, p2, usable, z, xz, yz, min(max(xz, -lxn), lxp), min(max(yz, -lyn), lyp)
 
 
+# rows of the per-pass buffers of :func:`project_forward`: what it reads of each Gaussian, what it computes
+QW, QX, QY, QZ, S0, S1, S2, MU0, MU1, MU2, OPACITY, R2 = range(12)
+DEPTH, MX, MY, CA, CB, CC, X0, X1, Y0, Y1, HX, HY, NTILES = range(13)
+
+
+@nb.njit(inline="always")
+def _geometry_group(inp, out, cam):  # pragma: no cover - compiled
+    """Project the ``GROUP`` Gaussians of ``inp`` [12, GROUP] (rows ``QW``..``R2``) into ``out`` [13, GROUP] (rows
+    ``DEPTH``..``NTILES``; ``NTILES`` 0: not drawn, the box rows then meaningless). One loop over the Gaussians with no
+    branch, no call left after inlining and no array but these two (stack arrays, aliasing nothing): LLVM runs it on
+    vectors of Gaussians (1.13-1.2x the whole forward's per-Gaussian loop, 500k Gaussians, one thread).
+    The tile counts come from float divisions: the integer ones were a division instruction each, four per Gaussian.
+    """
+    (v00, v01, v02, v03, v10, v11, v12, v13, v20, v21, v22, v23, fx, fy, cx, cy, lxp, lxn, lyp, lyn, near, far,
+     eps2d, wf, hf, tile) = cam
+    for l in range(GROUP):
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, _, _, _, _, _ = _rotation(
+            inp[QW, l], inp[QX, l], inp[QY, l], inp[QZ, l])
+        mu0, mu1, mu2 = inp[MU0, l], inp[MU1, l], inp[MU2, l]
+        p0 = v00 * mu0 + v01 * mu1 + v02 * mu2 + v03
+        p1 = v10 * mu0 + v11 * mu1 + v12 * mu2 + v13
+        p2 = v20 * mu0 + v21 * mu1 + v22 * mu2 + v23
+        usable = (p2 > near) & (p2 < far)
+        z = p2 if usable else 1.0
+        xz = p0 / z
+        yz = p1 / z
+        xc = min(max(xz, -lxn), lxp)
+        yc = min(max(yz, -lyn), lyp)
+        out[DEPTH, l] = p2
+        # T = J W R S, column by column: column j of W R S, then J's two rows
+        a0 = fx / z
+        a1 = fy / z
+        m0 = (v00 * r00 + v01 * r10 + v02 * r20) * inp[S0, l]
+        m1 = (v10 * r00 + v11 * r10 + v12 * r20) * inp[S0, l]
+        m2 = (v20 * r00 + v21 * r10 + v22 * r20) * inp[S0, l]
+        t0 = a0 * (m0 - xc * m2)
+        t1 = a1 * (m1 - yc * m2)
+        c00 = eps2d + t0 * t0
+        c01 = 0.0 + t0 * t1
+        c11 = eps2d + t1 * t1
+        m0 = (v00 * r01 + v01 * r11 + v02 * r21) * inp[S1, l]
+        m1 = (v10 * r01 + v11 * r11 + v12 * r21) * inp[S1, l]
+        m2 = (v20 * r01 + v21 * r11 + v22 * r21) * inp[S1, l]
+        t0 = a0 * (m0 - xc * m2)
+        t1 = a1 * (m1 - yc * m2)
+        c00 += t0 * t0
+        c01 += t0 * t1
+        c11 += t1 * t1
+        m0 = (v00 * r02 + v01 * r12 + v02 * r22) * inp[S2, l]
+        m1 = (v10 * r02 + v11 * r12 + v12 * r22) * inp[S2, l]
+        m2 = (v20 * r02 + v21 * r12 + v22 * r22) * inp[S2, l]
+        t0 = a0 * (m0 - xc * m2)
+        t1 = a1 * (m1 - yc * m2)
+        c00 += t0 * t0
+        c01 += t0 * t1
+        c11 += t1 * t1
+        det = max(c00 * c11 - c01 * c01, 1e-30)
+        out[CA, l] = c11 / det
+        out[CB, l] = -c01 / det
+        out[CC, l] = c00 / det
+        mx = fx * xz + cx
+        my = fy * yz + cy
+        out[MX, l] = mx
+        out[MY, l] = my
+        # the footprint: where opacity * G >= 1/255
+        hx = np.sqrt(inp[R2, l] * c00)
+        hy = np.sqrt(inp[R2, l] * c11)
+        x0 = np.ceil(mx - hx - 0.5)
+        x1 = np.floor(mx + hx - 0.5)
+        y0 = np.ceil(my - hy - 0.5)
+        y1 = np.floor(my + hy - 0.5)
+        finite = (np.abs(mx) < np.inf) & (np.abs(my) < np.inf) & (np.abs(hx) < np.inf) & (np.abs(hy) < np.inf)
+        drawn = usable & (inp[OPACITY, l] >= ALPHA_MIN) & finite & (x0 <= x1) & (y0 <= y1) & (x1 >= 0.0) & \
+            (y1 >= 0.0) & (x0 <= wf) & (y0 <= hf)
+        bx0 = max(x0, 0.0)
+        bx1 = min(x1, wf)
+        by0 = max(y0, 0.0)
+        by1 = min(y1, hf)
+        out[X0, l] = bx0
+        out[X1, l] = bx1
+        out[Y0, l] = by0
+        out[Y1, l] = by1
+        out[HX, l] = np.ceil(hx)
+        out[HY, l] = np.ceil(hy)
+        tiles = (np.floor(bx1 / tile) - np.floor(bx0 / tile) + 1.0) * (np.floor(by1 / tile) - np.floor(by0 / tile) + 1.0)
+        out[NTILES, l] = tiles if drawn else 0.0
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
 def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, center, intr, width, height, near,
                     far, eps2d, tile, means2d, conics, depths, rgb, bounds, half,
                     ntiles):  # pragma: no cover - compiled
     """Project every Gaussian; write means2d [N, 2], conics [N, 3], depths [N], rgb [N, 3] (when ``n_bases`` > 0:
-    SH colours of ``sh`` [N, K, 3]; otherwise left as the caller filled it), and the footprints: bounds [N, 4]
-    (inclusive pixel box), half [N, 2], ntiles [N] (0: not drawn).
+    SH colours of ``sh`` [N, K, 3] of the drawn Gaussians, 0 for the others, whose colour nothing reads; otherwise
+    left as the caller filled it), and the footprints: bounds [N, 4] (inclusive pixel box), half [N, 2], ntiles [N]
+    (0: not drawn; the bounds and half of those are left as the caller filled them).
 
     ``scales`` [N, 3], ``opacities`` [N] and ``r2s`` [N] are :func:`activations` of the log-scales and logits;
     ``view`` is the 4x4 world-to-camera matrix, ``center`` the camera centre [3], ``intr`` (fx, fy, cx, cy).
+    ``GROUP`` Gaussians at a time are copied into a stack buffer, projected together (:func:`_geometry_group`) and
+    written out; each drawn one's colour then reads its SH coefficients.
     """
     n = means.shape[0]
     fx, fy, cx, cy, lxp, lxn, lyp, lyn = _frustum(intr, width, height)
+    cam = (view[0, 0], view[0, 1], view[0, 2], view[0, 3], view[1, 0], view[1, 1], view[1, 2], view[1, 3],
+           view[2, 0], view[2, 1], view[2, 2], view[2, 3], fx, fy, cx, cy, lxp, lxn, lyp, lyn, near, far, eps2d,
+           width - 1.0, height - 1.0, np.float64(tile))
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
-        basis = np.empty(16)
-        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
-            r00, r01, r02, r10, r11, r12, r20, r21, r22, _, _, _, _, _ = _rotation(
-                np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]), np.float64(quats[i, 3]))
-            s0 = np.float64(scales[i, 0])
-            s1 = np.float64(scales[i, 1])
-            s2 = np.float64(scales[i, 2])
-            mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-            p0, p1, p2, usable, z, xz, yz, xc, yc = _camera_point(view, mu0, mu1, mu2, near, far, lxp, lxn, lyp, lyn)
-            depths[i] = p2
-            # T = J W R S, row by row: row r of W R S dotted with J's rows
-            a0 = fx / z
-            a1 = fy / z
-            c00 = eps2d
-            c01 = 0.0
-            c11 = eps2d
-            for j in range(3):
-                rj0, rj1, rj2, sj = (r00, r10, r20, s0) if j == 0 else ((r01, r11, r21, s1) if j == 1
-                                                                        else (r02, r12, r22, s2))
-                m0 = (view[0, 0] * rj0 + view[0, 1] * rj1 + view[0, 2] * rj2) * sj
-                m1 = (view[1, 0] * rj0 + view[1, 1] * rj1 + view[1, 2] * rj2) * sj
-                m2 = (view[2, 0] * rj0 + view[2, 1] * rj1 + view[2, 2] * rj2) * sj
-                t0 = a0 * (m0 - xc * m2)
-                t1 = a1 * (m1 - yc * m2)
-                c00 += t0 * t0
-                c01 += t0 * t1
-                c11 += t1 * t1
-            det = max(c00 * c11 - c01 * c01, 1e-30)
-            conics[i, 0] = c11 / det
-            conics[i, 1] = -c01 / det
-            conics[i, 2] = c00 / det
-            mx = fx * xz + cx
-            my = fy * yz + cy
-            means2d[i, 0] = mx
-            means2d[i, 1] = my
-            o = np.float64(opacities[i])
-            if n_bases > 0:
-                d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
-                inv = 1.0 / max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
-                _sh_basis(basis, n_bases, d0 * inv, d1 * inv, d2 * inv)
-                v0 = v1 = v2 = 0.5
-                for k in range(n_bases):  # the three channels together: one pass over the Gaussian's coefficients
-                    bk = basis[k]
-                    v0 += bk * sh[i, k, 0]
-                    v1 += bk * sh[i, k, 1]
-                    v2 += bk * sh[i, k, 2]
+        basis = nb.carray(_stack_empty(16, view), (16,))
+        inp = nb.carray(_stack_empty(192, view), (12, GROUP))  # sizes: integer literals, 12 and 13 rows of GROUP
+        out = nb.carray(_stack_empty(208, view), (13, GROUP))
+        inp[:] = 0.0  # the lanes past the last Gaussian compute on zeros, and are not written out
+        end = min(n, (blk + 1) * BLOCK)
+        for first in range(blk * BLOCK, end, GROUP):
+            m = min(GROUP, end - first)
+            for l in range(m):
+                i = first + l
+                inp[QW, l], inp[QX, l] = np.float64(quats[i, 0]), np.float64(quats[i, 1])
+                inp[QY, l], inp[QZ, l] = np.float64(quats[i, 2]), np.float64(quats[i, 3])
+                inp[S0, l], inp[S1, l], inp[S2, l] = (np.float64(scales[i, 0]), np.float64(scales[i, 1]),
+                                                      np.float64(scales[i, 2]))
+                inp[MU0, l], inp[MU1, l], inp[MU2, l] = (np.float64(means[i, 0]), np.float64(means[i, 1]),
+                                                         np.float64(means[i, 2]))
+                inp[OPACITY, l], inp[R2, l] = np.float64(opacities[i]), r2s[i]
+            _geometry_group(inp, out, cam)
+            for l in range(m):
+                i = first + l
+                depths[i] = out[DEPTH, l]
+                conics[i, 0], conics[i, 1], conics[i, 2] = out[CA, l], out[CB, l], out[CC, l]
+                means2d[i, 0], means2d[i, 1] = out[MX, l], out[MY, l]
+                ntiles[i] = int(out[NTILES, l])
+                if ntiles[i] > 0:
+                    bounds[i, 0], bounds[i, 1] = int(out[X0, l]), int(out[X1, l])
+                    bounds[i, 2], bounds[i, 3] = int(out[Y0, l]), int(out[Y1, l])
+                    half[i, 0], half[i, 1] = int(out[HX, l]), int(out[HY, l])
+                if n_bases == 0:
+                    continue
+                v0 = v1 = v2 = 0.0
+                if ntiles[i] > 0:
+                    d0, d1, d2 = inp[MU0, l] - center[0], inp[MU1, l] - center[1], inp[MU2, l] - center[2]
+                    inv = 1.0 / max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
+                    _sh_basis(basis, n_bases, d0 * inv, d1 * inv, d2 * inv)
+                    v0 = v1 = v2 = 0.5
+                    for k in range(n_bases):  # the three channels together: one pass over the coefficients
+                        bk = basis[k]
+                        v0 += bk * sh[i, k, 0]
+                        v1 += bk * sh[i, k, 1]
+                        v2 += bk * sh[i, k, 2]
                 rgb[i, 0] = max(v0, 0.0)
                 rgb[i, 1] = max(v1, 0.0)
                 rgb[i, 2] = max(v2, 0.0)
-            # the footprint: where opacity * G >= 1/255
-            ntiles[i] = 0
-            if not usable or not o >= ALPHA_MIN:
-                continue
-            r2 = r2s[i]
-            hx = np.sqrt(r2 * c00)
-            hy = np.sqrt(r2 * c11)
-            if not (np.isfinite(mx) and np.isfinite(my) and np.isfinite(hx) and np.isfinite(hy)):
-                continue
-            x0 = np.ceil(mx - hx - 0.5)
-            x1 = np.floor(mx + hx - 0.5)
-            y0 = np.ceil(my - hy - 0.5)
-            y1 = np.floor(my + hy - 0.5)
-            if x0 > x1 or y0 > y1 or x1 < 0 or y1 < 0 or x0 > width - 1 or y0 > height - 1:
-                continue
-            ix0 = int(max(x0, 0.0))
-            ix1 = int(min(x1, width - 1.0))
-            iy0 = int(max(y0, 0.0))
-            iy1 = int(min(y1, height - 1.0))
-            bounds[i, 0] = ix0
-            bounds[i, 1] = ix1
-            bounds[i, 2] = iy0
-            bounds[i, 3] = iy1
-            half[i, 0] = int(np.ceil(hx))
-            half[i, 1] = int(np.ceil(hy))
-            ntiles[i] = (ix1 // tile - ix0 // tile + 1) * (iy1 // tile - iy0 // tile + 1)
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
