@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     opacities = np.full(G, 0.0041, f32)
     bounds = np.tile(np.array([0, S - 1, 0, S - 1], np.int32), (G, 1))
     ntiles = np.full(G, ((S + 15) // 16) ** 2, np.int64)
-    order = kernels.depth_order(ntiles, np.arange(G, dtype=f32))
+    order = kernels.depth_order(ntiles, np.arange(G, dtype=f32), 1)
     lists, starts, counts = kernels.bin_tiles(order, bounds, S, S, 16, 1)
     busy = np.flatnonzero(counts > 0)
     channels = rng.random((G, 4)).astype(f32)

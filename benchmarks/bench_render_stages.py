@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             fwd, bwd = project_both(name, pk)
             times.setdefault(f"{name} projection fwd", []).append(fwd)
             times.setdefault(f"{name} projection bwd", []).append(bwd)
-        order = clock("depth order", lambda: kernels.depth_order(proj.ntiles, proj.depths))
+        order = clock("depth order", lambda: kernels.depth_order(proj.ntiles, proj.depths, workers))
         lists, starts, counts = clock("binning", lambda: kernels.bin_tiles(order, proj.bounds, W, H, view.tile,
                                                                             workers))
         busy = np.flatnonzero(counts > 0)

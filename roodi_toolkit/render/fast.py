@@ -140,7 +140,7 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
 
 def bin_gaussians(proj: Projected, view: View) -> Bins:
     """Return the drawn Gaussians binned to tiles, in depth order (stable: ties keep index order)."""
-    order = kernels.depth_order(proj.ntiles, proj.depths)
+    order = kernels.depth_order(proj.ntiles, proj.depths, _set_workers())
     lists, starts, counts = kernels.bin_tiles(order, proj.bounds, view.width, view.height, view.tile, _set_workers())
     return Bins(lists, starts, counts, np.flatnonzero(counts > 0))
 

@@ -52,38 +52,66 @@ prefetched; 10: the features too; 11: no channels, no copy; 12: the prefetch in 
 sums, maxima and channel updates as vector halves; 14: records on a cache line)."""
 
 
-@nb.njit(cache=True, nogil=True)
-def depth_order(ntiles, depths):  # pragma: no cover - compiled
+RADIX_BITS = 11
+"""Bits of the depth keys each pass of :func:`depth_order` sorts by: three passes of 2,048 buckets (11, 11, 10 bits),
+whose write cursors stay in the cache (two passes of 65,536: 1.09x the time, 8 bits: 1.2x; 500k Gaussians)."""
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def depth_order(ntiles, depths, workers):  # pragma: no cover - compiled
     """Return the ids ``[D]`` int64 of the drawn Gaussians (``ntiles > 0``) by increasing depth, ties in id order:
-    what ``argsort(kind="stable")`` gives, by a two-pass radix sort of the depths' float32 bit patterns (ordered
-    as unsigned integers once negative ones are flipped); it works in time linear in ``D``."""
+    what ``argsort(kind="stable")`` gives, by a radix sort of the depths' float32 bit patterns (ordered as unsigned
+    integers once negative ones are flipped), linear in ``D``. Each of ``workers`` counts and places a contiguous
+    stretch in every pass, after the stretches before it (a stable counting sort), so the order does not depend on
+    the number of workers. (Each key made from a one-value array, as before, was an allocation a Gaussian: half the
+    sort's time.)"""
     n = ntiles.shape[0]
-    count = 0
-    for i in range(n):
-        if ntiles[i] > 0:
-            count += 1
+    span = (n + workers - 1) // workers
+    drawn = np.zeros(workers + 1, np.int64)
+    for w in nb.prange(workers):
+        c = 0
+        for i in range(w * span, min(n, (w + 1) * span)):
+            if ntiles[i] > 0:
+                c += 1
+        drawn[w + 1] = c
+    for w in range(workers):
+        drawn[w + 1] += drawn[w]
+    count = drawn[workers]
     ids = np.empty(count, np.int64)
     keys = np.empty(count, np.uint32)
-    k = 0
-    for i in range(n):
-        if ntiles[i] > 0:
-            bits = np.array([np.float32(depths[i])]).view(np.uint32)[0]
-            keys[k] = bits ^ (np.uint32(0xFFFFFFFF) if bits >> 31 else np.uint32(0x80000000))
-            ids[k] = i
-            k += 1
+    patterns = depths.astype(np.float32).view(np.uint32)  # a copy, even of float32 depths: its view is contiguous
+    for w in nb.prange(workers):
+        k = drawn[w]
+        for i in range(w * span, min(n, (w + 1) * span)):
+            if ntiles[i] > 0:
+                bits = patterns[i]
+                keys[k] = bits ^ (np.uint32(0xFFFFFFFF) if bits >> 31 else np.uint32(0x80000000))
+                ids[k] = i
+                k += 1
     tmp_ids = np.empty(count, np.int64)
     tmp_keys = np.empty(count, np.uint32)
-    for shift in (0, 16):
-        hist = np.zeros(65537, np.int64)
-        for j in range(count):
-            hist[((keys[j] >> shift) & 0xFFFF) + 1] += 1
-        for d in range(65536):
-            hist[d + 1] += hist[d]
-        for j in range(count):
-            d = (keys[j] >> shift) & 0xFFFF
-            tmp_keys[hist[d]] = keys[j]
-            tmp_ids[hist[d]] = ids[j]
-            hist[d] += 1
+    buckets = 1 << RADIX_BITS
+    mask = np.uint32(buckets - 1)
+    cursor = np.empty((workers, buckets), np.int64)
+    part = (count + workers - 1) // workers
+    for shift in range(0, 32, RADIX_BITS):
+        for w in nb.prange(workers):
+            cursor[w, :] = 0
+            for j in range(w * part, min(count, (w + 1) * part)):
+                cursor[w, (keys[j] >> shift) & mask] += 1
+        total = 0
+        for d in range(buckets):  # bucket-major, worker-minor: the workers' cursors into the next pass's order
+            for w in range(workers):
+                c = cursor[w, d]
+                cursor[w, d] = total
+                total += c
+        for w in nb.prange(workers):
+            for j in range(w * part, min(count, (w + 1) * part)):
+                d = (keys[j] >> shift) & mask
+                at = cursor[w, d]
+                tmp_keys[at] = keys[j]
+                tmp_ids[at] = ids[j]
+                cursor[w, d] = at + 1
         keys, tmp_keys = tmp_keys, keys
         ids, tmp_ids = tmp_ids, ids
     return ids

@@ -188,8 +188,10 @@ def test_tile_binning_keeps_depth_order_whatever_the_workers():
                        np.minimum(y0 + rng.integers(0, 20, n), height - 1)], axis=1).astype(np.int32)  # [N, 4]
     ntiles = (rng.random(n) < 0.8).astype(np.int64)
     depths = rng.integers(0, 50, n).astype(np.float32)  # ties on purpose
-    order = kernels.depth_order(ntiles, depths)
-    assert np.array_equal(order, np.flatnonzero(ntiles)[np.argsort(depths[ntiles > 0], kind="stable")])
+    want = np.flatnonzero(ntiles)[np.argsort(depths[ntiles > 0], kind="stable")]
+    for workers in (1, 2, 3, 7):
+        assert np.array_equal(kernels.depth_order(ntiles, depths, workers), want), workers
+    order = want
     tiles_x = -(-width // tile)
     for workers in (1, 2, 3):
         lists, starts, counts = kernels.bin_tiles(order, bounds, width, height, tile, workers)
