@@ -131,12 +131,19 @@ def bin_tiles(order, bounds, width, height, tile, workers):  # pragma: no cover 
     n = order.shape[0]
     span = (n + workers - 1) // workers
     ranges = np.empty((n, 4), np.int32)  # tx0, tx1, ty0, ty1 in depth order
-    for k in nb.prange(n):
-        g = order[k]
-        ranges[k, 0] = bounds[g, 0] // tile
-        ranges[k, 1] = bounds[g, 1] // tile
-        ranges[k, 2] = bounds[g, 2] // tile
-        ranges[k, 3] = bounds[g, 3] // tile
+    shift = 0  # tiles of a power of two pixels: shifts, not four integer divisions a Gaussian
+    while (1 << shift) < tile:
+        shift += 1
+    if (1 << shift) == tile:
+        for k in nb.prange(n):
+            g = order[k]
+            for c in range(4):
+                ranges[k, c] = bounds[g, c] >> shift
+    else:
+        for k in nb.prange(n):
+            g = order[k]
+            for c in range(4):
+                ranges[k, c] = bounds[g, c] // tile
     per = np.zeros((workers, T), np.int64)
     for w in nb.prange(workers):
         for k in range(w * span, min(n, (w + 1) * span)):
