@@ -196,11 +196,11 @@ class _Render(torch.autograd.Function):
         ctx.state = (arrays, proj, channels, bins, t_final, last, view, n_bases, features.shape[1], colours)
         t_t = torch.from_numpy(t_final)
         render = torch.from_numpy(out)
-        if colours:
-            render = render + t_t[..., None] * torch.cat([background, background.new_zeros(channels.shape[1] - 3)])
+        if colours:  # in place: the array is this call's own
+            render[..., :3].addcmul_(t_t[..., None], background)
         drawn = proj.ntiles > 0
         means2d, depths = torch.from_numpy(proj.means2d), torch.from_numpy(proj.depths)
-        radii = torch.from_numpy(np.where(drawn[:, None], proj.half, 0).astype(np.int32))
+        radii = torch.from_numpy(proj.half)  # 0 where not drawn (``project`` writes only the drawn ones')
         ctx.mark_non_differentiable(means2d, depths)
         return render, (1.0 - t_t)[..., None], means2d, depths, torch.from_numpy(drawn), radii
 
@@ -242,20 +242,19 @@ class _Render(torch.autograd.Function):
         g_log_scales = np.zeros((n, 3), dtype)
         g_logits = np.zeros(n, dtype)
         g_sh = np.zeros(colors.shape, dtype) if n_bases > 0 else np.zeros((n, 1, 3), dtype)
-        g_rgb = np.ascontiguousarray(g_chan[:, :3])
+        g_rgb = g_chan[:, :3]
+        # the gradients' columns are passed as views (strided): copies of them were a tenth of the glue
         projection_kernels.project_backward(means, quats, proj.scales, proj.opacities,
                                             colors if n_bases > 0 else np.zeros((n, 1, 3), dtype), n_bases,
                                             view.view, view.center, view.intr, view.width, view.height, view.near,
-                                            view.far, view.eps2d, proj.ntiles, np.ascontiguousarray(g[:, :2]),
-                                            np.ascontiguousarray(g[:, 2:5]), np.ascontiguousarray(g[:, 5]), g_rgb,
-                                            np.ascontiguousarray(g_chan[:, 3]), g_means, g_quats, g_log_scales,
-                                            g_logits, g_sh, geometry)
+                                            view.far, view.eps2d, proj.ntiles, g[:, :2], g[:, 2:5], g[:, 5], g_rgb,
+                                            g_chan[:, 3], g_means, g_quats, g_log_scales, g_logits, g_sh, geometry)
         t = torch.from_numpy
-        g_colors = (t(g_sh) if n_bases > 0 else t(g_rgb)) if need_colors else None
+        g_colors = (t(g_sh) if n_bases > 0 else t(np.ascontiguousarray(g_rgb))) if need_colors else None
         if not geometry:
             return None, None, None, None, g_colors, g_features, g_background, None, None, None
         return (t(g_means), t(g_quats), t(g_log_scales), t(g_logits), g_colors, g_features, g_background,
-                t(np.ascontiguousarray(g[:, :2])), None, None)
+                t(g)[:, :2], None, None)
 
 
 def rasterize_fast(
