@@ -311,6 +311,121 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
                 rgb[i, 2] = max(v2, 0.0)
 
 
+# rows of the per-pass buffers of :func:`project_backward` (its inputs beyond the forward's: the outputs' gradients,
+# and the means' gradient from the colours), and what it computes
+GMX, GMY, GA, GB, GC, GOPACITY, GDEPTH, GSH0, GSH1, GSH2 = range(12, 22)
+GMU0, GMU1, GMU2, GS0, GS1, GS2, GQW, GQX, GQY, GQZ, GLOGIT = range(11)
+
+
+@nb.njit(inline="always")
+def _backward_group(inp, out, cam):  # pragma: no cover - compiled
+    """The projection's gradients of the ``GROUP`` Gaussians of ``inp`` [22, GROUP] (rows ``QW``..``R2`` as the
+    forward's, then ``GMX``..``GSH2``) into ``out`` [11, GROUP] (rows ``GMU0``..``GLOGIT``): the forward recomputed,
+    then its derivatives in reverse, one branch-free loop over the Gaussians that LLVM runs on vectors, as
+    :func:`_geometry_group`. Every expression is the one the per-Gaussian loop had, in the same order (the gradients
+    are bit-identical)."""
+    (v00, v01, v02, v03, v10, v11, v12, v13, v20, v21, v22, v23, fx, fy, cx, cy, lxp, lxn, lyp, lyn, near, far,
+     eps2d, wf, hf, tile) = cam
+    for l in range(GROUP):
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, w, x, y, z_, qnorm = _rotation(
+            inp[QW, l], inp[QX, l], inp[QY, l], inp[QZ, l])
+        s0, s1, s2 = inp[S0, l], inp[S1, l], inp[S2, l]
+        mu0, mu1, mu2 = inp[MU0, l], inp[MU1, l], inp[MU2, l]
+        p0 = v00 * mu0 + v01 * mu1 + v02 * mu2 + v03
+        p1 = v10 * mu0 + v11 * mu1 + v12 * mu2 + v13
+        p2 = v20 * mu0 + v21 * mu1 + v22 * mu2 + v23
+        usable = (p2 > near) & (p2 < far)
+        z = p2 if usable else 1.0
+        xz = p0 / z
+        yz = p1 / z
+        xc = min(max(xz, -lxn), lxp)
+        yc = min(max(yz, -lyn), lyp)
+        # Mc = W R S (columns j), T = J Mc (rows 0 and 1)
+        m00 = (v00 * r00 + v01 * r10 + v02 * r20) * s0
+        m10 = (v10 * r00 + v11 * r10 + v12 * r20) * s0
+        m20 = (v20 * r00 + v21 * r10 + v22 * r20) * s0
+        m01 = (v00 * r01 + v01 * r11 + v02 * r21) * s1
+        m11 = (v10 * r01 + v11 * r11 + v12 * r21) * s1
+        m21 = (v20 * r01 + v21 * r11 + v22 * r21) * s1
+        m02 = (v00 * r02 + v01 * r12 + v02 * r22) * s2
+        m12 = (v10 * r02 + v11 * r12 + v12 * r22) * s2
+        m22 = (v20 * r02 + v21 * r12 + v22 * r22) * s2
+        t00, t01, t02 = fx / z * (m00 - xc * m20), fx / z * (m01 - xc * m21), fx / z * (m02 - xc * m22)
+        t10, t11, t12 = fy / z * (m10 - yc * m20), fy / z * (m11 - yc * m21), fy / z * (m12 - yc * m22)
+        c00 = eps2d + t00 * t00 + t01 * t01 + t02 * t02
+        c01 = t00 * t10 + t01 * t11 + t02 * t12
+        c11 = eps2d + t10 * t10 + t11 * t11 + t12 * t12
+        raw_det = c00 * c11 - c01 * c01
+        det = max(raw_det, 1e-30)
+        # conic (a, b, c) = (c11, -c01, c00) / det
+        ga, gb, gc = inp[GA, l], inp[GB, l], inp[GC, l]
+        g_c00 = gc / det
+        g_c11 = ga / det
+        g_c01 = -gb / det
+        g_det = -(ga * c11 - gb * c01 + gc * c00) / (det * det)
+        free = raw_det > 1e-30  # the determinant not clamped
+        g_c00 = g_c00 + g_det * c11 if free else g_c00
+        g_c11 = g_c11 + g_det * c00 if free else g_c11
+        g_c01 = g_c01 - 2.0 * g_det * c01 if free else g_c01
+        # cov2d = T T^T + eps; T0 = fx/z (Mc0 - xc Mc2), T1 = fy/z (Mc1 - yc Mc2)
+        u00, u01, u02 = (2.0 * g_c00 * t00 + g_c01 * t10, 2.0 * g_c00 * t01 + g_c01 * t11,
+                         2.0 * g_c00 * t02 + g_c01 * t12)
+        u10, u11, u12 = (2.0 * g_c11 * t10 + g_c01 * t00, 2.0 * g_c11 * t11 + g_c01 * t01,
+                         2.0 * g_c11 * t12 + g_c01 * t02)
+        n00, n01, n02 = fx / z * u00, fx / z * u01, fx / z * u02
+        n10, n11, n12 = fy / z * u10, fy / z * u11, fy / z * u12
+        n20 = -(fx / z * xc * u00 + fy / z * yc * u10)
+        n21 = -(fx / z * xc * u01 + fy / z * yc * u11)
+        n22 = -(fx / z * xc * u02 + fy / z * yc * u12)
+        g_xc = 0.0 - fx / z * m20 * u00 - fx / z * m21 * u01 - fx / z * m22 * u02
+        g_yc = 0.0 - fy / z * m20 * u10 - fy / z * m21 * u11 - fy / z * m22 * u12
+        g_z = 0.0 - (u00 * t00 + u10 * t10) / z - (u01 * t01 + u11 * t11) / z - (u02 * t02 + u12 * t12) / z
+        # means2d = (fx xz + cx, fy yz + cy); the clamps pass the gradient inside the frustum
+        g_xz = fx * inp[GMX, l] + (g_xc if (-lxn < xz) & (xz < lxp) else 0.0)
+        g_yz = fy * inp[GMY, l] + (g_yc if (-lyn < yz) & (yz < lyp) else 0.0)
+        g_p0 = g_xz / z
+        g_p1 = g_yz / z
+        g_z -= (g_xz * p0 + g_yz * p1) / (z * z)
+        g_p2 = inp[GDEPTH, l] + (g_z if usable else 0.0)
+        out[GMU0, l] = inp[GSH0, l] + v00 * g_p0 + v10 * g_p1 + v20 * g_p2
+        out[GMU1, l] = inp[GSH1, l] + v01 * g_p0 + v11 * g_p1 + v21 * g_p2
+        out[GMU2, l] = inp[GSH2, l] + v02 * g_p0 + v12 * g_p1 + v22 * g_p2
+        # Mc = W R S: gR = W^T gMc S, g_s[j] = (W^T gMc)[:, j] . R[:, j]
+        w00, w10, w20 = v00 * n00 + v10 * n10 + v20 * n20, v01 * n00 + v11 * n10 + v21 * n20, \
+            v02 * n00 + v12 * n10 + v22 * n20
+        w01, w11, w21 = v00 * n01 + v10 * n11 + v20 * n21, v01 * n01 + v11 * n11 + v21 * n21, \
+            v02 * n01 + v12 * n11 + v22 * n21
+        w02, w12, w22 = v00 * n02 + v10 * n12 + v20 * n22, v01 * n02 + v11 * n12 + v21 * n22, \
+            v02 * n02 + v12 * n12 + v22 * n22
+        out[GS0, l] = (0.0 + w00 * r00 + w10 * r10 + w20 * r20) * s0
+        out[GS1, l] = (0.0 + w01 * r01 + w11 * r11 + w21 * r21) * s1
+        out[GS2, l] = (0.0 + w02 * r02 + w12 * r12 + w22 * r22) * s2
+        gR00, gR10, gR20 = w00 * s0, w10 * s0, w20 * s0
+        gR01, gR11, gR21 = w01 * s1, w11 * s1, w21 * s1
+        gR02, gR12, gR22 = w02 * s2, w12 * s2, w22 * s2
+        # R of the normalised quaternion (w, x, y, z), then the normalisation q / max(|q|, 1e-12)
+        gw = 2.0 * (-z_ * gR01 + y * gR02 + z_ * gR10 - x * gR12 - y * gR20 + x * gR21)
+        gx = 2.0 * (y * gR01 + z_ * gR02 + y * gR10 - 2.0 * x * gR11 - w * gR12 + z_ * gR20 + w * gR21
+                    - 2.0 * x * gR22)
+        gy = 2.0 * (-2.0 * y * gR00 + x * gR01 + w * gR02 + x * gR10 + z_ * gR12 - w * gR20 + z_ * gR21
+                    - 2.0 * y * gR22)
+        gz = 2.0 * (-2.0 * z_ * gR00 - w * gR01 + x * gR02 + w * gR10 - 2.0 * z_ * gR11 + y * gR12 + x * gR20
+                    + y * gR21)
+        dot = gw * w + gx * x + gy * y + gz * z_
+        unit = qnorm > 1e-12
+        gw = gw - dot * w if unit else gw
+        gx = gx - dot * x if unit else gx
+        gy = gy - dot * y if unit else gy
+        gz = gz - dot * z_ if unit else gz
+        inv_q = 1.0 / max(qnorm, 1e-12)
+        out[GQW, l] = gw * inv_q
+        out[GQX, l] = gx * inv_q
+        out[GQY, l] = gy * inv_q
+        out[GQZ, l] = gz * inv_q
+        o = inp[OPACITY, l]
+        out[GLOGIT, l] = inp[GOPACITY, l] * o * (1.0 - o)
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
 def project_backward(means, quats, scales, opacities, sh, n_bases, view, center, intr, width, height, near,
                      far, eps2d, ntiles, g_means2d, g_conics, g_opacities, g_rgb, g_depths, g_means, g_quats,
@@ -321,149 +436,92 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
     ``g_rgb`` [N, 3] is used when ``n_bases`` > 0 (then ``g_sh`` [N, K, 3] is written and the direction's gradient
     reaches the means); ``geometry`` False skips the projection's gradients (only colours are trained). Gaussians
     the forward did not draw (``ntiles`` 0) have no gradient from the image: their rows of the outputs, zeroed by
-    the caller, are left as they are.
+    the caller, are left as they are. Each drawn Gaussian's colour gradients are worked out in turn, then
+    ``GROUP`` Gaussians' projection gradients together (:func:`_backward_group`).
     """
     n = means.shape[0]
     fx, fy, cx, cy, lxp, lxn, lyp, lyn = _frustum(intr, width, height)
+    cam = (view[0, 0], view[0, 1], view[0, 2], view[0, 3], view[1, 0], view[1, 1], view[1, 2], view[1, 3],
+           view[2, 0], view[2, 1], view[2, 2], view[2, 3], fx, fy, cx, cy, lxp, lxn, lyp, lyn, near, far, eps2d,
+           width - 1.0, height - 1.0, 1.0)
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
-        # scratch on the stack, where LLVM keeps it in registers (heap arrays were read and written through memory:
-        # the backward 1.21x, benchmarks/bench_render_stages.py's scene, 500k Gaussians, one thread)
-        R = nb.carray(_stack_empty(9, view), (3, 3))
-        s = nb.carray(_stack_empty(3, view), (3,))
-        Mc = nb.carray(_stack_empty(9, view), (3, 3))
-        T0 = nb.carray(_stack_empty(3, view), (3,))
-        T1 = nb.carray(_stack_empty(3, view), (3,))
-        gT0 = nb.carray(_stack_empty(3, view), (3,))
-        gT1 = nb.carray(_stack_empty(3, view), (3,))
-        gMc = nb.carray(_stack_empty(9, view), (3, 3))
-        gR = nb.carray(_stack_empty(9, view), (3, 3))
         basis = nb.carray(_stack_empty(16, view), (16,))
         bgrad = nb.carray(_stack_empty(48, view), (3, 16))
-        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
-            if ntiles[i] == 0:
-                continue
-            mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-            gm0 = 0.0
-            gm1 = 0.0
-            gm2 = 0.0
-            if n_bases > 0:
-                d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
-                norm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-                inv = 1.0 / max(norm, 1e-12)
-                ux, uy, uz = d0 * inv, d1 * inv, d2 * inv
-                _sh_basis(basis, n_bases, ux, uy, uz)
-                _sh_basis_grad(bgrad, n_bases, ux, uy, uz)
-                v0 = v1 = v2 = 0.5
-                for k in range(n_bases):  # the forward's colours, to know where the clamp at 0 passed no gradient
-                    bk = basis[k]
-                    v0 += bk * sh[i, k, 0]
-                    v1 += bk * sh[i, k, 1]
-                    v2 += bk * sh[i, k, 2]
-                g0 = np.float64(g_rgb[i, 0]) if v0 >= 0.0 else 0.0
-                g1 = np.float64(g_rgb[i, 1]) if v1 >= 0.0 else 0.0
-                g2 = np.float64(g_rgb[i, 2]) if v2 >= 0.0 else 0.0
-                gux = 0.0
-                guy = 0.0
-                guz = 0.0
-                for k in range(n_bases):  # dL/d(coefficient) and, through the basis, dL/d(direction)
-                    bk = basis[k]
-                    g_sh[i, k, 0] = bk * g0
-                    g_sh[i, k, 1] = bk * g1
-                    g_sh[i, k, 2] = bk * g2
-                    wk = g0 * sh[i, k, 0] + g1 * sh[i, k, 1] + g2 * sh[i, k, 2]
-                    gux += wk * bgrad[0, k]
-                    guy += wk * bgrad[1, k]
-                    guz += wk * bgrad[2, k]
-                if norm > 1e-12:  # d(d / |d|) = (I - u u^T) / |d|
-                    dot = gux * ux + guy * uy + guz * uz
-                    gux -= dot * ux
-                    guy -= dot * uy
-                    guz -= dot * uz
-                gm0 += gux * inv
-                gm1 += guy * inv
-                gm2 += guz * inv
+        inp = nb.carray(_stack_empty(352, view), (22, GROUP))  # sizes: integer literals, 22 and 11 rows of GROUP
+        out = nb.carray(_stack_empty(176, view), (11, GROUP))
+        inp[:] = 1.0  # lanes of Gaussians not drawn compute on whatever their rows hold, and are not written out
+        end = min(n, (blk + 1) * BLOCK)
+        for first in range(blk * BLOCK, end, GROUP):
+            m = min(GROUP, end - first)
+            for l in range(m):
+                i = first + l
+                if ntiles[i] == 0:
+                    continue
+                mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+                gm0 = 0.0
+                gm1 = 0.0
+                gm2 = 0.0
+                if n_bases > 0:
+                    d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
+                    norm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                    inv = 1.0 / max(norm, 1e-12)
+                    ux, uy, uz = d0 * inv, d1 * inv, d2 * inv
+                    _sh_basis(basis, n_bases, ux, uy, uz)
+                    _sh_basis_grad(bgrad, n_bases, ux, uy, uz)
+                    v0 = v1 = v2 = 0.5
+                    for k in range(n_bases):  # the forward's colours, to know where the clamp at 0 passed no gradient
+                        bk = basis[k]
+                        v0 += bk * sh[i, k, 0]
+                        v1 += bk * sh[i, k, 1]
+                        v2 += bk * sh[i, k, 2]
+                    g0 = np.float64(g_rgb[i, 0]) if v0 >= 0.0 else 0.0
+                    g1 = np.float64(g_rgb[i, 1]) if v1 >= 0.0 else 0.0
+                    g2 = np.float64(g_rgb[i, 2]) if v2 >= 0.0 else 0.0
+                    gux = 0.0
+                    guy = 0.0
+                    guz = 0.0
+                    for k in range(n_bases):  # dL/d(coefficient) and, through the basis, dL/d(direction)
+                        bk = basis[k]
+                        g_sh[i, k, 0] = bk * g0
+                        g_sh[i, k, 1] = bk * g1
+                        g_sh[i, k, 2] = bk * g2
+                        wk = g0 * sh[i, k, 0] + g1 * sh[i, k, 1] + g2 * sh[i, k, 2]
+                        gux += wk * bgrad[0, k]
+                        guy += wk * bgrad[1, k]
+                        guz += wk * bgrad[2, k]
+                    if norm > 1e-12:  # d(d / |d|) = (I - u u^T) / |d|
+                        dot = gux * ux + guy * uy + guz * uz
+                        gux -= dot * ux
+                        guy -= dot * uy
+                        guz -= dot * uz
+                    gm0 += gux * inv
+                    gm1 += guy * inv
+                    gm2 += guz * inv
+                if not geometry:
+                    g_means[i, 0] = gm0
+                    g_means[i, 1] = gm1
+                    g_means[i, 2] = gm2
+                    continue
+                inp[QW, l], inp[QX, l] = np.float64(quats[i, 0]), np.float64(quats[i, 1])
+                inp[QY, l], inp[QZ, l] = np.float64(quats[i, 2]), np.float64(quats[i, 3])
+                inp[S0, l], inp[S1, l], inp[S2, l] = (np.float64(scales[i, 0]), np.float64(scales[i, 1]),
+                                                      np.float64(scales[i, 2]))
+                inp[MU0, l], inp[MU1, l], inp[MU2, l] = mu0, mu1, mu2
+                inp[OPACITY, l] = np.float64(opacities[i])
+                inp[GMX, l], inp[GMY, l] = np.float64(g_means2d[i, 0]), np.float64(g_means2d[i, 1])
+                inp[GA, l], inp[GB, l] = np.float64(g_conics[i, 0]), np.float64(g_conics[i, 1])
+                inp[GC, l] = np.float64(g_conics[i, 2])
+                inp[GOPACITY, l], inp[GDEPTH, l] = np.float64(g_opacities[i]), np.float64(g_depths[i])
+                inp[GSH0, l], inp[GSH1, l], inp[GSH2, l] = gm0, gm1, gm2
             if not geometry:
-                g_means[i, 0] = gm0
-                g_means[i, 1] = gm1
-                g_means[i, 2] = gm2
                 continue
-            # ---- recompute the forward
-            R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2], w, x, y, qz_, qnorm = \
-                _rotation(np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
-                          np.float64(quats[i, 3]))
-            for j in range(3):
-                s[j] = np.float64(scales[i, j])
-            p0, p1, p2, usable, z, xz, yz, xc, yc = _camera_point(view, mu0, mu1, mu2, near, far, lxp, lxn, lyp, lyn)
-            for j in range(3):  # Mc = W R S, camera-space columns j
-                for r in range(3):
-                    Mc[r, j] = (view[r, 0] * R[0, j] + view[r, 1] * R[1, j] + view[r, 2] * R[2, j]) * s[j]
-                T0[j] = fx / z * (Mc[0, j] - xc * Mc[2, j])
-                T1[j] = fy / z * (Mc[1, j] - yc * Mc[2, j])
-            c00 = eps2d + T0[0] * T0[0] + T0[1] * T0[1] + T0[2] * T0[2]
-            c01 = T0[0] * T1[0] + T0[1] * T1[1] + T0[2] * T1[2]
-            c11 = eps2d + T1[0] * T1[0] + T1[1] * T1[1] + T1[2] * T1[2]
-            raw_det = c00 * c11 - c01 * c01
-            det = max(raw_det, 1e-30)
-            # ---- conic (a, b, c) = (c11, -c01, c00) / det
-            ga, gb, gc = np.float64(g_conics[i, 0]), np.float64(g_conics[i, 1]), np.float64(g_conics[i, 2])
-            g_c00 = gc / det
-            g_c11 = ga / det
-            g_c01 = -gb / det
-            if raw_det > 1e-30:
-                g_det = -(ga * c11 - gb * c01 + gc * c00) / (det * det)
-                g_c00 += g_det * c11
-                g_c11 += g_det * c00
-                g_c01 -= 2.0 * g_det * c01
-            # ---- cov2d = T T^T + eps; T0 = fx/z (Mc0 - xc Mc2), T1 = fy/z (Mc1 - yc Mc2)
-            g_xc = 0.0
-            g_yc = 0.0
-            g_z = 0.0
-            for j in range(3):
-                gT0[j] = 2.0 * g_c00 * T0[j] + g_c01 * T1[j]
-                gT1[j] = 2.0 * g_c11 * T1[j] + g_c01 * T0[j]
-                gMc[0, j] = fx / z * gT0[j]
-                gMc[1, j] = fy / z * gT1[j]
-                gMc[2, j] = -(fx / z * xc * gT0[j] + fy / z * yc * gT1[j])
-                g_xc -= fx / z * Mc[2, j] * gT0[j]
-                g_yc -= fy / z * Mc[2, j] * gT1[j]
-                g_z -= (gT0[j] * T0[j] + gT1[j] * T1[j]) / z
-            # ---- means2d = (fx xz + cx, fy yz + cy); the clamps pass the gradient inside the frustum
-            g_xz = fx * np.float64(g_means2d[i, 0]) + (g_xc if -lxn < xz < lxp else 0.0)
-            g_yz = fy * np.float64(g_means2d[i, 1]) + (g_yc if -lyn < yz < lyp else 0.0)
-            g_p0 = g_xz / z
-            g_p1 = g_yz / z
-            g_z -= (g_xz * p0 + g_yz * p1) / (z * z)
-            g_p2 = np.float64(g_depths[i]) + (g_z if usable else 0.0)
-            g_means[i, 0] = gm0 + view[0, 0] * g_p0 + view[1, 0] * g_p1 + view[2, 0] * g_p2
-            g_means[i, 1] = gm1 + view[0, 1] * g_p0 + view[1, 1] * g_p1 + view[2, 1] * g_p2
-            g_means[i, 2] = gm2 + view[0, 2] * g_p0 + view[1, 2] * g_p1 + view[2, 2] * g_p2
-            # ---- Mc = W R S: gR = W^T gMc S, g_s[j] = (W^T gMc)[:, j] . R[:, j]
-            for j in range(3):
-                gs = 0.0
-                for r in range(3):
-                    gwr = view[0, r] * gMc[0, j] + view[1, r] * gMc[1, j] + view[2, r] * gMc[2, j]
-                    gR[r, j] = gwr * s[j]
-                    gs += gwr * R[r, j]
-                g_log_scales[i, j] = gs * s[j]
-            # ---- R of the normalised quaternion (w, x, y, z), then the normalisation q / max(|q|, 1e-12)
-            z_ = qz_
-            gw = 2.0 * (-z_ * gR[0, 1] + y * gR[0, 2] + z_ * gR[1, 0] - x * gR[1, 2] - y * gR[2, 0] + x * gR[2, 1])
-            gx = 2.0 * (y * gR[0, 1] + z_ * gR[0, 2] + y * gR[1, 0] - 2.0 * x * gR[1, 1] - w * gR[1, 2]
-                        + z_ * gR[2, 0] + w * gR[2, 1] - 2.0 * x * gR[2, 2])
-            gy = 2.0 * (-2.0 * y * gR[0, 0] + x * gR[0, 1] + w * gR[0, 2] + x * gR[1, 0] + z_ * gR[1, 2]
-                        - w * gR[2, 0] + z_ * gR[2, 1] - 2.0 * y * gR[2, 2])
-            gz = 2.0 * (-2.0 * z_ * gR[0, 0] - w * gR[0, 1] + x * gR[0, 2] + w * gR[1, 0] - 2.0 * z_ * gR[1, 1]
-                        + y * gR[1, 2] + x * gR[2, 0] + y * gR[2, 1])
-            if qnorm > 1e-12:
-                dot = gw * w + gx * x + gy * y + gz * z_
-                gw -= dot * w
-                gx -= dot * x
-                gy -= dot * y
-                gz -= dot * z_
-            inv_q = 1.0 / max(qnorm, 1e-12)
-            g_quats[i, 0] = gw * inv_q
-            g_quats[i, 1] = gx * inv_q
-            g_quats[i, 2] = gy * inv_q
-            g_quats[i, 3] = gz * inv_q
-            o = np.float64(opacities[i])
-            g_logits[i] = np.float64(g_opacities[i]) * o * (1.0 - o)
+            _backward_group(inp, out, cam)
+            for l in range(m):
+                i = first + l
+                if ntiles[i] == 0:
+                    continue
+                g_means[i, 0], g_means[i, 1], g_means[i, 2] = out[GMU0, l], out[GMU1, l], out[GMU2, l]
+                g_log_scales[i, 0], g_log_scales[i, 1], g_log_scales[i, 2] = out[GS0, l], out[GS1, l], out[GS2, l]
+                g_quats[i, 0], g_quats[i, 1] = out[GQW, l], out[GQX, l]
+                g_quats[i, 2], g_quats[i, 3] = out[GQY, l], out[GQZ, l]
+                g_logits[i] = out[GLOGIT, l]
