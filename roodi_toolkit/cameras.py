@@ -116,6 +116,20 @@ class Camera:
         return Camera(self.world_to_camera, K, max(1, round(self.width * factor)), max(1, round(self.height * factor)),
                       self.near, self.far, self.name)
 
+    def cropped(self, x0: int, y0: int, width: int, height: int) -> "Camera":
+        """Return this camera seeing only the ``width`` x ``height`` pixels from column ``x0``, row ``y0`` (the same
+        rays: the principal point moves).
+
+        Example:
+            >>> cam = Camera(np.eye(4), np.array([[100.0, 0, 50], [0, 100, 40], [0, 0, 1]]), 100, 80)
+            >>> cam.cropped(10, 20, 30, 30).K[:2, 2].tolist()
+            [40.0, 20.0]
+        """
+        K = self.K.copy()
+        K[0, 2] -= x0
+        K[1, 2] -= y0
+        return Camera(self.world_to_camera, K, int(width), int(height), self.near, self.far, self.name)
+
     def with_size(self, width: int, height: int) -> "Camera":
         """Return this camera rescaled to another image size (intrinsics scaled per axis)."""
         K = self.K.copy()

@@ -94,6 +94,39 @@ def test_targets_keep_the_object_and_ignore_where_it_may_hide():
     assert (t.weights[0][masks[0]] == 1).all() and t.weights[0][0, 0] == 1
 
 
+def test_targets_render_the_depth_only_round_the_objects_outline():
+    """Asked to render the depth itself, the targets' test asks for the rectangle round the sphere's outline only,
+    and finds the pixels that may hide the object exactly as from the whole view's depth."""
+    from roodi_toolkit.cameras import Camera, intrinsics_from_fov, look_at
+    from roodi_toolkit.params import GaussianParams
+    from roodi_toolkit.render.renderer import resolve_renderer
+
+    rng = np.random.default_rng(2)
+    n = 400
+    scene = GaussianCloud.from_activated(rng.uniform(-1.5, 1.5, (n, 3)) * [1, 0.2, 1] - [0, 1.2, 0],
+                                         scales=np.full((n, 3), 0.08), opacities=np.full(n, 0.9),
+                                         rgb=rng.random((n, 3)))  # a wall between the camera and the object
+    params = GaussianParams.from_cloud(scene)
+    renderer = resolve_renderer(None)
+    cam = Camera(look_at([0.3, -4, 0.2], [0, 0, 0]), intrinsics_from_fov(0.8, 96, 80), 96, 80)
+    masks = torch.zeros(1, 80, 96, dtype=torch.bool)
+    masks[0, 35:45, 40:55] = True
+    images = torch.full((1, 80, 96, 3), 0.3)
+    asked = []
+
+    def render_depth(camera):
+        asked.append((camera.width, camera.height))
+        return renderer.render(params, camera).depth[..., 0]
+
+    whole = renderer.render(params, cam).depth[..., 0][None]
+    kwargs = dict(centre=np.zeros(3), radius=0.6, background=(1.0, 1.0, 1.0))
+    cropped = object_view_targets(images, [cam], masks, render_depth=render_depth, **kwargs)
+    full = object_view_targets(images, [cam], masks, depths=whole, **kwargs)
+    assert len(asked) == 1 and asked[0][0] * asked[0][1] < 96 * 80 / 3
+    assert torch.equal(cropped.weights[0], full.weights[0])
+    assert (full.weights[0] == 0).sum() > 20  # the wall in front hides part of the outline
+
+
 def test_finetune_fits_targets_follows_the_schedule_and_leaves_the_input_alone():
     obj, _, images, cams, masks = tiny_refine_inputs()
     before = obj.copy()
