@@ -318,6 +318,28 @@ GMU0, GMU1, GMU2, GS0, GS1, GS2, GQW, GQX, GQY, GQZ, GLOGIT = range(11)
 
 
 @nb.njit(inline="always")
+def _quaternion_grad(w, x, y, z_, qnorm, gR00, gR01, gR02, gR10, gR11, gR12, gR20, gR21,
+                     gR22):  # pragma: no cover - compiled
+    """The gradient of the raw quaternion from that of its rotation matrix ``gR`` (row-major): through R of the
+    normalised quaternion (w, x, y, z), then the normalisation q / max(|q|, 1e-12)."""
+    gw = 2.0 * (-z_ * gR01 + y * gR02 + z_ * gR10 - x * gR12 - y * gR20 + x * gR21)
+    gx = 2.0 * (y * gR01 + z_ * gR02 + y * gR10 - 2.0 * x * gR11 - w * gR12 + z_ * gR20 + w * gR21
+                - 2.0 * x * gR22)
+    gy = 2.0 * (-2.0 * y * gR00 + x * gR01 + w * gR02 + x * gR10 + z_ * gR12 - w * gR20 + z_ * gR21
+                - 2.0 * y * gR22)
+    gz = 2.0 * (-2.0 * z_ * gR00 - w * gR01 + x * gR02 + w * gR10 - 2.0 * z_ * gR11 + y * gR12 + x * gR20
+                + y * gR21)
+    dot = gw * w + gx * x + gy * y + gz * z_
+    unit = qnorm > 1e-12
+    gw = gw - dot * w if unit else gw
+    gx = gx - dot * x if unit else gx
+    gy = gy - dot * y if unit else gy
+    gz = gz - dot * z_ if unit else gz
+    inv_q = 1.0 / max(qnorm, 1e-12)
+    return gw * inv_q, gx * inv_q, gy * inv_q, gz * inv_q
+
+
+@nb.njit(inline="always")
 def _backward_group(inp, out, cam):  # pragma: no cover - compiled
     """The projection's gradients of the ``GROUP`` Gaussians of ``inp`` [22, GROUP] (rows ``QW``..``R2`` as the
     forward's, then ``GMX``..``GSH2``) into ``out`` [11, GROUP] (rows ``GMU0``..``GLOGIT``): the forward recomputed,
@@ -403,25 +425,8 @@ def _backward_group(inp, out, cam):  # pragma: no cover - compiled
         gR00, gR10, gR20 = w00 * s0, w10 * s0, w20 * s0
         gR01, gR11, gR21 = w01 * s1, w11 * s1, w21 * s1
         gR02, gR12, gR22 = w02 * s2, w12 * s2, w22 * s2
-        # R of the normalised quaternion (w, x, y, z), then the normalisation q / max(|q|, 1e-12)
-        gw = 2.0 * (-z_ * gR01 + y * gR02 + z_ * gR10 - x * gR12 - y * gR20 + x * gR21)
-        gx = 2.0 * (y * gR01 + z_ * gR02 + y * gR10 - 2.0 * x * gR11 - w * gR12 + z_ * gR20 + w * gR21
-                    - 2.0 * x * gR22)
-        gy = 2.0 * (-2.0 * y * gR00 + x * gR01 + w * gR02 + x * gR10 + z_ * gR12 - w * gR20 + z_ * gR21
-                    - 2.0 * y * gR22)
-        gz = 2.0 * (-2.0 * z_ * gR00 - w * gR01 + x * gR02 + w * gR10 - 2.0 * z_ * gR11 + y * gR12 + x * gR20
-                    + y * gR21)
-        dot = gw * w + gx * x + gy * y + gz * z_
-        unit = qnorm > 1e-12
-        gw = gw - dot * w if unit else gw
-        gx = gx - dot * x if unit else gx
-        gy = gy - dot * y if unit else gy
-        gz = gz - dot * z_ if unit else gz
-        inv_q = 1.0 / max(qnorm, 1e-12)
-        out[GQW, l] = gw * inv_q
-        out[GQX, l] = gx * inv_q
-        out[GQY, l] = gy * inv_q
-        out[GQZ, l] = gz * inv_q
+        out[GQW, l], out[GQX, l], out[GQY, l], out[GQZ, l] = _quaternion_grad(
+            w, x, y, z_, qnorm, gR00, gR01, gR02, gR10, gR11, gR12, gR20, gR21, gR22)
         o = inp[OPACITY, l]
         out[GLOGIT, l] = inp[GOPACITY, l] * o * (1.0 - o)
 
