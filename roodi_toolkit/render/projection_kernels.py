@@ -161,6 +161,23 @@ def _camera_point(cam, mu0, mu1, mu2):  # pragma: no cover - compiled
     return p0, p1, p2, usable, z, xz, yz, min(max(xz, -lxn), lxp), min(max(yz, -lyn), lyp)
 
 
+@nb.njit(inline="always")
+def _camera_column(cam, r0, r1, r2, s):  # pragma: no cover - compiled
+    """Return column ``j`` of ``W R S`` (the Gaussian's axis ``j`` in camera space) from column ``j`` of ``R``
+    (``r0``, ``r1``, ``r2``) and the scale ``s``; ``W`` the rotation of the kernels' camera tuple ``cam``."""
+    v00, v01, v02, _, v10, v11, v12, _, v20, v21, v22 = cam[:11]
+    return ((v00 * r0 + v01 * r1 + v02 * r2) * s, (v10 * r0 + v11 * r1 + v12 * r2) * s,
+            (v20 * r0 + v21 * r1 + v22 * r2) * s)
+
+
+@nb.njit(inline="always")
+def _screen_column(cam, a0, a1, xc, yc, r0, r1, r2, s):  # pragma: no cover - compiled
+    """Return column ``j`` of ``T = J W R S`` (two rows): :func:`_camera_column` through the perspective Jacobian
+    (``a0 = fx / z``, ``a1 = fy / z``, ``xc``, ``yc`` the clamped ``x/z``, ``y/z``)."""
+    m0, m1, m2 = _camera_column(cam, r0, r1, r2, s)
+    return a0 * (m0 - xc * m2), a1 * (m1 - yc * m2)
+
+
 # rows of the per-pass buffers of :func:`project_forward`: what it reads of each Gaussian, what it computes
 QW, QX, QY, QZ, S0, S1, S2, MU0, MU1, MU2, OPACITY, R2 = range(12)
 DEPTH, MX, MY, CA, CB, CC, X0, X1, Y0, Y1, HX, HY, NTILES = range(13)
@@ -184,30 +201,15 @@ def _geometry_group(inp, out, cam):  # pragma: no cover - compiled
         # T = J W R S, column by column: column j of W R S, then J's two rows
         a0 = fx / z
         a1 = fy / z
-        m0 = (v00 * r00 + v01 * r10 + v02 * r20) * inp[S0, l]
-        m1 = (v10 * r00 + v11 * r10 + v12 * r20) * inp[S0, l]
-        m2 = (v20 * r00 + v21 * r10 + v22 * r20) * inp[S0, l]
-        t0 = a0 * (m0 - xc * m2)
-        t1 = a1 * (m1 - yc * m2)
+        t0, t1 = _screen_column(cam, a0, a1, xc, yc, r00, r10, r20, inp[S0, l])
         c00 = eps2d + t0 * t0
         c01 = 0.0 + t0 * t1
         c11 = eps2d + t1 * t1
-        m0 = (v00 * r01 + v01 * r11 + v02 * r21) * inp[S1, l]
-        m1 = (v10 * r01 + v11 * r11 + v12 * r21) * inp[S1, l]
-        m2 = (v20 * r01 + v21 * r11 + v22 * r21) * inp[S1, l]
-        t0 = a0 * (m0 - xc * m2)
-        t1 = a1 * (m1 - yc * m2)
-        c00 += t0 * t0
-        c01 += t0 * t1
-        c11 += t1 * t1
-        m0 = (v00 * r02 + v01 * r12 + v02 * r22) * inp[S2, l]
-        m1 = (v10 * r02 + v11 * r12 + v12 * r22) * inp[S2, l]
-        m2 = (v20 * r02 + v21 * r12 + v22 * r22) * inp[S2, l]
-        t0 = a0 * (m0 - xc * m2)
-        t1 = a1 * (m1 - yc * m2)
-        c00 += t0 * t0
-        c01 += t0 * t1
-        c11 += t1 * t1
+        for t0, t1 in (_screen_column(cam, a0, a1, xc, yc, r01, r11, r21, inp[S1, l]),
+                       _screen_column(cam, a0, a1, xc, yc, r02, r12, r22, inp[S2, l])):
+            c00 += t0 * t0
+            c01 += t0 * t1
+            c11 += t1 * t1
         det = max(c00 * c11 - c01 * c01, 1e-30)
         out[CA, l] = c11 / det
         out[CB, l] = -c01 / det
@@ -349,15 +351,9 @@ def _backward_group(inp, out, cam):  # pragma: no cover - compiled
         s0, s1, s2 = inp[S0, l], inp[S1, l], inp[S2, l]
         p0, p1, p2, usable, z, xz, yz, xc, yc = _camera_point(cam, inp[MU0, l], inp[MU1, l], inp[MU2, l])
         # Mc = W R S (columns j), T = J Mc (rows 0 and 1)
-        m00 = (v00 * r00 + v01 * r10 + v02 * r20) * s0
-        m10 = (v10 * r00 + v11 * r10 + v12 * r20) * s0
-        m20 = (v20 * r00 + v21 * r10 + v22 * r20) * s0
-        m01 = (v00 * r01 + v01 * r11 + v02 * r21) * s1
-        m11 = (v10 * r01 + v11 * r11 + v12 * r21) * s1
-        m21 = (v20 * r01 + v21 * r11 + v22 * r21) * s1
-        m02 = (v00 * r02 + v01 * r12 + v02 * r22) * s2
-        m12 = (v10 * r02 + v11 * r12 + v12 * r22) * s2
-        m22 = (v20 * r02 + v21 * r12 + v22 * r22) * s2
+        m00, m10, m20 = _camera_column(cam, r00, r10, r20, s0)
+        m01, m11, m21 = _camera_column(cam, r01, r11, r21, s1)
+        m02, m12, m22 = _camera_column(cam, r02, r12, r22, s2)
         t00, t01, t02 = fx / z * (m00 - xc * m20), fx / z * (m01 - xc * m21), fx / z * (m02 - xc * m22)
         t10, t11, t12 = fy / z * (m10 - yc * m20), fy / z * (m11 - yc * m21), fy / z * (m12 - yc * m22)
         c00 = eps2d + t00 * t00 + t01 * t01 + t02 * t02
