@@ -134,13 +134,19 @@ def _sh_basis_grad(out, n_bases, x, y, z):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _frustum(intr, width, height):  # pragma: no cover - compiled
+def _camera(view, intr, width, height, near, far, eps2d, tile):  # pragma: no cover - compiled
+    """Return the kernels' camera tuple: the world-to-camera matrix's first three rows (12 values), fx, fy, cx, cy,
+    the frustum widened by 30% that clamps the Jacobian (``x/z`` up to ``lxp``, down to ``-lxn``; ``y/z`` likewise),
+    near, far, eps2d, the last pixel column and row, and the tile size (floats: the loops over Gaussians divide by
+    it)."""
     fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
-    lim_x_pos = (width - cx) / fx + 0.3 * (0.5 * width / fx)
-    lim_x_neg = cx / fx + 0.3 * (0.5 * width / fx)
-    lim_y_pos = (height - cy) / fy + 0.3 * (0.5 * height / fy)
-    lim_y_neg = cy / fy + 0.3 * (0.5 * height / fy)
-    return fx, fy, cx, cy, lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg
+    lxp = (width - cx) / fx + 0.3 * (0.5 * width / fx)
+    lxn = cx / fx + 0.3 * (0.5 * width / fx)
+    lyp = (height - cy) / fy + 0.3 * (0.5 * height / fy)
+    lyn = cy / fy + 0.3 * (0.5 * height / fy)
+    return (view[0, 0], view[0, 1], view[0, 2], view[0, 3], view[1, 0], view[1, 1], view[1, 2], view[1, 3],
+            view[2, 0], view[2, 1], view[2, 2], view[2, 3], fx, fy, cx, cy, lxp, lxn, lyp, lyn, near, far, eps2d,
+            width - 1.0, height - 1.0, np.float64(tile))
 
 
 @nb.njit(inline="always")
@@ -191,8 +197,8 @@ def _geometry_group(inp, out, cam):  # pragma: no cover - compiled
     vectors of Gaussians (1.12-1.18x the whole forward's per-Gaussian loop, 500k Gaussians, one thread).
     The tile counts come from float divisions: the integer ones were a division instruction each, four per Gaussian.
     """
-    (v00, v01, v02, v03, v10, v11, v12, v13, v20, v21, v22, v23, fx, fy, cx, cy, lxp, lxn, lyp, lyn, near, far,
-     eps2d, wf, hf, tile) = cam
+    fx, fy, cx, cy = cam[12:16]
+    eps2d, wf, hf, tile = cam[22:26]
     for l in range(GROUP):
         r00, r01, r02, r10, r11, r12, r20, r21, r22, _, _, _, _, _ = _rotation(
             inp[QW, l], inp[QX, l], inp[QY, l], inp[QZ, l])
@@ -258,10 +264,7 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
     written out; each drawn one's colour then reads its SH coefficients.
     """
     n = means.shape[0]
-    fx, fy, cx, cy, lxp, lxn, lyp, lyn = _frustum(intr, width, height)
-    cam = (view[0, 0], view[0, 1], view[0, 2], view[0, 3], view[1, 0], view[1, 1], view[1, 2], view[1, 3],
-           view[2, 0], view[2, 1], view[2, 2], view[2, 3], fx, fy, cx, cy, lxp, lxn, lyp, lyn, near, far, eps2d,
-           width - 1.0, height - 1.0, np.float64(tile))
+    cam = _camera(view, intr, width, height, near, far, eps2d, tile)
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         basis = nb.carray(_stack_empty(16, view), (16,))
         inp = nb.carray(_stack_empty(192, view), (12, GROUP))  # sizes: integer literals, 12 and 13 rows of GROUP
@@ -427,10 +430,7 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
     ``GROUP`` Gaussians' projection gradients together (:func:`_backward_group`).
     """
     n = means.shape[0]
-    fx, fy, cx, cy, lxp, lxn, lyp, lyn = _frustum(intr, width, height)
-    cam = (view[0, 0], view[0, 1], view[0, 2], view[0, 3], view[1, 0], view[1, 1], view[1, 2], view[1, 3],
-           view[2, 0], view[2, 1], view[2, 2], view[2, 3], fx, fy, cx, cy, lxp, lxn, lyp, lyn, near, far, eps2d,
-           width - 1.0, height - 1.0, 1.0)
+    cam = _camera(view, intr, width, height, near, far, eps2d, 1)  # (the tile size: the forward's alone)
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         basis = nb.carray(_stack_empty(16, view), (16,))
         bgrad = nb.carray(_stack_empty(48, view), (3, 16))
