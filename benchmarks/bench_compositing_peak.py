@@ -56,13 +56,14 @@ def main(argv: list[str] | None = None) -> int:
         out = np.zeros((S, S, 4), f32)
         t_final = np.ones((S, S), f32)
         last = np.zeros((S, S), np.int32)
+        marks = np.zeros((len(lists), 1), np.uint64)
         t0 = time.perf_counter()
-        kernels.composite_forward(*head, out, t_final, last, np.full((0, 0), -1, np.int32))
+        kernels.composite_forward(*head, out, t_final, last, np.full((0, 0), -1, np.int32), marks)
         t1 = time.perf_counter()
         pair_geom = np.zeros((len(lists), 6), f32)
         pair_chan = np.zeros((len(lists), 4), f32)
         t2 = time.perf_counter()
-        kernels.composite_backward(*head, t_final, last, np.ones((S, S, 4), f32), np.zeros((S, S), f32), np.zeros(4),
+        kernels.composite_backward(*head, t_final, last, marks, np.ones((S, S, 4), f32), np.zeros((S, S), f32), np.zeros(4),
                                    pair_geom, pair_chan, True)
         t3 = time.perf_counter()
         if rnd:

@@ -167,11 +167,14 @@ def main(argv: list[str] | None = None) -> int:
             extra = (mod.channel_groups(C),) if hasattr(mod, "channel_groups") else ()  # kernels before 4x4 blocks
             head = (lists, starts, counts, busy, proj.bounds, proj.means2d, proj.conics, proj.opacities, channels,
                     *extra, W, H, view.tile, workers)
-            clock(f"{name} fwd", lambda: mod.composite_forward(*head, out, t_final, last, top))
+            # the forward's marks of the blocks each pair blended in, which the backward walks (since 2026-11-28)
+            marks = (np.zeros((len(lists), (((view.tile + 3) // 4) ** 2 + 63) // 64), np.uint64),) \
+                if "marks" in mod.composite_forward.py_func.__code__.co_varnames else ()
+            clock(f"{name} fwd", lambda: mod.composite_forward(*head, out, t_final, last, top, *marks))
             pair_geom = np.zeros((len(lists), 6), np.float32)
             pair_chan = np.zeros((len(lists), C), np.float32)
-            clock(f"{name} bwd", lambda: mod.composite_backward(*head, t_final, last, g_out, g_alpha, bg, pair_geom,
-                                                                pair_chan, True))
+            clock(f"{name} bwd", lambda: mod.composite_backward(*head, t_final, last, *marks, g_out, g_alpha, bg,
+                                                                pair_geom, pair_chan, True))
             clock(f"{name} reduce", lambda: (mod.reduce_pairs(lists, pair_geom, args.n, workers),
                                              mod.reduce_pairs(lists, pair_chan, args.n, workers)))
             images[name] = (out, t_final)

@@ -55,7 +55,7 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
     bins = fast.bin_gaussians(proj, view)
     channels = fast.channels_of(proj, None)
     f32 = np.float32
-    _, t_final, last, _ = fast.composite(bins, proj, channels, view)
+    _, t_final, last, _, marks = fast.composite(bins, proj, channels, view, want_marks=True)
     grads = np.random.default_rng(0).standard_normal((n, 10)).astype(f32)
     g_out = [np.zeros((n, 3), f32), np.zeros((n, 4), f32), np.zeros((n, 3), f32), np.zeros(n, f32),
              np.zeros(arrays[4].shape, f32)]
@@ -63,9 +63,9 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
     head = (bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics, proj.opacities)
     cam = (view.view, view.center, view.intr, size, size, view.near, view.far, view.eps2d)
     calls_of = {
-        "forward": (kernels.composite_forward, lambda: fast.composite(bins, proj, channels, view)),
+        "forward": (kernels.composite_forward, lambda: fast.composite(bins, proj, channels, view, want_marks=True)),
         "backward": (kernels.composite_backward, lambda: kernels.composite_backward(
-            *head, channels, kernels.channel_groups(4), size, size, view.tile, 1, t_final, last,
+            *head, channels, kernels.channel_groups(4), size, size, view.tile, 1, t_final, last, marks,
             np.ones((size, size, 4), f32), np.zeros((size, size), f32), np.zeros(4), np.zeros((m, 6), f32),
             np.zeros((m, 4), f32), True)),
         "pairs": (kernels.composite_pairs, lambda: fast.compositing_pairs(bins, proj, view)),

@@ -15,7 +15,8 @@ depth (O(N), a compiled radix sort of the depths' bits), a counting sort into 16
 stretch of the depth order), and compositing in 4x4 pixel blocks (``parallel`` over tiles): each block evaluates on
 its 16 pixels at once the Gaussians of its tile's run whose box touches it, up to where its pixels stop
 (``docs/rendering.md``, "The 4x4 blocks: what they gave and what they cost"). Memory: a few arrays of N and of (tile,
-Gaussian) pairs, plus the image; the backward adds a [pairs, 6 + channels] gradient array, reduced per Gaussian in
+Gaussian) pairs, plus the image; a differentiable forward keeps a 64-bit word a pair (the blocks each pair blended
+in: what the backward walks), and the backward adds a [pairs, 6 + channels] gradient array, reduced per Gaussian in
 pair order, so the gradients do not depend on the number of threads either.
 """
 
@@ -151,20 +152,30 @@ def _set_workers() -> int:
     return n
 
 
-def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, want_top: bool = False
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, Optional[np.ndarray]]:
+def marks_shape(bins: Bins, view: View) -> tuple[int, int]:
+    """The shape of the forward's marks (:func:`composite`): a row of 64-bit words per (tile, Gaussian) pair, one bit
+    per 4x4 block of a tile."""
+    blocks = ((view.tile + 3) // 4) ** 2
+    return len(bins.lists), (blocks + 63) // 64
+
+
+def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, want_top: bool = False,
+              want_marks: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, Optional[np.ndarray],
+                                                 Optional[np.ndarray]]:
     """Return (channels composited [H, W, C] without background, final transmittance [H, W], walked run lengths
-    [H, W] (the backward's starting points), each pixel's largest-weight Gaussian [H, W] (-1: none) or None)."""
+    [H, W] (the backward's starting points), each pixel's largest-weight Gaussian [H, W] (-1: none) or None, the
+    blocks each (tile, Gaussian) pair blended in [M, words] uint64 (what the backward walks) or None)."""
     H, W, C = view.height, view.width, channels.shape[1]
     out = np.zeros((H, W, C), channels.dtype)
     t_final = np.ones((H, W), channels.dtype)
     last = np.zeros((H, W), np.int32)
     top = np.full((H, W) if want_top else (0, 0), -1, np.int32)
+    marks = np.zeros(marks_shape(bins, view) if want_marks else (0, 1), np.uint64)
     n_workers = _set_workers()
     kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics,
                               proj.opacities, channels, kernels.channel_groups(C), W, H, view.tile, n_workers, out,
-                              t_final, last, top)
-    return out, t_final, last, (top if want_top else None)
+                              t_final, last, top, marks)
+    return out, t_final, last, (top if want_top else None), (marks if want_marks else None)
 
 
 def channels_of(proj: Projected, features: Optional[np.ndarray], colours: bool = True) -> np.ndarray:
@@ -191,9 +202,9 @@ class _Render(torch.autograd.Function):
         feats = _numpy(features) if features.shape[1] else None
         channels = channels_of(proj, feats, colours)
         bins = bin_gaussians(proj, view)
-        out, t_final, last, _ = composite(bins, proj, channels, view)
+        out, t_final, last, _, marks = composite(bins, proj, channels, view, want_marks=any(ctx.needs_input_grad))
         ctx.save_for_backward(background)
-        ctx.state = (arrays, proj, channels, bins, t_final, last, view, n_bases, features.shape[1], colours)
+        ctx.state = (arrays, proj, channels, bins, t_final, last, marks, view, n_bases, features.shape[1], colours)
         t_t = torch.from_numpy(t_final)
         render = torch.from_numpy(out)
         if colours:  # in place: the array is this call's own
@@ -207,7 +218,7 @@ class _Render(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_render, g_alpha, *_unused):  # type: ignore[override]
         (background,) = ctx.saved_tensors
-        arrays, proj, channels, bins, t_final, last, view, n_bases, n_feat, colours = ctx.state
+        arrays, proj, channels, bins, t_final, last, marks, view, n_bases, n_feat, colours = ctx.state
         means, quats, _, _, colors = arrays  # the scales and opacities are the forward's (``proj``)
         n, C = channels.shape
         dtype = channels.dtype
@@ -221,7 +232,7 @@ class _Render(torch.autograd.Function):
         kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d,
                                    proj.conics, proj.opacities, channels, kernels.channel_groups(C), view.width,
                                    view.height, view.tile,
-                                   n_workers, t_final, last, _numpy(g_render),
+                                   n_workers, t_final, last, marks, _numpy(g_render),
                                    np.ascontiguousarray(_numpy(g_alpha)[..., 0]), bg, pair_geom, pair_chan, geometry)
         g_chan = kernels.reduce_pairs(bins.lists, pair_chan, n, n_workers)
         if colours:
@@ -333,8 +344,8 @@ def surface_ids(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, op
     Gaussian's camera-space depth ``[N]``: what a depth that does not blend across object edges is made of (the
     click segmenter's flood fill). No colours are evaluated."""
     proj = project(means, quats, log_scales, opacity_logits, np.zeros((len(means), 3), means.dtype), 0, view)
-    _, t_final, _, top = composite(bin_gaussians(proj, view), proj, np.zeros((len(means), 1), means.dtype), view,
-                                   want_top=True)
+    _, t_final, _, top, _ = composite(bin_gaussians(proj, view), proj, np.zeros((len(means), 1), means.dtype), view,
+                                      want_top=True)
     return top, 1.0 - t_final, proj.depths
 
 

@@ -10,8 +10,10 @@ Layout: the image is cut into square tiles (1 to 64 pixels wide); each tile hold
 Gaussians whose footprint touches it (``lists[starts[t]:starts[t] + counts[t]]``). A worker takes every
 ``workers``-th busy tile (interleaved, so the busy parts of an image are shared out evenly) and composites it in 4x4
 blocks of pixels: as the tile's run is copied, each entry is appended to the lists of the blocks its footprint box
-touches (:func:`~.lanes._pack_blocks`); each block walks its list front to back (forward) or back to front
-(backward) and evaluates each Gaussian on its 16 pixels at once (masked to the box). The 16 pixels' state
+touches (:func:`~.lanes._pack_blocks`); each block walks its list front to back (forward) and evaluates each
+Gaussian on its 16 pixels at once (masked to the box). The forward marks, per (tile, Gaussian) pair, the blocks in
+which it blended at least one pixel; the backward copies only the marked entries and walks each block's back to front
+(:func:`~.lanes._pack_marked`). The 16 pixels' state
 (transmittance, walked count, channel sums) lives in stack arrays (:mod:`.lanes`) that LLVM keeps in vector
 registers, and the per-Gaussian loop over the 16 pixels has no branches (selects) and no 64-bit counter, and its
 length is hidden from the compiler (``nq``): LLVM then vectorises it as a loop, eight float32 lanes at a time, where
@@ -39,17 +41,18 @@ import numba as nb
 import numpy as np
 
 from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_dot, _lane_max, _lane_sum, _lanes,
-                    _lanes_axpy, _longest, _next_entry, _pack, _pack_blocks, _pack_colours, _records, _stack_empty,
+                    _lanes_axpy, _lanes_positive, _longest, _next_entry, _pack_marked, _records, _stack_empty,
                     _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 
-LANES_REVISION = 14
+LANES_REVISION = 15
 """Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
 the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
 would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
 blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the blocks' walk in one helper; 9: the records
 prefetched; 10: the features too; 11: no channels, no copy; 12: the prefetch in one helper; 13: the lanes'
-sums, maxima and channel updates as vector halves; 14: records on a cache line)."""
+sums, maxima and channel updates as vector halves; 14: records on a cache line; 15: the backward's marked
+entries)."""
 
 
 RADIX_BITS = 11
@@ -188,15 +191,17 @@ def _blend(alpha, inside, Tp, kt):  # pragma: no cover - compiled
 
 @nb.njit(parallel=True, cache=True, nogil=True)
 def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, groups, width, height,
-                      tile, workers, out, t_final, last, top):  # pragma: no cover - compiled
+                      tile, workers, out, t_final, last, top, marks):  # pragma: no cover - compiled
     """Composite every busy tile front to back, one 4x4 block of pixels at a time.
 
     Writes ``out`` [H, W, C] (colours without the background), ``t_final`` [H, W] (transmittance after the last
     blended Gaussian), ``last`` [H, W] (how many entries of the tile's run the pixel walked up to and including its
     last blended Gaussian: the backward starts there) and, when ``top`` is [H, W] rather than empty, the id of each
     pixel's largest-weight Gaussian (-1 where none). Pixels of tiles with no Gaussian are left as they are (the
-    caller initialises ``out`` to 0, ``t_final`` to 1, ``last`` to 0 and ``top`` to -1). ``groups``:
-    :func:`channel_groups` of ``C``.
+    caller initialises ``out`` to 0, ``t_final`` to 1, ``last`` to 0 and ``top`` to -1). When ``marks`` is
+    [M, words] uint64 (zeroed; ``words`` 64-bit words for the tile's blocks) rather than empty, sets bit ``k`` of pair
+    ``j``'s row where the pair's Gaussian blended at least one pixel of the tile's block ``k``: the backward walks
+    only those (:func:`composite_backward`). ``groups``: :func:`channel_groups` of ``C``.
 
     Each block walks the entries of the tile's run whose footprint box touches it, in run order, with its 16 pixels'
     state (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector
@@ -211,6 +216,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
     tiles_x = (width + tile - 1) // tile
     nbx = (tile + 3) // 4
     want_top = top.shape[0] > 0
+    want_marks = marks.shape[0] > 0
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
     kc = _constants(opacities)
     kt = _constant_tuple(kc)
@@ -246,6 +252,7 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                 if bx > x_hi or by > y_hi:
                     continue
                 _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one)
+                word, bit, none = blk >> 6, np.uint64(1) << np.uint64(blk & 63), np.uint64(0)
                 for q in range(LANES):
                     L[q] = 0
                     best[q] = zero
@@ -288,6 +295,9 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         bid[q] = g2 if better2 else bid1
                     for i in range(NC):  # a channel's 16 pixels: two vectors of 8
                         _lanes_axpy(acc[i], W, colp[j1, i])
+                    if want_marks:  # selects, not branches: about one entry in five blends nowhere in a block
+                        marks[s + j1, word] |= bit if _lanes_positive(W) else none
+                        marks[s + j2 if j2 >= 0 else s + j1, word] |= bit if _lanes_positive(W2) else none
                     if j2 < 0:
                         break
                     for i in range(NC):
@@ -325,12 +335,13 @@ def _recover(pxc, pyc, mx, my, ha, b, hc, o, x0, x1, y0, y1, walked, Tq, kt):  #
 
 @nb.njit(parallel=True, cache=True, nogil=True)
 def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, groups, width, height,
-                       tile, workers, t_final, last, grad_out, grad_alpha, background, pair_geom, pair_colors,
+                       tile, workers, t_final, last, marks, grad_out, grad_alpha, background, pair_geom, pair_colors,
                        geometry):  # pragma: no cover - compiled
     """Write each (tile, Gaussian) pair's gradient, summed over the tile's pixels walked back to front.
 
     Args (beyond the forward's):
         t_final, last: the forward's outputs. [H, W]
+        marks: the forward's marks of the blocks each pair blended in. [M, words]
         grad_out: dL/d(colour image before the background). [H, W, C]
         grad_alpha: dL/d(alpha image). [H, W]
         background: the background per channel (0 for depth and features). [C]
@@ -339,9 +350,11 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         geometry: whether to compute ``pair_geom`` (False when only colours or features are trained).
         groups: :func:`channel_groups` of ``C``.
 
-    The tile's 4x4 blocks are walked one after the other, each from the deepest ``last`` of its pixels back to
-    the front, with the forward's expression for every alpha (so the same pixels blend the same Gaussians); a pair's
-    gradient is the sum of its 16 lanes in a fixed tree order, added block after block. :func:`reduce_pairs` then
+    The tile's 4x4 blocks are walked one after the other, each through the entries the forward marked as blended
+    in it (:func:`~.lanes._pack_marked`), back to front, with the forward's expression for every alpha (so the same
+    pixels blend the same Gaussians; an entry blends in a pixel whose ``last`` lies past it); a pair's gradient is the
+    sum of its 16 lanes in a fixed tree order, added block after block (an entry that blended nowhere in a block
+    adds nothing there, so skipping it changes no value). :func:`reduce_pairs` then
     sums the pairs per Gaussian in list order: the result does not depend on the number of workers.
 
     With ``T_i`` the transmittance before Gaussian ``i`` and ``S_i`` the sum over the Gaussians behind it of
@@ -360,8 +373,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
     rec = _records(bounds, means2d, conics, opacities, colors, NC if NC == 4 else 0, kc)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
-        box = np.empty((cap, 4), np.int32)
-        gid = np.empty(cap, np.int32)
+        run = np.empty(cap, np.int32)  # each slot's place in the tile's run
         colp = np.empty((cap, NC), kc.dtype)
         gpix = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))  # dL/d(channel) of the block's pixels
         pxc = _lanes(kc)
@@ -372,21 +384,20 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         Wt = _lanes(kc)
         CG = _lanes(kc)
         VG = nb.carray(_stack_empty(96, kc.dtype), (6, LANES))  # 6 gradients x 16 pixels
-        L = _lanes(gid)
+        L = _lanes(run)
         blist = np.empty((nbx * nbx, cap), np.int32)
         bcount = np.zeros(nbx * nbx, np.int64)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s = starts[t]
-            packed = 0
             bcount[:] = 0
+            _pack_marked(lists, s, counts[t], marks, rec, colors, geo, colp, run, blist, bcount)
             for blk in range(nbx * nbx):
                 bx = x_lo + 4 * (blk % nbx)
                 by = y_lo + 4 * (blk // nbx)
-                if bx > x_hi or by > y_hi:
+                if bcount[blk] == 0:  # nothing blended here (or the block lies past the image)
                     continue
-                deepest = 0
                 for q in range(LANES):
                     px = bx + (q & 3)
                     py = by + (q >> 2)
@@ -405,29 +416,21 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                             bg_dot += background[ch] * gv
                         tail[q] = tf * (bg_dot - grad_alpha[py, px])
                         L[q] = last[py, px]
-                        deepest = max(deepest, L[q])
                     else:
                         T[q] = one
                         tail[q] = zero
                         L[q] = 0
-                if deepest > packed:
-                    lo = packed
-                    packed = _pack(lists, s, lo, deepest, rec, geo, box, gid)
-                    _pack_colours(lists, s, lo, packed, colors, rec, colp)
-                    _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
-                p = bcount[blk]
-                while p > 0 and blist[blk, p - 1] >= deepest:
-                    p -= 1
-                for pp in range(p - 1, -1, -1):
-                    jj = blist[blk, pp]
-                    mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
+                for pp in range(bcount[blk] - 1, -1, -1):
+                    slot = blist[blk, pp]
+                    jj = run[slot]
+                    mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, slot)
                     ha = half * a
                     hc = half * c
                     if geometry:
                         for q in range(LANES):
                             CG[q] = zero
                         for i in range(NC):  # c_i . g first: the alpha's gradient needs it in the walk's loop
-                            _lanes_axpy(CG, gpix[i], colp[jj, i])
+                            _lanes_axpy(CG, gpix[i], colp[slot, i])
                         for q in range(nq):  # recover T_i and the weight; d_alpha, S_i, the pair's gradients
                             dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
                                 pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
@@ -451,8 +454,6 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                                 pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
                             T[q] = Ti if act else T[q]
                             Wt[q] = alpha * Ti if act else zero
-                    if _lane_max(Wt) <= zero:  # no pixel blended it (a weight is positive where it blended)
-                        continue
                     j = s + jj
                     for i in range(C):  # each channel's 16 pixels: two vectors of 8
                         pair_colors[j, i] += _lane_dot(Wt, gpix[i])

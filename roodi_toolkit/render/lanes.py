@@ -268,6 +268,23 @@ def _lane_max(typingctx, v):  # pragma: no cover - compiled
     return v.dtype(v), codegen
 
 
+@intrinsic
+def _lanes_positive(typingctx, v):  # pragma: no cover - compiled
+    """Whether any of the 16 lanes of ``v`` is greater than 0: the two halves compared with 0 and or-ed as masks (a
+    compare and a mask test, where :func:`_lane_max`'s tree is four dependent steps)."""
+    if not _is_lanes(v):
+        return None
+
+    def codegen(context, builder, signature, args):
+        low, high = _load_halves(context, builder, signature.args[0], args[0])
+        zero = ir.Constant(low.type, None)
+        either = builder.or_(builder.fcmp_ordered(">", low, zero), builder.fcmp_ordered(">", high, zero))
+        return builder.icmp_unsigned("!=", builder.bitcast(either, ir.IntType(LANES // 2)),
+                                     ir.Constant(ir.IntType(LANES // 2), 0))
+
+    return types.boolean(v), codegen
+
+
 def _store_halves(context, builder, arrty, array, halves):
     """Store two LLVM vectors of 8 into the 16 lanes of ``array`` (as :func:`_load_halves` loads them)."""
     data = context.make_array(arrty)(context, builder, array).data
@@ -454,6 +471,60 @@ def _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x
         _pack_colours(lists, s, lo, packed, colors, rec, colp)
         _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
     return blist[blk, p], packed
+
+
+@intrinsic
+def _lowest_bit(typingctx, m):  # pragma: no cover - compiled
+    """The index of the lowest set bit of the nonzero unsigned integer ``m`` (LLVM's ``cttz``: one instruction)."""
+    if not isinstance(m, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.cttz(args[0], ir.Constant(ir.IntType(1), 1))
+
+    return m(m), codegen
+
+
+@nb.njit(inline="always")
+def _pack_marked(lists, s, n, marks, rec, colors, geo, colp, run, blist, bcount):  # pragma: no cover - compiled
+    """Copy the entries of the tile's run (``n`` from ``lists[s]``) that the forward marked as blended in at least
+    one of the tile's 4x4 blocks (``marks`` [M, words], bit ``k`` of a pair's row: block ``k``), next to each other:
+    slot ``p`` holds the ``run[p]``-th entry's geometry in ``geo`` (as :func:`_pack`) and channels in ``colp`` (as
+    :func:`_pack_colours`), and is appended to the list of each block it is marked in (``blist[k, :bcount[k]]``).
+    The backward then walks only what blended: a fifth of the entries whose box touches a block do not (500k
+    Gaussians, 800x800), and their records are not gathered. Returns the number of slots."""
+    C = colors.shape[1]
+    NC = colp.shape[1]
+    words = marks.shape[1]
+    p = 0
+    for jj in range(n):
+        _prefetch_row(rec, lists, s + jj + PREFETCH)
+        if NC > 4:
+            _prefetch_row(colors, lists, s + jj + PREFETCH)
+        any_mark = marks[s + jj, 0]
+        for w in range(1, words):
+            any_mark |= marks[s + jj, w]
+        if any_mark == 0:
+            continue
+        g = lists[s + jj]
+        for i in range(10):
+            geo[p, i] = rec[g, i]
+        if NC == 4:
+            for ch in range(4):
+                colp[p, ch] = rec[g, 10 + ch]
+        else:
+            for ch in range(NC):
+                colp[p, ch] = colors[g, ch] if ch < C else 0.0
+        run[p] = jj
+        for w in range(words):
+            m = marks[s + jj, w]
+            while m != 0:
+                k = w * 64 + _lowest_bit(m)
+                blist[k, bcount[k]] = p
+                bcount[k] += 1
+                m &= m - np.uint64(1)
+        p += 1
+    return p
 
 
 def channel_groups(channels: int) -> tuple:
