@@ -61,76 +61,55 @@ def _rotation(qw, qx, qy, qz):  # pragma: no cover - compiled
             w, x, y, z, norm)
 
 
-@nb.njit(cache=True, nogil=True)
-def _sh_basis_tuple(n_bases, x, y, z):  # pragma: no cover - compiled
-    """Return the 16 real SH basis values at the unit direction (those past ``n_bases`` are 0) as a tuple."""
-    b1 = b2 = b3 = b4 = b5 = b6 = b7 = b8 = b9 = b10 = b11 = b12 = b13 = b14 = b15 = 0.0
-    if n_bases > 1:
-        b1, b2, b3 = -SH_C1 * y, SH_C1 * z, -SH_C1 * x
-    xx, yy, zz = x * x, y * y, z * z
-    if n_bases > 4:
-        b4, b5 = C20 * x * y, C21 * y * z
-        b6 = C22 * (2.0 * zz - xx - yy)
-        b7, b8 = C23 * x * z, C24 * (xx - yy)
-    if n_bases > 9:
-        b9 = C30 * y * (3.0 * xx - yy)
-        b10 = C31 * x * y * z
-        b11 = C32 * y * (4.0 * zz - xx - yy)
-        b12 = C33 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
-        b13 = C34 * x * (4.0 * zz - xx - yy)
-        b14 = C35 * z * (xx - yy)
-        b15 = C36 * x * (xx - 3.0 * yy)
-    return (SH_C0, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, b11, b12, b13, b14, b15)
-
-
-@nb.njit(cache=True, nogil=True)
+@nb.njit(inline="always")
 def _sh_basis(out, n_bases, x, y, z):  # pragma: no cover - compiled
-    """Write the 16 real SH basis values at the unit direction into ``out`` [16] (those past ``n_bases`` are 0):
-    an array, so that the loops over the bases read it at a running index directly rather than a tuple indexed at run
-    time (which compiles to a jump table per read; measured 1.0-1.2x, within the shared machine's noise)."""
-    (out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8], out[9], out[10], out[11], out[12],
-     out[13], out[14], out[15]) = _sh_basis_tuple(n_bases, x, y, z)
-
-
-@nb.njit(cache=True, nogil=True)
-def _sh_basis_grad_tuple(n_bases, x, y, z):  # pragma: no cover - compiled
-    """Return the partial derivatives (d/dx, d/dy, d/dz, 16 each) of the basis w.r.t. the direction's components."""
-    x1 = x2 = x3 = x4 = x5 = x6 = x7 = x8 = x9 = x10 = x11 = x12 = x13 = x14 = x15 = 0.0
-    y1 = y2 = y3 = y4 = y5 = y6 = y7 = y8 = y9 = y10 = y11 = y12 = y13 = y14 = y15 = 0.0
-    z1 = z2 = z3 = z4 = z5 = z6 = z7 = z8 = z9 = z10 = z11 = z12 = z13 = z14 = z15 = 0.0
+    """Write the first ``n_bases`` real SH basis values at the unit direction into ``out`` [16] (the loops over the
+    bases read no further): an array, so that those loops read it at a running index directly rather than a tuple
+    indexed at run time (a jump table per read). Inlined into the kernels: as a function of its own (returning a
+    tuple of 16 that the caller stored) it was called once a Gaussian."""
+    out[0] = SH_C0
     if n_bases > 1:
-        y1, z2, x3 = -SH_C1, SH_C1, -SH_C1
+        out[1], out[2], out[3] = -SH_C1 * y, SH_C1 * z, -SH_C1 * x
     xx, yy, zz = x * x, y * y, z * z
     if n_bases > 4:
-        x4, y4 = C20 * y, C20 * x
-        y5, z5 = C21 * z, C21 * y
-        x6, y6, z6 = -2.0 * C22 * x, -2.0 * C22 * y, 4.0 * C22 * z
-        x7, z7 = C23 * z, C23 * x
-        x8, y8 = 2.0 * C24 * x, -2.0 * C24 * y
+        out[4], out[5] = C20 * x * y, C21 * y * z
+        out[6] = C22 * (2.0 * zz - xx - yy)
+        out[7], out[8] = C23 * x * z, C24 * (xx - yy)
     if n_bases > 9:
-        x9, y9 = C30 * 6.0 * x * y, C30 * (3.0 * xx - 3.0 * yy)
-        x10, y10, z10 = C31 * y * z, C31 * x * z, C31 * x * y
-        x11, y11, z11 = -2.0 * C32 * x * y, C32 * (4.0 * zz - xx - 3.0 * yy), 8.0 * C32 * y * z
-        x12, y12, z12 = -6.0 * C33 * x * z, -6.0 * C33 * y * z, C33 * (6.0 * zz - 3.0 * xx - 3.0 * yy)
-        x13, y13, z13 = C34 * (4.0 * zz - 3.0 * xx - yy), -2.0 * C34 * x * y, 8.0 * C34 * x * z
-        x14, y14, z14 = 2.0 * C35 * x * z, -2.0 * C35 * y * z, C35 * (xx - yy)
-        x15, y15 = C36 * (3.0 * xx - 3.0 * yy), -6.0 * C36 * x * y
-    return ((0.0, x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12, x13, x14, x15),
-            (0.0, y1, y2, y3, y4, y5, y6, y7, y8, y9, y10, y11, y12, y13, y14, y15),
-            (0.0, z1, z2, z3, z4, z5, z6, z7, z8, z9, z10, z11, z12, z13, z14, z15))
+        out[9] = C30 * y * (3.0 * xx - yy)
+        out[10] = C31 * x * y * z
+        out[11] = C32 * y * (4.0 * zz - xx - yy)
+        out[12] = C33 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+        out[13] = C34 * x * (4.0 * zz - xx - yy)
+        out[14] = C35 * z * (xx - yy)
+        out[15] = C36 * x * (xx - 3.0 * yy)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(inline="always")
 def _sh_basis_grad(out, n_bases, x, y, z):  # pragma: no cover - compiled
-    """Write the partial derivatives of the basis w.r.t. the direction's components into ``out`` [3, 16] (rows d/dx,
-    d/dy, d/dz)."""
-    gx, gy, gz = _sh_basis_grad_tuple(n_bases, x, y, z)
-    (out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[0, 4], out[0, 5], out[0, 6], out[0, 7], out[0, 8], out[0, 9],
-     out[0, 10], out[0, 11], out[0, 12], out[0, 13], out[0, 14], out[0, 15]) = gx
-    (out[1, 0], out[1, 1], out[1, 2], out[1, 3], out[1, 4], out[1, 5], out[1, 6], out[1, 7], out[1, 8], out[1, 9],
-     out[1, 10], out[1, 11], out[1, 12], out[1, 13], out[1, 14], out[1, 15]) = gy
-    (out[2, 0], out[2, 1], out[2, 2], out[2, 3], out[2, 4], out[2, 5], out[2, 6], out[2, 7], out[2, 8], out[2, 9],
-     out[2, 10], out[2, 11], out[2, 12], out[2, 13], out[2, 14], out[2, 15]) = gz
+    """Write the partial derivatives of the first ``n_bases`` basis values w.r.t. the direction's components into
+    ``out`` [3, 16] (rows d/dx, d/dy, d/dz; inlined, as :func:`_sh_basis`)."""
+    out[0, 0], out[1, 0], out[2, 0] = 0.0, 0.0, 0.0
+    if n_bases > 1:
+        out[0, 1], out[1, 1], out[2, 1] = 0.0, -SH_C1, 0.0
+        out[0, 2], out[1, 2], out[2, 2] = 0.0, 0.0, SH_C1
+        out[0, 3], out[1, 3], out[2, 3] = -SH_C1, 0.0, 0.0
+    xx, yy, zz = x * x, y * y, z * z
+    if n_bases > 4:
+        out[0, 4], out[1, 4], out[2, 4] = C20 * y, C20 * x, 0.0
+        out[0, 5], out[1, 5], out[2, 5] = 0.0, C21 * z, C21 * y
+        out[0, 6], out[1, 6], out[2, 6] = -2.0 * C22 * x, -2.0 * C22 * y, 4.0 * C22 * z
+        out[0, 7], out[1, 7], out[2, 7] = C23 * z, 0.0, C23 * x
+        out[0, 8], out[1, 8], out[2, 8] = 2.0 * C24 * x, -2.0 * C24 * y, 0.0
+    if n_bases > 9:
+        out[0, 9], out[1, 9], out[2, 9] = C30 * 6.0 * x * y, C30 * (3.0 * xx - 3.0 * yy), 0.0
+        out[0, 10], out[1, 10], out[2, 10] = C31 * y * z, C31 * x * z, C31 * x * y
+        out[0, 11], out[1, 11], out[2, 11] = -2.0 * C32 * x * y, C32 * (4.0 * zz - xx - 3.0 * yy), 8.0 * C32 * y * z
+        out[0, 12], out[1, 12] = -6.0 * C33 * x * z, -6.0 * C33 * y * z
+        out[2, 12] = C33 * (6.0 * zz - 3.0 * xx - 3.0 * yy)
+        out[0, 13], out[1, 13], out[2, 13] = C34 * (4.0 * zz - 3.0 * xx - yy), -2.0 * C34 * x * y, 8.0 * C34 * x * z
+        out[0, 14], out[1, 14], out[2, 14] = 2.0 * C35 * x * z, -2.0 * C35 * y * z, C35 * (xx - yy)
+        out[0, 15], out[1, 15], out[2, 15] = C36 * (3.0 * xx - 3.0 * yy), -6.0 * C36 * x * y, 0.0
 
 
 @nb.njit(cache=True, nogil=True)
