@@ -188,13 +188,19 @@ def channels_of(proj: Projected, features: Optional[np.ndarray], colours: bool =
     return np.ascontiguousarray(np.concatenate(parts, axis=1))
 
 
+def _differentiable(*tensors: Tensor) -> bool:
+    """Whether a render of ``tensors`` will be differentiated: then its forward keeps what the backward needs (the
+    compositing's marks; ``needs_input_grad`` is set under ``torch.no_grad()`` too)."""
+    return torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
+
+
 class _Render(torch.autograd.Function):
     """Projection, colours and compositing of one view, with the compiled backward. ``colors`` of shape [N, 0]
     composite the features alone (no colours, no depth, no background)."""
 
     @staticmethod
     def forward(ctx, means, quats, log_scales, opacity_logits, colors, features, background, probe, view,
-                n_bases):  # type: ignore[override]
+                n_bases, differentiable):  # type: ignore[override]
         colours = colors.shape[-1] > 0
         arrays = [_numpy(t) for t in (means, quats, log_scales, opacity_logits, colors)]
         proj = project(*arrays[:4], arrays[4] if colours else np.zeros((len(arrays[0]), 3), arrays[0].dtype),
@@ -202,7 +208,7 @@ class _Render(torch.autograd.Function):
         feats = _numpy(features) if features.shape[1] else None
         channels = channels_of(proj, feats, colours)
         bins = bin_gaussians(proj, view)
-        out, t_final, last, _, marks = composite(bins, proj, channels, view, want_marks=any(ctx.needs_input_grad))
+        out, t_final, last, _, marks = composite(bins, proj, channels, view, want_marks=differentiable)
         ctx.save_for_backward(background)
         ctx.state = (arrays, proj, channels, bins, t_final, last, marks, view, n_bases, features.shape[1], colours)
         t_t = torch.from_numpy(t_final)
@@ -242,11 +248,11 @@ class _Render(torch.autograd.Function):
             g_background = torch.zeros_like(background)
             g_features = torch.from_numpy(g_chan)
             if not geometry:
-                return None, None, None, None, None, g_features, g_background, None, None, None
+                return None, None, None, None, None, g_features, g_background, None, None, None, None
             g_chan = np.concatenate([np.zeros((n, 4), dtype), g_chan], axis=1)
         need_colors = ctx.needs_input_grad[4] and colours
         if not (geometry or need_colors):
-            return None, None, None, None, None, g_features, g_background, None, None, None
+            return None, None, None, None, None, g_features, g_background, None, None, None, None
         g = kernels.reduce_pairs(bins.lists, pair_geom, n, n_workers) if geometry else np.zeros((n, 6), dtype)
         g_means = np.zeros((n, 3), dtype)
         g_quats = np.zeros((n, 4), dtype)
@@ -263,9 +269,9 @@ class _Render(torch.autograd.Function):
         t = torch.from_numpy
         g_colors = (t(g_sh) if n_bases > 0 else t(np.ascontiguousarray(g_rgb))) if need_colors else None
         if not geometry:
-            return None, None, None, None, g_colors, g_features, g_background, None, None, None
+            return None, None, None, None, g_colors, g_features, g_background, None, None, None, None
         return (t(g_means), t(g_quats), t(g_log_scales), t(g_logits), g_colors, g_features, g_background,
-                t(g)[:, :2], None, None)
+                t(g)[:, :2], None, None, None)
 
 
 def rasterize_fast(
@@ -313,8 +319,10 @@ def rasterize_fast(
     geometry = any(t.requires_grad for t in (means, quats_wxyz, log_scales, opacity_logits)) and \
         torch.is_grad_enabled()
     probe = torch.zeros(n, 2, dtype=dtype, requires_grad=True) if geometry else torch.zeros(0, 2, dtype=dtype)
+    colors = colors.to(dtype)
+    differentiable = _differentiable(means, quats_wxyz, log_scales, opacity_logits, colors, feats, bg)
     render, alpha, means2d, depths, visible, radii = _Render.apply(
-        means, quats_wxyz, log_scales, opacity_logits, colors.to(dtype), feats, bg, probe, view, n_bases)
+        means, quats_wxyz, log_scales, opacity_logits, colors, feats, bg, probe, view, n_bases, differentiable)
     out = _split_output(render, alpha, 0 if features is None else features.shape[1], means2d, radii, depths,
                         visible)
     out.grad_source = probe if geometry else None
@@ -378,6 +386,8 @@ def rasterize_features(
     geometry = any(t.requires_grad for t in (means, quats_wxyz, log_scales, opacity_logits)) and \
         torch.is_grad_enabled()
     probe = torch.zeros(n if geometry else 0, 2, dtype=dtype, requires_grad=geometry)
+    features = features.to(dtype)
     render, alpha, *_ = _Render.apply(means, quats_wxyz, log_scales, opacity_logits, torch.zeros(n, 0, dtype=dtype),
-                                      features.to(dtype), torch.zeros(3, dtype=dtype), probe, view, 0)
+                                      features, torch.zeros(3, dtype=dtype), probe, view, 0,
+                                      _differentiable(means, quats_wxyz, log_scales, opacity_logits, features))
     return render, alpha
