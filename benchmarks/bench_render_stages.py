@@ -105,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
 
     f32 = np.float32
     buffers = {}  # per side: the projection's outputs and gradients, allocated once (page faults are not the code's)
+    clamped = {}
 
     def project_both(name, pk):
         """Time ``pk``'s projection forward and backward (SH 3, every gradient) as the renderer calls them, into
@@ -116,18 +117,21 @@ def main(argv: list[str] | None = None) -> int:
                               np.zeros(n, np.int64)),
                              (np.zeros((n, 3), f32), np.zeros((n, 4), f32), np.zeros((n, 3), f32), np.zeros(n, f32),
                               np.zeros(arrays[4].shape, f32)))
+            clamped[name] = np.zeros(n, np.uint8)
         outs, g_out = buffers[name]
         for a in g_out:
             a.fill(0)
         cam = (view.view, view.center, view.intr, W, H, view.near, view.far, view.eps2d)
         if "scales" in pk.project_forward.py_func.__code__.co_varnames[:3]:  # the activations made outside, timed
+            # the SH clamp's flags, which the backward reads (since 2026-11-28)
+            flags = (clamped[name],) if "clamped" in pk.project_forward.py_func.__code__.co_varnames else ()
             t0 = time.perf_counter()
             scales, opacities, r2 = pk.activations(arrays[2], arrays[3])
             pk.project_forward(arrays[0], arrays[1], scales, opacities, r2, arrays[4], 16, *cam, view.tile,
-                               *outs[:4], *outs[5:])
+                               *outs[:4], *outs[5:], *flags)
             t1 = time.perf_counter()
-            pk.project_backward(arrays[0], arrays[1], scales, opacities, arrays[4], 16, *cam, outs[7], *grads_in,
-                                *g_out, True)
+            pk.project_backward(arrays[0], arrays[1], scales, opacities, arrays[4], 16, *cam, outs[7], *flags,
+                                *grads_in, *g_out, True)
         else:  # a checkout before 2026-11-28: the kernels take the log-scales and logits
             t0 = time.perf_counter()
             pk.project_forward(*arrays, 16, *cam, view.tile, *outs)

@@ -71,7 +71,7 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
         "pairs": (kernels.composite_pairs, lambda: fast.compositing_pairs(bins, proj, view)),
         "project": (projection_kernels.project_forward, lambda: fast.project(*arrays, 16, view)),
         "project_backward": (projection_kernels.project_backward, lambda: projection_kernels.project_backward(
-            arrays[0], arrays[1], proj.scales, proj.opacities, arrays[4], 16, *cam, proj.ntiles,
+            arrays[0], arrays[1], proj.scales, proj.opacities, arrays[4], 16, *cam, proj.ntiles, proj.clamped,
             np.ascontiguousarray(grads[:, :2]), np.ascontiguousarray(grads[:, 2:5]),
             np.ascontiguousarray(grads[:, 5]), np.ascontiguousarray(grads[:, 6:9]), np.ascontiguousarray(grads[:, 9]),
             *g_out, True)),

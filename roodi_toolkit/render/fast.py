@@ -95,6 +95,7 @@ class Projected:
     half: np.ndarray  # [N, 2] int32
     ntiles: np.ndarray  # [N] int64, 0 where not drawn
     scales: np.ndarray  # [N, 3] exp(log-scales), what the backward reuses
+    clamped: np.ndarray  # [N] uint8, bit c: SH colour channel c was clamped at 0 (no gradient)
 
 
 @dataclass
@@ -131,11 +132,13 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
     sh = colors if n_bases > 0 else np.zeros((n, 1, 3), dtype)
     scales, opacities, r2 = projection_kernels.activations(log_scales, opacity_logits)
     out = Projected(np.empty((n, 2), dtype), np.empty((n, 3), dtype), np.empty(n, dtype), rgb, opacities,
-                    np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32), np.zeros(n, np.int64), scales)
+                    np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32), np.zeros(n, np.int64), scales,
+                    np.zeros(n, np.uint8))
     _set_workers()
     projection_kernels.project_forward(means, quats, scales, opacities, r2, sh, n_bases, view.view, view.center,
                                        view.intr, view.width, view.height, view.near, view.far, view.eps2d, view.tile,
-                                       out.means2d, out.conics, out.depths, out.rgb, out.bounds, out.half, out.ntiles)
+                                       out.means2d, out.conics, out.depths, out.rgb, out.bounds, out.half, out.ntiles,
+                                       out.clamped)
     return out
 
 
@@ -264,8 +267,9 @@ class _Render(torch.autograd.Function):
         projection_kernels.project_backward(means, quats, proj.scales, proj.opacities,
                                             colors if n_bases > 0 else np.zeros((n, 1, 3), dtype), n_bases,
                                             view.view, view.center, view.intr, view.width, view.height, view.near,
-                                            view.far, view.eps2d, proj.ntiles, g[:, :2], g[:, 2:5], g[:, 5], g_rgb,
-                                            g_chan[:, 3], g_means, g_quats, g_log_scales, g_logits, g_sh, geometry)
+                                            view.far, view.eps2d, proj.ntiles, proj.clamped, g[:, :2], g[:, 2:5],
+                                            g[:, 5], g_rgb, g_chan[:, 3], g_means, g_quats, g_log_scales, g_logits,
+                                            g_sh, geometry)
         t = torch.from_numpy
         g_colors = (t(g_sh) if n_bases > 0 else t(np.ascontiguousarray(g_rgb))) if need_colors else None
         if not geometry:

@@ -230,12 +230,14 @@ def _geometry_group(inp, out, cam):  # pragma: no cover - compiled
 
 @nb.njit(parallel=True, cache=True, nogil=True)
 def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, center, intr, width, height, near,
-                    far, eps2d, tile, means2d, conics, depths, rgb, bounds, half,
-                    ntiles):  # pragma: no cover - compiled
+                    far, eps2d, tile, means2d, conics, depths, rgb, bounds, half, ntiles,
+                    clamped):  # pragma: no cover - compiled
     """Project every Gaussian; write means2d [N, 2], conics [N, 3], depths [N], rgb [N, 3] (when ``n_bases`` > 0:
-    SH colours of ``sh`` [N, K, 3] of the drawn Gaussians, 0 for the others, whose colour nothing reads; otherwise
-    left as the caller filled it), and the footprints: bounds [N, 4] (inclusive pixel box), half [N, 2], ntiles [N]
-    (0: not drawn; the bounds and half of those are left as the caller filled them).
+    SH colours of ``sh`` [N, K, 3] of the drawn Gaussians, clamped at 0, 0 for the others, whose colour nothing
+    reads; otherwise left as the caller filled it), and the footprints: bounds [N, 4] (inclusive pixel box), half
+    [N, 2], ntiles [N] (0: not drawn; the bounds and half of those are left as the caller filled them). With SH,
+    ``clamped`` [N] gets bit ``c`` set where channel ``c``'s value was not >= 0 (where the clamp passes no gradient:
+    the backward reads it instead of evaluating the colours again).
 
     ``scales`` [N, 3], ``opacities`` [N] and ``r2s`` [N] are :func:`activations` of the log-scales and logits;
     ``view`` is the 4x4 world-to-camera matrix, ``center`` the camera centre [3], ``intr`` (fx, fy, cx, cy).
@@ -288,6 +290,7 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
                 rgb[i, 0] = max(v0, 0.0)
                 rgb[i, 1] = max(v1, 0.0)
                 rgb[i, 2] = max(v2, 0.0)
+                clamped[i] = (0 if v0 >= 0.0 else 1) | (0 if v1 >= 0.0 else 2) | (0 if v2 >= 0.0 else 4)
 
 
 # rows of the per-pass buffers of :func:`project_backward` (its inputs beyond the forward's: the outputs' gradients,
@@ -397,13 +400,13 @@ def _backward_group(inp, out, cam):  # pragma: no cover - compiled
 
 @nb.njit(parallel=True, cache=True, nogil=True)
 def project_backward(means, quats, scales, opacities, sh, n_bases, view, center, intr, width, height, near,
-                     far, eps2d, ntiles, g_means2d, g_conics, g_opacities, g_rgb, g_depths, g_means, g_quats,
+                     far, eps2d, ntiles, clamped, g_means2d, g_conics, g_opacities, g_rgb, g_depths, g_means, g_quats,
                      g_log_scales, g_logits, g_sh, geometry):  # pragma: no cover - compiled
     """Write the gradients of the inputs of :func:`project_forward` (and of the log-scales and logits behind its
     ``scales`` and ``opacities``) from those of its outputs.
 
     ``g_rgb`` [N, 3] is used when ``n_bases`` > 0 (then ``g_sh`` [N, K, 3] is written and the direction's gradient
-    reaches the means); ``geometry`` False skips the projection's gradients (only colours are trained). Gaussians
+    reaches the means, except through the channels the forward ``clamped``); ``geometry`` False skips the projection's gradients (only colours are trained). Gaussians
     the forward did not draw (``ntiles`` 0) have no gradient from the image: their rows of the outputs, zeroed by
     the caller, are left as they are. Each drawn Gaussian's colour gradients are worked out in turn, then
     ``GROUP`` Gaussians' projection gradients together (:func:`_backward_group`).
@@ -434,15 +437,10 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
                     ux, uy, uz = d0 * inv, d1 * inv, d2 * inv
                     _sh_basis(basis, n_bases, ux, uy, uz)
                     _sh_basis_grad(bgrad, n_bases, ux, uy, uz)
-                    v0 = v1 = v2 = 0.5
-                    for k in range(n_bases):  # the forward's colours, to know where the clamp at 0 passed no gradient
-                        bk = basis[k]
-                        v0 += bk * sh[i, k, 0]
-                        v1 += bk * sh[i, k, 1]
-                        v2 += bk * sh[i, k, 2]
-                    g0 = np.float64(g_rgb[i, 0]) if v0 >= 0.0 else 0.0
-                    g1 = np.float64(g_rgb[i, 1]) if v1 >= 0.0 else 0.0
-                    g2 = np.float64(g_rgb[i, 2]) if v2 >= 0.0 else 0.0
+                    cut = clamped[i]  # the channels whose value the forward clamped at 0 pass no gradient
+                    g0 = np.float64(g_rgb[i, 0]) if (cut & 1) == 0 else 0.0
+                    g1 = np.float64(g_rgb[i, 1]) if (cut & 2) == 0 else 0.0
+                    g2 = np.float64(g_rgb[i, 2]) if (cut & 4) == 0 else 0.0
                     gux = 0.0
                     guy = 0.0
                     guz = 0.0
