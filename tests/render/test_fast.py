@@ -232,3 +232,34 @@ def test_lane_vectors_equal_the_scalar_tree_bit_for_bit(dtype):
         assert s == _tree(x, np.add) and m == x.max() and d == _tree(x * y, np.add)
         assert np.array_equal(z, y + x * a)
 
+
+
+@pytest.mark.parametrize("tile", [4, 10, 16, 64])
+def test_forward_marks_exactly_the_blocks_each_pair_blended_in(tile):
+    """The forward's marks (what the backward walks) are the tile's 4x4 blocks where each (tile, Gaussian) pair
+    blended at least one pixel: checked against every blend the view lists (``compositing_pairs``), tiles of 1 to 256
+    blocks (64 pixels: four 64-bit words a pair). A render without gradients keeps none."""
+    from roodi_toolkit.render import fast
+
+    s = random_scene(n=400, seed=5, sh_k=0, n_features=0, width=97, height=71)
+    arrays = [s[k].numpy() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits", "colors")]
+    view = fast.make_view(s["world_to_camera"], s["K"], s["width"], s["height"], near=s["near"], tile=tile)
+    proj = fast.project(*arrays, 0, view)
+    bins = fast.bin_gaussians(proj, view)
+    *_, marks = fast.composite(bins, proj, fast.channels_of(proj, None), view, want_marks=True)
+    pixels, ids, _ = fast.compositing_pairs(bins, proj, view)
+    tiles_x, nbx = -(-view.width // tile), -(-tile // 4)
+    py, px = pixels // view.width, pixels % view.width
+    blended = set(zip(((py // tile) * tiles_x + px // tile).tolist(), ids.tolist(),
+                      (((py % tile) // 4) * nbx + (px % tile) // 4).tolist()))
+    marked = set()
+    for t in np.flatnonzero(bins.counts):
+        for j in range(bins.starts[t], bins.starts[t] + bins.counts[t]):
+            for w, word in enumerate(marks[j].tolist()):
+                marked |= {(int(t), int(bins.lists[j]), 64 * w + b) for b in range(64) if word >> b & 1}
+    assert marks.shape == (len(bins.lists), -(-nbx * nbx // 64)) and len(blended) > 100
+    assert marked == blended
+    assert fast.composite(bins, proj, fast.channels_of(proj, None), view)[4] is None
+    with torch.no_grad():
+        assert not fast._differentiable(*(s[k].requires_grad_() for k in ("means", "colors")))
+    assert fast._differentiable(s["means"])
