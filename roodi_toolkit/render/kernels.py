@@ -365,6 +365,8 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
     NC = 4 * len(groups)
     tiles_x = (width + tile - 1) // tile
     nbx = (tile + 3) // 4
+    if marks.shape[0] != lists.shape[0] or 64 * marks.shape[1] < nbx * nbx:
+        raise ValueError("composite_backward needs the forward's marks: a row of words for each pair")
     kc = _constants(opacities)
     kt = _constant_tuple(kc)
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]

@@ -263,3 +263,25 @@ def test_forward_marks_exactly_the_blocks_each_pair_blended_in(tile):
     with torch.no_grad():
         assert not fast._differentiable(*(s[k].requires_grad_() for k in ("means", "colors")))
     assert fast._differentiable(s["means"])
+
+
+def test_backward_refuses_marks_that_are_not_the_forwards():
+    """The backward walks the forward's marks: an array of another shape is refused with an error, never read past
+    its end."""
+    from roodi_toolkit.render import fast, kernels
+
+    s = random_scene(n=60, seed=2, sh_k=0, n_features=0)
+    arrays = [s[k].numpy() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits", "colors")]
+    view = fast.make_view(s["world_to_camera"], s["K"], s["width"], s["height"], near=s["near"])
+    proj = fast.project(*arrays, 0, view)
+    bins = fast.bin_gaussians(proj, view)
+    channels = fast.channels_of(proj, None)
+    _, t_final, last, _, marks = fast.composite(bins, proj, channels, view, want_marks=True)
+    m, (H, W) = len(bins.lists), t_final.shape
+    head = (bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics, proj.opacities,
+            channels, kernels.channel_groups(4), W, H, view.tile, 1, t_final, last)
+    tail = (np.ones((H, W, 4), channels.dtype), np.zeros((H, W), channels.dtype), np.zeros(4),
+            np.zeros((m, 6), channels.dtype), np.zeros((m, 4), channels.dtype), True)
+    kernels.composite_backward(*head, marks, *tail)
+    with pytest.raises(ValueError, match="marks"):
+        kernels.composite_backward(*head, np.zeros((0, 1), np.uint64), *tail)
