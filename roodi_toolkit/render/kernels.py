@@ -12,12 +12,12 @@ Gaussians whose footprint touches it (``lists[starts[t]:starts[t] + counts[t]]``
 blocks of pixels: as the tile's run is copied, each entry is appended to the lists of the blocks its footprint box
 touches (:func:`~.lanes._pack_blocks`); each block walks its list front to back (forward) and evaluates each
 Gaussian on its 16 pixels at once (masked to the box). The forward marks, per (tile, Gaussian) pair, the blocks in
-which it blended at least one pixel; the backward copies only the marked entries and walks each block's back to front
-(:func:`~.lanes._pack_marked`). The 16 pixels' state
-(transmittance, walked count, channel sums) lives in stack arrays (:mod:`.lanes`) that LLVM keeps in vector
-registers, and the per-Gaussian loop over the 16 pixels has no branches (selects) and no 64-bit counter, and its
-length is hidden from the compiler (``nq``): LLVM then vectorises it as a loop, eight float32 lanes at a time, where
-a loop of a known 16 was unrolled and re-vectorised four lanes at a time with spills (found in the assembly).
+which it blended at least one pixel; the backward copies only the marked entries and walks each block's back to
+front (:func:`~.lanes._pack_marked`). The 16 pixels' state (transmittance, walked count, channel sums) lives in
+stack arrays (:mod:`.lanes`) that LLVM keeps in vector registers, and the per-Gaussian loop over the 16 pixels has
+no branches (selects) and no 64-bit counter, and its length is hidden from the compiler (``nq``): LLVM then
+vectorises it as a loop, eight float32 lanes at a time, where a loop of a known 16 was unrolled and re-vectorised
+four lanes at a time with spills (found in the assembly).
 Blocks at a tile's or the image's edge have their outside pixels stopped from the start.
 Results do not depend on timing or on the number of workers: each tile is written by one worker, and the backward
 writes one gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after
@@ -350,12 +350,12 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         geometry: whether to compute ``pair_geom`` (False when only colours or features are trained).
         groups: :func:`channel_groups` of ``C``.
 
-    The tile's 4x4 blocks are walked one after the other, each through the entries the forward marked as blended
-    in it (:func:`~.lanes._pack_marked`), back to front, with the forward's expression for every alpha (so the same
-    pixels blend the same Gaussians; an entry blends in a pixel whose ``last`` lies past it); a pair's gradient is the
-    sum of its 16 lanes in a fixed tree order, added block after block (an entry that blended nowhere in a block
-    adds nothing there, so skipping it changes no value). :func:`reduce_pairs` then
-    sums the pairs per Gaussian in list order: the result does not depend on the number of workers.
+    The tile's 4x4 blocks are walked one after the other, each through the entries the forward marked as blended in it
+    (:func:`~.lanes._pack_marked`), back to front, with the forward's expression for every alpha (so the same pixels
+    blend the same Gaussians; an entry blends in a pixel whose ``last`` lies past it); a pair's gradient is the sum of
+    its 16 lanes in a fixed tree order, added block after block (an entry that blended nowhere in a block adds nothing
+    there, so skipping it changes no value). :func:`reduce_pairs` then sums the pairs per Gaussian in list order: the
+    result does not depend on the number of workers.
 
     With ``T_i`` the transmittance before Gaussian ``i`` and ``S_i`` the sum over the Gaussians behind it of
     ``w_j (c_j . g)``: ``dL/dc_i = alpha_i T_i g``, ``dL/dalpha_i = T_i (c_i . g) - (S_i + T_final (bg . g -
