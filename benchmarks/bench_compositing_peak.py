@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import numpy as np
 
-    from roodi_toolkit.render import kernels
+    from roodi_toolkit.render import fast, kernels
 
     G, S = args.gaussians, args.size
     f32 = np.float32
@@ -56,15 +56,15 @@ def main(argv: list[str] | None = None) -> int:
         out = np.zeros((S, S, 4), f32)
         t_final = np.ones((S, S), f32)
         last = np.zeros((S, S), np.int32)
-        marks = np.zeros((len(lists), 1), np.uint64)
+        marks = np.zeros(fast.marks_shape(len(lists), 16), np.uint64)
         t0 = time.perf_counter()
         kernels.composite_forward(*head, out, t_final, last, np.full((0, 0), -1, np.int32), marks)
         t1 = time.perf_counter()
         pair_geom = np.zeros((len(lists), 6), f32)
         pair_chan = np.zeros((len(lists), 4), f32)
         t2 = time.perf_counter()
-        kernels.composite_backward(*head, t_final, last, marks, np.ones((S, S, 4), f32), np.zeros((S, S), f32), np.zeros(4),
-                                   pair_geom, pair_chan, True)
+        kernels.composite_backward(*head, t_final, last, marks, np.ones((S, S, 4), f32), np.zeros((S, S), f32),
+                                   np.zeros(4), pair_geom, pair_chan, True)
         t3 = time.perf_counter()
         if rnd:
             fwd.append(t1 - t0)

@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
             head = (lists, starts, counts, busy, proj.bounds, proj.means2d, proj.conics, proj.opacities, channels,
                     *extra, W, H, view.tile, workers)
             # the forward's marks of the blocks each pair blended in, which the backward walks (since 2026-11-28)
-            marks = (np.zeros((len(lists), (((view.tile + 3) // 4) ** 2 + 63) // 64), np.uint64),) \
+            marks = (np.zeros(fast.marks_shape(len(lists), view.tile), np.uint64),) \
                 if "marks" in mod.composite_forward.py_func.__code__.co_varnames else ()
             clock(f"{name} fwd", lambda: mod.composite_forward(*head, out, t_final, last, top, *marks))
             pair_geom = np.zeros((len(lists), 6), np.float32)

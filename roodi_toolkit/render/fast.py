@@ -155,11 +155,11 @@ def _set_workers() -> int:
     return n
 
 
-def marks_shape(bins: Bins, view: View) -> tuple[int, int]:
-    """The shape of the forward's marks (:func:`composite`): a row of 64-bit words per (tile, Gaussian) pair, one bit
-    per 4x4 block of a tile."""
-    blocks = ((view.tile + 3) // 4) ** 2
-    return len(bins.lists), (blocks + 63) // 64
+def marks_shape(pairs: int, tile: int) -> tuple[int, int]:
+    """The shape of the forward's marks (:func:`composite`): a row of 64-bit words for each of the ``pairs`` (tile,
+    Gaussian) pairs, one bit per 4x4 block of a ``tile``-pixel tile."""
+    blocks = ((tile + 3) // 4) ** 2
+    return pairs, (blocks + 63) // 64
 
 
 def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, want_top: bool = False,
@@ -173,7 +173,7 @@ def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, 
     t_final = np.ones((H, W), channels.dtype)
     last = np.zeros((H, W), np.int32)
     top = np.full((H, W) if want_top else (0, 0), -1, np.int32)
-    marks = np.zeros(marks_shape(bins, view) if want_marks else (0, 1), np.uint64)
+    marks = np.zeros(marks_shape(len(bins.lists), view.tile) if want_marks else (0, 1), np.uint64)
     n_workers = _set_workers()
     kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics,
                               proj.opacities, channels, kernels.channel_groups(C), W, H, view.tile, n_workers, out,

@@ -406,10 +406,10 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
     ``scales`` and ``opacities``) from those of its outputs.
 
     ``g_rgb`` [N, 3] is used when ``n_bases`` > 0 (then ``g_sh`` [N, K, 3] is written and the direction's gradient
-    reaches the means, except through the channels the forward ``clamped``); ``geometry`` False skips the projection's gradients (only colours are trained). Gaussians
-    the forward did not draw (``ntiles`` 0) have no gradient from the image: their rows of the outputs, zeroed by
-    the caller, are left as they are. Each drawn Gaussian's colour gradients are worked out in turn, then
-    ``GROUP`` Gaussians' projection gradients together (:func:`_backward_group`).
+    reaches the means, except through the channels the forward ``clamped``); ``geometry`` False skips the projection's
+    gradients (only colours are trained). Gaussians the forward did not draw (``ntiles`` 0) have no gradient from the
+    image: their rows of the outputs, zeroed by the caller, are left as they are. Each drawn Gaussian's colour gradients
+    are worked out in turn, then ``GROUP`` Gaussians' projection gradients together (:func:`_backward_group`).
     """
     n = means.shape[0]
     cam = _camera(view, intr, width, height, near, far, eps2d, 1)  # (the tile size: the forward's alone)

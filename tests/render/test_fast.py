@@ -233,7 +233,6 @@ def test_lane_vectors_equal_the_scalar_tree_bit_for_bit(dtype):
         assert np.array_equal(z, y + x * a)
 
 
-
 @pytest.mark.parametrize("tile", [4, 10, 16, 64])
 def test_forward_marks_exactly_the_blocks_each_pair_blended_in(tile):
     """The forward's marks (what the backward walks) are the tile's 4x4 blocks where each (tile, Gaussian) pair
