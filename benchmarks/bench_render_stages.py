@@ -38,12 +38,12 @@ HERE = Path(__file__).resolve().parent
 def load_kernels(checkout: Path):
     """Return ``checkout``'s kernels module and its projection kernels module, loaded from a copy in the temporary
     folder (numba caches its compiled code beside the file; a folder named by the content lets later runs reuse it).
-    The kernels, the block helpers they import (``lanes.py``, where the checkout has it) and the projection kernels
-    (their package imports made absolute: the constants come from this checkout's package) are copied as a package of
-    their own."""
+    The kernels, the block helpers and vector operations they import (``lanes.py`` and ``vectors.py``, where the
+    checkout has them) and the projection kernels (their package imports made absolute: the constants come from this
+    checkout's package) are copied as a package of their own."""
     render = checkout / "roodi_toolkit" / "render"
-    files = {name: (render / name).read_bytes() for name in ("kernels.py", "lanes.py", "projection_kernels.py")
-             if (render / name).exists()}
+    names = ("kernels.py", "lanes.py", "vectors.py", "projection_kernels.py")
+    files = {name: (render / name).read_bytes() for name in names if (render / name).exists()}
     files["projection_kernels.py"] = files["projection_kernels.py"].replace(
         b"from ..gaussians import", b"from roodi_toolkit.gaussians import").replace(
         b"from ..sh import", b"from roodi_toolkit.sh import")

@@ -40,19 +40,20 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lane_dot, _lane_max, _lane_sum, _lanes,
-                    _lanes_axpy, _lanes_positive, _longest, _next_entry, _pack_marked, _records, _stack_empty,
-                    _start_block, _tile_box)
+from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lanes, _longest, _next_entry,
+                    _pack_marked, _records, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
+from .vectors import _lane_dots, _lane_max, _lane_sums, _lanes_axpy, _lanes_positive, _lanes_scale
 
-LANES_REVISION = 15
-"""Raised with every change to :mod:`.lanes`: numba's cache (``cache=True``) checks only the time stamp and size of
-the file that defines a kernel, and the block helpers are compiled into these kernels, so a change to lanes.py alone
-would leave a checkout that compiled them before with stale kernels (5: the exponential in fused multiply-adds; 6: the
-blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the blocks' walk in one helper; 9: the records
-prefetched; 10: the features too; 11: no channels, no copy; 12: the prefetch in one helper; 13: the lanes'
-sums, maxima and channel updates as vector halves; 14: records on a cache line; 15: the backward's marked
-entries)."""
+LANES_REVISION = 16
+"""Raised with every change to :mod:`.lanes` or :mod:`.vectors`: numba's cache (``cache=True``) checks only the time
+stamp and size of the file that defines a kernel, and the block helpers are compiled into these kernels, so a change
+to lanes.py or vectors.py alone would leave a checkout that compiled them before with stale kernels (5: the
+exponential in fused multiply-adds; 6: the blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the
+blocks' walk in one helper; 9: the records prefetched; 10: the features too; 11: no channels, no copy; 12: the
+prefetch in one helper; 13: the lanes' sums, maxima and channel updates as vector halves; 14: records on a cache
+line; 15: the backward's marked entries; 16: a pair's sums side by side, the vector operations in their own
+module)."""
 
 
 RADIX_BITS = 11
@@ -386,6 +387,7 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         Wt = _lanes(kc)
         CG = _lanes(kc)
         VG = nb.carray(_stack_empty(96, kc.dtype), (6, LANES))  # 6 gradients x 16 pixels
+        sums = nb.carray(_stack_empty(groups, kc.dtype), (NC * LANES,))  # a pair's sums (channels, then geometry)
         L = _lanes(run)
         blist = np.empty((nbx * nbx, cap), np.int32)
         bcount = np.zeros(nbx * nbx, np.int64)
@@ -429,9 +431,8 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                     ha = half * a
                     hc = half * c
                     if geometry:
-                        for q in range(LANES):
-                            CG[q] = zero
-                        for i in range(NC):  # c_i . g first: the alpha's gradient needs it in the walk's loop
+                        _lanes_scale(CG, gpix[0], colp[slot, 0])  # c_i . g first: the alpha's gradient needs it
+                        for i in range(1, NC):
                             _lanes_axpy(CG, gpix[i], colp[slot, i])
                         for q in range(nq):  # recover T_i and the weight; d_alpha, S_i, the pair's gradients
                             dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
@@ -457,15 +458,13 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                             T[q] = Ti if act else T[q]
                             Wt[q] = alpha * Ti if act else zero
                     j = s + jj
-                    for i in range(C):  # each channel's 16 pixels: two vectors of 8
-                        pair_colors[j, i] += _lane_dot(Wt, gpix[i])
+                    _lane_dots(Wt, gpix, groups, sums)  # each channel's 16 pixels, the channels side by side
+                    for i in range(C):
+                        pair_colors[j, i] += sums[i]
                     if geometry:
-                        pair_geom[j, 0] += _lane_sum(VG[0])  # written out: a loop here would be vectorised across
-                        pair_geom[j, 1] += _lane_sum(VG[1])  # the six sums with gathers
-                        pair_geom[j, 2] += _lane_sum(VG[2])
-                        pair_geom[j, 3] += _lane_sum(VG[3])
-                        pair_geom[j, 4] += _lane_sum(VG[4])
-                        pair_geom[j, 5] += _lane_sum(VG[5])
+                        _lane_sums(VG, 6, sums)
+                        for i in range(6):
+                            pair_geom[j, i] += sums[i]
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)

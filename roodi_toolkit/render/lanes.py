@@ -6,10 +6,7 @@ LLVM keeps a block's state in registers and turns a loop over its 16 pixels into
 the heap, which would need runtime overlap checks; every constant comes in the inputs' dtype as a tuple of values
 (:func:`_constant_tuple`; a float literal would turn float32 arithmetic into float64); and no loop over channels sits
 inside the loop over the pixels. What a loop does not express well is written as LLVM vector operations on the 16
-lanes as two halves of 8 (``@intrinsic``: portable IR, no CPU-specific instruction): the sums and maxima over the 16
-lanes in a fixed tree (:func:`_lane_sum`, :func:`_lane_max`, :func:`_lane_dot`; as scalar code, 16 loads and 15
-operations) and a channel's update over the 16 lanes (:func:`_lanes_axpy`; as a loop inside the channels' loop, LLVM
-ran it in its 4-lane remainder).
+lanes (:mod:`.vectors`).
 """
 
 from __future__ import annotations
@@ -23,6 +20,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
+from .vectors import LANES
+
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 TRANSMITTANCE_MIN = 1e-4
@@ -30,8 +29,6 @@ SIGMA_MAX = 6.0
 """Beyond this Mahalanobis half-square, ``opacity * exp(-sigma) < 1/255`` for any opacity: the alpha test drops the
 pixel, so the Gaussian's value there is computed on ``SIGMA_MAX`` instead (keeps the polynomial in its range)."""
 I3, I4, I5, I6, I7, I8, I9, I10 = (1.0 / math.factorial(k) for k in range(3, 11))  # Taylor coefficients of exp
-LANES = 16
-"""Pixels of a compositing block (4x4): the vector the compositing works on."""
 
 
 @intrinsic
@@ -200,140 +197,6 @@ def _gauss(dx, dy, ha, b, hc, kt):  # pragma: no cover - compiled
     e *= e
     e *= e
     return e * e
-
-
-def _shuffle(builder, a, b, picks):
-    """LLVM's ``shufflevector``: the lanes ``picks`` of the vectors ``a`` and ``b`` laid end to end."""
-    return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(ir.IntType(32), len(picks)), list(picks)))
-
-
-def _load_halves(context, builder, arrty, array):
-    """The 16 lanes of the C-contiguous float stack array ``array`` as two LLVM vectors of 8 (lanes 0-7 and 8-15):
-    loaded as the vectorised loops stored them, eight at a time (one 16-wide load of two 8-wide stores waits for
-    both to reach the cache: no store-to-load forwarding)."""
-    ty = context.get_value_type(arrty.dtype)
-    data = context.make_array(arrty)(context, builder, array).data
-    vty = ir.VectorType(ty, LANES // 2)
-    align = arrty.dtype.bitwidth // 8
-    return tuple(builder.load(builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), at)]), vty.as_pointer()),
-                              align=align) for at in (0, LANES // 2))
-
-
-def _fold(builder, halves, combine):
-    """Combine the 16 lanes (``halves``: lanes 0-7 and 8-15) into one value in the kernels' fixed tree order: lane
-    ``q`` with lane ``q + 8`` (``combine(low, high)``), then the first four of those with the last four, two with two,
-    one with one."""
-    vec = combine(*halves)
-    lanes = LANES // 2
-    while lanes > 1:
-        half = lanes // 2
-        vec = combine(_shuffle(builder, vec, vec, range(half)), _shuffle(builder, vec, vec, range(half, lanes)))
-        lanes = half
-    return builder.extract_element(vec, ir.Constant(ir.IntType(32), 0))
-
-
-def _is_lanes(v):
-    return isinstance(v, types.Array) and isinstance(v.dtype, types.Float) and v.ndim == 1 and v.layout == "C"
-
-
-@intrinsic
-def _lane_sum(typingctx, v):  # pragma: no cover - compiled
-    """The sum of the 16 lanes of ``v`` (a C-contiguous float array of 16) in a fixed tree order (:func:`_fold`), as
-    LLVM vector halves added (``shufflevector``: no CPU-specific instruction). Written as scalar code, the same sum
-    was compiled to 16 loads and 15 scalar additions."""
-    if not _is_lanes(v):
-        return None
-
-    def codegen(context, builder, signature, args):
-        return _fold(builder, _load_halves(context, builder, signature.args[0], args[0]), builder.fadd)
-
-    return v.dtype(v), codegen
-
-
-@intrinsic
-def _lane_max(typingctx, v):  # pragma: no cover - compiled
-    """The largest of the 16 lanes of ``v`` in :func:`_lane_sum`'s tree, each step Python's ``max(low, high)`` (the
-    high lane where it is greater, else the low one). The kernels test "is any pixel still going" or "did any pixel
-    blend" with it after the loop over the lanes, not by counting inside it: a 64-bit counter in that loop made LLVM
-    vectorise it four lanes at a time (the counter's width) instead of eight."""
-    if not _is_lanes(v):
-        return None
-
-    def codegen(context, builder, signature, args):
-        def greater(low, high):
-            return builder.select(builder.fcmp_ordered(">", high, low), high, low)
-
-        return _fold(builder, _load_halves(context, builder, signature.args[0], args[0]), greater)
-
-    return v.dtype(v), codegen
-
-
-@intrinsic
-def _lanes_positive(typingctx, v):  # pragma: no cover - compiled
-    """Whether any of the 16 lanes of ``v`` is greater than 0: the two halves compared with 0 and or-ed as masks (a
-    compare and a mask test, where :func:`_lane_max`'s tree is four dependent steps)."""
-    if not _is_lanes(v):
-        return None
-
-    def codegen(context, builder, signature, args):
-        low, high = _load_halves(context, builder, signature.args[0], args[0])
-        zero = ir.Constant(low.type, None)
-        either = builder.or_(builder.fcmp_ordered(">", low, zero), builder.fcmp_ordered(">", high, zero))
-        return builder.icmp_unsigned("!=", builder.bitcast(either, ir.IntType(LANES // 2)),
-                                     ir.Constant(ir.IntType(LANES // 2), 0))
-
-    return types.boolean(v), codegen
-
-
-def _store_halves(context, builder, arrty, array, halves):
-    """Store two LLVM vectors of 8 into the 16 lanes of ``array`` (as :func:`_load_halves` loads them)."""
-    data = context.make_array(arrty)(context, builder, array).data
-    align = arrty.dtype.bitwidth // 8
-    for at, vec in zip((0, LANES // 2), halves):
-        ptr = builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), at)]), vec.type.as_pointer())
-        builder.store(vec, ptr, align=align)
-
-
-def _broadcast(builder, value):
-    """An LLVM vector of 8 copies of the scalar ``value``."""
-    vec = builder.insert_element(ir.Constant(ir.VectorType(value.type, LANES // 2), None), value,
-                                 ir.Constant(ir.IntType(32), 0))
-    return _shuffle(builder, vec, vec, [0] * (LANES // 2))
-
-
-@intrinsic
-def _lanes_axpy(typingctx, y, x, a):  # pragma: no cover - compiled
-    """``y[q] += x[q] * a`` for the 16 lanes (a multiplication, then an addition: the values of the loop written
-    out), as two 8-lane LLVM vector operations: the channel loops of the compositing wrote this as a loop over the
-    lanes inside the loop over the channels, which LLVM vectorised 32 lanes at a time and so ran in its 4-lane
-    remainder."""
-    if not (_is_lanes(y) and _is_lanes(x) and y.dtype == x.dtype and a == y.dtype):
-        return None
-
-    def codegen(context, builder, signature, args):
-        ty_y, ty_x, _ = signature.args
-        ys = _load_halves(context, builder, ty_y, args[0])
-        xs = _load_halves(context, builder, ty_x, args[1])
-        av = _broadcast(builder, args[2])
-        _store_halves(context, builder, ty_y, args[0],
-                      [builder.fadd(yv, builder.fmul(xv, av)) for yv, xv in zip(ys, xs)])
-        return context.get_dummy_value()
-
-    return types.none(y, x, a), codegen
-
-
-@intrinsic
-def _lane_dot(typingctx, x, y):  # pragma: no cover - compiled
-    """The sum of ``x[q] * y[q]`` over the 16 lanes, in :func:`_lane_sum`'s tree order."""
-    if not (_is_lanes(x) and _is_lanes(y) and x.dtype == y.dtype):
-        return None
-
-    def codegen(context, builder, signature, args):
-        xs = _load_halves(context, builder, signature.args[0], args[0])
-        ys = _load_halves(context, builder, signature.args[1], args[1])
-        return _fold(builder, [builder.fmul(xv, yv) for xv, yv in zip(xs, ys)], builder.fadd)
-
-    return x.dtype(x, y), codegen
 
 
 @nb.njit(inline="always")

@@ -215,7 +215,7 @@ def test_lane_vectors_equal_the_scalar_tree_bit_for_bit(dtype):
     scalar tree they replace, in float32 and float64."""
     import numba as nb
 
-    from roodi_toolkit.render.lanes import _lane_dot, _lane_max, _lane_sum, _lanes_axpy
+    from roodi_toolkit.render.vectors import _lane_dot, _lane_max, _lane_sum, _lanes_axpy
 
     @nb.njit
     def run(x, y, a):
@@ -231,6 +231,42 @@ def test_lane_vectors_equal_the_scalar_tree_bit_for_bit(dtype):
         s, m, d, z = run(x, y, a)
         assert s == _tree(x, np.add) and m == x.max() and d == _tree(x * y, np.add)
         assert np.array_equal(z, y + x * a)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_many_lane_sums_at_once_equal_the_scalar_tree_bit_for_bit(dtype):
+    """The sums and dot products of several rows at once (the backward's six geometry gradients and its channels,
+    rows side by side in each vector) give each row's scalar tree exactly, for 6 rows and for 1, 2, 4 and 8 channel
+    groups (4 to 32 rows: an odd row out at each step is paired with itself)."""
+    import numba as nb
+
+    from roodi_toolkit.render.lanes import _stack_empty
+    from roodi_toolkit.render.vectors import _lane_dots, _lane_sums
+
+    def compile_for(groups):
+        @nb.njit
+        def run(x, rows):
+            out = nb.carray(_stack_empty(groups, rows.dtype), (len(groups) * 64,))
+            six = nb.carray(_stack_empty(96, rows.dtype), (6, 16))
+            six[:, :] = rows[:6]
+            chans = nb.carray(_stack_empty(groups, rows.dtype), (4 * len(groups), 16))
+            chans[:, :] = rows[:4 * len(groups)]
+            _lane_sums(six, 6, out)
+            first = out[:6].copy()
+            _lane_dots(x, chans, groups, out)
+            return first, out[:4 * len(groups)].copy()
+
+        return run
+
+    rng = np.random.default_rng(4)
+    for groups in [(0,), (0, 0), (0,) * 4, (0,) * 8]:
+        run = compile_for(groups)
+        for _ in range(5):
+            rows = (rng.standard_normal((32, 16)) * 10.0 ** rng.uniform(-3, 3, (32, 16))).astype(dtype)
+            x = rng.standard_normal(16).astype(dtype)
+            six, dots = run(x, rows)
+            assert [float(v) for v in six] == [float(_tree(r, np.add)) for r in rows[:6]]
+            assert [float(v) for v in dots] == [float(_tree(x * r, np.add)) for r in rows[:len(dots)]]
 
 
 @pytest.mark.parametrize("tile", [4, 10, 16, 64])

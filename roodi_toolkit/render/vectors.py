@@ -1,0 +1,252 @@
+"""LLVM vector operations on the 16 lanes of a compositing block (:mod:`roodi_toolkit.render.lanes`), as two halves of
+8 (``@intrinsic``: portable IR, no CPU-specific instruction; LLVM lowers each half to one AVX register, or to two
+of SSE or NEON): what the compiled loops over the lanes do not express well. The sums and maxima over the 16 lanes in
+a fixed tree (:func:`_lane_sum`, :func:`_lane_max`, :func:`_lane_dot`; as scalar code, 16 loads and 15 operations),
+several rows' sums at once in that same tree (:func:`_lane_sums`, :func:`_lane_dots`) and a channel's update over the
+16 lanes (:func:`_lanes_axpy`, :func:`_lanes_scale`; as a loop inside the channels' loop, LLVM ran it in its 4-lane
+remainder). Found by reading the assembly of the kernels (``benchmarks/profile_kernels.py``).
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
+
+LANES = 16
+"""Pixels of a compositing block (4x4): the vector the compositing works on."""
+
+
+def _shuffle(builder, a, b, picks):
+    """LLVM's ``shufflevector``: the lanes ``picks`` of the vectors ``a`` and ``b`` laid end to end."""
+    return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(ir.IntType(32), len(picks)), list(picks)))
+
+
+def _load_halves(context, builder, arrty, array):
+    """The 16 lanes of the C-contiguous float stack array ``array`` as two LLVM vectors of 8 (lanes 0-7 and 8-15):
+    loaded as the vectorised loops stored them, eight at a time (one 16-wide load of two 8-wide stores waits for
+    both to reach the cache: no store-to-load forwarding)."""
+    ty = context.get_value_type(arrty.dtype)
+    data = context.make_array(arrty)(context, builder, array).data
+    vty = ir.VectorType(ty, LANES // 2)
+    align = arrty.dtype.bitwidth // 8
+    return tuple(builder.load(builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), at)]), vty.as_pointer()),
+                              align=align) for at in (0, LANES // 2))
+
+
+def _fold(builder, halves, combine):
+    """Combine the 16 lanes (``halves``: lanes 0-7 and 8-15) into one value in the kernels' fixed tree order: lane
+    ``q`` with lane ``q + 8`` (``combine(low, high)``), then the first four of those with the last four, two with two,
+    one with one."""
+    vec = combine(*halves)
+    lanes = LANES // 2
+    while lanes > 1:
+        half = lanes // 2
+        vec = combine(_shuffle(builder, vec, vec, range(half)), _shuffle(builder, vec, vec, range(half, lanes)))
+        lanes = half
+    return builder.extract_element(vec, ir.Constant(ir.IntType(32), 0))
+
+
+def _is_lanes(v):
+    return isinstance(v, types.Array) and isinstance(v.dtype, types.Float) and v.ndim == 1 and v.layout == "C"
+
+
+@intrinsic
+def _lane_sum(typingctx, v):  # pragma: no cover - compiled
+    """The sum of the 16 lanes of ``v`` (a C-contiguous float array of 16) in a fixed tree order (:func:`_fold`), as
+    LLVM vector halves added (``shufflevector``: no CPU-specific instruction). Written as scalar code, the same sum
+    was compiled to 16 loads and 15 scalar additions."""
+    if not _is_lanes(v):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return _fold(builder, _load_halves(context, builder, signature.args[0], args[0]), builder.fadd)
+
+    return v.dtype(v), codegen
+
+
+@intrinsic
+def _lane_max(typingctx, v):  # pragma: no cover - compiled
+    """The largest of the 16 lanes of ``v`` in :func:`_lane_sum`'s tree, each step Python's ``max(low, high)`` (the
+    high lane where it is greater, else the low one). The kernels test "is any pixel still going" or "did any pixel
+    blend" with it after the loop over the lanes, not by counting inside it: a 64-bit counter in that loop made LLVM
+    vectorise it four lanes at a time (the counter's width) instead of eight."""
+    if not _is_lanes(v):
+        return None
+
+    def codegen(context, builder, signature, args):
+        def greater(low, high):
+            return builder.select(builder.fcmp_ordered(">", high, low), high, low)
+
+        return _fold(builder, _load_halves(context, builder, signature.args[0], args[0]), greater)
+
+    return v.dtype(v), codegen
+
+
+@intrinsic
+def _lanes_positive(typingctx, v):  # pragma: no cover - compiled
+    """Whether any of the 16 lanes of ``v`` is greater than 0: the two halves compared with 0 and or-ed as masks (a
+    compare and a mask test, where :func:`_lane_max`'s tree is four dependent steps)."""
+    if not _is_lanes(v):
+        return None
+
+    def codegen(context, builder, signature, args):
+        low, high = _load_halves(context, builder, signature.args[0], args[0])
+        zero = ir.Constant(low.type, None)
+        either = builder.or_(builder.fcmp_ordered(">", low, zero), builder.fcmp_ordered(">", high, zero))
+        return builder.icmp_unsigned("!=", builder.bitcast(either, ir.IntType(LANES // 2)),
+                                     ir.Constant(ir.IntType(LANES // 2), 0))
+
+    return types.boolean(v), codegen
+
+
+def _store_halves(context, builder, arrty, array, halves):
+    """Store two LLVM vectors of 8 into the 16 lanes of ``array`` (as :func:`_load_halves` loads them)."""
+    data = context.make_array(arrty)(context, builder, array).data
+    align = arrty.dtype.bitwidth // 8
+    for at, vec in zip((0, LANES // 2), halves):
+        ptr = builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), at)]), vec.type.as_pointer())
+        builder.store(vec, ptr, align=align)
+
+
+def _broadcast(builder, value):
+    """An LLVM vector of 8 copies of the scalar ``value``."""
+    vec = builder.insert_element(ir.Constant(ir.VectorType(value.type, LANES // 2), None), value,
+                                 ir.Constant(ir.IntType(32), 0))
+    return _shuffle(builder, vec, vec, [0] * (LANES // 2))
+
+
+@intrinsic
+def _lanes_axpy(typingctx, y, x, a):  # pragma: no cover - compiled
+    """``y[q] += x[q] * a`` for the 16 lanes (a multiplication, then an addition: the values of the loop written
+    out), as two 8-lane LLVM vector operations: the channel loops of the compositing wrote this as a loop over the
+    lanes inside the loop over the channels, which LLVM vectorised 32 lanes at a time and so ran in its 4-lane
+    remainder."""
+    if not (_is_lanes(y) and _is_lanes(x) and y.dtype == x.dtype and a == y.dtype):
+        return None
+
+    def codegen(context, builder, signature, args):
+        ty_y, ty_x, _ = signature.args
+        ys = _load_halves(context, builder, ty_y, args[0])
+        xs = _load_halves(context, builder, ty_x, args[1])
+        av = _broadcast(builder, args[2])
+        _store_halves(context, builder, ty_y, args[0],
+                      [builder.fadd(yv, builder.fmul(xv, av)) for yv, xv in zip(ys, xs)])
+        return context.get_dummy_value()
+
+    return types.none(y, x, a), codegen
+
+
+@intrinsic
+def _lanes_scale(typingctx, y, x, a):  # pragma: no cover - compiled
+    """``y[q] = x[q] * a`` for the 16 lanes, as two 8-lane LLVM vector operations: a sum over channels starts with it
+    instead of 16 zeros, which a loop stored one lane at a time and the next vector load then waited for."""
+    if not (_is_lanes(y) and _is_lanes(x) and y.dtype == x.dtype and a == y.dtype):
+        return None
+
+    def codegen(context, builder, signature, args):
+        ty_y, ty_x, _ = signature.args
+        xs = _load_halves(context, builder, ty_x, args[1])
+        av = _broadcast(builder, args[2])
+        _store_halves(context, builder, ty_y, args[0], [builder.fmul(xv, av) for xv in xs])
+        return context.get_dummy_value()
+
+    return types.none(y, x, a), codegen
+
+
+@intrinsic
+def _lane_dot(typingctx, x, y):  # pragma: no cover - compiled
+    """The sum of ``x[q] * y[q]`` over the 16 lanes, in :func:`_lane_sum`'s tree order."""
+    if not (_is_lanes(x) and _is_lanes(y) and x.dtype == y.dtype):
+        return None
+
+    def codegen(context, builder, signature, args):
+        xs = _load_halves(context, builder, signature.args[0], args[0])
+        ys = _load_halves(context, builder, signature.args[1], args[1])
+        return _fold(builder, [builder.fmul(xv, yv) for xv, yv in zip(xs, ys)], builder.fadd)
+
+    return x.dtype(x, y), codegen
+
+
+def _count(size):
+    """How many rows a multiple-sum intrinsic adds up: an integer literal, or ``4 * G`` for a tuple of ``G`` channel
+    groups (as :func:`_stack_empty`); None for anything else."""
+    if isinstance(size, types.IntegerLiteral):
+        return size.literal_value
+    if isinstance(size, types.BaseTuple):
+        return 4 * len(size)
+    return None
+
+
+def _rows_halves(context, builder, arrty, array, count):
+    """Rows ``0:count`` of the C-contiguous float stack array ``array`` [K, 16], each as two LLVM vectors of 8."""
+    ty = context.get_value_type(arrty.dtype)
+    data = context.make_array(arrty)(context, builder, array).data
+    vty = ir.VectorType(ty, LANES // 2).as_pointer()
+    align = arrty.dtype.bitwidth // 8
+    return [tuple(builder.load(builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), k * LANES + at)]), vty),
+                               align=align) for at in (0, LANES // 2)) for k in range(count)]
+
+
+def _fold_rows(builder, rows):
+    """The sums of ``rows`` (each 16 lanes as two vectors of 8) in :func:`_fold`'s tree, all at once: each step adds
+    the lanes of two rows laid side by side in one vector (``shufflevector``), so eight sums take the additions and
+    shuffles that :func:`_fold` spends on three. Returns vectors of 8 sums, rows ``8 g`` to ``8 g + 7`` in vector
+    ``g`` (an odd row out is paired with itself; its copy lands past the last row)."""
+    level = [builder.fadd(lo, hi) for lo, hi in rows]  # lane q with lane q + 8
+    for picks in (([0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15]),  # first four with last four
+                  ([0, 1, 4, 5, 8, 9, 12, 13], [2, 3, 6, 7, 10, 11, 14, 15]),  # two with two
+                  ([0, 2, 4, 6, 8, 10, 12, 14], [1, 3, 5, 7, 9, 11, 13, 15])):  # one with one
+        pairs = [(level[i], level[min(i + 1, len(level) - 1)]) for i in range(0, len(level), 2)]
+        level = [builder.fadd(_shuffle(builder, a, b, picks[0]), _shuffle(builder, a, b, picks[1])) for a, b in pairs]
+    return level
+
+
+def _store_sums(context, builder, arrty, array, vectors):
+    """Store vectors of 8 sums one after the other from the start of the 1-D C-contiguous stack array ``array``."""
+    data = context.make_array(arrty)(context, builder, array).data
+    align = arrty.dtype.bitwidth // 8
+    for g, vec in enumerate(vectors):
+        ptr = builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), 8 * g)]), vec.type.as_pointer())
+        builder.store(vec, ptr, align=align)
+
+
+def _is_rows(v):
+    return isinstance(v, types.Array) and isinstance(v.dtype, types.Float) and v.ndim == 2 and v.layout == "C"
+
+
+@intrinsic
+def _lane_sums(typingctx, rows, count, out):  # pragma: no cover - compiled
+    """Write into ``out`` the sums of the 16 lanes of each of the rows ``0:count`` of ``rows`` (a C-contiguous [K, 16]
+    stack array; ``count`` an integer literal or a tuple of channel groups, :func:`_count`), each in
+    :func:`_lane_sum`'s tree order, so each equals :func:`_lane_sum` of its row bit for bit. ``out`` (a 1-D stack
+    array) needs room for ``count`` rounded up to a multiple of 8. Summed one by one, the backward's six gradients
+    of a pair took a tree of four steps each, then an extraction."""
+    k = _count(count)
+    if not (k and _is_rows(rows) and _is_lanes(out) and out.dtype == rows.dtype):
+        return None
+
+    def codegen(context, builder, signature, args):
+        halves = _rows_halves(context, builder, signature.args[0], args[0], k)
+        _store_sums(context, builder, signature.args[2], args[2], _fold_rows(builder, halves))
+        return context.get_dummy_value()
+
+    return types.none(rows, count, out), codegen
+
+
+@intrinsic
+def _lane_dots(typingctx, x, rows, count, out):  # pragma: no cover - compiled
+    """Write into ``out`` the sums over the 16 lanes of ``x[q] * rows[k, q]`` for the rows ``0:count`` (as
+    :func:`_lane_sums`): each equals :func:`_lane_dot` of ``x`` and its row bit for bit."""
+    k = _count(count)
+    if not (k and _is_lanes(x) and _is_rows(rows) and _is_lanes(out) and x.dtype == rows.dtype == out.dtype):
+        return None
+
+    def codegen(context, builder, signature, args):
+        xs = _load_halves(context, builder, signature.args[0], args[0])
+        halves = [tuple(builder.fmul(xv, rv) for xv, rv in zip(xs, row))
+                  for row in _rows_halves(context, builder, signature.args[1], args[1], k)]
+        _store_sums(context, builder, signature.args[3], args[3], _fold_rows(builder, halves))
+        return context.get_dummy_value()
+
+    return types.none(x, rows, count, out), codegen
