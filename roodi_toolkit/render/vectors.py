@@ -1,9 +1,9 @@
 """LLVM vector operations on the 16 lanes of a compositing block (:mod:`roodi_toolkit.render.lanes`), as two halves of
 8 (``@intrinsic``: portable IR, no CPU-specific instruction; LLVM lowers each half to one AVX register, or to two
-of SSE or NEON): what the compiled loops over the lanes do not express well. The sums and maxima over the 16 lanes in
-a fixed tree (:func:`_lane_sum`, :func:`_lane_max`, :func:`_lane_dot`; as scalar code, 16 loads and 15 operations),
-several rows' sums at once in that same tree (:func:`_lane_sums`, :func:`_lane_dots`) and a channel's update over the
-16 lanes (:func:`_lanes_axpy`, :func:`_lanes_scale`; as a loop inside the channels' loop, LLVM ran it in its 4-lane
+of SSE or NEON): what the compiled loops over the lanes do not express well. The sums and the maximum over the 16
+lanes in a fixed tree (:func:`_fold`; as scalar code, 16 loads and 15 operations), several rows' sums side by side in
+that same tree (:func:`_lane_sums`, :func:`_lane_dots`) and a channel's update over the 16 lanes
+(:func:`_lanes_axpy`, :func:`_lanes_scale`; as a loop inside the channels' loop, LLVM ran it in its 4-lane
 remainder). Found by reading the assembly of the kernels (``benchmarks/profile_kernels.py``).
 """
 
@@ -52,22 +52,8 @@ def _is_lanes(v):
 
 
 @intrinsic
-def _lane_sum(typingctx, v):  # pragma: no cover - compiled
-    """The sum of the 16 lanes of ``v`` (a C-contiguous float array of 16) in a fixed tree order (:func:`_fold`), as
-    LLVM vector halves added (``shufflevector``: no CPU-specific instruction). Written as scalar code, the same sum
-    was compiled to 16 loads and 15 scalar additions."""
-    if not _is_lanes(v):
-        return None
-
-    def codegen(context, builder, signature, args):
-        return _fold(builder, _load_halves(context, builder, signature.args[0], args[0]), builder.fadd)
-
-    return v.dtype(v), codegen
-
-
-@intrinsic
 def _lane_max(typingctx, v):  # pragma: no cover - compiled
-    """The largest of the 16 lanes of ``v`` in :func:`_lane_sum`'s tree, each step Python's ``max(low, high)`` (the
+    """The largest of the 16 lanes of ``v`` in :func:`_fold`'s tree, each step Python's ``max(low, high)`` (the
     high lane where it is greater, else the low one). The kernels test "is any pixel still going" or "did any pixel
     blend" with it after the loop over the lanes, not by counting inside it: a 64-bit counter in that loop made LLVM
     vectorise it four lanes at a time (the counter's width) instead of eight."""
@@ -154,20 +140,6 @@ def _lanes_scale(typingctx, y, x, a):  # pragma: no cover - compiled
     return types.none(y, x, a), codegen
 
 
-@intrinsic
-def _lane_dot(typingctx, x, y):  # pragma: no cover - compiled
-    """The sum of ``x[q] * y[q]`` over the 16 lanes, in :func:`_lane_sum`'s tree order."""
-    if not (_is_lanes(x) and _is_lanes(y) and x.dtype == y.dtype):
-        return None
-
-    def codegen(context, builder, signature, args):
-        xs = _load_halves(context, builder, signature.args[0], args[0])
-        ys = _load_halves(context, builder, signature.args[1], args[1])
-        return _fold(builder, [builder.fmul(xv, yv) for xv, yv in zip(xs, ys)], builder.fadd)
-
-    return x.dtype(x, y), codegen
-
-
 def _count(size):
     """How many rows a multiple-sum intrinsic adds up: an integer literal, or ``4 * G`` for a tuple of ``G`` channel
     groups (as :func:`_stack_empty`); None for anything else."""
@@ -218,8 +190,8 @@ def _is_rows(v):
 @intrinsic
 def _lane_sums(typingctx, rows, count, out):  # pragma: no cover - compiled
     """Write into ``out`` the sums of the 16 lanes of each of the rows ``0:count`` of ``rows`` (a C-contiguous [K, 16]
-    stack array; ``count`` an integer literal or a tuple of channel groups, :func:`_count`), each in
-    :func:`_lane_sum`'s tree order, so each equals :func:`_lane_sum` of its row bit for bit. ``out`` (a 1-D stack
+    stack array; ``count`` an integer literal or a tuple of channel groups, :func:`_count`), each in :func:`_fold`'s
+    tree order, so each equals its row's sum one row at a time bit for bit. ``out`` (a 1-D stack
     array) needs room for ``count`` rounded up to a multiple of 8. Summed one by one, the backward's six gradients
     of a pair took a tree of four steps each, then an extraction."""
     k = _count(count)
@@ -237,7 +209,7 @@ def _lane_sums(typingctx, rows, count, out):  # pragma: no cover - compiled
 @intrinsic
 def _lane_dots(typingctx, x, rows, count, out):  # pragma: no cover - compiled
     """Write into ``out`` the sums over the 16 lanes of ``x[q] * rows[k, q]`` for the rows ``0:count`` (as
-    :func:`_lane_sums`): each equals :func:`_lane_dot` of ``x`` and its row bit for bit."""
+    :func:`_lane_sums`): the products, then their sums in :func:`_fold`'s tree."""
     k = _count(count)
     if not (k and _is_lanes(x) and _is_rows(rows) and _is_lanes(out) and x.dtype == rows.dtype == out.dtype):
         return None
