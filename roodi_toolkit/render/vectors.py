@@ -22,16 +22,16 @@ def _shuffle(builder, a, b, picks):
     return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(ir.IntType(32), len(picks)), list(picks)))
 
 
-def _load_halves(context, builder, arrty, array):
-    """The 16 lanes of the C-contiguous float stack array ``array`` as two LLVM vectors of 8 (lanes 0-7 and 8-15):
-    loaded as the vectorised loops stored them, eight at a time (one 16-wide load of two 8-wide stores waits for
-    both to reach the cache: no store-to-load forwarding)."""
+def _load_halves(context, builder, arrty, array, start=0):
+    """The 16 lanes from element ``start`` of the C-contiguous float stack array ``array`` as two LLVM vectors of 8
+    (lanes 0-7 and 8-15): loaded as the vectorised loops stored them, eight at a time (one 16-wide load of two 8-wide
+    stores waits for both to reach the cache: no store-to-load forwarding)."""
     ty = context.get_value_type(arrty.dtype)
     data = context.make_array(arrty)(context, builder, array).data
     vty = ir.VectorType(ty, LANES // 2)
     align = arrty.dtype.bitwidth // 8
-    return tuple(builder.load(builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), at)]), vty.as_pointer()),
-                              align=align) for at in (0, LANES // 2))
+    return tuple(builder.load(builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), start + at)]),
+                                              vty.as_pointer()), align=align) for at in (0, LANES // 2))
 
 
 def _fold(builder, halves, combine):
@@ -87,11 +87,12 @@ def _lanes_positive(typingctx, v):  # pragma: no cover - compiled
 
 
 def _store_halves(context, builder, arrty, array, halves):
-    """Store two LLVM vectors of 8 into the 16 lanes of ``array`` (as :func:`_load_halves` loads them)."""
+    """Store LLVM vectors of 8 one after the other from the start of the 1-D C-contiguous stack array ``array``: two
+    halves fill its 16 lanes (as :func:`_load_halves` loads them), more fill more (:func:`_lane_sums`)."""
     data = context.make_array(arrty)(context, builder, array).data
     align = arrty.dtype.bitwidth // 8
-    for at, vec in zip((0, LANES // 2), halves):
-        ptr = builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), at)]), vec.type.as_pointer())
+    for g, vec in enumerate(halves):
+        ptr = builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), g * (LANES // 2))]), vec.type.as_pointer())
         builder.store(vec, ptr, align=align)
 
 
@@ -150,16 +151,6 @@ def _count(size):
     return None
 
 
-def _rows_halves(context, builder, arrty, array, count):
-    """Rows ``0:count`` of the C-contiguous float stack array ``array`` [K, 16], each as two LLVM vectors of 8."""
-    ty = context.get_value_type(arrty.dtype)
-    data = context.make_array(arrty)(context, builder, array).data
-    vty = ir.VectorType(ty, LANES // 2).as_pointer()
-    align = arrty.dtype.bitwidth // 8
-    return [tuple(builder.load(builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), k * LANES + at)]), vty),
-                               align=align) for at in (0, LANES // 2)) for k in range(count)]
-
-
 def _fold_rows(builder, rows):
     """The sums of ``rows`` (each 16 lanes as two vectors of 8) in :func:`_fold`'s tree, all at once: each step adds
     the lanes of two rows laid side by side in one vector (``shufflevector``), so eight sums take the additions and
@@ -172,15 +163,6 @@ def _fold_rows(builder, rows):
         pairs = [(level[i], level[min(i + 1, len(level) - 1)]) for i in range(0, len(level), 2)]
         level = [builder.fadd(_shuffle(builder, a, b, picks[0]), _shuffle(builder, a, b, picks[1])) for a, b in pairs]
     return level
-
-
-def _store_sums(context, builder, arrty, array, vectors):
-    """Store vectors of 8 sums one after the other from the start of the 1-D C-contiguous stack array ``array``."""
-    data = context.make_array(arrty)(context, builder, array).data
-    align = arrty.dtype.bitwidth // 8
-    for g, vec in enumerate(vectors):
-        ptr = builder.bitcast(builder.gep(data, [ir.Constant(ir.IntType(64), 8 * g)]), vec.type.as_pointer())
-        builder.store(vec, ptr, align=align)
 
 
 def _is_rows(v):
@@ -199,8 +181,8 @@ def _lane_sums(typingctx, rows, count, out):  # pragma: no cover - compiled
         return None
 
     def codegen(context, builder, signature, args):
-        halves = _rows_halves(context, builder, signature.args[0], args[0], k)
-        _store_sums(context, builder, signature.args[2], args[2], _fold_rows(builder, halves))
+        halves = [_load_halves(context, builder, signature.args[0], args[0], r * LANES) for r in range(k)]
+        _store_halves(context, builder, signature.args[2], args[2], _fold_rows(builder, halves))
         return context.get_dummy_value()
 
     return types.none(rows, count, out), codegen
@@ -216,9 +198,9 @@ def _lane_dots(typingctx, x, rows, count, out):  # pragma: no cover - compiled
 
     def codegen(context, builder, signature, args):
         xs = _load_halves(context, builder, signature.args[0], args[0])
-        halves = [tuple(builder.fmul(xv, rv) for xv, rv in zip(xs, row))
-                  for row in _rows_halves(context, builder, signature.args[1], args[1], k)]
-        _store_sums(context, builder, signature.args[3], args[3], _fold_rows(builder, halves))
+        loaded = [_load_halves(context, builder, signature.args[1], args[1], r * LANES) for r in range(k)]
+        products = [tuple(builder.fmul(xv, rv) for xv, rv in zip(xs, row)) for row in loaded]
+        _store_halves(context, builder, signature.args[3], args[3], _fold_rows(builder, products))
         return context.get_dummy_value()
 
     return types.none(x, rows, count, out), codegen
