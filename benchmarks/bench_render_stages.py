@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     from scene import scene_cloud
 
     from roodi_toolkit.cameras import intrinsics_from_fov, look_at
-    from roodi_toolkit.render import fast, kernels, projection_kernels
+    from roodi_toolkit.render import cores, fast, kernels, projection_kernels
 
     torch.set_num_threads(1)
     scene = scene_cloud(args.n)
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     arrays = [scene[k].numpy() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh")]
     view = fast.make_view(w2c, K, args.size, args.size, tile=args.tile_size)
     W = H = args.size
-    workers = fast.workers()
+    workers = cores.set_workers()
     rng = np.random.default_rng(0)
     sides = {"this": (kernels, projection_kernels)}
     if args.against is not None:

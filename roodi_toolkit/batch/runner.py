@@ -20,8 +20,10 @@ import contextlib
 import dataclasses
 import hashlib
 import json
+import multiprocessing
 import os
 import signal
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures import process as pool_process
@@ -181,6 +183,17 @@ def _may_replace(item: Item, own: set[tuple[str, Any]]) -> bool:
     return (item.output, None if ident is None else tuple(ident)) in own or (item.output, None) in own
 
 
+def _pool(jobs: int) -> ProcessPoolExecutor:
+    """A pool of ``jobs`` worker processes, forked from this one where that is safe (the default start method on
+    Linux: the workers share what this process imported). A process forked after the compiled kernels' OpenMP threads
+    started cannot run the kernels (numba stops it: GNU OpenMP does not survive a fork), so the workers then start
+    from a fresh server process (``forkserver``): a batch run from Python after a render in the same process."""
+    cores = sys.modules.get("roodi_toolkit.render.cores")  # imported wherever the kernels ran (not here: numba)
+    unsafe = multiprocessing.get_start_method() == "fork" and cores is not None and not cores.fork_safe()
+    context = multiprocessing.get_context("forkserver") if unsafe else None
+    return ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker, mp_context=context)
+
+
 def _init_worker() -> None:
     # SIGTERM / Ctrl-C: the item under way unwinds (its temporary output removed), then the worker exits; an idle
     # worker exits at once. (The pool would otherwise catch the interruption as the item's error and go on.) First,
@@ -235,7 +248,7 @@ class _Pool:
         """Yield result lines as items finish; an item whose worker died is tried once more alone, so a crash (out
         of memory, a segfault in a library) costs that item only."""
         retry: list[Item] = []
-        self.pool = ProcessPoolExecutor(max_workers=self.jobs, initializer=_init_worker)
+        self.pool = _pool(self.jobs)
         self.futures = {self.pool.submit(_worker_run, self.task, item, self.settings): item for item in self.items}
         for fut in as_completed(self.futures):
             self.reported.add(fut)
@@ -247,7 +260,7 @@ class _Pool:
             yield line
         self.pool.shutdown(wait=True)
         for item in retry:  # each in a pool of its own: the one that kills its worker fails, the others run
-            self.pool = ProcessPoolExecutor(max_workers=1, initializer=_init_worker)
+            self.pool = _pool(1)
             fut = self.pool.submit(_worker_run, self.task, item, self.settings)
             self.futures, self.reported = {fut: item}, set()
             try:

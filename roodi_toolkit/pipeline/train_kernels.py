@@ -27,6 +27,7 @@ import torch
 from torch import Tensor
 
 from ..imaging import ssim as kornia_ssim
+from ..render.cores import set_workers
 
 SSIM_SIGMA = 1.5
 """kornia's (and the SSIM paper's) Gaussian window: sigma 1.5 whatever the window's size."""
@@ -314,6 +315,7 @@ def covariance_noise(quats_wxyz: Tensor, log_scales: Tensor, vectors: Tensor) ->
         vectors: one vector per Gaussian. [N, 3]
     """
     out = np.empty(tuple(vectors.shape), dtype=vectors.detach().numpy().dtype)
+    set_workers()
     _covariance_times(quats_wxyz.detach().contiguous().numpy(), log_scales.detach().contiguous().numpy(),
                       vectors.detach().contiguous().numpy(), out)
     return torch.from_numpy(out)

@@ -22,38 +22,23 @@ pair order, so the gradients do not depend on the number of threads either.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Optional
 
-import numba
 import numpy as np
 import torch
 from torch import Tensor
 
 from ..errors import ConfigError
 from . import kernels, projection_kernels
+from .cores import set_workers
 from .projection import EPS2D, camera_tensors, check_inputs
 from .rasterizer import RasterOutput, _split_output
-
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    # workqueue threads sleep while they wait (OpenMP's spin, stealing the cores from the other threads and processes
-    # of a busy machine); each kernel call comes from one Python thread, which is all workqueue supports
-    numba.config.THREADING_LAYER = "workqueue"
 
 TILE_SIZE = 16
 """Tile edge in pixels (as gsplat and 3DGS). The compositing works on 4x4 blocks, each walking the entries of its
 tile's run that touch it: smaller tiles hold more (tile, Gaussian) pairs (binning work and the backward's per-pair
 gradients: 4-pixel tiles have 3.4x the pairs of 16-pixel ones at 500k Gaussians, 800x800)."""
-
-
-def workers() -> int:
-    """Return the number of threads the kernels run on: ``$ROODI_THREADS`` (what ``--threads`` sets) when set, else
-    every core numba sees. Results do not depend on it; unlike PyTorch's OpenMP threads, numba's workqueue threads
-    sleep rather than spin while they wait, so they cost nothing on a busy machine."""
-    value = os.environ.get("ROODI_THREADS", "")
-    n = int(value) if value.isdigit() and int(value) > 0 else numba.config.NUMBA_NUM_THREADS
-    return max(1, min(n, numba.config.NUMBA_NUM_THREADS))
 
 
 @dataclass
@@ -134,7 +119,7 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
     out = Projected(np.empty((n, 2), dtype), np.empty((n, 3), dtype), np.empty(n, dtype), rgb, opacities,
                     np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32), np.zeros(n, np.int64), scales,
                     np.zeros(n, np.uint8))
-    _set_workers()
+    set_workers()
     projection_kernels.project_forward(means, quats, scales, opacities, r2, sh, n_bases, view.view, view.center,
                                        view.intr, view.width, view.height, view.near, view.far, view.eps2d, view.tile,
                                        out.means2d, out.conics, out.depths, out.rgb, out.bounds, out.half, out.ntiles,
@@ -144,15 +129,9 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
 
 def bin_gaussians(proj: Projected, view: View) -> Bins:
     """Return the drawn Gaussians binned to tiles, in depth order (stable: ties keep index order)."""
-    order = kernels.depth_order(proj.ntiles, proj.depths, _set_workers())
-    lists, starts, counts = kernels.bin_tiles(order, proj.bounds, view.width, view.height, view.tile, _set_workers())
+    order = kernels.depth_order(proj.ntiles, proj.depths, set_workers())
+    lists, starts, counts = kernels.bin_tiles(order, proj.bounds, view.width, view.height, view.tile, set_workers())
     return Bins(lists, starts, counts, np.flatnonzero(counts > 0))
-
-
-def _set_workers() -> int:
-    n = workers()
-    numba.set_num_threads(n)
-    return n
 
 
 def marks_shape(pairs: int, tile: int) -> tuple[int, int]:
@@ -174,7 +153,7 @@ def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, 
     last = np.zeros((H, W), np.int32)
     top = np.full((H, W) if want_top else (0, 0), -1, np.int32)
     marks = np.zeros(marks_shape(len(bins.lists), view.tile) if want_marks else (0, 1), np.uint64)
-    n_workers = _set_workers()
+    n_workers = set_workers()
     kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics,
                               proj.opacities, channels, kernels.channel_groups(C), W, H, view.tile, n_workers, out,
                               t_final, last, top, marks)
@@ -232,7 +211,7 @@ class _Render(torch.autograd.Function):
         n, C = channels.shape
         dtype = channels.dtype
         geometry = any(ctx.needs_input_grad[i] for i in (0, 1, 2, 3, 7))
-        n_workers = _set_workers()
+        n_workers = set_workers()
         m = len(bins.lists)
         pair_geom = np.zeros((m if geometry else 0, 6), dtype)
         pair_chan = np.zeros((m, C), dtype)
@@ -336,7 +315,7 @@ def rasterize_fast(
 def compositing_pairs(bins: Bins, proj: Projected, view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return ``(pixels, gaussians, weights)`` [M]: every blended ``alpha T`` of the view with its row-major pixel
     index, exactly as :func:`composite` blends them (two compiled passes: count, then fill)."""
-    n_workers = _set_workers()
+    n_workers = set_workers()
     offsets = np.zeros(len(bins.busy) + 1, np.int64)
     empty_i, empty_f = np.zeros(0, np.int64), np.zeros(0, proj.opacities.dtype)
     args = (bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics, proj.opacities,

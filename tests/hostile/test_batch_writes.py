@@ -142,28 +142,63 @@ def test_an_output_written_just_before_a_kill_is_known_as_the_batchs(kept: str, 
         expect_failure(res, 1, "already exists", "--overwrite")
 
 
+ANOTHER_PROGRAM = """
+import sys
+from pathlib import Path
+from roodi_toolkit.batch import tasks
+from roodi_toolkit.cli.main import main
+
+real_read = tasks._read
+
+
+def read_while_another_program_writes(path):
+    if path.endswith("a.ply"):
+        Path("out").mkdir(exist_ok=True)
+        Path("out", "a.ply").write_bytes(b"another program's file\\n")
+    return real_read(path)
+
+
+tasks._read = read_while_another_program_writes
+sys.exit(main(["batch", "prune", "src", "out", "-q"]))
+"""
+
+
 @pytest.mark.skipif(multiprocessing.get_start_method() != "fork",
-                    reason="the workers must inherit the test's stand-in for another program (fork start method)")
-def test_a_file_appearing_at_an_output_while_the_batch_runs_is_left_alone(src: Path, run_cli, tmp_path: Path,
-                                                                          monkeypatch) -> None:
-    from roodi_toolkit.batch import tasks
-
-    real_read = tasks._read
-
-    def read_while_another_program_writes(path: str):
-        if path.endswith("a.ply"):
-            (tmp_path / "out").mkdir(exist_ok=True)
-            (tmp_path / "out" / "a.ply").write_bytes(b"another program's file\n")
-        return real_read(path)
-
-    monkeypatch.setattr(tasks, "_read", read_while_another_program_writes)
-    res = run_cli("batch", "prune", "src", "out", "-q")
-    assert res.exit_code == 1
+                    reason="the workers must inherit the stand-in for another program (fork start method)")
+def test_a_file_appearing_at_an_output_while_the_batch_runs_is_left_alone(src: Path, tmp_path: Path) -> None:
+    # a fresh process: this one may have started the kernels' OpenMP threads, and its batches then start their
+    # workers from a server process (forkserver), which would not inherit the stand-in
+    res = subprocess.run([sys.executable, "-c", ANOTHER_PROGRAM], cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 1, res.stderr
     assert (tmp_path / "out" / "a.ply").read_bytes() == b"another program's file\n"
     failed = [line for line in _results(tmp_path / "out" / "results.jsonl") if line["status"] == "failed"]
     assert [line["item"] for line in failed] == ["a.ply"] and "appeared while" in failed[0]["error"]
     assert (tmp_path / "out" / "b.ply").is_file()
     assert not [p for p in (tmp_path / "out").iterdir() if p.name.startswith(".")]
+
+
+def test_a_batch_run_after_a_render_in_the_same_process_renders_in_its_workers() -> None:
+    """A process forked after the kernels' OpenMP threads started is stopped by numba when it runs a kernel: the
+    batch's pool then starts its workers otherwise, and they render."""
+    from roodi_toolkit.batch.runner import _pool
+
+    assert _render_sum() > 0  # the kernels' threads start here
+    with _pool(1) as pool:
+        assert pool.submit(_render_sum).result(timeout=300) == _render_sum()
+
+
+def _render_sum() -> float:
+    import torch
+
+    from roodi_toolkit.render.fast import rasterize_fast
+
+    g = torch.Generator().manual_seed(0)
+    n = 50
+    out = rasterize_fast(torch.randn(n, 3, generator=g) * 0.3 + torch.tensor([0.0, 0.0, 3.0]),
+                         torch.randn(n, 4, generator=g), torch.full((n, 3), -3.0), torch.zeros(n),
+                         torch.rand(n, 3, generator=g), torch.eye(4),
+                         torch.tensor([[20.0, 0, 8.0], [0, 20.0, 8.0], [0, 0, 1]]), 16, 16)
+    return float(out.rgb.sum())
 
 
 def test_an_output_folder_that_is_a_file_is_refused(src: Path, run_cli, tmp_path: Path) -> None:

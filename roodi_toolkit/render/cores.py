@@ -1,0 +1,85 @@
+"""The compiled kernels' threads: the numba threading layer they run on, and how many threads.
+
+Numba runs every ``prange`` loop (a parallel region) on a threading layer. This module picks numba's OpenMP layer
+(``omp``, GNU libgomp), then TBB where it is installed, then numba's own ``workqueue`` (always there), unless
+``NUMBA_THREADING_LAYER`` or ``NUMBA_THREADING_LAYER_PRIORITY`` say otherwise. Measured on a 2-core machine
+(``benchmarks/RESULTS.md``, "The kernels' threading layer"):
+
+- a parallel region costs about 2 us to start on ``omp`` and 80 us on ``workqueue``, whose threads wait by polling
+  with naps; one view's forward and backward start about 50 of them (1.3 ms at best against 5.2 ms for a tiny view);
+- PyTorch's own OpenMP threads spin for about 8 ms after each of its parallel operations (a loss, an optimiser step,
+  an image sum); the kernels' ``workqueue`` threads woke onto those cores late, and a 100k-Gaussian view at 256x256
+  took twice as long as on ``omp`` with two threads of each (1.3x at 500k Gaussians, 800x800).
+
+Numba's libgomp is a library of its own beside PyTorch's (which PyTorch wheels bundle), read once when it loads: it
+is loaded with ``OMP_WAIT_POLICY=PASSIVE`` (unless the user set a policy), so its threads sleep while they wait
+rather than spin on the cores PyTorch's threads and other processes need; the variable is removed again at once, so
+neither PyTorch nor child processes see it.
+
+GNU OpenMP does not survive ``fork``: a process forked from one whose kernels' threads were started is stopped by
+numba when it runs a kernel. :func:`fork_safe` says whether that is the case; the batch runner then starts its workers
+from a fresh server process (``forkserver``).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import numba
+
+_PRIORITY = ["omp", "tbb", "workqueue"]
+_started = False
+_lock = threading.Lock()
+
+if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
+    numba.config.THREADING_LAYER = "default"  # the first of the priority list that loads
+    numba.config.THREADING_LAYER_PRIORITY = list(_PRIORITY)
+
+
+def _start() -> None:
+    """Start numba's threading layer (once), its OpenMP runtime loaded with a passive wait policy."""
+    global _started
+    with _lock:
+        if _started:
+            return
+        mine = "OMP_WAIT_POLICY" not in os.environ
+        if mine:
+            os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+        try:
+            numba.get_num_threads()  # loads the threading layer (and its libgomp, which reads the variable once)
+        finally:
+            if mine:
+                os.environ.pop("OMP_WAIT_POLICY", None)
+        _started = True
+
+
+def workers() -> int:
+    """Return the number of threads the kernels run on: ``$ROODI_THREADS`` (what ``--threads`` sets) when set, else
+    every core numba sees. Results do not depend on it."""
+    value = os.environ.get("ROODI_THREADS", "")
+    n = int(value) if value.isdigit() and int(value) > 0 else numba.config.NUMBA_NUM_THREADS
+    return max(1, min(n, numba.config.NUMBA_NUM_THREADS))
+
+
+def set_workers() -> int:
+    """Start the threading layer if needed, give it :func:`workers` threads and return that number (call before a
+    kernel: the first kernel call would otherwise start the layer without the passive wait policy)."""
+    _start()
+    n = workers()
+    numba.set_num_threads(n)
+    return n
+
+
+def layer() -> str:
+    """Return the threading layer the kernels run on (starts it)."""
+    _start()
+    return numba.threading_layer()
+
+
+def fork_safe() -> bool:
+    """Whether a process forked from this one can run the kernels: not once they have started on GNU OpenMP."""
+    try:
+        return numba.threading_layer() != "omp"
+    except ValueError:  # no threading layer started in this process
+        return True
