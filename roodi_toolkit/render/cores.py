@@ -5,11 +5,12 @@ Numba runs every ``prange`` loop (a parallel region) on a threading layer. This 
 ``NUMBA_THREADING_LAYER`` or ``NUMBA_THREADING_LAYER_PRIORITY`` say otherwise. Measured on a 2-core machine
 (``benchmarks/RESULTS.md``, "The kernels' threading layer"):
 
-- a parallel region costs about 2 us to start on ``omp`` and 80 us on ``workqueue``, whose threads wait by polling
-  with naps; one view's forward and backward start about 50 of them (1.3 ms at best against 5.2 ms for a tiny view);
+- a parallel region takes 1-2 us to start on ``omp`` and 90-105 us on ``workqueue``, whose threads wait by polling
+  with naps; one view's forward and backward start about 50 (1.3 ms against 5.2 ms for a tiny view);
 - PyTorch's own OpenMP threads spin for about 8 ms after each of its parallel operations (a loss, an optimiser step,
-  an image sum); the kernels' ``workqueue`` threads woke onto those cores late, and a 100k-Gaussian view at 256x256
-  took twice as long as on ``omp`` with two threads of each (1.3x at 500k Gaussians, 800x800).
+  an image sum), and the kernels' ``workqueue`` threads started late behind them. ``benchmarks/bench_layers.py``, two
+  threads of each: a 100k-Gaussian view at 256x256 1.6x faster on ``omp``, a training step at 200 px 1.57x, 500k
+  Gaussians at 800x800 1.3x; one thread 1.2x.
 
 Numba's libgomp is a library of its own beside PyTorch's (which PyTorch wheels bundle), read once when it loads: it
 is loaded with ``OMP_WAIT_POLICY=PASSIVE`` (unless the user set a policy), so its threads sleep while they wait

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import ctypes.util
 import math
+import os
 
 import numba
 import numpy as np
@@ -99,6 +101,20 @@ def test_same_result_bit_for_bit_whatever_the_threads(monkeypatch):
     for b, gb in others:  # each pixel is composited by one worker; pair gradients are added in pair order
         assert torch.equal(a.rgb, b.rgb) and torch.equal(a.alpha, b.alpha)
         assert all(torch.equal(ga[k], gb[k]) for k in ga)
+
+
+@pytest.mark.skipif("NUMBA_THREADING_LAYER" in os.environ or "NUMBA_THREADING_LAYER_PRIORITY" in os.environ,
+                    reason="the user chose numba's threading layer")
+@pytest.mark.skipif(ctypes.util.find_library("gomp") is None, reason="no GNU OpenMP runtime (libgomp1) here")
+def test_the_kernels_run_on_openmp_without_leaving_its_setting_behind():
+    """numba's OpenMP layer where libgomp is installed (the set-up installs it), loaded with a passive wait policy
+    that neither PyTorch nor child processes see afterwards."""
+    from roodi_toolkit.render import cores
+
+    cores.set_workers()
+    assert cores.layer() == "omp"
+    assert "OMP_WAIT_POLICY" not in os.environ or os.environ["OMP_WAIT_POLICY"] != "PASSIVE"
+    assert not cores.fork_safe()
 
 
 def test_degenerate_inputs_give_finite_gradients_and_empty_views_the_background():
