@@ -1,15 +1,14 @@
 """The kernels' threading layer: numba's OpenMP layer (the default since 2026-11-28) against its ``workqueue`` (the
 default before), side by side.
 
-The layer is chosen once per process, so each measurement is a fresh process with ``NUMBA_THREADING_LAYER`` set
-(``roodi_toolkit.render.cores`` still loads OpenMP with its passive wait policy); processes alternate between the
-layers for ``--rounds`` rounds, so both see the same load. Each measures the start of an empty parallel region (median
-over 2,000, in microseconds) and one view of ``bench_render.py``'s scene, forward and forward+backward (its loss:
-sum of RGB and depth), with the kernels on ``--threads`` threads and PyTorch on ``--torch-threads`` (default the same,
-as ``bench_render.py`` runs them), median of ``--repeats`` after a warm-up. Prints each layer's medians over the
-rounds and the ratio of ``workqueue``'s times to each layer's. TBB is measured too where it is installed. With
-``--train DATA``, a training step too (``Trainer`` with the default settings on DATA at ``--downscale``, from its
-initialisation, the steps after 3 of warm-up).
+The layer is chosen once per process, so each measurement is a fresh process with ``NUMBA_THREADING_LAYER`` set;
+processes alternate between the layers for ``--rounds`` rounds, so both see the same load. Each measures the start of
+an empty parallel region (median over 2,000, in microseconds) and one view of ``bench_render.py``'s scene, forward
+and forward+backward (its loss: sum of RGB and depth), with the kernels on ``--threads`` threads and PyTorch on
+``--torch-threads`` (default the same, as ``bench_render.py`` runs them), median of ``--repeats`` after a warm-up.
+Prints each layer's medians over the rounds and the ratio of ``workqueue``'s times to each layer's. TBB is measured
+too where it is installed. With ``--train DATA``, a training step too (``Trainer`` with the default settings on DATA
+at ``--downscale``, from its initialisation, the steps after 3 of warm-up).
 
     .venv/bin/python benchmarks/bench_layers.py 100000 256 --threads 2
     .venv/bin/python benchmarks/bench_layers.py 500000 800 --threads 2 --rounds 3

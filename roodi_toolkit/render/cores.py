@@ -12,10 +12,10 @@ Numba runs every ``prange`` loop (a parallel region) on a threading layer. This 
   threads of each: a 100k-Gaussian view at 256x256 1.6x faster on ``omp``, a training step at 200 px 1.57x, 500k
   Gaussians at 800x800 1.3x; one thread 1.2x.
 
-Numba's libgomp is a library of its own beside PyTorch's (which PyTorch wheels bundle), read once when it loads: it
-is loaded with ``OMP_WAIT_POLICY=PASSIVE`` (unless the user set a policy), so its threads sleep while they wait
-rather than spin on the cores PyTorch's threads and other processes need; the variable is removed again at once, so
-neither PyTorch nor child processes see it.
+PyTorch is imported first (here), so its libgomp is loaded before numba's layer starts, and numba's OpenMP layer binds
+to that same library (``LD_DEBUG=bindings``: numba's ``omppool`` resolves ``GOMP_parallel`` in PyTorch's
+``torch/lib/libgomp.so.1``): the kernels and PyTorch's operations share one OpenMP runtime and its wait policy, so the
+threads PyTorch leaves spinning take the kernels' next region at once instead of competing with them for the cores.
 
 GNU OpenMP does not survive ``fork``: a process forked from one whose kernels' threads were started is stopped by
 numba when it runs a kernel. :func:`fork_safe` says whether that is the case; the batch runner then starts its workers
@@ -24,35 +24,18 @@ from a fresh server process (``forkserver``).
 
 from __future__ import annotations
 
+import importlib
 import os
-import threading
 
 import numba
 
+importlib.import_module("torch")  # before numba's OpenMP layer starts: the layer then binds to PyTorch's libgomp
+
 _PRIORITY = ["omp", "tbb", "workqueue"]
-_started = False
-_lock = threading.Lock()
 
 if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
     numba.config.THREADING_LAYER = "default"  # the first of the priority list that loads
     numba.config.THREADING_LAYER_PRIORITY = list(_PRIORITY)
-
-
-def _start() -> None:
-    """Start numba's threading layer (once), its OpenMP runtime loaded with a passive wait policy."""
-    global _started
-    with _lock:
-        if _started:
-            return
-        mine = "OMP_WAIT_POLICY" not in os.environ
-        if mine:
-            os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
-        try:
-            numba.get_num_threads()  # loads the threading layer (and its libgomp, which reads the variable once)
-        finally:
-            if mine:
-                os.environ.pop("OMP_WAIT_POLICY", None)
-        _started = True
 
 
 def workers() -> int:
@@ -64,9 +47,8 @@ def workers() -> int:
 
 
 def set_workers() -> int:
-    """Start the threading layer if needed, give it :func:`workers` threads and return that number (call before a
-    kernel: the first kernel call would otherwise start the layer without the passive wait policy)."""
-    _start()
+    """Give the kernels :func:`workers` threads (numba's setting is per Python thread: call before a kernel) and return
+    that number."""
     n = workers()
     numba.set_num_threads(n)
     return n
@@ -74,7 +56,7 @@ def set_workers() -> int:
 
 def layer() -> str:
     """Return the threading layer the kernels run on (starts it)."""
-    _start()
+    numba.get_num_threads()  # starts the layer
     return numba.threading_layer()
 
 
