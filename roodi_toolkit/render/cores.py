@@ -17,6 +17,10 @@ to that same library (``LD_DEBUG=bindings``: numba's ``omppool`` resolves ``GOMP
 ``torch/lib/libgomp.so.1``): the kernels and PyTorch's operations share one OpenMP runtime and its wait policy, so the
 threads PyTorch leaves spinning take the kernels' next region at once instead of competing with them for the cores.
 
+The runtime's wait is PyTorch's default (spin about 8 ms after a region, then sleep), the fastest alone; beside busy
+jobs a passive wait is faster (``OMP_WAIT_POLICY=PASSIVE`` before Python starts, which PyTorch's operations obey
+too), or the previous layer (``NUMBA_THREADING_LAYER=workqueue``): ``docs/rendering.md``, "Threads".
+
 GNU OpenMP does not survive ``fork``: a process forked from one whose kernels' threads were started is stopped by
 numba when it runs a kernel. :func:`fork_safe` says whether that is the case; the batch runner then starts its workers
 from a fresh server process (``forkserver``).
