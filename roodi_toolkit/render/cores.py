@@ -6,7 +6,7 @@ Numba runs every ``prange`` loop (a parallel region) on a threading layer. This 
 (``benchmarks/RESULTS.md``, "The kernels' threading layer"):
 
 - a parallel region takes 1-2 us to start on ``omp`` and 90-105 us on ``workqueue``, whose threads wait by polling
-  with naps; one view's forward and backward start about 50 (1.3 ms against 5.2 ms for a tiny view);
+  with naps; a view's forward and backward start about 50 by the times (1.3 ms against 5.2 ms for a tiny view);
 - PyTorch's own OpenMP threads spin for about 8 ms after each of its parallel operations (a loss, an optimiser step,
   an image sum), and the kernels' ``workqueue`` threads started late behind them. ``benchmarks/bench_layers.py``, two
   threads of each: a 100k-Gaussian view at 256x256 1.6x faster on ``omp``, a training step at 200 px 1.57x, 500k
