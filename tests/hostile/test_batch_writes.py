@@ -191,14 +191,9 @@ def _render_sum() -> float:
     import torch
 
     from roodi_toolkit.render.fast import rasterize_fast
+    from tests.render.test_rasterizer import call, random_scene
 
-    g = torch.Generator().manual_seed(0)
-    n = 50
-    out = rasterize_fast(torch.randn(n, 3, generator=g) * 0.3 + torch.tensor([0.0, 0.0, 3.0]),
-                         torch.randn(n, 4, generator=g), torch.full((n, 3), -3.0), torch.zeros(n),
-                         torch.rand(n, 3, generator=g), torch.eye(4),
-                         torch.tensor([[20.0, 0, 8.0], [0, 20.0, 8.0], [0, 0, 1]]), 16, 16)
-    return float(out.rgb.sum())
+    return float(call(rasterize_fast, random_scene(n=50, dtype=torch.float32)).rgb.sum())
 
 
 def test_an_output_folder_that_is_a_file_is_refused(src: Path, run_cli, tmp_path: Path) -> None:
