@@ -100,9 +100,10 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
         call()
 
 
-def report(folder: Path, samples_file: Path, top: int, context: int = 0) -> None:
+def report(folder: Path, samples_file: Path, top: int, context: int = 0, span: tuple[int, int] | None = None) -> None:
     """Print the body's share of the samples per 256-byte stretch and its hottest instructions (with the ``context``
-    instructions before each of the three hottest: a sample lands after the instruction that waited)."""
+    instructions before each of the three hottest: a sample lands after the instruction that waited), and every
+    instruction of the body between the offsets ``span`` with its share."""
     meta = json.loads((folder / "symbols.json").read_text())
     starts = sorted(meta["symbols"].values())
     names = {v: k for k, v in meta["symbols"].items()}
@@ -142,6 +143,11 @@ def report(folder: Path, samples_file: Path, top: int, context: int = 0) -> None
         print(f"before {offset:x}:")
         for o in ordered[max(0, i - context):i + 1]:
             print(f"  {o:6x} {100 * at[o] / total:5.1f}%  {code[o]}")
+    if span:
+        print(f"instructions {span[0]:x}-{span[1]:x}")
+        for o in ordered:
+            if span[0] <= o < span[1]:
+                print(f"  {o:6x} {100 * at[o] / total:5.1f}%  {code[o]}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -152,6 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=6.0, help="how long perf samples (default 6)")
     ap.add_argument("--top", type=int, default=20, help="hottest instructions to print (default 20)")
     ap.add_argument("--context", type=int, default=0, help="instructions to print before each of the 3 hottest")
+    ap.add_argument("--listing", default=None, metavar="LO-HI",
+                    help="print every instruction between these hexadecimal offsets of the body, with its share")
     ap.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--calls", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -180,7 +188,8 @@ def main(argv: list[str] | None = None) -> int:
             proc.kill()
             proc.wait()
         print(f"{args.kernel}: {args.n:,} Gaussians, {args.size}x{args.size}, one thread, {args.seconds:g} s sampled")
-        report(folder, samples, args.top, args.context)
+        span = tuple(int(x, 16) for x in args.listing.split("-")) if args.listing else None
+        report(folder, samples, args.top, args.context, span)
     return 0
 
 

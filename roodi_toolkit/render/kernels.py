@@ -16,8 +16,11 @@ which it blended at least one pixel; the backward copies only the marked entries
 front (:func:`~.lanes._pack_marked`). The 16 pixels' state (transmittance, walked count, channel sums) lives in
 stack arrays (:mod:`.lanes`) that LLVM keeps in vector registers, and the per-Gaussian loop over the 16 pixels has
 no branches (selects) and no 64-bit counter, and its length is hidden from the compiler (``nq``): LLVM then
-vectorises it as a loop, eight float32 lanes at a time, where a loop of a known 16 was unrolled and re-vectorised
-four lanes at a time with spills (found in the assembly).
+vectorises it as a loop, eight float32 lanes at a time (sixteen with AVX-512), where a loop of a known 16 was
+unrolled and re-vectorised four lanes at a time with spills (found in the assembly). Its selects are LLVM selects
+(:func:`~.lanes._pick`) and no lane array is stored as a select of its own value: either became masked stores, which
+the next vector load of the array waited on (no store-to-load forwarding), a tenth of the forward and a sixth of the
+backward. Four channels (rgb + depth) are added inside that loop; more in vector steps after it.
 Blocks at a tile's or the image's edge have their outside pixels stopped from the start.
 Results do not depend on timing or on the number of workers: each tile is written by one worker, and the backward
 writes one gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after
@@ -41,11 +44,11 @@ import numba as nb
 import numpy as np
 
 from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lanes, _longest, _next_entry,
-                    _pack_marked, _records, _stack_empty, _start_block, _tile_box)
+                    _pack_marked, _pick, _records, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 from .vectors import _lane_dots, _lane_max, _lane_sums, _lanes_axpy, _lanes_positive, _lanes_scale
 
-LANES_REVISION = 17
+LANES_REVISION = 18
 """Raised with every change to :mod:`.lanes` or :mod:`.vectors`: numba's cache (``cache=True``) checks only the time
 stamp and size of the file that defines a kernel, and the block helpers are compiled into these kernels, so a change
 to lanes.py or vectors.py alone would leave a checkout that compiled them before with stale kernels (5: the
@@ -53,7 +56,7 @@ exponential in fused multiply-adds; 6: the blocks' own lists, the lane maximum; 
 blocks' walk in one helper; 9: the records prefetched; 10: the features too; 11: no channels, no copy; 12: the
 prefetch in one helper; 13: the lanes' sums, maxima and channel updates as vector halves; 14: records on a cache
 line; 15: the backward's marked entries; 16: a pair's sums side by side, the vector operations in their own
-module; 17: their loads and stores shared)."""
+module; 17: their loads and stores shared; 18: selects, not branches)."""
 
 
 RADIX_BITS = 11
@@ -187,7 +190,7 @@ def _blend(alpha, inside, Tp, kt):  # pragma: no cover - compiled
     tn = Tp * (kt[6] - alpha)
     blend = ok & (tn >= kt[2])
     stop = ok & (tn < kt[2])
-    return (alpha * Tp if blend else zero), (tn if blend else (-Tp if stop else Tp)), blend
+    return _pick(blend, alpha * Tp, zero), _pick(blend, tn, _pick(stop, -Tp, Tp)), blend
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -277,6 +280,10 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     ha1, hc1, ha2, hc2 = half * a1, half * c1, half * a2, half * c2
                     g1, g2 = gid[j1], gid[max(j2, 0)]
                     walked1, walked2 = np.int32(j1 + 1), np.int32(j2 + 1)
+                    if NC == 4:  # four channels: added inside the loop over the pixels (a constant: no branch)
+                        r1, r2, r3, r4 = colp[j1, 0], colp[j1, 1], colp[j1, 2], colp[j1, 3]
+                        j = max(j2, 0)  # past the last entry: its weights are 0, which adds nothing
+                        u1, u2, u3, u4 = colp[j, 0], colp[j, 1], colp[j, 2], colp[j, 3]
                     for q in range(nq):  # the block's 16 pixels: vectorised, no branches
                         alpha1 = min(a_max, o1 * _gauss(pxc[q] - mx1, pyc[q] - my1, ha1, b1, hc1, kt))
                         alpha2 = min(a_max, o2 * _gauss(pxc[q] - mx2, pyc[q] - my2, ha2, b2, hc2, kt))
@@ -287,21 +294,26 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         W[q] = w1
                         W2[q] = w2
                         T[q] = t2
-                        L[q] = walked2 if blend2 else (walked1 if blend1 else L[q])
+                        L[q] = _pick(blend2, walked2, _pick(blend1, walked1, L[q]))
                         better1 = w1 > best[q]
-                        best1 = w1 if better1 else best[q]
-                        bid1 = g1 if better1 else bid[q]
+                        best1 = _pick(better1, w1, best[q])
+                        bid1 = _pick(better1, g1, bid[q])
                         better2 = w2 > best1
-                        best[q] = w2 if better2 else best1
-                        bid[q] = g2 if better2 else bid1
-                    for i in range(NC):  # a channel's 16 pixels: two vectors of 8
+                        best[q] = _pick(better2, w2, best1)
+                        bid[q] = _pick(better2, g2, bid1)
+                        if NC == 4:
+                            acc[0, q] = (acc[0, q] + w1 * r1) + w2 * u1
+                            acc[1, q] = (acc[1, q] + w1 * r2) + w2 * u2
+                            acc[2, q] = (acc[2, q] + w1 * r3) + w2 * u3
+                            acc[3, q] = (acc[3, q] + w1 * r4) + w2 * u4
+                    for i in range(NC if NC > 4 else 0):  # a channel's 16 pixels: two vectors of 8
                         _lanes_axpy(acc[i], W, colp[j1, i])
                     if want_marks:  # selects, not branches: about one entry in five blends nowhere in a block
                         marks[s + j1, word] |= bit if _lanes_positive(W) else none
                         marks[s + j2 if j2 >= 0 else s + j1, word] |= bit if _lanes_positive(W2) else none
                     if j2 < 0:
                         break
-                    for i in range(NC):
+                    for i in range(NC if NC > 4 else 0):
                         _lanes_axpy(acc[i], W2, colp[j2, i])
                     if (p & 3) == 0 and _lane_max(T) <= zero:  # every 4th entry: a block's pixels stop together
                         break
@@ -320,9 +332,11 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
 @nb.njit(inline="always")
 def _recover(pxc, pyc, mx, my, ha, b, hc, o, x0, x1, y0, y1, walked, Tq, kt):  # pragma: no cover - compiled
     """One pixel of a backward walk: (dx, dy, the Gaussian's value, the unclamped alpha, alpha, whether the pixel
-    blended this Gaussian, 1 - alpha, the transmittance before it), with the forward's expression for alpha (bit for
-    bit: the same pixels blend the same Gaussians). ``walked``: the entry lies before the pixel's last blended one;
-    ``Tq``: the transmittance behind the entry."""
+    blended this Gaussian, 1 / (1 - alpha), the transmittance before it), with the forward's expression for alpha
+    (bit for bit: the same pixels blend the same Gaussians). ``walked``: the entry lies before the pixel's last
+    blended one; ``Tq``: the transmittance behind the entry. One division, whose result both the transmittance and
+    the alpha's gradient multiply by (two divisions were a tenth of the backward: a vector division takes several
+    times a multiplication's time)."""
     dx = pxc - mx
     dy = pyc - my
     gauss = _gauss(dx, dy, ha, b, hc, kt)
@@ -330,8 +344,8 @@ def _recover(pxc, pyc, mx, my, ha, b, hc, o, x0, x1, y0, y1, walked, Tq, kt):  #
     alpha = min(kt[1], raw)
     inside = (pxc > x0) & (pxc < x1) & (pyc > y0) & (pyc < y1)
     act = walked & (alpha >= kt[0]) & inside
-    one_minus = kt[6] - alpha
-    return dx, dy, gauss, raw, alpha, act, one_minus, Tq / one_minus
+    inv = kt[6] / (kt[6] - alpha)
+    return dx, dy, gauss, raw, alpha, act, inv, Tq * inv
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -435,28 +449,28 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                         for i in range(1, NC):
                             _lanes_axpy(CG, gpix[i], colp[slot, i])
                         for q in range(nq):  # recover T_i and the weight; d_alpha, S_i, the pair's gradients
-                            dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
+                            dx, dy, gauss, raw, alpha, act, inv, Ti = _recover(
                                 pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
-                            T[q] = Ti if act else T[q]
-                            wt = alpha * Ti if act else zero
+                            T[q] *= _pick(act, inv, one)  # Ti where it blended (selecting T[q] itself: a masked store)
+                            wt = _pick(act, alpha * Ti, zero)
                             Wt[q] = wt
                             cg = CG[q]
-                            d_alpha = Ti * cg - (S[q] + tail[q]) / one_minus
+                            d_alpha = Ti * cg - (S[q] + tail[q]) * inv
                             S[q] += wt * cg
                             d_sigma = -d_alpha * alpha
                             on = act & (raw < a_max)  # alpha clamped at 0.99 passes no gradient
-                            VG[0, q] = -(d_sigma * (a * dx + b * dy)) if on else zero
-                            VG[1, q] = -(d_sigma * (c * dy + b * dx)) if on else zero
-                            VG[2, q] = d_sigma * half * dx * dx if on else zero
-                            VG[3, q] = d_sigma * dx * dy if on else zero
-                            VG[4, q] = d_sigma * half * dy * dy if on else zero
-                            VG[5, q] = d_alpha * gauss if on else zero
+                            VG[0, q] = _pick(on, -(d_sigma * (a * dx + b * dy)), zero)
+                            VG[1, q] = _pick(on, -(d_sigma * (c * dy + b * dx)), zero)
+                            VG[2, q] = _pick(on, d_sigma * half * dx * dx, zero)
+                            VG[3, q] = _pick(on, d_sigma * dx * dy, zero)
+                            VG[4, q] = _pick(on, d_sigma * half * dy * dy, zero)
+                            VG[5, q] = _pick(on, d_alpha * gauss, zero)
                     else:  # colours or features alone: no need for the alpha's gradient
                         for q in range(nq):
-                            dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
+                            dx, dy, gauss, raw, alpha, act, inv, Ti = _recover(
                                 pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
-                            T[q] = Ti if act else T[q]
-                            Wt[q] = alpha * Ti if act else zero
+                            T[q] *= _pick(act, inv, one)
+                            Wt[q] = _pick(act, alpha * Ti, zero)
                     j = s + jj
                     _lane_dots(Wt, gpix, groups, sums)  # each channel's 16 pixels, the channels side by side
                     for i in range(C):

@@ -48,8 +48,10 @@ def _stack_empty(typingctx, size, dtype):  # pragma: no cover - compiled
         return None
 
     def codegen(context, builder, signature, args):  # the alloca goes to the entry block: its size is a constant
-        return cgutils.alloca_once(builder, context.get_value_type(dtype.dtype),
+        slot = cgutils.alloca_once(builder, context.get_value_type(dtype.dtype),
                                    size=context.get_constant(types.intp, n))
+        slot.align = 64  # a cache line: 16 float32 lanes never straddle two, wherever the process's stack lies
+        return slot
 
     return types.CPointer(dtype.dtype)(size, dtype), codegen
 
@@ -102,6 +104,21 @@ def _fma(typingctx, a, b, c):  # pragma: no cover - compiled
         return builder.call(fn, args)
 
     return a(a, b, c), codegen
+
+
+@intrinsic
+def _pick(typingctx, cond, a, b):  # pragma: no cover - compiled
+    """``a if cond else b`` as one LLVM ``select``. Numba lowers a conditional expression to branches that LLVM
+    if-converts inside the vectorised loops over the lanes, but where the value is stored into a lane array it made
+    two masked stores of it (found in the assembly), and the vector load after the loop then waited for both to
+    reach the cache (no store-to-load forwarding from a masked store)."""
+    if not (isinstance(cond, types.Boolean) and a == b):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.select(args[0], args[1], args[2])
+
+    return a(cond, a, b), codegen
 
 
 @intrinsic
