@@ -19,8 +19,8 @@ no branches (selects) and no 64-bit counter, and its length is hidden from the c
 vectorises it as a loop, eight float32 lanes at a time (sixteen with AVX-512), where a loop of a known 16 was
 unrolled and re-vectorised four lanes at a time with spills (found in the assembly). Its selects are LLVM selects
 (:func:`~.lanes._pick`) and no lane array is stored as a select of its own value: either became masked stores, which
-the next vector load of the array waited on (no store-to-load forwarding), a tenth of the forward and a sixth of the
-backward. Four channels (rgb + depth) are added inside that loop; more in vector steps after it.
+the next vector load of the array waited on (no store-to-load forwarding; found in the assembly). Four channels
+(rgb + depth) are added inside that loop; more in vector steps after it.
 Blocks at a tile's or the image's edge have their outside pixels stopped from the start.
 Results do not depend on timing or on the number of workers: each tile is written by one worker, and the backward
 writes one gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after
