@@ -20,7 +20,8 @@ vectorises it as a loop, eight float32 lanes at a time (sixteen with AVX-512), w
 unrolled and re-vectorised four lanes at a time with spills (found in the assembly). Its selects are LLVM selects
 (:func:`~.lanes._pick`) and no lane array is stored as a select of its own value: either became masked stores, which
 the next vector load of the array waited on (no store-to-load forwarding; found in the assembly). Four channels
-(rgb + depth) are added inside that loop; more in vector steps after it.
+(rgb + depth) are added inside that loop; more in vector steps after it. A block walks its entries one at a time: two
+at a time (their alphas side by side) ran out of vector registers and spilled every Gaussian's parameters.
 Blocks at a tile's or the image's edge have their outside pixels stopped from the start.
 Results do not depend on timing or on the number of workers: each tile is written by one worker, and the backward
 writes one gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after
@@ -237,7 +238,6 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
         pyc = _lanes(kc)
         T = _lanes(kc)
         W = _lanes(kc)
-        W2 = _lanes(kc)
         best = _lanes(kc)
         L = _lanes(gid)
         bid = _lanes(gid)
@@ -264,57 +264,37 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     for i in range(NC):
                         acc[i, q] = zero
                 p = 0
-                while True:  # two entries at a time: their alphas are independent, so the CPU computes both at once
+                while True:
                     j1, packed = _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
                                              y_lo, nbx, blist, bcount)
                     if j1 < 0:
                         break
-                    j2, packed = _next_entry(blk, p + 1, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
-                                             y_lo, nbx, blist, bcount)
-                    p += 2
+                    p += 1
                     mx1, my1, a1, b1, c1, o1, x01, x11, y01, y11 = _geometry(geo, j1)
-                    if j2 >= 0:
-                        mx2, my2, a2, b2, c2, o2, x02, x12, y02, y12 = _geometry(geo, j2)
-                    else:  # past the block's last entry: a copy of the first that blends nowhere (opacity 0)
-                        mx2, my2, a2, b2, c2, o2, x02, x12, y02, y12 = mx1, my1, a1, b1, c1, zero, x01, x11, y01, y11
-                    ha1, hc1, ha2, hc2 = half * a1, half * c1, half * a2, half * c2
-                    g1, g2 = gid[j1], gid[max(j2, 0)]
-                    walked1, walked2 = np.int32(j1 + 1), np.int32(j2 + 1)
+                    ha1, hc1 = half * a1, half * c1
+                    g1 = gid[j1]
+                    walked1 = np.int32(j1 + 1)
                     if NC == 4:  # four channels: added inside the loop over the pixels (a constant: no branch)
                         r1, r2, r3, r4 = colp[j1, 0], colp[j1, 1], colp[j1, 2], colp[j1, 3]
-                        j = max(j2, 0)  # past the last entry: its weights are 0, which adds nothing
-                        u1, u2, u3, u4 = colp[j, 0], colp[j, 1], colp[j, 2], colp[j, 3]
                     for q in range(nq):  # the block's 16 pixels: vectorised, no branches
                         alpha1 = min(a_max, o1 * _gauss(pxc[q] - mx1, pyc[q] - my1, ha1, b1, hc1, kt))
-                        alpha2 = min(a_max, o2 * _gauss(pxc[q] - mx2, pyc[q] - my2, ha2, b2, hc2, kt))
                         in1 = (pxc[q] > x01) & (pxc[q] < x11) & (pyc[q] > y01) & (pyc[q] < y11)  # the footprint box
-                        in2 = (pxc[q] > x02) & (pxc[q] < x12) & (pyc[q] > y02) & (pyc[q] < y12)
                         w1, t1, blend1 = _blend(alpha1, in1, T[q], kt)
-                        w2, t2, blend2 = _blend(alpha2, in2, t1, kt)
                         W[q] = w1
-                        W2[q] = w2
-                        T[q] = t2
-                        L[q] = _pick(blend2, walked2, _pick(blend1, walked1, L[q]))
+                        T[q] = t1
+                        L[q] = _pick(blend1, walked1, L[q])
                         better1 = w1 > best[q]
-                        best1 = _pick(better1, w1, best[q])
-                        bid1 = _pick(better1, g1, bid[q])
-                        better2 = w2 > best1
-                        best[q] = _pick(better2, w2, best1)
-                        bid[q] = _pick(better2, g2, bid1)
+                        best[q] = _pick(better1, w1, best[q])
+                        bid[q] = _pick(better1, g1, bid[q])
                         if NC == 4:
-                            acc[0, q] = (acc[0, q] + w1 * r1) + w2 * u1
-                            acc[1, q] = (acc[1, q] + w1 * r2) + w2 * u2
-                            acc[2, q] = (acc[2, q] + w1 * r3) + w2 * u3
-                            acc[3, q] = (acc[3, q] + w1 * r4) + w2 * u4
+                            acc[0, q] = acc[0, q] + w1 * r1
+                            acc[1, q] = acc[1, q] + w1 * r2
+                            acc[2, q] = acc[2, q] + w1 * r3
+                            acc[3, q] = acc[3, q] + w1 * r4
                     for i in range(NC if NC > 4 else 0):  # a channel's 16 pixels: two vectors of 8
                         _lanes_axpy(acc[i], W, colp[j1, i])
-                    if want_marks:  # selects, not branches: about one entry in five blends nowhere in a block
+                    if want_marks:  # a select, not a branch: about one entry in five blends nowhere in a block
                         marks[s + j1, word] |= bit if _lanes_positive(W) else none
-                        marks[s + j2 if j2 >= 0 else s + j1, word] |= bit if _lanes_positive(W2) else none
-                    if j2 < 0:
-                        break
-                    for i in range(NC if NC > 4 else 0):
-                        _lanes_axpy(acc[i], W2, colp[j2, i])
                     if (p & 3) == 0 and _lane_max(T) <= zero:  # every 4th entry: a block's pixels stop together
                         break
                 for q in range(LANES):
@@ -332,11 +312,11 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
 @nb.njit(inline="always")
 def _recover(pxc, pyc, mx, my, ha, b, hc, o, x0, x1, y0, y1, walked, Tq, kt):  # pragma: no cover - compiled
     """One pixel of a backward walk: (dx, dy, the Gaussian's value, the unclamped alpha, alpha, whether the pixel
-    blended this Gaussian, 1 / (1 - alpha), the transmittance before it), with the forward's expression for alpha
-    (bit for bit: the same pixels blend the same Gaussians). ``walked``: the entry lies before the pixel's last
-    blended one; ``Tq``: the transmittance behind the entry. One division, whose result both the transmittance and
-    the alpha's gradient multiply by (two divisions were a tenth of the backward: a vector division takes several
-    times a multiplication's time)."""
+    blended this Gaussian, 1 - alpha, the transmittance before it), with the forward's expression for alpha (bit for
+    bit: the same pixels blend the same Gaussians). ``walked``: the entry lies before the pixel's last blended one;
+    ``Tq``: the transmittance behind the entry. Where the pixel did not blend the entry, the transmittance before it
+    is ``Tq`` itself (divided by 1: the caller stores it unconditionally; a select of the lane's own value compiled to
+    a masked store, which the next entry's load of the lane waited on)."""
     dx = pxc - mx
     dy = pyc - my
     gauss = _gauss(dx, dy, ha, b, hc, kt)
@@ -344,8 +324,8 @@ def _recover(pxc, pyc, mx, my, ha, b, hc, o, x0, x1, y0, y1, walked, Tq, kt):  #
     alpha = min(kt[1], raw)
     inside = (pxc > x0) & (pxc < x1) & (pyc > y0) & (pyc < y1)
     act = walked & (alpha >= kt[0]) & inside
-    inv = kt[6] / (kt[6] - alpha)
-    return dx, dy, gauss, raw, alpha, act, inv, Tq * inv
+    one_minus = kt[6] - alpha
+    return dx, dy, gauss, raw, alpha, act, one_minus, Tq / _pick(act, one_minus, kt[6])
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -449,13 +429,13 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                         for i in range(1, NC):
                             _lanes_axpy(CG, gpix[i], colp[slot, i])
                         for q in range(nq):  # recover T_i and the weight; d_alpha, S_i, the pair's gradients
-                            dx, dy, gauss, raw, alpha, act, inv, Ti = _recover(
+                            dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
                                 pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
-                            T[q] *= _pick(act, inv, one)  # Ti where it blended (selecting T[q] itself: a masked store)
+                            T[q] = Ti
                             wt = _pick(act, alpha * Ti, zero)
                             Wt[q] = wt
                             cg = CG[q]
-                            d_alpha = Ti * cg - (S[q] + tail[q]) * inv
+                            d_alpha = Ti * cg - (S[q] + tail[q]) / one_minus
                             S[q] += wt * cg
                             d_sigma = -d_alpha * alpha
                             on = act & (raw < a_max)  # alpha clamped at 0.99 passes no gradient
@@ -467,9 +447,9 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                             VG[5, q] = _pick(on, d_alpha * gauss, zero)
                     else:  # colours or features alone: no need for the alpha's gradient
                         for q in range(nq):
-                            dx, dy, gauss, raw, alpha, act, inv, Ti = _recover(
+                            dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
                                 pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
-                            T[q] *= _pick(act, inv, one)
+                            T[q] = Ti
                             Wt[q] = _pick(act, alpha * Ti, zero)
                     j = s + jj
                     _lane_dots(Wt, gpix, groups, sums)  # each channel's 16 pixels, the channels side by side
