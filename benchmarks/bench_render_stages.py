@@ -15,8 +15,16 @@ on a machine whose other tenants take a core now and then, it moves less between
 ``--channels 4`` composites rgb + depth (rendering, training); ``--channels 16`` 16 features alone (distillation).
 Gradients: the loss is the sum of every channel (what ``bench_render.py`` uses).
 
+``--processes K`` (with ``--against``) runs the comparison in K processes of its own and prints each stage's median
+ratio over them with their range: where a process's memory lies moves the compositing's ratio of two kernels by up
+to 1.4x either way between processes (both kernels see the same load, but not the same placement of their stack
+arrays and code against the data). Half the processes run with address-space randomisation off (``setarch -R``,
+where installed) and the stack shifted by a different padding in the environment each, so their layouts are fixed
+and different; the other half run as a user's process would, randomised.
+
 Run:
     .venv/bin/python benchmarks/bench_render_stages.py 500000 800 --threads 1 --against /path/to/main
+    .venv/bin/python benchmarks/bench_render_stages.py 100000 256 --against /path/to/main --processes 16
 """
 
 from __future__ import annotations
@@ -58,6 +66,34 @@ def load_kernels(checkout: Path):
     return importlib.import_module(f"{package}.kernels"), importlib.import_module(f"{package}.projection_kernels")
 
 
+def across_processes(argv: list[str], count: int) -> int:
+    """Run this benchmark ``count`` times, each in a process of its own (see the module's docstring), and print each
+    stage's median ratio with the ratios' range, for the fixed layouts and the randomised ones apart."""
+    import re
+    import shutil
+    import subprocess
+
+    setarch = shutil.which("setarch")
+    ratios: dict[tuple[str, str], list[float]] = {}
+    for k in range(count):
+        fixed = setarch is not None and k % 2 == 0
+        env = dict(os.environ, BENCH_STACK_PAD="x" * ((448 + 512 * (k // 2)) % 4096 if fixed else 0))
+        prefix = [setarch, os.uname().machine, "-R"] if fixed else []
+        run = subprocess.run(prefix + [sys.executable, __file__, *argv], env=env, capture_output=True, text=True)
+        if run.returncode != 0:
+            print(run.stdout + run.stderr, file=sys.stderr)
+            return run.returncode
+        if k == 0:
+            print(run.stdout.splitlines()[0])
+        for m in re.finditer(r"^\s+(\S+ \S+)\s+this .* ratio ([\d.]+)x", run.stdout, re.M):
+            ratios.setdefault((m.group(1), "fixed" if fixed else "randomised"), []).append(float(m.group(2)))
+    print(f"against / this over {count} processes: median (range)")
+    for (stage, layout), values in sorted(ratios.items()):
+        print(f"  {stage:<22} {layout:<10} {statistics.median(values):.2f}x ({min(values):.2f}-{max(values):.2f}, "
+              f"{len(values)} processes)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("n", type=int, help="Gaussians")
@@ -67,7 +103,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--tile-size", type=int, default=16)
     ap.add_argument("--against", type=Path, default=None, help="another checkout whose kernels run beside these")
+    ap.add_argument("--processes", type=int, default=0, help="with --against: this many processes, median ratios")
     args = ap.parse_args(argv)
+    if args.processes:
+        if args.against is None:
+            ap.error("--processes needs --against")
+        rest = list(sys.argv[1:] if argv is None else argv)
+        at = next(i for i, a in enumerate(rest) if a.startswith("--processes"))
+        return across_processes(rest[:at] + rest[at + (1 if "=" in rest[at] else 2):], args.processes)
     os.environ["ROODI_THREADS"] = str(args.threads)
 
     import numpy as np

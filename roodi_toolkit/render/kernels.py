@@ -47,9 +47,10 @@ import numpy as np
 from .lanes import (LANES, _constant_tuple, _constants, _gauss, _geometry, _lanes, _longest, _next_entry,
                     _pack_marked, _pick, _records, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
-from .vectors import _lane_dots, _lane_max, _lane_sums, _lanes_axpy, _lanes_positive, _lanes_scale
+from .vectors import (_lane_dots, _lane_dots_into, _lane_max, _lane_sums_into, _lanes_axpy, _lanes_positive,
+                      _lanes_scale)
 
-LANES_REVISION = 18
+LANES_REVISION = 19
 """Raised with every change to :mod:`.lanes` or :mod:`.vectors`: numba's cache (``cache=True``) checks only the time
 stamp and size of the file that defines a kernel, and the block helpers are compiled into these kernels, so a change
 to lanes.py or vectors.py alone would leave a checkout that compiled them before with stale kernels (5: the
@@ -57,7 +58,7 @@ exponential in fused multiply-adds; 6: the blocks' own lists, the lane maximum; 
 blocks' walk in one helper; 9: the records prefetched; 10: the features too; 11: no channels, no copy; 12: the
 prefetch in one helper; 13: the lanes' sums, maxima and channel updates as vector halves; 14: records on a cache
 line; 15: the backward's marked entries; 16: a pair's sums side by side, the vector operations in their own
-module; 17: their loads and stores shared; 18: selects, not branches)."""
+module; 17: their loads and stores shared; 18: selects, not branches; 19: sums added into the pairs' rows)."""
 
 
 RADIX_BITS = 11
@@ -452,13 +453,14 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
                             T[q] = Ti
                             Wt[q] = _pick(act, alpha * Ti, zero)
                     j = s + jj
-                    _lane_dots(Wt, gpix, groups, sums)  # each channel's 16 pixels, the channels side by side
-                    for i in range(C):
-                        pair_colors[j, i] += sums[i]
+                    if C == NC:  # each channel's 16 pixels, the channels side by side, added into the pair's row
+                        _lane_dots_into(Wt, gpix, groups, pair_colors, j)
+                    else:
+                        _lane_dots(Wt, gpix, groups, sums)
+                        for i in range(C):
+                            pair_colors[j, i] += sums[i]
                     if geometry:
-                        _lane_sums(VG, 6, sums)
-                        for i in range(6):
-                            pair_geom[j, i] += sums[i]
+                        _lane_sums_into(VG, 6, pair_geom, j)
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)

@@ -204,3 +204,64 @@ def _lane_dots(typingctx, x, rows, count, out):  # pragma: no cover - compiled
         return context.get_dummy_value()
 
     return types.none(x, rows, count, out), codegen
+
+
+def _add_into_row(context, builder, dstty, dst, row, vectors, k):
+    """Add the first ``k`` sums of :func:`_fold_rows`' ``vectors`` (sum ``r`` in lane ``r % 8`` of vector ``r // 8``)
+    into ``dst[row, 0:k]`` (a C-contiguous float array of at least ``k`` columns), four, then two, then one at a time
+    as vector loads, additions and stores: each sum is added to its element as one scalar addition would."""
+    arr = context.make_array(dstty)(context, builder, dst)
+    ty = context.get_value_type(dstty.dtype)
+    stride = builder.extract_value(arr.strides, 0)
+    base = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()), [builder.mul(row, stride)])
+    base = builder.bitcast(base, ty.as_pointer())
+    align = dstty.dtype.bitwidth // 8
+    at = 0
+    for width in (4, 2, 1):
+        while k - at >= width:
+            lanes = [(at + i) % (LANES // 2) for i in range(width)]
+            vec = vectors[at // (LANES // 2)]  # a chunk of 4 never straddles two vectors of 8: at is a multiple of 4
+            part = _shuffle(builder, vec, vec, lanes) if width > 1 else builder.extract_element(
+                vec, ir.Constant(ir.IntType(32), lanes[0]))
+            ptr = builder.gep(base, [ir.Constant(ir.IntType(64), at)])
+            if width > 1:
+                ptr = builder.bitcast(ptr, part.type.as_pointer())
+            builder.store(builder.fadd(builder.load(ptr, align=align), part), ptr, align=align)
+            at += width
+
+
+@intrinsic
+def _lane_sums_into(typingctx, rows, count, dst, row):  # pragma: no cover - compiled
+    """Add the sums of :func:`_lane_sums` into ``dst[row, 0:count]`` (a C-contiguous 2-D float array of the rows'
+    dtype with at least ``count`` columns) without storing them first: a sum stored as a vector and read back as a
+    scalar waited for the store to reach the cache (the hottest instructions of the backward's profile)."""
+    k = _count(count)
+    if not (k and _is_rows(rows) and _is_rows(dst) and dst.dtype == rows.dtype and isinstance(row, types.Integer)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        halves = [_load_halves(context, builder, signature.args[0], args[0], r * LANES) for r in range(k)]
+        row64 = context.cast(builder, args[3], signature.args[3], types.intp)
+        _add_into_row(context, builder, signature.args[2], args[2], row64, _fold_rows(builder, halves), k)
+        return context.get_dummy_value()
+
+    return types.none(rows, count, dst, row), codegen
+
+
+@intrinsic
+def _lane_dots_into(typingctx, x, rows, count, dst, row):  # pragma: no cover - compiled
+    """Add the sums of :func:`_lane_dots` into ``dst[row, 0:count]`` (as :func:`_lane_sums_into`)."""
+    k = _count(count)
+    if not (k and _is_lanes(x) and _is_rows(rows) and _is_rows(dst) and x.dtype == rows.dtype == dst.dtype
+            and isinstance(row, types.Integer)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        xs = _load_halves(context, builder, signature.args[0], args[0])
+        loaded = [_load_halves(context, builder, signature.args[1], args[1], r * LANES) for r in range(k)]
+        products = [tuple(builder.fmul(xv, rv) for xv, rv in zip(xs, row)) for row in loaded]
+        row64 = context.cast(builder, args[4], signature.args[4], types.intp)
+        _add_into_row(context, builder, signature.args[3], args[3], row64, _fold_rows(builder, products), k)
+        return context.get_dummy_value()
+
+    return types.none(x, rows, count, dst, row), codegen

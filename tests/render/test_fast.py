@@ -286,6 +286,46 @@ def test_many_lane_sums_at_once_equal_the_scalar_tree_bit_for_bit(dtype):
             assert [float(v) for v in dots] == [float(_tree(x * r, np.add)) for r in rows[:len(dots)]]
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_lane_sums_added_into_a_row_touch_only_that_row_and_equal_the_scalar_tree(dtype):
+    """The backward adds its pairs' sums straight into their rows (no store and reload): each element gets its row's
+    scalar tree added by one addition, bit for bit, for the six geometry gradients and 1, 2 and 4 channel groups
+    (4 to 16 columns, added four, two, one at a time); the other rows and the columns past ``count`` are untouched."""
+    import numba as nb
+
+    from roodi_toolkit.render.lanes import _stack_empty
+    from roodi_toolkit.render.vectors import _lane_dots_into, _lane_sums_into
+
+    def compile_for(groups):
+        @nb.njit
+        def run(x, rows, geom, chan, at):
+            six = nb.carray(_stack_empty(96, rows.dtype), (6, 16))
+            six[:, :] = rows[:6]
+            chans = nb.carray(_stack_empty(groups, rows.dtype), (4 * len(groups), 16))
+            chans[:, :] = rows[:4 * len(groups)]
+            _lane_sums_into(six, 6, geom, at)
+            _lane_dots_into(x, chans, groups, chan, at)
+
+        return run
+
+    rng = np.random.default_rng(5)
+    for groups in [(0,), (0, 0), (0,) * 4]:
+        run = compile_for(groups)
+        k = 4 * len(groups)
+        for at in (0, 2, 4):
+            rows = (rng.standard_normal((16, 16)) * 10.0 ** rng.uniform(-3, 3, (16, 16))).astype(dtype)
+            x = rng.standard_normal(16).astype(dtype)
+            geom = rng.standard_normal((5, 7)).astype(dtype)  # a column past the six: untouched
+            chan = rng.standard_normal((5, k)).astype(dtype)
+            geom0, chan0 = geom.copy(), chan.copy()
+            run(x, rows, geom, chan, at)
+            want_geom = geom0.copy()
+            want_geom[at, :6] = [g + _tree(r, np.add) for g, r in zip(geom0[at, :6], rows[:6])]
+            want_chan = chan0.copy()
+            want_chan[at] = [c + _tree(x * r, np.add) for c, r in zip(chan0[at], rows[:k])]
+            assert np.array_equal(geom, want_geom) and np.array_equal(chan, want_chan)
+
+
 @pytest.mark.parametrize("tile", [4, 10, 16, 64])
 def test_forward_marks_exactly_the_blocks_each_pair_blended_in(tile):
     """The forward's marks (what the backward walks) are the tile's 4x4 blocks where each (tile, Gaussian) pair
