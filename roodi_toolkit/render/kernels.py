@@ -50,7 +50,7 @@ from .lanes import channel_groups  # noqa: F401 (the callers' argument for the c
 from .vectors import (_lane_dots, _lane_dots_into, _lane_max, _lane_sums_into, _lanes_axpy, _lanes_positive,
                       _lanes_scale)
 
-LANES_REVISION = 19
+LANES_REVISION = 20
 """Raised with every change to :mod:`.lanes` or :mod:`.vectors`: numba's cache (``cache=True``) checks only the time
 stamp and size of the file that defines a kernel, and the block helpers are compiled into these kernels, so a change
 to lanes.py or vectors.py alone would leave a checkout that compiled them before with stale kernels (5: the
@@ -58,7 +58,8 @@ exponential in fused multiply-adds; 6: the blocks' own lists, the lane maximum; 
 blocks' walk in one helper; 9: the records prefetched; 10: the features too; 11: no channels, no copy; 12: the
 prefetch in one helper; 13: the lanes' sums, maxima and channel updates as vector halves; 14: records on a cache
 line; 15: the backward's marked entries; 16: a pair's sums side by side, the vector operations in their own
-module; 17: their loads and stores shared; 18: selects, not branches; 19: sums added into the pairs' rows)."""
+module; 17: their loads and stores shared; 18: selects, not branches; 19: sums added into the pairs' rows;
+20: the rows' loads shared)."""
 
 
 RADIX_BITS = 11

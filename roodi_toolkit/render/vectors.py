@@ -2,7 +2,7 @@
 8 (``@intrinsic``: portable IR, no CPU-specific instruction; LLVM lowers each half to one AVX register, or to two
 of SSE or NEON): what the compiled loops over the lanes do not express well. The sums and the maximum over the 16
 lanes in a fixed tree (:func:`_fold`; as scalar code, 16 loads and 15 operations), several rows' sums side by side in
-that same tree (:func:`_lane_sums`, :func:`_lane_dots`) and a channel's update over the 16 lanes
+that same tree (:func:`_lane_sums_into`, :func:`_lane_dots`) and a channel's update over the 16 lanes
 (:func:`_lanes_axpy`, :func:`_lanes_scale`; as a loop inside the channels' loop, LLVM ran it in its 4-lane
 remainder). Found by reading the assembly of the kernels (``benchmarks/profile_kernels.py``).
 """
@@ -88,7 +88,7 @@ def _lanes_positive(typingctx, v):  # pragma: no cover - compiled
 
 def _store_halves(context, builder, arrty, array, halves):
     """Store LLVM vectors of 8 one after the other from the start of the 1-D C-contiguous stack array ``array``: two
-    halves fill its 16 lanes (as :func:`_load_halves` loads them), more fill more (:func:`_lane_sums`)."""
+    halves fill its 16 lanes (as :func:`_load_halves` loads them), more fill more (:func:`_lane_dots`)."""
     data = context.make_array(arrty)(context, builder, array).data
     align = arrty.dtype.bitwidth // 8
     for g, vec in enumerate(halves):
@@ -169,37 +169,28 @@ def _is_rows(v):
     return isinstance(v, types.Array) and isinstance(v.dtype, types.Float) and v.ndim == 2 and v.layout == "C"
 
 
-@intrinsic
-def _lane_sums(typingctx, rows, count, out):  # pragma: no cover - compiled
-    """Write into ``out`` the sums of the 16 lanes of each of the rows ``0:count`` of ``rows`` (a C-contiguous [K, 16]
-    stack array; ``count`` an integer literal or a tuple of channel groups, :func:`_count`), each in :func:`_fold`'s
-    tree order, so each equals its row's sum one row at a time bit for bit. ``out`` (a 1-D stack
-    array) needs room for ``count`` rounded up to a multiple of 8. Summed one by one, the backward's six gradients
-    of a pair took a tree of four steps each, then an extraction."""
-    k = _count(count)
-    if not (k and _is_rows(rows) and _is_lanes(out) and out.dtype == rows.dtype):
-        return None
+def _rows(context, builder, rowsty, rows, k):
+    """The rows ``0:k`` of the C-contiguous [K, 16] stack array ``rows``, each as two LLVM vectors of 8."""
+    return [_load_halves(context, builder, rowsty, rows, r * LANES) for r in range(k)]
 
-    def codegen(context, builder, signature, args):
-        halves = [_load_halves(context, builder, signature.args[0], args[0], r * LANES) for r in range(k)]
-        _store_halves(context, builder, signature.args[2], args[2], _fold_rows(builder, halves))
-        return context.get_dummy_value()
 
-    return types.none(rows, count, out), codegen
+def _products(context, builder, xty, x, rowsty, rows, k):
+    """``x[q] * rows[r, q]`` for the rows ``0:k``, each as two LLVM vectors of 8."""
+    xs = _load_halves(context, builder, xty, x)
+    return [tuple(builder.fmul(xv, rv) for xv, rv in zip(xs, row)) for row in _rows(context, builder, rowsty, rows, k)]
 
 
 @intrinsic
 def _lane_dots(typingctx, x, rows, count, out):  # pragma: no cover - compiled
-    """Write into ``out`` the sums over the 16 lanes of ``x[q] * rows[k, q]`` for the rows ``0:count`` (as
-    :func:`_lane_sums`): the products, then their sums in :func:`_fold`'s tree."""
+    """Write into ``out`` (a 1-D stack array with room for ``count`` rounded up to a multiple of 8) the sums over the
+    16 lanes of ``x[q] * rows[k, q]`` for the rows ``0:count`` (as :func:`_lane_sums_into`): the products, then their
+    sums in :func:`_fold`'s tree."""
     k = _count(count)
     if not (k and _is_lanes(x) and _is_rows(rows) and _is_lanes(out) and x.dtype == rows.dtype == out.dtype):
         return None
 
     def codegen(context, builder, signature, args):
-        xs = _load_halves(context, builder, signature.args[0], args[0])
-        loaded = [_load_halves(context, builder, signature.args[1], args[1], r * LANES) for r in range(k)]
-        products = [tuple(builder.fmul(xv, rv) for xv, rv in zip(xs, row)) for row in loaded]
+        products = _products(context, builder, signature.args[0], args[0], signature.args[1], args[1], k)
         _store_halves(context, builder, signature.args[3], args[3], _fold_rows(builder, products))
         return context.get_dummy_value()
 
@@ -232,17 +223,21 @@ def _add_into_row(context, builder, dstty, dst, row, vectors, k):
 
 @intrinsic
 def _lane_sums_into(typingctx, rows, count, dst, row):  # pragma: no cover - compiled
-    """Add the sums of :func:`_lane_sums` into ``dst[row, 0:count]`` (a C-contiguous 2-D float array of the rows'
-    dtype with at least ``count`` columns) without storing them first: a sum stored as a vector and read back as a
-    scalar waited for the store to reach the cache (the hottest instructions of the backward's profile)."""
+    """Add the sums of the 16 lanes of each of the rows ``0:count`` of ``rows`` (a C-contiguous [K, 16] stack array;
+    ``count`` an integer literal or a tuple of channel groups, :func:`_count`), each in :func:`_fold`'s tree order,
+    into ``dst[row, 0:count]`` (a C-contiguous 2-D float array of the rows' dtype with at least ``count`` columns),
+    without storing them first: a sum stored as a vector and read back as a scalar waited for the store to reach the
+    cache (the hottest instructions of the backward's profile). The rows' sums are made side by side
+    (:func:`_fold_rows`), each equal to its row's sum alone bit for bit; summed one by one, the backward's six
+    gradients of a pair took a tree of four steps each, then an extraction."""
     k = _count(count)
     if not (k and _is_rows(rows) and _is_rows(dst) and dst.dtype == rows.dtype and isinstance(row, types.Integer)):
         return None
 
     def codegen(context, builder, signature, args):
-        halves = [_load_halves(context, builder, signature.args[0], args[0], r * LANES) for r in range(k)]
         row64 = context.cast(builder, args[3], signature.args[3], types.intp)
-        _add_into_row(context, builder, signature.args[2], args[2], row64, _fold_rows(builder, halves), k)
+        sums = _fold_rows(builder, _rows(context, builder, signature.args[0], args[0], k))
+        _add_into_row(context, builder, signature.args[2], args[2], row64, sums, k)
         return context.get_dummy_value()
 
     return types.none(rows, count, dst, row), codegen
@@ -250,16 +245,15 @@ def _lane_sums_into(typingctx, rows, count, dst, row):  # pragma: no cover - com
 
 @intrinsic
 def _lane_dots_into(typingctx, x, rows, count, dst, row):  # pragma: no cover - compiled
-    """Add the sums of :func:`_lane_dots` into ``dst[row, 0:count]`` (as :func:`_lane_sums_into`)."""
+    """Add the sums of :func:`_lane_dots` into ``dst[row, 0:count]`` (as :func:`_lane_sums_into`), without storing
+    them first."""
     k = _count(count)
     if not (k and _is_lanes(x) and _is_rows(rows) and _is_rows(dst) and x.dtype == rows.dtype == dst.dtype
             and isinstance(row, types.Integer)):
         return None
 
     def codegen(context, builder, signature, args):
-        xs = _load_halves(context, builder, signature.args[0], args[0])
-        loaded = [_load_halves(context, builder, signature.args[1], args[1], r * LANES) for r in range(k)]
-        products = [tuple(builder.fmul(xv, rv) for xv, rv in zip(xs, row)) for row in loaded]
+        products = _products(context, builder, signature.args[0], args[0], signature.args[1], args[1], k)
         row64 = context.cast(builder, args[4], signature.args[4], types.intp)
         _add_into_row(context, builder, signature.args[3], args[3], row64, _fold_rows(builder, products), k)
         return context.get_dummy_value()
