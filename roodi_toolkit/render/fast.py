@@ -213,8 +213,8 @@ class _Render(torch.autograd.Function):
         geometry = any(ctx.needs_input_grad[i] for i in (0, 1, 2, 3, 7))
         n_workers = set_workers()
         m = len(bins.lists)
-        pair_geom = np.zeros((m if geometry else 0, 6), dtype)
-        pair_chan = np.zeros((m, C), dtype)
+        pair_geom = np.empty((m if geometry else 0, 6), dtype)  # both written by the kernel, tile by tile
+        pair_chan = np.empty((m, C), dtype)
         bg = np.concatenate([_numpy(background).astype(np.float64), np.zeros(C - 3)]) if colours else np.zeros(C)
         g_render = g_render.contiguous()
         kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d,
@@ -236,11 +236,12 @@ class _Render(torch.autograd.Function):
         if not (geometry or need_colors):
             return None, None, None, None, None, g_features, g_background, None, None, None, None
         g = kernels.reduce_pairs(bins.lists, pair_geom, n, n_workers) if geometry else np.zeros((n, 6), dtype)
-        g_means = np.zeros((n, 3), dtype)
-        g_quats = np.zeros((n, 4), dtype)
-        g_log_scales = np.zeros((n, 3), dtype)
-        g_logits = np.zeros(n, dtype)
-        g_sh = np.zeros(colors.shape, dtype) if n_bases > 0 else np.zeros((n, 1, 3), dtype)
+        fresh = np.empty if geometry else np.zeros  # the kernel writes every row with geometry (zeros where not drawn)
+        g_means = fresh((n, 3), dtype)
+        g_quats = fresh((n, 4), dtype)
+        g_log_scales = fresh((n, 3), dtype)
+        g_logits = fresh(n, dtype)
+        g_sh = np.empty(colors.shape, dtype) if n_bases > 0 else np.zeros((n, 1, 3), dtype)
         g_rgb = g_chan[:, :3]
         # the gradients' columns are passed as views (strided): copies of them were a tenth of the glue
         projection_kernels.project_backward(means, quats, proj.scales, proj.opacities,

@@ -342,8 +342,9 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
         grad_out: dL/d(colour image before the background). [H, W, C]
         grad_alpha: dL/d(alpha image). [H, W]
         background: the background per channel (0 for depth and features). [C]
-        pair_geom: per pair of ``lists``, the gradient of (mx, my, conic a, b, c, opacity), zeroed. [M, 6]
-        pair_colors: per pair, the gradient of the colours, zeroed. [M, C]
+        pair_geom: per pair of ``lists``, the gradient of (mx, my, conic a, b, c, opacity) (written: the rows of a
+            busy tile's pairs are zeroed before its blocks add into them; ``lists`` holds no other pair). [M, 6]
+        pair_colors: per pair, the gradient of the colours (written likewise). [M, C]
         geometry: whether to compute ``pair_geom`` (False when only colours or features are trained).
         groups: :func:`channel_groups` of ``C``.
 
@@ -391,6 +392,9 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
             t = busy[k]
             x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s = starts[t]
+            pair_colors[s:s + counts[t]] = zero  # the tile's pairs' rows, zeroed here (in parallel, then in cache)
+            if geometry:
+                pair_geom[s:s + counts[t]] = zero
             bcount[:] = 0
             _pack_marked(lists, s, counts[t], marks, rec, colors, geo, colp, run, blist, bcount)
             for blk in range(nbx * nbx):
@@ -543,11 +547,12 @@ def reduce_pairs(lists, pair_values, n, workers):  # pragma: no cover - compiled
     """Return the per-Gaussian sums ``[n, K]`` of ``pair_values`` ``[M, K]`` (pair ``j`` belongs to Gaussian
     ``lists[j]``), added in pair order whatever the number of workers (each owns a range of Gaussians)."""
     K = pair_values.shape[1]
-    out = np.zeros((n, K), pair_values.dtype)
+    out = np.empty((n, K), pair_values.dtype)  # each worker zeroes its own rows (a serial memset before)
     span = (n + workers - 1) // workers
     for w in nb.prange(workers):
-        lo = w * span
+        lo = min(n, w * span)
         hi = min(n, lo + span)
+        out[lo:hi] = 0
         for j in range(lists.shape[0]):
             g = lists[j]
             if lo <= g < hi:

@@ -408,7 +408,9 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
     ``g_rgb`` [N, 3] is used when ``n_bases`` > 0 (then ``g_sh`` [N, K, 3] is written and the direction's gradient
     reaches the means, except through the channels the forward ``clamped``); ``geometry`` False skips the projection's
     gradients (only colours are trained). Gaussians the forward did not draw (``ntiles`` 0) have no gradient from the
-    image: their rows of the outputs, zeroed by the caller, are left as they are. Each drawn Gaussian's colour gradients
+    image: their rows of every output are zeroed here (the caller's arrays need not be: a serial memset of them was
+    a tenth of this kernel's time); a drawn Gaussian's rows of ``g_quats``, ``g_log_scales`` and ``g_logits`` without
+    ``geometry``, and of ``g_sh`` without SH, are left as the caller filled them. Each drawn Gaussian's colour gradients
     are worked out in turn, then ``GROUP`` Gaussians' projection gradients together (:func:`_backward_group`).
     """
     n = means.shape[0]
@@ -424,7 +426,12 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
             m = min(GROUP, end - first)
             for l in range(m):
                 i = first + l
-                if ntiles[i] == 0:
+                if ntiles[i] == 0:  # no gradient from the image
+                    g_means[i, :] = 0.0
+                    g_quats[i, :] = 0.0
+                    g_log_scales[i, :] = 0.0
+                    g_logits[i] = 0.0
+                    g_sh[i, :, :] = 0.0
                     continue
                 mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
                 gm0 = 0.0
@@ -453,6 +460,7 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
                         gux += wk * bgrad[0, k]
                         guy += wk * bgrad[1, k]
                         guz += wk * bgrad[2, k]
+                    g_sh[i, n_bases:, :] = 0.0  # coefficients past the degree in use
                     if norm > 1e-12:  # d(d / |d|) = (I - u u^T) / |d|
                         dot = gux * ux + guy * uy + guz * uz
                         gux -= dot * ux

@@ -48,6 +48,24 @@ def test_matches_the_torch_tiled_path_in_float32_with_its_footprints():
         torch.testing.assert_close(ga[name], gb[name], atol=1e-4 * scale, rtol=0, msg=f"gradient of {name}")
 
 
+def test_undrawn_gaussians_and_coefficients_past_the_degree_get_exact_zeros():
+    """The backward writes its gradient arrays itself (they are not zeroed first): every row of a Gaussian the view
+    does not draw, and every SH coefficient past ``sh_degree``, must still be exactly 0 (renders run twice, so that
+    the second's arrays reuse memory the first's gradients filled)."""
+    scene = random_scene(n=300, seed=4, sh_k=16, dtype=torch.float32)
+    full = dict(scene, colors=scene["colors"][:, :4].clone())
+    for _ in range(2):
+        out, g = grads(rasterize_fast, scene, sh_degree=1)
+    _, g_full = grads(rasterize_fast, full)
+    assert torch.equal(g["colors"][:, 4:], torch.zeros_like(g["colors"][:, 4:]))
+    torch.testing.assert_close(g["colors"][:, :4], g_full["colors"], atol=0, rtol=0)
+    hidden = ~out.visible
+    assert 10 < int(hidden.sum()) < 290
+    for name in ("means", "quats_wxyz", "log_scales", "opacity_logits", "colors", "features"):
+        assert torch.equal(g[name][hidden], torch.zeros_like(g[name][hidden])), name
+        assert g[name][~hidden].abs().sum() > 0, name
+
+
 def test_gradcheck_full_pipeline():
     g = torch.Generator().manual_seed(11)
     n = 6
