@@ -155,7 +155,10 @@ def main(argv: list[str] | None = None) -> int:
         arrays that are written once before (fresh arrays' page faults weigh the same for both sides, and swing a
         backward by 2x between rounds on this machine)."""
         if name not in buffers:
-            buffers[name] = ((np.empty((n, 2), f32), np.empty((n, 3), f32), np.empty(n, f32), np.empty((n, 3), f32),
+            # the colours' array: rgb and depth since 2026-11-28 (``chan``), rgb alone before
+            colours = 4 if "chan" in pk.project_forward.py_func.__code__.co_varnames else 3
+            buffers[name] = ((np.empty((n, 2), f32), np.empty((n, 3), f32), np.empty(n, f32),
+                              np.empty((n, colours), f32),
                               np.empty(n, f32), np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32),
                               np.zeros(n, np.int64)),
                              (np.zeros((n, 3), f32), np.zeros((n, 4), f32), np.zeros((n, 3), f32), np.zeros(n, f32),

@@ -74,7 +74,7 @@ class Projected:
     means2d: np.ndarray  # [N, 2]
     conics: np.ndarray  # [N, 3]
     depths: np.ndarray  # [N]
-    rgb: np.ndarray  # [N, 3]
+    channels: np.ndarray  # [N, 4 + F] what the compositing blends: rgb, depth, then the features (``channels_of``)
     opacities: np.ndarray  # [N]
     bounds: np.ndarray  # [N, 4] int32 inclusive pixel box of each footprint
     half: np.ndarray  # [N, 2] int32
@@ -110,20 +110,21 @@ def _sh_bases(colors: Tensor, sh_degree: Optional[int]) -> int:
 
 
 def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacity_logits: np.ndarray,
-            colors: np.ndarray, n_bases: int, view: View) -> Projected:
-    """Return the Gaussians projected into ``view`` with their colours and footprints (compiled, no autograd)."""
+            colors: np.ndarray, n_bases: int, view: View, n_features: int = 0) -> Projected:
+    """Return the Gaussians projected into ``view`` with their colours and footprints (compiled, no autograd);
+    ``channels`` has ``n_features`` columns after rgb and depth for :func:`channels_of` to fill."""
     n, dtype = means.shape[0], means.dtype
-    rgb = np.ascontiguousarray(colors) if n_bases == 0 else np.empty((n, 3), dtype)
-    sh = colors if n_bases > 0 else np.zeros((n, 1, 3), dtype)
+    sh = colors if n_bases > 0 else np.ascontiguousarray(colors, dtype).reshape(n, 1, 3)  # RGB: copied by the kernel
     scales, opacities, r2 = projection_kernels.activations(log_scales, opacity_logits)
-    out = Projected(np.empty((n, 2), dtype), np.empty((n, 3), dtype), np.empty(n, dtype), rgb, opacities,
+    out = Projected(np.empty((n, 2), dtype), np.empty((n, 3), dtype), np.empty(n, dtype),
+                    np.empty((n, 4 + n_features), dtype), opacities,
                     np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32), np.zeros(n, np.int64), scales,
                     np.zeros(n, np.uint8))
     set_workers()
     projection_kernels.project_forward(means, quats, scales, opacities, r2, sh, n_bases, view.view, view.center,
                                        view.intr, view.width, view.height, view.near, view.far, view.eps2d, view.tile,
-                                       out.means2d, out.conics, out.depths, out.rgb, out.bounds, out.half, out.ntiles,
-                                       out.clamped)
+                                       out.means2d, out.conics, out.depths, out.channels, out.bounds, out.half,
+                                       out.ntiles, out.clamped)
     return out
 
 
@@ -161,13 +162,18 @@ def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, 
 
 
 def channels_of(proj: Projected, features: Optional[np.ndarray], colours: bool = True) -> np.ndarray:
-    """Return the per-Gaussian channels composited: ``[rgb | depth | features]`` [N, 4 + F], or the features alone
-    ``[N, F]`` without ``colours``."""
+    """Return the per-Gaussian channels composited: ``[rgb | depth | features]`` [N, 4 + F] (``proj.channels``, the
+    features copied into the columns :func:`project` left for them), or the features alone ``[N, F]`` without
+    ``colours``."""
+    dtype = proj.channels.dtype
     if not colours and features is not None:  # no copy of the features themselves
-        return np.ascontiguousarray(features, dtype=proj.rgb.dtype)
-    parts = ([proj.rgb, proj.depths[:, None]] if colours else []) + \
-        ([] if features is None else [features.astype(proj.rgb.dtype)])
-    return np.ascontiguousarray(np.concatenate(parts, axis=1))
+        return np.ascontiguousarray(features, dtype=dtype)
+    n_features = 0 if features is None else features.shape[1]
+    if proj.channels.shape[1] != 4 + n_features:
+        raise ValueError(f"project() left {proj.channels.shape[1] - 4} feature columns for {n_features} features")
+    if n_features:
+        proj.channels[:, 4:] = features
+    return proj.channels
 
 
 def _differentiable(*tensors: Tensor) -> bool:
@@ -185,9 +191,9 @@ class _Render(torch.autograd.Function):
                 n_bases, differentiable):  # type: ignore[override]
         colours = colors.shape[-1] > 0
         arrays = [_numpy(t) for t in (means, quats, log_scales, opacity_logits, colors)]
-        proj = project(*arrays[:4], arrays[4] if colours else np.zeros((len(arrays[0]), 3), arrays[0].dtype),
-                       n_bases, view)
         feats = _numpy(features) if features.shape[1] else None
+        proj = project(*arrays[:4], arrays[4] if colours else np.zeros((len(arrays[0]), 3), arrays[0].dtype),
+                       n_bases, view, features.shape[1] if colours else 0)
         channels = channels_of(proj, feats, colours)
         bins = bin_gaussians(proj, view)
         out, t_final, last, _, marks = composite(bins, proj, channels, view, want_marks=differentiable)

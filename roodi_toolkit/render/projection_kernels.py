@@ -230,11 +230,14 @@ def _geometry_group(inp, out, cam):  # pragma: no cover - compiled
 
 @nb.njit(parallel=True, cache=True, nogil=True)
 def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, center, intr, width, height, near,
-                    far, eps2d, tile, means2d, conics, depths, rgb, bounds, half, ntiles,
+                    far, eps2d, tile, means2d, conics, depths, chan, bounds, half, ntiles,
                     clamped):  # pragma: no cover - compiled
-    """Project every Gaussian; write means2d [N, 2], conics [N, 3], depths [N], rgb [N, 3] (when ``n_bases`` > 0:
-    SH colours of ``sh`` [N, K, 3] of the drawn Gaussians, clamped at 0, 0 for the others, whose colour nothing
-    reads; otherwise left as the caller filled it), and the footprints: bounds [N, 4] (inclusive pixel box), half
+    """Project every Gaussian; write means2d [N, 2], conics [N, 3], depths [N], the first four columns of ``chan``
+    [N, 4 + F] (what the compositing blends: the colour, then the depth again; columns past them are left as they
+    are, for the features; written here, where a numpy concatenation after the kernel was 0.5 ms at 100k Gaussians)
+    with as colour, when ``n_bases`` > 0, the SH colours of ``sh`` [N, K, 3] of the drawn Gaussians, clamped at 0, 0
+    for the others, whose colour nothing reads, and otherwise ``sh[:, 0]`` (the colours themselves, [N, 1, 3]), and
+    the footprints: bounds [N, 4] (inclusive pixel box), half
     [N, 2], ntiles [N] (0: not drawn; the bounds and half of those are left as the caller filled them). With SH,
     ``clamped`` [N] gets bit ``c`` set where channel ``c``'s value was not >= 0 (where the clamp passes no gradient:
     the backward reads it instead of evaluating the colours again).
@@ -269,12 +272,14 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
                 depths[i] = out[DEPTH, l]
                 conics[i, 0], conics[i, 1], conics[i, 2] = out[CA, l], out[CB, l], out[CC, l]
                 means2d[i, 0], means2d[i, 1] = out[MX, l], out[MY, l]
+                chan[i, 3] = out[DEPTH, l]
                 ntiles[i] = int(out[NTILES, l])
                 if ntiles[i] > 0:
                     bounds[i, 0], bounds[i, 1] = int(out[X0, l]), int(out[X1, l])
                     bounds[i, 2], bounds[i, 3] = int(out[Y0, l]), int(out[Y1, l])
                     half[i, 0], half[i, 1] = int(out[HX, l]), int(out[HY, l])
                 if n_bases == 0:
+                    chan[i, 0], chan[i, 1], chan[i, 2] = sh[i, 0, 0], sh[i, 0, 1], sh[i, 0, 2]
                     continue
                 v0 = v1 = v2 = 0.0
                 if ntiles[i] > 0:
@@ -287,9 +292,9 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
                         v0 += bk * sh[i, k, 0]
                         v1 += bk * sh[i, k, 1]
                         v2 += bk * sh[i, k, 2]
-                rgb[i, 0] = max(v0, 0.0)
-                rgb[i, 1] = max(v1, 0.0)
-                rgb[i, 2] = max(v2, 0.0)
+                chan[i, 0] = max(v0, 0.0)
+                chan[i, 1] = max(v1, 0.0)
+                chan[i, 2] = max(v2, 0.0)
                 clamped[i] = (0 if v0 >= 0.0 else 1) | (0 if v1 >= 0.0 else 2) | (0 if v2 >= 0.0 else 4)
 
 
