@@ -207,6 +207,29 @@ def test_many_channels_match_the_dense_reference():
         torch.testing.assert_close(leaves[k].grad, s[k].grad, atol=1e-5 * scale, rtol=0, msg=k)
 
 
+@pytest.mark.parametrize("case", ["wide", "narrow", "equal", "float64", "one", "none"])
+def test_depth_order_is_a_stable_argsort_of_the_drawn_depths(case):
+    """The radix sort over the keys' span: keys spanning every bit (negative, tiny and huge depths), a narrow span
+    (one pass), all equal (no bit differs), float64 depths (sorted as their float32 values), one or no drawn one."""
+    from roodi_toolkit.render import kernels
+
+    rng = np.random.default_rng(9)
+    n = 5000
+    depths = {"wide": rng.standard_normal(n) * 10.0 ** rng.integers(-30, 30, n),
+              "narrow": 3.0 + rng.integers(0, 40, n) * 2.0 ** -20,
+              "equal": np.full(n, 2.5), "float64": rng.random(n) * 7.0 + 0.3, "one": rng.random(n),
+              "none": rng.random(n)}[case]
+    depths = depths.astype(np.float64 if case == "float64" else np.float32)
+    ntiles = (rng.random(n) < 0.7).astype(np.int64)
+    if case in ("one", "none"):
+        ntiles[:] = 0
+        ntiles[n // 2] = 1 if case == "one" else 0
+    drawn = np.flatnonzero(ntiles)
+    want = drawn[np.argsort(depths[drawn].astype(np.float32), kind="stable")]
+    for workers in (1, 2, 5):
+        assert np.array_equal(kernels.depth_order(ntiles, depths, workers), want), workers
+
+
 def test_tile_binning_keeps_depth_order_whatever_the_workers():
     """Every tile's run is the drawn Gaussians touching it, in depth order (ties in id order), for any number of
     workers: checked against a plain loop over the tiles."""
