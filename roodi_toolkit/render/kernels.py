@@ -567,6 +567,19 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
                 offsets[k + 1] = n_pairs
 
 
+@nb.njit(inline="always")
+def _add_pair(out, lists, pair_values, j, lo, hi):  # pragma: no cover - compiled
+    """Add pair ``j``'s values into its Gaussian's row of ``out`` where the Gaussian is in ``[lo, hi)``."""
+    g = lists[j]
+    if lo <= g < hi:
+        for k in range(pair_values.shape[1]):
+            out[g, k] += pair_values[j, k]
+
+
+REDUCE_PREFETCH_BYTES = 4 << 20
+"""Per-Gaussian sums larger than this are prefetched by :func:`reduce_pairs` (more than the two cores' L2 caches)."""
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
 def reduce_pairs(lists, pair_values, n, workers):  # pragma: no cover - compiled
     """Return the per-Gaussian sums ``[n, K]`` of ``pair_values`` ``[M, K]`` (pair ``j`` belongs to Gaussian
@@ -574,13 +587,22 @@ def reduce_pairs(lists, pair_values, n, workers):  # pragma: no cover - compiled
     K = pair_values.shape[1]
     out = np.empty((n, K), pair_values.dtype)  # each worker zeroes its own rows (a serial memset before)
     span = (n + workers - 1) // workers
+    m = lists.shape[0]
+    # sums beyond the caches: their rows asked for PREFETCH pairs ahead (500k Gaussians: 1.7-1.9x one thread, 1.1-1.3x
+    # two; 300k 1.3x); sums that fit are not (100k Gaussians, 2.4 MB: 0.9x prefetched; 0.91-0.96x in a loop apart)
+    far = n * K * pair_values.itemsize > REDUCE_PREFETCH_BYTES
     for w in nb.prange(workers):
         lo = min(n, w * span)
         hi = min(n, lo + span)
         out[lo:hi] = 0
-        for j in range(lists.shape[0]):
-            g = lists[j]
-            if lo <= g < hi:
-                for k in range(K):
-                    out[g, k] += pair_values[j, k]
+        if far:
+            for j in range(m):
+                if j + PREFETCH < m:
+                    ahead = lists[j + PREFETCH]
+                    if lo <= ahead < hi:
+                        _prefetch(out, np.int64(ahead) * K)
+                _add_pair(out, lists, pair_values, j, lo, hi)
+        else:
+            for j in range(m):
+                _add_pair(out, lists, pair_values, j, lo, hi)
     return out
