@@ -228,6 +228,23 @@ def _geometry_group(inp, out, cam):  # pragma: no cover - compiled
         out[NTILES, l] = tiles if drawn else 0.0
 
 
+@nb.njit(inline="always")
+def _directions(inp, center, dirs):  # pragma: no cover - compiled
+    """Write the unit directions from the camera ``center`` to the ``GROUP`` means of ``inp`` (rows ``MU0``..``MU2``)
+    into ``dirs`` [5, GROUP] (rows x, y, z, ``1 / |d|``, ``|d|``), in one loop LLVM runs on vectors: per Gaussian, the
+    square root and division waited on each other and on the mean's load, a chain the next Gaussian's long SH loops
+    could not overlap (the projection's hottest instructions)."""
+    for l in range(GROUP):
+        d0, d1, d2 = inp[MU0, l] - center[0], inp[MU1, l] - center[1], inp[MU2, l] - center[2]
+        norm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        inv = 1.0 / max(norm, 1e-12)
+        dirs[0, l] = d0 * inv
+        dirs[1, l] = d1 * inv
+        dirs[2, l] = d2 * inv
+        dirs[3, l] = inv
+        dirs[4, l] = norm
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
 def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, center, intr, width, height, near,
                     far, eps2d, tile, means2d, conics, depths, chan, bounds, half, ntiles,
@@ -253,6 +270,7 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
         basis = nb.carray(_stack_empty(16, view), (16,))
         inp = nb.carray(_stack_empty(192, view), (12, GROUP))  # sizes: integer literals, 12 and 13 rows of GROUP
         out = nb.carray(_stack_empty(208, view), (13, GROUP))
+        dirs = nb.carray(_stack_empty(80, view), (5, GROUP))  # the unit directions from the camera, 1 / |d|, |d|
         inp[:] = 0.0  # the lanes past the last Gaussian compute on zeros, and are not written out
         end = min(n, (blk + 1) * BLOCK)
         for first in range(blk * BLOCK, end, GROUP):
@@ -267,6 +285,8 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
                                                          np.float64(means[i, 2]))
                 inp[OPACITY, l], inp[R2, l] = np.float64(opacities[i]), r2s[i]
             _geometry_group(inp, out, cam)
+            if n_bases > 0:
+                _directions(inp, center, dirs)
             for l in range(m):
                 i = first + l
                 depths[i] = out[DEPTH, l]
@@ -283,9 +303,7 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
                     continue
                 v0 = v1 = v2 = 0.0
                 if ntiles[i] > 0:
-                    d0, d1, d2 = inp[MU0, l] - center[0], inp[MU1, l] - center[1], inp[MU2, l] - center[2]
-                    inv = 1.0 / max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-12)
-                    _sh_basis(basis, n_bases, d0 * inv, d1 * inv, d2 * inv)
+                    _sh_basis(basis, n_bases, dirs[0, l], dirs[1, l], dirs[2, l])
                     v0 = v1 = v2 = 0.5
                     for k in range(n_bases):  # the three channels together: one pass over the coefficients
                         bk = basis[k]
@@ -425,10 +443,17 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
         bgrad = nb.carray(_stack_empty(48, view), (3, 16))
         inp = nb.carray(_stack_empty(352, view), (22, GROUP))  # sizes: integer literals, 22 and 11 rows of GROUP
         out = nb.carray(_stack_empty(176, view), (11, GROUP))
+        dirs = nb.carray(_stack_empty(80, view), (5, GROUP))  # as the forward's
         inp[:] = 1.0  # lanes of Gaussians not drawn compute on whatever their rows hold, and are not written out
         end = min(n, (blk + 1) * BLOCK)
         for first in range(blk * BLOCK, end, GROUP):
             m = min(GROUP, end - first)
+            for l in range(m):
+                i = first + l
+                inp[MU0, l], inp[MU1, l], inp[MU2, l] = (np.float64(means[i, 0]), np.float64(means[i, 1]),
+                                                         np.float64(means[i, 2]))
+            if n_bases > 0:
+                _directions(inp, center, dirs)
             for l in range(m):
                 i = first + l
                 if ntiles[i] == 0:  # no gradient from the image
@@ -438,15 +463,11 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
                     g_logits[i] = 0.0
                     g_sh[i, :, :] = 0.0
                     continue
-                mu0, mu1, mu2 = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
                 gm0 = 0.0
                 gm1 = 0.0
                 gm2 = 0.0
                 if n_bases > 0:
-                    d0, d1, d2 = mu0 - center[0], mu1 - center[1], mu2 - center[2]
-                    norm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-                    inv = 1.0 / max(norm, 1e-12)
-                    ux, uy, uz = d0 * inv, d1 * inv, d2 * inv
+                    ux, uy, uz, inv, norm = dirs[0, l], dirs[1, l], dirs[2, l], dirs[3, l], dirs[4, l]
                     _sh_basis(basis, n_bases, ux, uy, uz)
                     _sh_basis_grad(bgrad, n_bases, ux, uy, uz)
                     cut = clamped[i]  # the channels whose value the forward clamped at 0 pass no gradient
@@ -483,7 +504,6 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
                 inp[QY, l], inp[QZ, l] = np.float64(quats[i, 2]), np.float64(quats[i, 3])
                 inp[S0, l], inp[S1, l], inp[S2, l] = (np.float64(scales[i, 0]), np.float64(scales[i, 1]),
                                                       np.float64(scales[i, 2]))
-                inp[MU0, l], inp[MU1, l], inp[MU2, l] = mu0, mu1, mu2
                 inp[OPACITY, l] = np.float64(opacities[i])
                 inp[GMX, l], inp[GMY, l] = np.float64(g_means2d[i, 0]), np.float64(g_means2d[i, 1])
                 inp[GA, l], inp[GB, l] = np.float64(g_conics[i, 0]), np.float64(g_conics[i, 1])
