@@ -261,6 +261,10 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
         gid = np.empty(cap, np.int32)
         colp = np.empty((cap, NC), kc.dtype)
         acc = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))
+        acc0 = _lanes(kc)  # rgb + depth: four lane arrays of their own (the 2-D array's rows were masked stores)
+        acc1 = _lanes(kc)
+        acc2 = _lanes(kc)
+        acc3 = _lanes(kc)
         pxc = _lanes(kc)
         pyc = _lanes(kc)
         T = _lanes(kc)
@@ -290,6 +294,10 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     bid[q] = -1
                     for i in range(NC):
                         acc[i, q] = zero
+                    acc0[q] = zero
+                    acc1[q] = zero
+                    acc2[q] = zero
+                    acc3[q] = zero
                 p = 0
                 while True:
                     j1, packed = _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
@@ -314,10 +322,10 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                         best[q] = _pick(better1, w1, best[q])
                         bid[q] = _pick(better1, g1, bid[q])
                         if NC == 4:
-                            acc[0, q] = acc[0, q] + w1 * r1
-                            acc[1, q] = acc[1, q] + w1 * r2
-                            acc[2, q] = acc[2, q] + w1 * r3
-                            acc[3, q] = acc[3, q] + w1 * r4
+                            acc0[q] = acc0[q] + w1 * r1
+                            acc1[q] = acc1[q] + w1 * r2
+                            acc2[q] = acc2[q] + w1 * r3
+                            acc3[q] = acc3[q] + w1 * r4
                     for i in range(NC if NC > 4 else 0):  # a channel's 16 pixels: two vectors of 8
                         _lanes_axpy(acc[i], W, colp[j1, i])
                     if want_marks:  # a select, not a branch: about one entry in five blends nowhere in a block
@@ -328,6 +336,8 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
                     px = bx + (q & 3)
                     py = by + (q >> 2)
                     if px <= x_hi and py <= y_hi:
+                        if NC == 4:
+                            acc[0, q], acc[1, q], acc[2, q], acc[3, q] = acc0[q], acc1[q], acc2[q], acc3[q]
                         for ch in range(C):
                             out[py, px, ch] = acc[ch, q]
                         t_final[py, px] = abs(T[q])
