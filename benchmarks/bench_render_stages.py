@@ -66,6 +66,38 @@ def load_kernels(checkout: Path):
     return importlib.import_module(f"{package}.kernels"), importlib.import_module(f"{package}.projection_kernels")
 
 
+def parameters(kernel) -> tuple[str, ...]:
+    """The names of a compiled kernel's parameters (its code's first names; the rest are its locals)."""
+    code = kernel.py_func.__code__
+    return code.co_varnames[:code.co_argcount]
+
+
+def make_records(mod, proj, channels):
+    """The Gaussians' records for ``mod``'s compositing kernels (as ``fast.records`` makes them), by its own
+    ``lanes.fill_records``."""
+    import numpy as np
+
+    n, dtype = len(proj.opacities), proj.opacities.dtype
+    buf = np.empty(n * 16 + 16, dtype)
+    skip = (-buf.ctypes.data % 64) // buf.itemsize
+    rec = buf[skip:skip + n * 16].reshape(n, 16)
+    lanes = importlib.import_module(mod.__name__.rsplit(".", 1)[0] + ".lanes")
+    lanes.fill_records(proj.bounds, proj.means2d, proj.conics, proj.opacities, channels,
+                       4 if channels.shape[1] <= 4 else 0, rec)
+    return rec
+
+
+def reduce(mod, lists, pair_arrays, n, workers):
+    """``mod``'s per-Gaussian sums of each of ``pair_arrays``: into arrays of the caller's since 2026-11-28."""
+    import numpy as np
+
+    for values in pair_arrays:
+        if "out" in parameters(mod.reduce_pairs):
+            mod.reduce_pairs(lists, values, np.empty((n, values.shape[1]), values.dtype), workers)
+        else:
+            mod.reduce_pairs(lists, values, n, workers)
+
+
 def across_processes(argv: list[str], count: int) -> int:
     """Run this benchmark ``count`` times, each in a process of its own (see the module's docstring), and print each
     stage's median ratio with the ratios' range, for the fixed layouts and the randomised ones apart."""
@@ -156,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
         backward by 2x between rounds on this machine)."""
         if name not in buffers:
             # the colours' array: rgb and depth since 2026-11-28 (``chan``), rgb alone before
-            colours = 4 if "chan" in pk.project_forward.py_func.__code__.co_varnames else 3
+            colours = 4 if "chan" in parameters(pk.project_forward) else 3
             buffers[name] = ((np.empty((n, 2), f32), np.empty((n, 3), f32), np.empty(n, f32),
                               np.empty((n, colours), f32),
                               np.empty(n, f32), np.zeros((n, 4), np.int32), np.zeros((n, 2), np.int32),
@@ -215,18 +247,27 @@ def main(argv: list[str] | None = None) -> int:
             last = np.zeros((H, W), np.int32)
             top = np.full((0, 0), -1, np.int32)
             extra = (mod.channel_groups(C),) if hasattr(mod, "channel_groups") else ()  # kernels before 4x4 blocks
-            head = (lists, starts, counts, busy, proj.bounds, proj.means2d, proj.conics, proj.opacities, channels,
-                    *extra, W, H, view.tile, workers)
+            # the Gaussians' records made by the caller, once a render, since 2026-11-28 (the forward's time
+            # includes them: the kernels made their own before); before, the kernels took the four arrays
+            records = "rec" in parameters(mod.composite_forward)
+            geometry = [None] if records else [proj.bounds, proj.means2d, proj.conics, proj.opacities]
+
+            def forward():
+                if records:
+                    geometry[0] = make_records(mod, proj, channels)
+                return mod.composite_forward(lists, starts, counts, busy, *geometry, channels, *extra, W, H,
+                                             view.tile, workers, out, t_final, last, top, *marks)
+
             # the forward's marks of the blocks each pair blended in, which the backward walks (since 2026-11-28)
             marks = (np.zeros(fast.marks_shape(len(lists), view.tile), np.uint64),) \
                 if "marks" in mod.composite_forward.py_func.__code__.co_varnames else ()
-            clock(f"{name} fwd", lambda: mod.composite_forward(*head, out, t_final, last, top, *marks))
+            clock(f"{name} fwd", forward)
             pair_geom = np.zeros((len(lists), 6), np.float32)
             pair_chan = np.zeros((len(lists), C), np.float32)
-            clock(f"{name} bwd", lambda: mod.composite_backward(*head, t_final, last, *marks, g_out, g_alpha, bg,
-                                                                pair_geom, pair_chan, True))
-            clock(f"{name} reduce", lambda: (mod.reduce_pairs(lists, pair_geom, args.n, workers),
-                                             mod.reduce_pairs(lists, pair_chan, args.n, workers)))
+            clock(f"{name} bwd", lambda: mod.composite_backward(lists, starts, counts, busy, *geometry, channels,
+                                                                *extra, W, H, view.tile, workers, t_final, last,
+                                                                *marks, g_out, g_alpha, bg, pair_geom, pair_chan, True))
+            clock(f"{name} reduce", lambda: reduce(mod, lists, (pair_geom, pair_chan), args.n, workers))
             images[name] = (out, t_final)
         if rnd == 0:
             times.clear()

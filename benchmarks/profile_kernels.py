@@ -60,7 +60,7 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
     g_out = [np.zeros((n, 3), f32), np.zeros((n, 4), f32), np.zeros((n, 3), f32), np.zeros(n, f32),
              np.zeros(arrays[4].shape, f32)]
     m = len(bins.lists)
-    head = (bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics, proj.opacities)
+    head = (bins.lists, bins.starts, bins.counts, bins.busy, fast.records(proj, channels))
     cam = (view.view, view.center, view.intr, size, size, view.near, view.far, view.eps2d)
     calls_of = {
         "forward": (kernels.composite_forward, lambda: fast.composite(bins, proj, channels, view, want_marks=True)),

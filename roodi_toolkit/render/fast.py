@@ -30,7 +30,7 @@ import torch
 from torch import Tensor
 
 from ..errors import ConfigError
-from . import kernels, projection_kernels
+from . import kernels, lanes, projection_kernels
 from .cores import set_workers
 from .projection import EPS2D, camera_tensors, check_inputs
 from .rasterizer import RasterOutput, _split_output
@@ -142,12 +142,30 @@ def marks_shape(pairs: int, tile: int) -> tuple[int, int]:
     return pairs, (blocks + 63) // 64
 
 
+def records(proj: Projected, channels: Optional[np.ndarray]) -> np.ndarray:
+    """Return each Gaussian's 64-byte record [N, 16] that the compositing kernels gather (geometry, box, and the
+    ``channels`` where they are at most four; none for None), on cache lines. Made in numpy, once per render (the
+    backward reuses the forward's): numpy asks Linux for huge pages for large arrays, where the kernels' own
+    allocation faulted its pages 4 KB at a time in every call (with the reduction's sums, a quarter of a
+    650k-Gaussian features step at 400x400)."""
+    n, dtype = len(proj.opacities), proj.opacities.dtype
+    nc = 4 if channels is not None and channels.shape[1] <= 4 else 0
+    buf = np.empty(n * 16 + 16, dtype)
+    skip = (-buf.ctypes.data % 64) // buf.itemsize
+    rec = buf[skip:skip + n * 16].reshape(n, 16)
+    colors = channels if channels is not None else np.zeros((1, 1), dtype)
+    set_workers()
+    lanes.fill_records(proj.bounds, proj.means2d, proj.conics, proj.opacities, colors, nc, rec)
+    return rec
+
+
 def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, want_top: bool = False,
-              want_marks: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, Optional[np.ndarray],
-                                                 Optional[np.ndarray]]:
+              want_marks: bool = False, rec: Optional[np.ndarray] = None) -> tuple[
+                  np.ndarray, np.ndarray, np.ndarray, Optional[np.ndarray], Optional[np.ndarray]]:
     """Return (channels composited [H, W, C] without background, final transmittance [H, W], walked run lengths
     [H, W] (the backward's starting points), each pixel's largest-weight Gaussian [H, W] (-1: none) or None, the
-    blocks each (tile, Gaussian) pair blended in [M, words] uint64 (what the backward walks) or None)."""
+    blocks each (tile, Gaussian) pair blended in [M, words] uint64 (what the backward walks) or None). ``rec``:
+    :func:`records` of ``proj`` and ``channels`` where the caller keeps them (for the backward)."""
     H, W, C = view.height, view.width, channels.shape[1]
     out = np.zeros((H, W, C), channels.dtype)
     t_final = np.ones((H, W), channels.dtype)
@@ -155,9 +173,9 @@ def composite(bins: Bins, proj: Projected, channels: np.ndarray, view: View, *, 
     top = np.full((H, W) if want_top else (0, 0), -1, np.int32)
     marks = np.zeros(marks_shape(len(bins.lists), view.tile) if want_marks else (0, 1), np.uint64)
     n_workers = set_workers()
-    kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics,
-                              proj.opacities, channels, kernels.channel_groups(C), W, H, view.tile, n_workers, out,
-                              t_final, last, top, marks)
+    rec = records(proj, channels) if rec is None else rec
+    kernels.composite_forward(bins.lists, bins.starts, bins.counts, bins.busy, rec, channels,
+                              kernels.channel_groups(C), W, H, view.tile, n_workers, out, t_final, last, top, marks)
     return out, t_final, last, (top if want_top else None), (marks if want_marks else None)
 
 
@@ -196,9 +214,11 @@ class _Render(torch.autograd.Function):
                        n_bases, view, features.shape[1] if colours else 0)
         channels = channels_of(proj, feats, colours)
         bins = bin_gaussians(proj, view)
-        out, t_final, last, _, marks = composite(bins, proj, channels, view, want_marks=differentiable)
+        rec = records(proj, channels)
+        out, t_final, last, _, marks = composite(bins, proj, channels, view, want_marks=differentiable, rec=rec)
         ctx.save_for_backward(background)
-        ctx.state = (arrays, proj, channels, bins, t_final, last, marks, view, n_bases, features.shape[1], colours)
+        ctx.state = (arrays, proj, channels, rec if differentiable else None, bins, t_final, last, marks, view, n_bases,
+                     features.shape[1], colours)
         t_t = torch.from_numpy(t_final)
         render = torch.from_numpy(out)
         if colours:  # in place: the array is this call's own
@@ -212,7 +232,7 @@ class _Render(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_render, g_alpha, *_unused):  # type: ignore[override]
         (background,) = ctx.saved_tensors
-        arrays, proj, channels, bins, t_final, last, marks, view, n_bases, n_feat, colours = ctx.state
+        arrays, proj, channels, rec, bins, t_final, last, marks, view, n_bases, n_feat, colours = ctx.state
         means, quats, _, _, colors = arrays  # the scales and opacities are the forward's (``proj``)
         n, C = channels.shape
         dtype = channels.dtype
@@ -223,12 +243,12 @@ class _Render(torch.autograd.Function):
         pair_chan = np.empty((m, C), dtype)
         bg = np.concatenate([_numpy(background).astype(np.float64), np.zeros(C - 3)]) if colours else np.zeros(C)
         g_render = g_render.contiguous()
-        kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d,
-                                   proj.conics, proj.opacities, channels, kernels.channel_groups(C), view.width,
-                                   view.height, view.tile,
+        kernels.composite_backward(bins.lists, bins.starts, bins.counts, bins.busy, rec, channels,
+                                   kernels.channel_groups(C), view.width, view.height, view.tile,
                                    n_workers, t_final, last, marks, _numpy(g_render),
                                    np.ascontiguousarray(_numpy(g_alpha)[..., 0]), bg, pair_geom, pair_chan, geometry)
-        g_chan = kernels.reduce_pairs(bins.lists, pair_chan, n, n_workers)
+        g_chan = np.empty((n, C), dtype)  # in numpy: huge pages (see ``records``)
+        kernels.reduce_pairs(bins.lists, pair_chan, g_chan, n_workers)
         if colours:
             g_background = (g_render[..., :3] * torch.from_numpy(t_final)[..., None]).sum((0, 1))
             g_features = torch.from_numpy(np.ascontiguousarray(g_chan[:, 4:])) if n_feat else None
@@ -241,7 +261,9 @@ class _Render(torch.autograd.Function):
         need_colors = ctx.needs_input_grad[4] and colours
         if not (geometry or need_colors):
             return None, None, None, None, None, g_features, g_background, None, None, None, None
-        g = kernels.reduce_pairs(bins.lists, pair_geom, n, n_workers) if geometry else np.zeros((n, 6), dtype)
+        g = np.empty((n, 6), dtype) if geometry else np.zeros((n, 6), dtype)
+        if geometry:
+            kernels.reduce_pairs(bins.lists, pair_geom, g, n_workers)
         fresh = np.empty if geometry else np.zeros  # the kernel writes every row with geometry (zeros where not drawn)
         g_means = fresh((n, 3), dtype)
         g_quats = fresh((n, 4), dtype)
@@ -325,8 +347,8 @@ def compositing_pairs(bins: Bins, proj: Projected, view: View) -> tuple[np.ndarr
     n_workers = set_workers()
     offsets = np.zeros(len(bins.busy) + 1, np.int64)
     empty_i, empty_f = np.zeros(0, np.int64), np.zeros(0, proj.opacities.dtype)
-    args = (bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics, proj.opacities,
-            view.width, view.height, view.tile, n_workers, offsets)
+    args = (bins.lists, bins.starts, bins.counts, bins.busy, records(proj, None), view.width, view.height, view.tile,
+            n_workers, offsets)
     kernels.composite_pairs(*args, empty_i, np.zeros(0, np.int32), empty_f)
     np.cumsum(offsets, out=offsets)
     total = int(offsets[-1])

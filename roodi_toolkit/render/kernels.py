@@ -45,7 +45,7 @@ import numba as nb
 import numpy as np
 
 from .lanes import (LANES, PREFETCH, _constant_tuple, _constants, _gauss, _geometry, _lanes, _longest, _next_entry,
-                    _pack_marked, _pick, _prefetch, _records, _stack_empty, _start_block, _tile_box)
+                    _pack_marked, _pick, _prefetch, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 from .vectors import (_lane_dots, _lane_dots_into, _lane_max, _lane_sums_into, _lanes_axpy, _lanes_positive,
                       _lanes_scale)
@@ -222,11 +222,12 @@ def _blend(alpha, inside, Tp, kt):  # pragma: no cover - compiled
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, groups, width, height,
-                      tile, workers, out, t_final, last, top, marks):  # pragma: no cover - compiled
+def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, height, tile, workers, out, t_final,
+                      last, top, marks):  # pragma: no cover - compiled
     """Composite every busy tile front to back, one 4x4 block of pixels at a time.
 
-    Writes ``out`` [H, W, C] (colours without the background), ``t_final`` [H, W] (transmittance after the last
+    ``rec`` [N, 16]: the Gaussians' records (:func:`~.lanes.fill_records`, with the channels when ``C`` <= 4; the
+    compositing's dtype); ``colors`` [N, C] the channels blended. Writes ``out`` [H, W, C] (colours without the background), ``t_final`` [H, W] (transmittance after the last
     blended Gaussian), ``last`` [H, W] (how many entries of the tile's run the pixel walked up to and including its
     last blended Gaussian: the backward starts there) and, when ``top`` is [H, W] rather than empty, the id of each
     pixel's largest-weight Gaussian (-1 where none). Pixels of tiles with no Gaussian are left as they are (the
@@ -250,11 +251,10 @@ def composite_forward(lists, starts, counts, busy, bounds, means2d, conics, opac
     want_top = top.shape[0] > 0
     want_marks = marks.shape[0] > 0
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
-    kc = _constants(opacities)
+    kc = _constants(rec)
     kt = _constant_tuple(kc)
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     cap = _longest(busy, counts)
-    rec = _records(bounds, means2d, conics, opacities, colors, NC if NC == 4 else 0, kc)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
@@ -366,12 +366,11 @@ def _recover(pxc, pyc, mx, my, ha, b, hc, o, x0, x1, y0, y1, walked, Tq, kt):  #
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opacities, colors, groups, width, height,
-                       tile, workers, t_final, last, marks, grad_out, grad_alpha, background, pair_geom, pair_colors,
-                       geometry):  # pragma: no cover - compiled
+def composite_backward(lists, starts, counts, busy, rec, colors, groups, width, height, tile, workers, t_final, last,
+                       marks, grad_out, grad_alpha, background, pair_geom, pair_colors, geometry):  # pragma: no cover - compiled
     """Write each (tile, Gaussian) pair's gradient, summed over the tile's pixels walked back to front.
 
-    Args (beyond the forward's):
+    Args (beyond the forward's, ``rec`` the forward's records):
         t_final, last: the forward's outputs. [H, W]
         marks: the forward's marks of the blocks each pair blended in. [M, words]
         grad_out: dL/d(colour image before the background). [H, W, C]
@@ -400,12 +399,11 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
     nbx = (tile + 3) // 4
     if marks.shape[0] != lists.shape[0] or 64 * marks.shape[1] < nbx * nbx:
         raise ValueError("composite_backward needs the forward's marks: a row of words for each pair")
-    kc = _constants(opacities)
+    kc = _constants(rec)
     kt = _constant_tuple(kc)
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
     cap = _longest(busy, counts)
-    rec = _records(bounds, means2d, conics, opacities, colors, NC if NC == 4 else 0, kc)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
         run = np.empty(cap, np.int32)  # each slot's place in the tile's run
@@ -504,10 +502,10 @@ def composite_backward(lists, starts, counts, busy, bounds, means2d, conics, opa
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacities, width, height, tile, workers,
-                    offsets, pixels, ids, weights):  # pragma: no cover - compiled
+def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, workers, offsets, pixels, ids,
+                    weights):  # pragma: no cover - compiled
     """List every blended (pixel, Gaussian, weight ``alpha T``) of the view, walking the tiles' 4x4 blocks as the
-    forward does.
+    forward does (``rec``: the records without channels).
 
     With ``pixels`` empty, counts each busy tile's blended pairs into ``offsets[k + 1]`` and writes nothing else;
     otherwise ``offsets`` [B + 1] holds their cumulative sum and busy tile ``k``'s pairs are written into ``pixels``
@@ -516,14 +514,13 @@ def composite_pairs(lists, starts, counts, busy, bounds, means2d, conics, opacit
     tiles_x = (width + tile - 1) // tile
     nbx = (tile + 3) // 4
     fill = pixels.shape[0] > 0
-    kc = _constants(opacities)
+    kc = _constants(rec)
     kt = _constant_tuple(kc)
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     nq = LANES if tile > 0 else 0  # 16, unknown to the compiler (see composite_forward)
     cap = _longest(busy, counts)
     none = np.empty((1, 1), kc.dtype)  # no channels
     nocolp = np.empty((1, 0), kc.dtype)
-    rec = _records(bounds, means2d, conics, opacities, none, 0, kc)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
         box = np.empty((cap, 4), np.int32)
@@ -591,11 +588,13 @@ REDUCE_PREFETCH_BYTES = 4 << 20
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def reduce_pairs(lists, pair_values, n, workers):  # pragma: no cover - compiled
-    """Return the per-Gaussian sums ``[n, K]`` of ``pair_values`` ``[M, K]`` (pair ``j`` belongs to Gaussian
-    ``lists[j]``), added in pair order whatever the number of workers (each owns a range of Gaussians)."""
-    K = pair_values.shape[1]
-    out = np.empty((n, K), pair_values.dtype)  # each worker zeroes its own rows (a serial memset before)
+def reduce_pairs(lists, pair_values, out, workers):  # pragma: no cover - compiled
+    """Write into ``out`` [n, K] the per-Gaussian sums of ``pair_values`` ``[M, K]`` (pair ``j`` belongs to Gaussian
+    ``lists[j]``), added in pair order whatever the number of workers (each owns a range of Gaussians and zeroes its
+    rows first: a serial memset before). ``out`` comes from the caller (numpy asks Linux for huge pages for large
+    arrays, numba's own allocations fault 4 KB at a time: a quarter of a 650k-Gaussian features step was those faults,
+    with the records')."""
+    n, K = out.shape
     span = (n + workers - 1) // workers
     m = lists.shape[0]
     # sums beyond the caches: their rows asked for PREFETCH pairs ahead (500k Gaussians: 1.7-1.9x one thread, 1.1-1.3x
@@ -615,4 +614,3 @@ def reduce_pairs(lists, pair_values, n, workers):  # pragma: no cover - compiled
         else:
             for j in range(m):
                 _add_pair(out, lists, pair_values, j, lo, hi)
-    return out

@@ -254,7 +254,7 @@ def _longest(busy, counts):  # pragma: no cover - compiled
 @nb.njit(inline="always")
 def _pack(lists, s, lo, hi, rec, geo, box, gid):  # pragma: no cover - compiled
     """Copy entries ``lo:hi`` of the tile's run (from ``lists[s]``) next to each other from their records
-    (:func:`_records`): (mx, my, conic a, b, c, opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo``
+    (:func:`fill_records`): (mx, my, conic a, b, c, opacity, the footprint box's x0, x1 + 1, y0, y1 + 1) in ``geo``
     [n, 10], the footprint box in ``box`` [n, 4], the id in ``gid`` [n]; every 4x4 block of the tile then reads them
     in order. Returns ``hi``."""
     for jj in range(lo, hi):
@@ -270,20 +270,16 @@ def _pack(lists, s, lo, hi, rec, geo, box, gid):  # pragma: no cover - compiled
     return hi
 
 
-@nb.njit(inline="always")
-def _records(bounds, means2d, conics, opacities, colors, nc, dtype_of):  # pragma: no cover - compiled
-    """Return each Gaussian's record ``[N, 16]`` in ``dtype_of``'s dtype (64 bytes in float32): mx, my, conic a, b, c,
-    opacity, the box's x0, x1 + 1, y0, y1 + 1, then its first ``nc`` channels (``nc`` at most 4; zero past
-    ``colors``' own). A run's copy (:func:`_pack`, :func:`_pack_colours`) then gathers one cache line a Gaussian
-    where it gathered one from each of five arrays (the compositing 1.12-1.19x forward and 1.17-1.25x backward at
-    500k Gaussians, 800x800, rgb + depth). More channels (16 features) stay in their own array: copied into 128-byte
-    records they made the forward 0.87x."""
-    n = means2d.shape[0]
+@nb.njit(parallel=True, cache=True, nogil=True)
+def fill_records(bounds, means2d, conics, opacities, colors, nc, rec):  # pragma: no cover - compiled
+    """Write each Gaussian's record into ``rec`` [N, 16] (64 bytes in float32, on a cache line: see
+    :func:`roodi_toolkit.render.fast.records`): mx, my, conic a, b, c, opacity, the box's x0, x1 + 1, y0, y1 + 1,
+    then its first ``nc`` channels (``nc`` 0 or 4; zero past ``colors``' own). A run's copy (:func:`_pack`,
+    :func:`_pack_colours`) then gathers one cache line a Gaussian where it gathered one from each of five arrays (the
+    compositing 1.12-1.19x forward and 1.17-1.25x backward at 500k Gaussians, 800x800, rgb + depth). More channels
+    (16 features) stay in their own array: copied into 128-byte records they made the forward 0.87x."""
     C = colors.shape[1]
-    buf = np.empty(n * 16 + 16, dtype_of.dtype)  # numba aligns arrays to 32 bytes: records start on a cache line
-    skip = (-buf.ctypes.data % 64) // buf.itemsize
-    rec = buf[skip:skip + n * 16].reshape((n, 16))
-    for g in nb.prange(n):
+    for g in nb.prange(means2d.shape[0]):
         rec[g, 0] = means2d[g, 0]
         rec[g, 1] = means2d[g, 1]
         rec[g, 2] = conics[g, 0]
@@ -296,13 +292,12 @@ def _records(bounds, means2d, conics, opacities, colors, nc, dtype_of):  # pragm
         rec[g, 9] = bounds[g, 3] + 1
         for ch in range(nc):
             rec[g, 10 + ch] = colors[g, ch] if ch < C else 0.0
-    return rec
 
 
 @nb.njit(inline="always")
 def _pack_colours(lists, s, lo, hi, colors, rec, colp):  # pragma: no cover - compiled
     """Copy the channels of entries ``lo:hi`` of the tile's run into ``colp`` [n, 4 G], zero beyond ``C``: from the
-    records (:func:`_records`) where they hold them (four channels), else from ``colors``."""
+    records (:func:`fill_records`) where they hold them (four channels), else from ``colors``."""
     C = colors.shape[1]
     NC = colp.shape[1]
     if NC == 4:

@@ -244,7 +244,9 @@ def test_pair_sums_are_added_in_pair_order_whatever_the_workers(n):
     want = np.zeros((n, 6), np.float32)
     np.add.at(want, lists, values)
     for workers in (1, 2, 3):
-        assert np.array_equal(kernels.reduce_pairs(lists, values, n, workers), want), workers
+        got = np.full((n, 6), np.nan, np.float32)  # every row written, zeros included
+        kernels.reduce_pairs(lists, values, got, workers)
+        assert np.array_equal(got, want), workers
 
 
 def test_tile_binning_keeps_depth_order_whatever_the_workers():
@@ -428,8 +430,8 @@ def test_backward_refuses_marks_that_are_not_the_forwards():
     channels = fast.channels_of(proj, None)
     _, t_final, last, _, marks = fast.composite(bins, proj, channels, view, want_marks=True)
     m, (H, W) = len(bins.lists), t_final.shape
-    head = (bins.lists, bins.starts, bins.counts, bins.busy, proj.bounds, proj.means2d, proj.conics, proj.opacities,
-            channels, kernels.channel_groups(4), W, H, view.tile, 1, t_final, last)
+    head = (bins.lists, bins.starts, bins.counts, bins.busy, fast.records(proj, channels), channels,
+            kernels.channel_groups(4), W, H, view.tile, 1, t_final, last)
     tail = (np.ones((H, W, 4), channels.dtype), np.zeros((H, W), channels.dtype), np.zeros(4),
             np.zeros((m, 6), channels.dtype), np.zeros((m, 4), channels.dtype), True)
     kernels.composite_backward(*head, marks, *tail)
