@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import numpy as np
 
-    from roodi_toolkit.render import fast, kernels, lanes
+    from roodi_toolkit.render import fast, kernels, lanes, tiles
 
     G, S = args.gaussians, args.size
     f32 = np.float32
@@ -44,8 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     opacities = np.full(G, 0.0041, f32)
     bounds = np.tile(np.array([0, S - 1, 0, S - 1], np.int32), (G, 1))
     ntiles = np.full(G, ((S + 15) // 16) ** 2, np.int64)
-    order = kernels.depth_order(ntiles, np.arange(G, dtype=f32), 1)
-    lists, starts, counts = kernels.bin_tiles(order, bounds, S, S, 16, 1)
+    order = tiles.depth_order(ntiles, np.arange(G, dtype=f32), 1)
+    lists, starts, counts = tiles.bin_tiles(order, bounds, S, S, 16, 1)
     busy = np.flatnonzero(counts > 0)
     channels = rng.random((G, 4)).astype(f32)
     rec = np.empty((G, 16), f32)  # the kernels' records (fast.records makes them aligned to a cache line)

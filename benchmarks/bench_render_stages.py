@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     from scene import scene_cloud
 
     from roodi_toolkit.cameras import intrinsics_from_fov, look_at
-    from roodi_toolkit.render import cores, fast, kernels, projection_kernels
+    from roodi_toolkit.render import cores, fast, kernels, projection_kernels, tiles
 
     torch.set_num_threads(1)
     scene = scene_cloud(args.n)
@@ -229,8 +229,8 @@ def main(argv: list[str] | None = None) -> int:
             fwd, bwd = project_both(name, pk)
             times.setdefault(f"{name} projection fwd", []).append(fwd)
             times.setdefault(f"{name} projection bwd", []).append(bwd)
-        order = clock("depth order", lambda: kernels.depth_order(proj.ntiles, proj.depths, workers))
-        lists, starts, counts = clock("binning", lambda: kernels.bin_tiles(order, proj.bounds, W, H, view.tile,
+        order = clock("depth order", lambda: tiles.depth_order(proj.ntiles, proj.depths, workers))
+        lists, starts, counts = clock("binning", lambda: tiles.bin_tiles(order, proj.bounds, W, H, view.tile,
                                                                             workers))
         busy = np.flatnonzero(counts > 0)
         if args.channels == 4:

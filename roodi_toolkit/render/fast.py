@@ -30,7 +30,7 @@ import torch
 from torch import Tensor
 
 from ..errors import ConfigError
-from . import kernels, lanes, projection_kernels
+from . import kernels, lanes, projection_kernels, tiles
 from .cores import set_workers
 from .projection import EPS2D, camera_tensors, check_inputs
 from .rasterizer import RasterOutput, _split_output
@@ -130,8 +130,8 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
 
 def bin_gaussians(proj: Projected, view: View) -> Bins:
     """Return the drawn Gaussians binned to tiles, in depth order (stable: ties keep index order)."""
-    order = kernels.depth_order(proj.ntiles, proj.depths, set_workers())
-    lists, starts, counts = kernels.bin_tiles(order, proj.bounds, view.width, view.height, view.tile, set_workers())
+    order = tiles.depth_order(proj.ntiles, proj.depths, set_workers())
+    lists, starts, counts = tiles.bin_tiles(order, proj.bounds, view.width, view.height, view.tile, set_workers())
     return Bins(lists, starts, counts, np.flatnonzero(counts > 0))
 
 

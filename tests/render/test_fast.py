@@ -211,7 +211,7 @@ def test_many_channels_match_the_dense_reference():
 def test_depth_order_is_a_stable_argsort_of_the_drawn_depths(case):
     """The radix sort over the keys' span: keys spanning every bit (negative, tiny and huge depths), a narrow span
     (one pass), all equal (no bit differs), float64 depths (sorted as their float32 values), one or no drawn one."""
-    from roodi_toolkit.render import kernels
+    from roodi_toolkit.render import tiles
 
     rng = np.random.default_rng(9)
     n = 5000
@@ -227,7 +227,7 @@ def test_depth_order_is_a_stable_argsort_of_the_drawn_depths(case):
     drawn = np.flatnonzero(ntiles)
     want = drawn[np.argsort(depths[drawn].astype(np.float32), kind="stable")]
     for workers in (1, 2, 5):
-        assert np.array_equal(kernels.depth_order(ntiles, depths, workers), want), workers
+        assert np.array_equal(tiles.depth_order(ntiles, depths, workers), want), workers
 
 
 @pytest.mark.parametrize("n", [1000, 300_000])
@@ -254,7 +254,7 @@ def test_tile_binning_keeps_depth_order_whatever_the_workers():
     workers: checked against a plain loop over the tiles."""
     import numpy as np
 
-    from roodi_toolkit.render import kernels
+    from roodi_toolkit.render import tiles
 
     rng = np.random.default_rng(4)
     n, width, height, tile = 300, 53, 37, 8
@@ -265,11 +265,11 @@ def test_tile_binning_keeps_depth_order_whatever_the_workers():
     depths = rng.integers(0, 50, n).astype(np.float32)  # ties on purpose
     want = np.flatnonzero(ntiles)[np.argsort(depths[ntiles > 0], kind="stable")]
     for workers in (1, 2, 3, 7):
-        assert np.array_equal(kernels.depth_order(ntiles, depths, workers), want), workers
+        assert np.array_equal(tiles.depth_order(ntiles, depths, workers), want), workers
     order = want
     tiles_x = -(-width // tile)
     for workers in (1, 2, 3):
-        lists, starts, counts = kernels.bin_tiles(order, bounds, width, height, tile, workers)
+        lists, starts, counts = tiles.bin_tiles(order, bounds, width, height, tile, workers)
         for t in range(tiles_x * -(-height // tile)):
             tx, ty = t % tiles_x, t // tiles_x
             want = [g for g in order if bounds[g, 0] // tile <= tx <= bounds[g, 1] // tile
