@@ -254,8 +254,8 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
     are, for the features; written here, where a numpy concatenation after the kernel was 0.5 ms at 100k Gaussians)
     with as colour, when ``n_bases`` > 0, the SH colours of ``sh`` [N, K, 3] of the drawn Gaussians, clamped at 0, 0
     for the others, whose colour nothing reads, and otherwise ``sh[:, 0]`` (the colours themselves, [N, 1, 3]), and
-    the footprints: bounds [N, 4] (inclusive pixel box), half
-    [N, 2], ntiles [N] (0: not drawn; the bounds and half of those are left as the caller filled them). With SH,
+    the footprints: bounds [N, 4] (inclusive pixel box), half [N, 2], ntiles [N] (0: not drawn; the bounds and half
+    of those are left as the caller filled them). With SH,
     ``clamped`` [N] gets bit ``c`` set where channel ``c``'s value was not >= 0 (where the clamp passes no gradient:
     the backward reads it instead of evaluating the colours again).
 

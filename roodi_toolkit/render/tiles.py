@@ -9,7 +9,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .lanes import PREFETCH, _prefetch
+from .lanes import PREFETCH, _prefetch  # compiled into these kernels: a change to it needs a change here too
 
 
 RADIX_BITS = 11
