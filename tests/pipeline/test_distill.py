@@ -255,3 +255,29 @@ def test_distillation_learns_from_views_spread_round_the_scene(scene):
     assert len(set(some.train_views)) == 3 and set(some.train_views) <= set(train)
     every = distill_object_features(cloud, ds, masks, DistillConfig(iterations=2, max_views=0), train_views=train)
     assert every.train_views == train
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_caches_sparse_product_is_pytorchs_with_empty_rows_and_its_gradient(dtype):
+    """The cache's own CSR product (written into numpy arrays: PyTorch's made temporaries that fault their pages)
+    equals PyTorch's, rows without entries give zeros, and the cached render's gradient is the transpose's product."""
+    import scipy.sparse as sp
+
+    from roodi_toolkit.pipeline.weight_cache import WeightCache, both_ways, csr_product
+    from roodi_toolkit.render.renderer import csr_tensor
+
+    rng = np.random.default_rng(3)
+    rows, cols, nnz = 300, 500, 2000
+    m = sp.csr_matrix((rng.random(nnz), (rng.integers(0, rows // 2, nnz) * 2, rng.integers(0, cols, nnz))),
+                      shape=(rows, cols)).astype(np.float32 if dtype == torch.float32 else np.float64)
+    w, w_t = both_ways(csr_tensor(m))
+    dense = torch.randn(cols, 5, dtype=dtype)
+    got = csr_product(w, dense)
+    torch.testing.assert_close(got, (w @ dense).to(dtype))
+    assert torch.equal(got[1::2], torch.zeros_like(got[1::2]))  # odd rows hold no entries
+    cache = WeightCache()
+    cache.maps[0] = (w, w_t)
+    feats = dense.clone().requires_grad_()
+    g = torch.randn(rows, 5, dtype=dtype)
+    (cache.render(0, feats) * g).sum().backward()
+    torch.testing.assert_close(feats.grad, torch.from_numpy(m.T.toarray()) @ g)
