@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     lists, starts, counts = tiles.bin_tiles(order, bounds, S, S, 16, 1)
     busy = np.flatnonzero(counts > 0)
     channels = rng.random((G, 4)).astype(f32)
-    rec = np.empty((G, 16), f32)  # the kernels' records (fast.records makes them aligned to a cache line)
+    rec = fast.record_buffer(G, f32)  # the kernels' records, on cache lines as fast.records makes them
     lanes.fill_records(bounds, means2d, conics, opacities, channels, 4, rec)
     head = (lists, starts, counts, busy, rec, channels, kernels.channel_groups(4), S, S, 16, 1)
     evaluations = (S // 4) ** 2 * G

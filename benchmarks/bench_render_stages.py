@@ -75,12 +75,9 @@ def parameters(kernel) -> tuple[str, ...]:
 def make_records(mod, proj, channels):
     """The Gaussians' records for ``mod``'s compositing kernels (as ``fast.records`` makes them), by its own
     ``lanes.fill_records``."""
-    import numpy as np
+    from roodi_toolkit.render.fast import record_buffer
 
-    n, dtype = len(proj.opacities), proj.opacities.dtype
-    buf = np.empty(n * 16 + 16, dtype)
-    skip = (-buf.ctypes.data % 64) // buf.itemsize
-    rec = buf[skip:skip + n * 16].reshape(n, 16)
+    rec = record_buffer(len(proj.opacities), proj.opacities.dtype)
     lanes = importlib.import_module(mod.__name__.rsplit(".", 1)[0] + ".lanes")
     lanes.fill_records(proj.bounds, proj.means2d, proj.conics, proj.opacities, channels,
                        4 if channels.shape[1] <= 4 else 0, rec)

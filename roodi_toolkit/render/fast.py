@@ -142,6 +142,14 @@ def marks_shape(pairs: int, tile: int) -> tuple[int, int]:
     return pairs, (blocks + 63) // 64
 
 
+def record_buffer(n: int, dtype) -> np.ndarray:
+    """Return an uninitialised [n, 16] array of ``dtype`` whose rows start on 64-byte cache lines (numpy aligns less):
+    room for :func:`records`."""
+    buf = np.empty(n * 16 + 16, dtype)
+    skip = (-buf.ctypes.data % 64) // buf.itemsize
+    return buf[skip:skip + n * 16].reshape(n, 16)
+
+
 def records(proj: Projected, channels: Optional[np.ndarray]) -> np.ndarray:
     """Return each Gaussian's 64-byte record [N, 16] that the compositing kernels gather (geometry, box, and the
     ``channels`` where they are at most four; none for None), on cache lines. Made in numpy, once per render (the
@@ -150,9 +158,7 @@ def records(proj: Projected, channels: Optional[np.ndarray]) -> np.ndarray:
     650k-Gaussian features step at 400x400)."""
     n, dtype = len(proj.opacities), proj.opacities.dtype
     nc = 4 if channels is not None and channels.shape[1] <= 4 else 0
-    buf = np.empty(n * 16 + 16, dtype)
-    skip = (-buf.ctypes.data % 64) // buf.itemsize
-    rec = buf[skip:skip + n * 16].reshape(n, 16)
+    rec = record_buffer(n, dtype)
     colors = channels if channels is not None else np.zeros((1, 1), dtype)
     set_workers()
     lanes.fill_records(proj.bounds, proj.means2d, proj.conics, proj.opacities, colors, nc, rec)
