@@ -14,15 +14,16 @@ blocks of pixels: as the tile's run is copied, each entry is appended to the lis
 touches (:func:`~.lanes._pack_blocks`); each block walks its list front to back (forward) and evaluates each
 Gaussian on its 16 pixels at once (masked to the box). The forward marks, per (tile, Gaussian) pair, the blocks in
 which it blended at least one pixel; the backward copies only the marked entries and walks each block's back to
-front (:func:`~.lanes._pack_marked`). The 16 pixels' state (transmittance, walked count, channel sums) lives in
-stack arrays (:mod:`.lanes`) that LLVM keeps in vector registers, and the per-Gaussian loop over the 16 pixels has
-no branches (selects) and no 64-bit counter, and its length is hidden from the compiler (``nq``): LLVM then
-vectorises it as a loop, eight float32 lanes at a time (sixteen with AVX-512), where a loop of a known 16 was
-unrolled and re-vectorised four lanes at a time with spills (found in the assembly). Its selects are LLVM selects
-(:func:`~.lanes._pick`) and no lane array is stored as a select of its own value: either became masked stores, which
-the next vector load of the array waited on (no store-to-load forwarding; found in the assembly). Four channels
-(rgb + depth) are added inside that loop; more in vector steps after it. A block walks its entries one at a time: two
-at a time (their alphas side by side) ran out of vector registers and spilled every Gaussian's parameters.
+front (:func:`~.lanes._pack_marked`). The 16 pixels' state (transmittance, walked count, channel sums, the
+backward's sums behind) is a set of :class:`~.simd.Vec` values, one LLVM vector each, that stay in vector registers
+from one entry to the next; each entry's parameters are broadcast into them, and a walk has no branch per pixel
+(LLVM selects, :func:`~.lanes._pick`). Before, the state lived in 16-element stack arrays and each entry was a loop
+over the lanes whose length was hidden from the compiler (a loop of a known 16 was unrolled and re-vectorised four
+lanes at a time with spills): LLVM vectorised it, but loaded and stored every array at every entry, with a masked
+remainder (ten loads and stores of 70 instructions; found in the assembly): the vectors made the compositing 1.35x
+faster forward and 1.2x backward, the same bits. Four channels (rgb + depth) are added inside the walk; more in
+vector steps after it (:mod:`.vectors`). A block walks its entries one at a time: two at a time (their alphas side
+by side) ran out of vector registers and spilled every Gaussian's parameters.
 Blocks at a tile's or the image's edge have their outside pixels stopped from the start.
 Results do not depend on timing or on the number of workers: each tile is written by one worker, and the backward
 writes one gradient per (tile, Gaussian) pair, summed over a block's 16 pixels in a fixed tree order and block after
@@ -45,22 +46,23 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from . import simd
 from .lanes import (LANES, PREFETCH, _constant_tuple, _constants, _gauss, _geometry, _lanes, _longest, _next_entry,
                     _pack_marked, _pick, _prefetch, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
-from .vectors import (_lane_dots, _lane_dots_into, _lane_max, _lane_sums_into, _lanes_axpy, _lanes_positive,
-                      _lanes_scale)
+from .vectors import _lane_dots, _lane_dots_into, _lane_sums_into, _lanes_axpy, _lanes_scale
 
-LANES_REVISION = 21
+LANES_REVISION = 22
 """Raised with every change to :mod:`.lanes` or :mod:`.vectors`: numba's cache (``cache=True``) checks only the time
 stamp and size of the file that defines a kernel, and the block helpers are compiled into these kernels, so a change
-to lanes.py or vectors.py alone would leave a checkout that compiled them before with stale kernels (5: the
+to lanes.py, vectors.py or simd.py alone would leave a checkout that compiled them before with stale kernels (5: the
 exponential in fused multiply-adds; 6: the blocks' own lists, the lane maximum; 7: one record a Gaussian; 8: the
 blocks' walk in one helper; 9: the records prefetched; 10: the features too; 11: no channels, no copy; 12: the
 prefetch in one helper; 13: the lanes' sums, maxima and channel updates as vector halves; 14: records on a cache
 line; 15: the backward's marked entries; 16: a pair's sums side by side, the vector operations in their own
 module; 17: their loads and stores shared; 18: selects, not branches; 19: sums added into the pairs' rows;
-20: the rows' loads shared; 21: the records filled by a kernel of their own, for the caller)."""
+20: the rows' loads shared; 21: the records filled by a kernel of their own, for the caller; 22: the walks' state
+as vectors, :mod:`.simd`, which this covers too)."""
 
 
 @nb.njit(inline="always")
@@ -94,8 +96,8 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
     only those (:func:`composite_backward`). ``groups``: :func:`channel_groups` of ``C``.
 
     Each block walks the entries of the tile's run whose footprint box touches it, in run order, with its 16 pixels'
-    state (transmittance, walked count, largest weight, channel sums) in stack arrays that LLVM keeps in vector
-    registers; every Gaussian is evaluated on all 16 pixels without branches, and counts only at those inside its
+    state (transmittance, walked count, largest weight, channel sums) in vectors (:mod:`.simd`); every Gaussian is
+    evaluated on all 16 pixels without branches, and counts only at those inside its
     footprint box (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A
     stopped pixel keeps its transmittance negated. The tile's Gaussians are copied next to each other, 64 at a time,
     as the first block that has walked all its entries so far needs more, and each copied entry is appended to the
@@ -107,7 +109,6 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
     nbx = (tile + 3) // 4
     want_top = top.shape[0] > 0
     want_marks = marks.shape[0] > 0
-    nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
     kc = _constants(rec)
     kt = _constant_tuple(kc)
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
@@ -145,16 +146,13 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
                     continue
                 _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one)
                 word, bit, none = blk >> 6, np.uint64(1) << np.uint64(blk & 63), np.uint64(0)
-                for q in range(LANES):
-                    L[q] = 0
-                    best[q] = zero
-                    bid[q] = -1
-                    for i in range(NC):
+                # the block's state as vectors (:mod:`.simd`): in registers from one entry to the next
+                pxv, pyv, tv = simd.load(pxc, 0), simd.load(pyc, 0), simd.load(T, 0)
+                lv, bidv = simd.splat(np.int32(0)), simd.splat(np.int32(-1))
+                bestv = acc0v = acc1v = acc2v = acc3v = simd.splat(zero)
+                for i in range(NC if NC > 4 else 0):
+                    for q in range(LANES):
                         acc[i, q] = zero
-                    acc0[q] = zero
-                    acc1[q] = zero
-                    acc2[q] = zero
-                    acc3[q] = zero
                 p = 0
                 while True:
                     j1, packed = _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
@@ -163,32 +161,36 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
                         break
                     p += 1
                     mx1, my1, a1, b1, c1, o1, x01, x11, y01, y11 = _geometry(geo, j1)
-                    ha1, hc1 = half * a1, half * c1
-                    g1 = gid[j1]
-                    walked1 = np.int32(j1 + 1)
-                    if NC == 4:  # four channels: added inside the loop over the pixels (a constant: no branch)
-                        r1, r2, r3, r4 = colp[j1, 0], colp[j1, 1], colp[j1, 2], colp[j1, 3]
-                    for q in range(nq):  # the block's 16 pixels: vectorised, no branches
-                        alpha1 = min(a_max, o1 * _gauss(pxc[q] - mx1, pyc[q] - my1, ha1, b1, hc1, kt))
-                        in1 = (pxc[q] > x01) & (pxc[q] < x11) & (pyc[q] > y01) & (pyc[q] < y11)  # the footprint box
-                        w1, t1, blend1 = _blend(alpha1, in1, T[q], kt)
-                        W[q] = w1
-                        T[q] = t1
-                        L[q] = _pick(blend1, walked1, L[q])
-                        better1 = w1 > best[q]
-                        best[q] = _pick(better1, w1, best[q])
-                        bid[q] = _pick(better1, g1, bid[q])
-                        if NC == 4:
-                            acc0[q] = acc0[q] + w1 * r1
-                            acc1[q] = acc1[q] + w1 * r2
-                            acc2[q] = acc2[q] + w1 * r3
-                            acc3[q] = acc3[q] + w1 * r4
-                    for i in range(NC if NC > 4 else 0):  # a channel's 16 pixels: two vectors of 8
-                        _lanes_axpy(acc[i], W, colp[j1, i])
+                    alpha1 = min(a_max, o1 * _gauss(pxv - mx1, pyv - my1, half * a1, b1, half * c1, kt))
+                    in1 = (pxv > x01) & (pxv < x11) & (pyv > y01) & (pyv < y11)  # the footprint box
+                    w1, tv, blend1 = _blend(alpha1, in1, tv, kt)
+                    lv = _pick(blend1, np.int32(j1 + 1), lv)
+                    if want_top:  # (a branch the CPU predicts: the same every entry)
+                        better1 = w1 > bestv
+                        bestv = _pick(better1, w1, bestv)
+                        bidv = _pick(better1, gid[j1], bidv)
+                    if NC == 4:  # four channels: fused into the walk (a constant: no branch)
+                        acc0v = acc0v + w1 * colp[j1, 0]
+                        acc1v = acc1v + w1 * colp[j1, 1]
+                        acc2v = acc2v + w1 * colp[j1, 2]
+                        acc3v = acc3v + w1 * colp[j1, 3]
+                    else:
+                        simd.store(W, 0, w1)
+                        for i in range(NC):  # a channel's 16 pixels: two vectors of 8
+                            _lanes_axpy(acc[i], W, colp[j1, i])
                     if want_marks:  # a select, not a branch: about one entry in five blends nowhere in a block
-                        marks[s + j1, word] |= bit if _lanes_positive(W) else none
-                    if (p & 3) == 0 and _lane_max(T) <= zero:  # every 4th entry: a block's pixels stop together
+                        marks[s + j1, word] |= bit if simd.any_lane(blend1) else none
+                    if not simd.any_lane(tv > zero):  # a block's pixels stop together
                         break
+                simd.store(T, 0, tv)
+                simd.store(L, 0, lv)
+                simd.store(best, 0, bestv)
+                simd.store(bid, 0, bidv)
+                if NC == 4:
+                    simd.store(acc0, 0, acc0v)
+                    simd.store(acc1, 0, acc1v)
+                    simd.store(acc2, 0, acc2v)
+                    simd.store(acc3, 0, acc3v)
                 for q in range(LANES):
                     px = bx + (q & 3)
                     py = by + (q >> 2)
@@ -260,7 +262,6 @@ def composite_backward(lists, starts, counts, busy, rec, colors, groups, width, 
     kc = _constants(rec)
     kt = _constant_tuple(kc)
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
-    nq = LANES if tile > 0 else 0  # 16, unknown to the compiler: it vectorises the lanes, not the channels
     cap = _longest(busy, counts)
     for w in nb.prange(workers):
         geo = np.empty((cap, 10), kc.dtype)
@@ -270,11 +271,8 @@ def composite_backward(lists, starts, counts, busy, rec, colors, groups, width, 
         pxc = _lanes(kc)
         pyc = _lanes(kc)
         T = _lanes(kc)
-        S = _lanes(kc)
         tail = _lanes(kc)
-        Wt = _lanes(kc)
         CG = _lanes(kc)
-        VG = nb.carray(_stack_empty(96, kc.dtype), (6, LANES))  # 6 gradients x 16 pixels
         sums = nb.carray(_stack_empty(groups, kc.dtype), (NC * LANES,))  # a pair's sums (channels, then geometry)
         L = _lanes(run)
         blist = np.empty((nbx * nbx, cap), np.int32)
@@ -298,7 +296,6 @@ def composite_backward(lists, starts, counts, busy, rec, colors, groups, width, 
                     py = by + (q >> 2)
                     pxc[q] = px + 0.5
                     pyc[q] = py + 0.5
-                    S[q] = zero
                     for i in range(NC):
                         gpix[i, q] = zero
                     if px <= x_hi and py <= y_hi:
@@ -315,48 +312,47 @@ def composite_backward(lists, starts, counts, busy, rec, colors, groups, width, 
                         T[q] = one
                         tail[q] = zero
                         L[q] = 0
+                # the block's state as vectors (:mod:`.simd`): in registers from one entry to the next
+                pxv, pyv, tv, lv = simd.load(pxc, 0), simd.load(pyc, 0), simd.load(T, 0), simd.load(L, 0)
+                tailv, sv = simd.load(tail, 0), simd.splat(zero)
+                gv = (simd.load(gpix[0], 0), simd.load(gpix[1], 0), simd.load(gpix[2], 0), simd.load(gpix[3], 0))
                 for pp in range(bcount[blk] - 1, -1, -1):
                     slot = blist[blk, pp]
                     jj = run[slot]
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, slot)
-                    ha = half * a
-                    hc = half * c
-                    if geometry:
-                        _lanes_scale(CG, gpix[0], colp[slot, 0])  # c_i . g first: the alpha's gradient needs it
-                        for i in range(1, NC):
-                            _lanes_axpy(CG, gpix[i], colp[slot, i])
-                        for q in range(nq):  # recover T_i and the weight; d_alpha, S_i, the pair's gradients
-                            dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
-                                pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
-                            T[q] = Ti
-                            wt = _pick(act, alpha * Ti, zero)
-                            Wt[q] = wt
-                            cg = CG[q]
-                            d_alpha = Ti * cg - (S[q] + tail[q]) / one_minus
-                            S[q] += wt * cg
-                            d_sigma = -d_alpha * alpha
-                            on = act & (raw < a_max)  # alpha clamped at 0.99 passes no gradient
-                            VG[0, q] = _pick(on, -(d_sigma * (a * dx + b * dy)), zero)
-                            VG[1, q] = _pick(on, -(d_sigma * (c * dy + b * dx)), zero)
-                            VG[2, q] = _pick(on, d_sigma * half * dx * dx, zero)
-                            VG[3, q] = _pick(on, d_sigma * dx * dy, zero)
-                            VG[4, q] = _pick(on, d_sigma * half * dy * dy, zero)
-                            VG[5, q] = _pick(on, d_alpha * gauss, zero)
-                    else:  # colours or features alone: no need for the alpha's gradient
-                        for q in range(nq):
-                            dx, dy, gauss, raw, alpha, act, one_minus, Ti = _recover(
-                                pxc[q], pyc[q], mx, my, ha, b, hc, o, x0, x1, y0, y1, jj < L[q], T[q], kt)
-                            T[q] = Ti
-                            Wt[q] = _pick(act, alpha * Ti, zero)
+                    dx, dy, gauss, raw, alpha, act, one_minus, tv = _recover(
+                        pxv, pyv, mx, my, half * a, b, half * c, o, x0, x1, y0, y1, jj < lv, tv, kt)
+                    wt = _pick(act, alpha * tv, zero)
                     j = s + jj
-                    if C == NC:  # each channel's 16 pixels, the channels side by side, added into the pair's row
-                        _lane_dots_into(Wt, gpix, groups, pair_colors, j)
+                    if geometry:
+                        if NC == 4:  # c_i . g: the alpha's gradient needs it
+                            cg = gv[0] * colp[slot, 0]
+                            cg = cg + gv[1] * colp[slot, 1]
+                            cg = cg + gv[2] * colp[slot, 2]
+                            cg = cg + gv[3] * colp[slot, 3]
+                        else:
+                            _lanes_scale(CG, gpix[0], colp[slot, 0])
+                            for i in range(1, NC):
+                                _lanes_axpy(CG, gpix[i], colp[slot, i])
+                            cg = simd.load(CG, 0)
+                        d_alpha = tv * cg - (sv + tailv) / one_minus
+                        sv = sv + wt * cg
+                        d_sigma = -d_alpha * alpha
+                        on = act & (raw < a_max)  # alpha clamped at 0.99 passes no gradient
+                        _lane_sums_into((_pick(on, -(d_sigma * (a * dx + b * dy)), zero),
+                                         _pick(on, -(d_sigma * (c * dy + b * dx)), zero),
+                                         _pick(on, d_sigma * half * dx * dx, zero),
+                                         _pick(on, d_sigma * dx * dy, zero),
+                                         _pick(on, d_sigma * half * dy * dy, zero),
+                                         _pick(on, d_alpha * gauss, zero)), 6, pair_geom, j)
+                    if NC == 4 and C == NC:  # each channel's 16 pixels, the channels side by side, into the row
+                        _lane_dots_into(wt, gv, 4, pair_colors, j)
+                    elif C == NC:
+                        _lane_dots_into(wt, gpix, groups, pair_colors, j)
                     else:
-                        _lane_dots(Wt, gpix, groups, sums)
+                        _lane_dots(wt, gpix, groups, sums)
                         for i in range(C):
                             pair_colors[j, i] += sums[i]
-                    if geometry:
-                        _lane_sums_into(VG, 6, pair_geom, j)
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -375,7 +371,6 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
     kc = _constants(rec)
     kt = _constant_tuple(kc)
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
-    nq = LANES if tile > 0 else 0  # 16, unknown to the compiler (see composite_forward)
     cap = _longest(busy, counts)
     none = np.empty((1, 1), kc.dtype)  # no channels
     nocolp = np.empty((1, 0), kc.dtype)
@@ -402,6 +397,7 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
                 if bx > x_hi or by > y_hi:
                     continue
                 _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one)
+                pxv, pyv, tv = simd.load(pxc, 0), simd.load(pyc, 0), simd.load(T, 0)
                 p = 0
                 while True:
                     jj, packed = _next_entry(blk, p, packed, lists, s, n, rec, none, geo, box, gid, nocolp, x_lo,
@@ -410,13 +406,11 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
                         break
                     p += 1
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
-                    ha = half * a
-                    hc = half * c
-                    for q in range(nq):  # as the forward
-                        alpha = min(a_max, o * _gauss(pxc[q] - mx, pyc[q] - my, ha, b, hc, kt))
-                        inside = (pxc[q] > x0) & (pxc[q] < x1) & (pyc[q] > y0) & (pyc[q] < y1)  # the footprint box
-                        W[q], T[q], _ = _blend(alpha, inside, T[q], kt)
-                    if _lane_max(W) > zero:  # blended somewhere (alpha >= 1/255 and T >= 1e-4: a positive weight)
+                    alpha = min(a_max, o * _gauss(pxv - mx, pyv - my, half * a, b, half * c, kt))  # as the forward
+                    inside = (pxv > x0) & (pxv < x1) & (pyv > y0) & (pyv < y1)  # the footprint box
+                    wv, tv, _ = _blend(alpha, inside, tv, kt)
+                    if simd.any_lane(wv > zero):  # blended somewhere (alpha >= 1/255 and T >= 1e-4: a positive weight)
+                        simd.store(W, 0, wv)
                         at = base + n_pairs
                         for q in range(LANES):
                             if W[q] > zero:
@@ -426,7 +420,7 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
                                     weights[at] = W[q]
                                 at += 1
                         n_pairs = at - base
-                    if _lane_max(T) <= zero:
+                    if not simd.any_lane(tv > zero):
                         break
             if not fill:
                 offsets[k + 1] = n_pairs

@@ -1,12 +1,13 @@
 """The 4x4 pixel blocks of the compositing kernels (:mod:`roodi_toolkit.render.kernels`): the constants, the stack
-arrays that hold a block's 16 pixels in vector registers, and the arithmetic every walk shares.
+arrays that hold a block's pixels between walks, and the arithmetic every walk shares.
 
-LLVM keeps a block's state in registers and turns a loop over its 16 pixels into a few vector instructions when
-(found by reading the assembly): the state lives in stack arrays of a constant size (:func:`_stack_empty`), never on
-the heap, which would need runtime overlap checks; every constant comes in the inputs' dtype as a tuple of values
-(:func:`_constant_tuple`; a float literal would turn float32 arithmetic into float64); and no loop over channels sits
-inside the loop over the pixels. What a loop does not express well is written as LLVM vector operations on the 16
-lanes (:mod:`.vectors`).
+A walk's state is a set of 16-lane vectors (:mod:`.simd`), and the arithmetic here (:func:`_gauss`, the
+exponential, :func:`_fma`, :func:`_pick`) runs unchanged on a scalar or on such a vector, with the same bits in every
+lane as the scalar code (``tests/render/test_simd.py``): the forward and the backward recompute each alpha alike. Every constant comes in the inputs' dtype as a tuple
+of values (:func:`_constant_tuple`; a float literal would turn float32 arithmetic into float64). Stack arrays of a
+constant size (:func:`_stack_empty`), never on the heap (which would need runtime overlap checks), hold what goes in
+and out of a block's walk and the channels past four; what a loop over them does not express well is written as
+LLVM vector operations on the 16 lanes (:mod:`.vectors`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
+from . import simd
 from .vectors import LANES
 
 ALPHA_MIN = 1.0 / 255.0
@@ -94,9 +96,10 @@ def _constant_tuple(kc):  # pragma: no cover - compiled
 
 @intrinsic
 def _fma(typingctx, a, b, c):  # pragma: no cover - compiled
-    """``a * b + c`` with one rounding where the CPU has fused multiply-add (LLVM's ``fmuladd``)."""
+    """``a * b + c`` with one rounding where the CPU has fused multiply-add (LLVM's ``fmuladd``); lane by lane where
+    an operand is a :class:`~.simd.Vec` (the others its dtype's scalars)."""
     if not (isinstance(a, types.Float) and a == b and b == c):
-        return None
+        return simd.fma_typed(a, b, c)
 
     def codegen(context, builder, signature, args):
         ty = context.get_value_type(signature.return_type)
@@ -111,9 +114,10 @@ def _pick(typingctx, cond, a, b):  # pragma: no cover - compiled
     """``a if cond else b`` as one LLVM ``select``. Numba lowers a conditional expression to branches that LLVM
     if-converts inside the vectorised loops over the lanes, but where the value is stored into a lane array it made
     two masked stores of it (found in the assembly), and the vector load after the loop then waited for both to
-    reach the cache (no store-to-load forwarding from a masked store)."""
+    reach the cache (no store-to-load forwarding from a masked store). Lane by lane where ``cond`` is a
+    :class:`~.simd.Mask` (:func:`~.simd.select`)."""
     if not (isinstance(cond, types.Boolean) and a == b):
-        return None
+        return simd.select_typed(cond, a, b)
 
     def codegen(context, builder, signature, args):
         return builder.select(args[0], args[1], args[2])
@@ -175,7 +179,7 @@ def _exp_series_typed(u, kt):
     """``exp(u)`` for ``u`` in ``[-0.375, 0]`` by Horner's scheme with fused multiply-adds: :data:`EXP_F32` in
     float32, the Taylor series to ``u^10 / 10!`` (``kt[8:16]``, relative error below 1e-11 after the 16th power) in
     float64."""
-    if isinstance(u, types.Float) and u.bitwidth == 32:
+    if getattr(u, "dtype", u) == types.float32:  # a float32 number or :class:`~.simd.Vec`
         c1, c2, c3, c4, c5 = (np.float32(v) for v in EXP_F32)
 
         def impl(u, kt):  # pragma: no cover - compiled

@@ -1,10 +1,10 @@
 """LLVM vector operations on the 16 lanes of a compositing block (:mod:`roodi_toolkit.render.lanes`), as two halves of
 8 (``@intrinsic``: portable IR, no CPU-specific instruction; LLVM lowers each half to one AVX register, or to two
-of SSE or NEON): what the compiled loops over the lanes do not express well. The sums and the maximum over the 16
-lanes in a fixed tree (:func:`_fold`; as scalar code, 16 loads and 15 operations), several rows' sums side by side in
-that same tree (:func:`_lane_sums_into`, :func:`_lane_dots`) and a channel's update over the 16 lanes
-(:func:`_lanes_axpy`, :func:`_lanes_scale`; as a loop inside the channels' loop, LLVM ran it in its 4-lane
-remainder). Found by reading the assembly of the kernels (``benchmarks/profile_kernels.py``).
+of SSE or NEON), on lanes held in stack arrays or as :class:`~.simd.Vec` values: several rows' sums over the 16
+lanes side by side in a fixed tree (:func:`_fold_rows`, :func:`_lane_sums_into`, :func:`_lane_dots`; as scalar code,
+16 loads and 15 operations a row) and a channel's update over the 16 lanes (:func:`_lanes_axpy`,
+:func:`_lanes_scale`; as a loop inside the channels' loop, LLVM ran it in its 4-lane remainder). Found by reading
+the assembly of the kernels (``benchmarks/profile_kernels.py``).
 """
 
 from __future__ import annotations
@@ -13,8 +13,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-LANES = 16
-"""Pixels of a compositing block (4x4): the vector the compositing works on."""
+from .simd import LANES, Vec, halves
 
 
 def _shuffle(builder, a, b, picks):
@@ -34,56 +33,21 @@ def _load_halves(context, builder, arrty, array, start=0):
                                               vty.as_pointer()), align=align) for at in (0, LANES // 2))
 
 
-def _fold(builder, halves, combine):
-    """Combine the 16 lanes (``halves``: lanes 0-7 and 8-15) into one value in the kernels' fixed tree order: lane
-    ``q`` with lane ``q + 8`` (``combine(low, high)``), then the first four of those with the last four, two with two,
-    one with one."""
-    vec = combine(*halves)
-    lanes = LANES // 2
-    while lanes > 1:
-        half = lanes // 2
-        vec = combine(_shuffle(builder, vec, vec, range(half)), _shuffle(builder, vec, vec, range(half, lanes)))
-        lanes = half
-    return builder.extract_element(vec, ir.Constant(ir.IntType(32), 0))
-
-
 def _is_lanes(v):
+    """A block's 16 float lanes in a 1-D C-contiguous stack array."""
     return isinstance(v, types.Array) and isinstance(v.dtype, types.Float) and v.ndim == 1 and v.layout == "C"
 
 
-@intrinsic
-def _lane_max(typingctx, v):  # pragma: no cover - compiled
-    """The largest of the 16 lanes of ``v`` in :func:`_fold`'s tree, each step Python's ``max(low, high)`` (the
-    high lane where it is greater, else the low one). The kernels test "is any pixel still going" or "did any pixel
-    blend" with it after the loop over the lanes, not by counting inside it: a 64-bit counter in that loop made LLVM
-    vectorise it four lanes at a time (the counter's width) instead of eight."""
-    if not _is_lanes(v):
-        return None
-
-    def codegen(context, builder, signature, args):
-        def greater(low, high):
-            return builder.select(builder.fcmp_ordered(">", high, low), high, low)
-
-        return _fold(builder, _load_halves(context, builder, signature.args[0], args[0]), greater)
-
-    return v.dtype(v), codegen
+def _lanes_in(v):
+    """A block's 16 float lanes to read: a stack array (:func:`_is_lanes`) or a :class:`~.simd.Vec`."""
+    return _is_lanes(v) or (isinstance(v, Vec) and isinstance(v.dtype, types.Float))
 
 
-@intrinsic
-def _lanes_positive(typingctx, v):  # pragma: no cover - compiled
-    """Whether any of the 16 lanes of ``v`` is greater than 0: the two halves compared with 0 and or-ed as masks (a
-    compare and a mask test, where :func:`_lane_max`'s tree is four dependent steps)."""
-    if not _is_lanes(v):
-        return None
-
-    def codegen(context, builder, signature, args):
-        low, high = _load_halves(context, builder, signature.args[0], args[0])
-        zero = ir.Constant(low.type, None)
-        either = builder.or_(builder.fcmp_ordered(">", low, zero), builder.fcmp_ordered(">", high, zero))
-        return builder.icmp_unsigned("!=", builder.bitcast(either, ir.IntType(LANES // 2)),
-                                     ir.Constant(ir.IntType(LANES // 2), 0))
-
-    return types.boolean(v), codegen
+def _lanes_halves(context, builder, ty, value):
+    """The 16 lanes of ``value`` (:func:`_lanes_in`) as two LLVM vectors of 8."""
+    if isinstance(ty, Vec):
+        return halves(builder, value)
+    return _load_halves(context, builder, ty, value)
 
 
 def _store_halves(context, builder, arrty, array, halves):
@@ -152,9 +116,10 @@ def _count(size):
 
 
 def _fold_rows(builder, rows):
-    """The sums of ``rows`` (each 16 lanes as two vectors of 8) in :func:`_fold`'s tree, all at once: each step adds
+    """The sums of ``rows`` (each 16 lanes as two vectors of 8) in the kernels' fixed tree (lane ``q`` with lane ``q +
+    8``, then the first four of those with the last four, two with two, one with one), all at once: each step adds
     the lanes of two rows laid side by side in one vector (``shufflevector``), so eight sums take the additions and
-    shuffles that :func:`_fold` spends on three. Returns vectors of 8 sums, rows ``8 g`` to ``8 g + 7`` in vector
+    shuffles that one row's tree alone spends on three. Returns vectors of 8 sums, rows ``8 g`` to ``8 g + 7`` in vector
     ``g`` (an odd row out is paired with itself; its copy lands past the last row)."""
     level = [builder.fadd(lo, hi) for lo, hi in rows]  # lane q with lane q + 8
     for picks in (([0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15]),  # first four with last four
@@ -166,17 +131,33 @@ def _fold_rows(builder, rows):
 
 
 def _is_rows(v):
+    """A C-contiguous 2-D float array (rows of 16 lanes on the stack, or a destination of sums)."""
     return isinstance(v, types.Array) and isinstance(v.dtype, types.Float) and v.ndim == 2 and v.layout == "C"
 
 
+def _rows_in(v):
+    """Rows of 16 float lanes to read: a [K, 16] stack array (:func:`_is_rows`) or a tuple of
+    :class:`~.simd.Vec`."""
+    if isinstance(v, types.UniTuple):
+        return isinstance(v.dtype, Vec) and isinstance(v.dtype.dtype, types.Float)
+    return _is_rows(v)
+
+
+def _dtype(v):
+    """The element type of lanes or rows (:func:`_lanes_in`, :func:`_rows_in`)."""
+    return v.dtype.dtype if isinstance(v, types.UniTuple) else v.dtype
+
+
 def _rows(context, builder, rowsty, rows, k):
-    """The rows ``0:k`` of the C-contiguous [K, 16] stack array ``rows``, each as two LLVM vectors of 8."""
+    """The rows ``0:k`` of ``rows`` (:func:`_rows_in`), each as two LLVM vectors of 8."""
+    if isinstance(rowsty, types.UniTuple):
+        return [halves(builder, builder.extract_value(rows, r)) for r in range(k)]
     return [_load_halves(context, builder, rowsty, rows, r * LANES) for r in range(k)]
 
 
 def _products(context, builder, xty, x, rowsty, rows, k):
     """``x[q] * rows[r, q]`` for the rows ``0:k``, each as two LLVM vectors of 8."""
-    xs = _load_halves(context, builder, xty, x)
+    xs = _lanes_halves(context, builder, xty, x)
     return [tuple(builder.fmul(xv, rv) for xv, rv in zip(xs, row)) for row in _rows(context, builder, rowsty, rows, k)]
 
 
@@ -184,9 +165,9 @@ def _products(context, builder, xty, x, rowsty, rows, k):
 def _lane_dots(typingctx, x, rows, count, out):  # pragma: no cover - compiled
     """Write into ``out`` (a 1-D stack array with room for ``count`` rounded up to a multiple of 8) the sums over the
     16 lanes of ``x[q] * rows[k, q]`` for the rows ``0:count`` (as :func:`_lane_sums_into`): the products, then their
-    sums in :func:`_fold`'s tree."""
+    sums in :func:`_fold_rows`' tree."""
     k = _count(count)
-    if not (k and _is_lanes(x) and _is_rows(rows) and _is_lanes(out) and x.dtype == rows.dtype == out.dtype):
+    if not (k and _lanes_in(x) and _rows_in(rows) and _is_lanes(out) and x.dtype == _dtype(rows) == out.dtype):
         return None
 
     def codegen(context, builder, signature, args):
@@ -224,14 +205,14 @@ def _add_into_row(context, builder, dstty, dst, row, vectors, k):
 @intrinsic
 def _lane_sums_into(typingctx, rows, count, dst, row):  # pragma: no cover - compiled
     """Add the sums of the 16 lanes of each of the rows ``0:count`` of ``rows`` (a C-contiguous [K, 16] stack array;
-    ``count`` an integer literal or a tuple of channel groups, :func:`_count`), each in :func:`_fold`'s tree order,
+    ``count`` an integer literal or a tuple of channel groups, :func:`_count`), each in :func:`_fold_rows`' tree order,
     into ``dst[row, 0:count]`` (a C-contiguous 2-D float array of the rows' dtype with at least ``count`` columns),
     without storing them first: a sum stored as a vector and read back as a scalar waited for the store to reach the
     cache (the hottest instructions of the backward's profile). The rows' sums are made side by side
     (:func:`_fold_rows`), each equal to its row's sum alone bit for bit; summed one by one, the backward's six
     gradients of a pair took a tree of four steps each, then an extraction."""
     k = _count(count)
-    if not (k and _is_rows(rows) and _is_rows(dst) and dst.dtype == rows.dtype and isinstance(row, types.Integer)):
+    if not (k and _rows_in(rows) and _is_rows(dst) and dst.dtype == _dtype(rows) and isinstance(row, types.Integer)):
         return None
 
     def codegen(context, builder, signature, args):
@@ -248,7 +229,7 @@ def _lane_dots_into(typingctx, x, rows, count, dst, row):  # pragma: no cover - 
     """Add the sums of :func:`_lane_dots` into ``dst[row, 0:count]`` (as :func:`_lane_sums_into`), without storing
     them first."""
     k = _count(count)
-    if not (k and _is_lanes(x) and _is_rows(rows) and _is_rows(dst) and x.dtype == rows.dtype == dst.dtype
+    if not (k and _lanes_in(x) and _rows_in(rows) and _is_rows(dst) and x.dtype == _dtype(rows) == dst.dtype
             and isinstance(row, types.Integer)):
         return None
 

@@ -285,12 +285,12 @@ def _tree(v: np.ndarray, op) -> float:
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_lane_vectors_equal_the_scalar_tree_bit_for_bit(dtype):
-    """The lanes' maximum and a channel's updates (LLVM vector intrinsics) give exactly the values of the scalar code
-    they replace, in float32 and float64."""
+def test_lane_updates_equal_the_scalar_code_bit_for_bit(dtype):
+    """A channel's updates (LLVM vector intrinsics) give exactly the values of the scalar code they replace, in
+    float32 and float64."""
     import numba as nb
 
-    from roodi_toolkit.render.vectors import _lane_max, _lanes_axpy, _lanes_scale
+    from roodi_toolkit.render.vectors import _lanes_axpy, _lanes_scale
 
     @nb.njit
     def run(x, y, a):
@@ -298,15 +298,15 @@ def test_lane_vectors_equal_the_scalar_tree_bit_for_bit(dtype):
         _lanes_axpy(z, x, a)
         u = y.copy()
         _lanes_scale(u, x, a)
-        return _lane_max(x), z, u
+        return z, u
 
     rng = np.random.default_rng(3)
     for _ in range(20):
         x = (rng.standard_normal(16) * 10.0 ** rng.uniform(-3, 3, 16)).astype(dtype)
         y = rng.standard_normal(16).astype(dtype)
         a = dtype(rng.standard_normal())
-        m, z, u = run(x, y, a)
-        assert m == x.max() and np.array_equal(z, y + x * a) and np.array_equal(u, x * a)
+        z, u = run(x, y, a)
+        assert np.array_equal(z, y + x * a) and np.array_equal(u, x * a)
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
