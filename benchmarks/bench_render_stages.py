@@ -46,11 +46,11 @@ HERE = Path(__file__).resolve().parent
 def load_kernels(checkout: Path):
     """Return ``checkout``'s kernels module and its projection kernels module, loaded from a copy in the temporary
     folder (numba caches its compiled code beside the file; a folder named by the content lets later runs reuse it).
-    The kernels, the block helpers and vector operations they import (``lanes.py`` and ``vectors.py``, where the
-    checkout has them) and the projection kernels (their package imports made absolute: the constants come from this
+    The kernels, the block helpers and vector operations they import (``lanes.py``, ``vectors.py`` and ``simd.py``,
+    where the checkout has them) and the projection kernels (their package imports made absolute: the constants come from this
     checkout's package) are copied as a package of their own."""
     render = checkout / "roodi_toolkit" / "render"
-    names = ("kernels.py", "lanes.py", "vectors.py", "projection_kernels.py")
+    names = ("kernels.py", "lanes.py", "vectors.py", "simd.py", "projection_kernels.py")
     files = {name: (render / name).read_bytes() for name in names if (render / name).exists()}
     files["projection_kernels.py"] = files["projection_kernels.py"].replace(
         b"from ..gaussians import", b"from roodi_toolkit.gaussians import").replace(
