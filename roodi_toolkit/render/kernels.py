@@ -52,7 +52,7 @@ from .lanes import (LANES, PREFETCH, _constant_tuple, _constants, _fma, _gauss, 
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 from .vectors import _lane_dots, _lane_dots_into, _lane_sums_into, _lanes_axpy, _lanes_scale
 
-LANES_REVISION = 22
+LANES_REVISION = 23
 """Raised with every change to :mod:`.lanes` or :mod:`.vectors`: numba's cache (``cache=True``) checks only the time
 stamp and size of the file that defines a kernel, and the block helpers are compiled into these kernels, so a change
 to lanes.py, vectors.py or simd.py alone would leave a checkout that compiled them before with stale kernels (5: the
@@ -62,7 +62,7 @@ prefetch in one helper; 13: the lanes' sums, maxima and channel updates as vecto
 line; 15: the backward's marked entries; 16: a pair's sums side by side, the vector operations in their own
 module; 17: their loads and stores shared; 18: selects, not branches; 19: sums added into the pairs' rows;
 20: the rows' loads shared; 21: the records filled by a kernel of their own, for the caller; 22: the walks' state
-as vectors, :mod:`.simd`, which this covers too)."""
+as vectors, :mod:`.simd`, which this covers too; 23: whole records copied as vectors)."""
 
 
 @nb.njit(inline="always")
@@ -114,10 +114,10 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     cap = _longest(busy, counts)
     for w in nb.prange(workers):
-        geo = np.empty((cap, 10), kc.dtype)
+        geo = np.empty((cap, 16), kc.dtype)
         box = np.empty((cap, 4), np.int32)
         gid = np.empty(cap, np.int32)
-        colp = np.empty((cap, NC), kc.dtype)
+        colp = np.empty((cap if NC > 4 else 1, NC), kc.dtype)  # four channels: in the records (geo)
         acc = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))
         acc0 = _lanes(kc)  # rgb + depth: four lane arrays of their own (1.04-1.05x over the 2-D array's rows)
         acc1 = _lanes(kc)
@@ -170,10 +170,10 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
                         bestv = _pick(better1, w1, bestv)
                         bidv = _pick(better1, gid[j1], bidv)
                     if NC == 4:  # four channels in the walk (a constant: no branch), by fused multiply-adds (1.09x)
-                        acc0v = _fma(w1, colp[j1, 0], acc0v)
-                        acc1v = _fma(w1, colp[j1, 1], acc1v)
-                        acc2v = _fma(w1, colp[j1, 2], acc2v)
-                        acc3v = _fma(w1, colp[j1, 3], acc3v)
+                        acc0v = _fma(w1, geo[j1, 10], acc0v)
+                        acc1v = _fma(w1, geo[j1, 11], acc1v)
+                        acc2v = _fma(w1, geo[j1, 12], acc2v)
+                        acc3v = _fma(w1, geo[j1, 13], acc3v)
                     else:
                         simd.store(W, 0, w1)
                         for i in range(NC):  # a channel's 16 pixels: two vectors of 8
@@ -264,9 +264,9 @@ def composite_backward(lists, starts, counts, busy, rec, colors, groups, width, 
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     cap = _longest(busy, counts)
     for w in nb.prange(workers):
-        geo = np.empty((cap, 10), kc.dtype)
+        geo = np.empty((cap, 16), kc.dtype)
         run = np.empty(cap, np.int32)  # each slot's place in the tile's run
-        colp = np.empty((cap, NC), kc.dtype)
+        colp = np.empty((cap if NC > 4 else 1, NC), kc.dtype)  # four channels: in the records (geo)
         gpix = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))  # dL/d(channel) of the block's pixels
         pxc = _lanes(kc)
         pyc = _lanes(kc)
@@ -326,10 +326,10 @@ def composite_backward(lists, starts, counts, busy, rec, colors, groups, width, 
                     j = s + jj
                     if geometry:
                         if NC == 4:  # c_i . g: the alpha's gradient needs it
-                            cg = gv[0] * colp[slot, 0]
-                            cg = cg + gv[1] * colp[slot, 1]
-                            cg = cg + gv[2] * colp[slot, 2]
-                            cg = cg + gv[3] * colp[slot, 3]
+                            cg = gv[0] * geo[slot, 10]
+                            cg = cg + gv[1] * geo[slot, 11]
+                            cg = cg + gv[2] * geo[slot, 12]
+                            cg = cg + gv[3] * geo[slot, 13]
                         else:
                             _lanes_scale(CG, gpix[0], colp[slot, 0])
                             for i in range(1, NC):
@@ -375,7 +375,7 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
     none = np.empty((1, 1), kc.dtype)  # no channels
     nocolp = np.empty((1, 0), kc.dtype)
     for w in nb.prange(workers):
-        geo = np.empty((cap, 10), kc.dtype)
+        geo = np.empty((cap, 16), kc.dtype)
         box = np.empty((cap, 4), np.int32)
         gid = np.empty(cap, np.int32)
         blist = np.empty((nbx * nbx, cap), np.int32)
