@@ -47,8 +47,8 @@ def load_kernels(checkout: Path):
     """Return ``checkout``'s kernels module and its projection kernels module, loaded from a copy in the temporary
     folder (numba caches its compiled code beside the file; a folder named by the content lets later runs reuse it).
     The kernels, the block helpers and vector operations they import (``lanes.py``, ``vectors.py`` and ``simd.py``,
-    where the checkout has them) and the projection kernels (their package imports made absolute: the constants come from this
-    checkout's package) are copied as a package of their own."""
+    where the checkout has them) and the projection kernels (their package imports made absolute: the constants come
+    from this checkout's package) are copied as a package of their own."""
     render = checkout / "roodi_toolkit" / "render"
     names = ("kernels.py", "lanes.py", "vectors.py", "simd.py", "projection_kernels.py")
     files = {name: (render / name).read_bytes() for name in names if (render / name).exists()}

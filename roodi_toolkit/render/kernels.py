@@ -119,7 +119,7 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
         gid = np.empty(cap, np.int32)
         colp = np.empty((cap if NC > 4 else 1, NC), kc.dtype)  # four channels: in the records (geo)
         acc = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))
-        acc0 = _lanes(kc)  # rgb + depth: four lane arrays of their own (1.04-1.05x over the 2-D array's rows)
+        acc0 = _lanes(kc)  # rgb + depth out of the walk's vectors
         acc1 = _lanes(kc)
         acc2 = _lanes(kc)
         acc3 = _lanes(kc)
@@ -207,12 +207,13 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
 
 @nb.njit(inline="always")
 def _recover(pxc, pyc, mx, my, ha, b, hc, o, x0, x1, y0, y1, walked, Tq, kt):  # pragma: no cover - compiled
-    """One pixel of a backward walk: (dx, dy, the Gaussian's value, the unclamped alpha, alpha, whether the pixel
-    blended this Gaussian, 1 - alpha, the transmittance before it), with the forward's expression for alpha (bit for
-    bit: the same pixels blend the same Gaussians). ``walked``: the entry lies before the pixel's last blended one;
+    """A block's pixels in a backward walk (:class:`~.simd.Vec` values, or one pixel's scalars): (dx, dy, the
+    Gaussian's value, the unclamped alpha, alpha, whether the pixel blended this Gaussian, 1 - alpha, the
+    transmittance before it), with the forward's expression for alpha (bit for bit: the same pixels blend the same
+    Gaussians). ``walked``: the entry lies before the pixel's last blended one;
     ``Tq``: the transmittance behind the entry. Where the pixel did not blend the entry, the transmittance before it
-    is ``Tq`` itself (divided by 1: the caller stores it unconditionally; a select of the lane's own value compiled to
-    a masked store, which the next entry's load of the lane waited on)."""
+    is ``Tq`` itself (divided by 1, where a select of the lane's own value had compiled to a masked store that the
+    next entry's load of the lane waited on, when the lanes were stack arrays)."""
     dx = pxc - mx
     dy = pyc - my
     gauss = _gauss(dx, dy, ha, b, hc, kt)
@@ -273,7 +274,7 @@ def composite_backward(lists, starts, counts, busy, rec, colors, groups, width, 
         T = _lanes(kc)
         tail = _lanes(kc)
         CG = _lanes(kc)
-        sums = nb.carray(_stack_empty(groups, kc.dtype), (NC * LANES,))  # a pair's sums (channels, then geometry)
+        sums = nb.carray(_stack_empty(groups, kc.dtype), (NC * LANES,))  # a pair's channel sums (C < NC)
         L = _lanes(run)
         blist = np.empty((nbx * nbx, cap), np.int32)
         bcount = np.zeros(nbx * nbx, np.int64)

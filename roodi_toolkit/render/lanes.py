@@ -3,11 +3,11 @@ arrays that hold a block's pixels between walks, and the arithmetic every walk s
 
 A walk's state is a set of 16-lane vectors (:mod:`.simd`), and the arithmetic here (:func:`_gauss`, the
 exponential, :func:`_fma`, :func:`_pick`) runs unchanged on a scalar or on such a vector, with the same bits in every
-lane as the scalar code (``tests/render/test_simd.py``): the forward and the backward recompute each alpha alike. Every constant comes in the inputs' dtype as a tuple
-of values (:func:`_constant_tuple`; a float literal would turn float32 arithmetic into float64). Stack arrays of a
-constant size (:func:`_stack_empty`), never on the heap (which would need runtime overlap checks), hold what goes in
-and out of a block's walk and the channels past four; what a loop over them does not express well is written as
-LLVM vector operations on the 16 lanes (:mod:`.vectors`).
+lane as the scalar code (``tests/render/test_simd.py``): the forward and the backward recompute each alpha alike.
+Every constant comes in the inputs' dtype as a tuple of values (:func:`_constant_tuple`; a float literal would turn
+float32 arithmetic into float64). Stack arrays of a constant size (:func:`_stack_empty`), never on the heap (which
+would need runtime overlap checks), hold what goes in and out of a block's walk and the channels past four; what a
+loop over them does not express well is written as LLVM vector operations on the 16 lanes (:mod:`.vectors`).
 """
 
 from __future__ import annotations
@@ -364,7 +364,8 @@ def _pack_marked(lists, s, n, marks, rec, colors, geo, colp, run, blist, bcount)
     """Copy the entries of the tile's run (``n`` from ``lists[s]``) that the forward marked as blended in at least
     one of the tile's 4x4 blocks (``marks`` [M, words], bit ``k`` of a pair's row: block ``k``), next to each other:
     slot ``p`` holds the ``run[p]``-th entry's record in ``geo`` (as :func:`_pack`; with the channels where there are
-    four) and more channels in ``colp`` (as :func:`_pack_colours`), and is appended to the list of each block it is marked in (``blist[k, :bcount[k]]``).
+    four) and more channels in ``colp`` (as :func:`_pack_colours`), and is appended to the list of each block it is
+    marked in (``blist[k, :bcount[k]]``).
     The backward then walks only what blended: a fifth of the entries whose box touches a block do not (500k
     Gaussians, 800x800), and their records are not gathered. Returns the number of slots."""
     C = colors.shape[1]
