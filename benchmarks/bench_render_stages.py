@@ -197,9 +197,9 @@ def main(argv: list[str] | None = None) -> int:
         for a in g_out:
             a.fill(0)
         cam = (view.view, view.center, view.intr, W, H, view.near, view.far, view.eps2d)
-        if "scales" in pk.project_forward.py_func.__code__.co_varnames[:3]:  # the activations made outside, timed
+        if "scales" in parameters(pk.project_forward)[:3]:  # the activations made outside, timed
             # the SH clamp's flags, which the backward reads (since 2026-11-28)
-            flags = (clamped[name],) if "clamped" in pk.project_forward.py_func.__code__.co_varnames else ()
+            flags = (clamped[name],) if "clamped" in parameters(pk.project_forward) else ()
             t0 = time.perf_counter()
             scales, opacities, r2 = pk.activations(arrays[2], arrays[3])
             pk.project_forward(arrays[0], arrays[1], scales, opacities, r2, arrays[4], 16, *cam, view.tile,
@@ -257,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
 
             # the forward's marks of the blocks each pair blended in, which the backward walks (since 2026-11-28)
             marks = (np.zeros(fast.marks_shape(len(lists), view.tile), np.uint64),) \
-                if "marks" in mod.composite_forward.py_func.__code__.co_varnames else ()
+                if "marks" in parameters(mod.composite_forward) else ()
             clock(f"{name} fwd", forward)
             pair_geom = np.zeros((len(lists), 6), np.float32)
             pair_chan = np.zeros((len(lists), C), np.float32)
