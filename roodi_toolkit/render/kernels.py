@@ -47,12 +47,12 @@ import numba as nb
 import numpy as np
 
 from . import simd
-from .lanes import (LANES, PREFETCH, _block_lanes, _constant_tuple, _constants, _fma, _gauss, _geometry, _lanes,
-                    _longest, _next_entry, _pack_marked, _pick, _prefetch, _stack_empty, _start_block, _tile_box)
+from .lanes import (LANES, PREFETCH, _constant_tuple, _constants, _fma, _gauss, _geometry, _lanes, _longest,
+                    _next_entry, _pack_marked, _pick, _prefetch, _stack_empty, _start_block, _tile_box)
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 from .vectors import _lane_dots, _lane_dots_into, _lane_sums_into, _lanes_axpy, _lanes_scale
 
-LANES_REVISION = 24
+LANES_REVISION = 25
 """Raised with every change to :mod:`.lanes` or :mod:`.vectors`: numba's cache (``cache=True``) checks only the time
 stamp and size of the file that defines a kernel, and the block helpers are compiled into these kernels, so a change
 to lanes.py, vectors.py or simd.py alone would leave a checkout that compiled them before with stale kernels (5: the
@@ -62,8 +62,8 @@ prefetch in one helper; 13: the lanes' sums, maxima and channel updates as vecto
 line; 15: the backward's marked entries; 16: a pair's sums side by side, the vector operations in their own
 module; 17: their loads and stores shared; 18: selects, not branches; 19: sums added into the pairs' rows;
 20: the rows' loads shared; 21: the records filled by a kernel of their own, for the caller; 22: the walks' state
-as vectors, :mod:`.simd`, which this covers too; 23: whole records copied as vectors; 24: the blocks' entries as
-bits of 64-entry words)."""
+as vectors, :mod:`.simd`, which this covers too; 23: whole records copied as vectors; 24: the blocks' entries
+as bits of 64-entry words; 25: back to the lists)."""
 
 
 @nb.njit(inline="always")
@@ -114,7 +114,6 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
     kt = _constant_tuple(kc)
     a_max, half, one, zero = kc[1], kc[5], kc[6], kc[7]
     cap = _longest(busy, counts)
-    kx, ky = _block_lanes(nbx)
     for w in nb.prange(workers):
         geo = np.empty((cap, 16), kc.dtype)
         box = np.empty((cap, 4), np.int32)
@@ -132,13 +131,15 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
         best = _lanes(kc)
         L = _lanes(gid)
         bid = _lanes(gid)
-        bits = np.empty(((cap + 63) // 64, kx.shape[0]), np.uint64)  # the blocks' entries, 64 to a word
+        blist = np.empty((nbx * nbx, cap), np.int32)
+        bcount = np.zeros(nbx * nbx, np.int64)
         for k in range(w, busy.shape[0], workers):
             t = busy[k]
             x_lo, y_lo, x_hi, y_hi = _tile_box(t, tiles_x, tile, width, height)
             s = starts[t]
             n = counts[t]
             packed = 0
+            bcount[:] = 0
             for blk in range(nbx * nbx):
                 bx = x_lo + 4 * (blk % nbx)
                 by = y_lo + 4 * (blk // nbx)
@@ -153,12 +154,13 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
                 for i in range(NC if NC > 4 else 0):
                     for q in range(LANES):
                         acc[i, q] = zero
-                chunk, left = -1, np.uint64(0)
+                p = 0
                 while True:
-                    j1, chunk, left, packed = _next_entry(blk, chunk, left, packed, lists, s, n, rec, colors, geo,
-                                                          box, gid, colp, x_lo, y_lo, nbx, kx, ky, bits)
+                    j1, packed = _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo,
+                                             y_lo, nbx, blist, bcount)
                     if j1 < 0:
                         break
+                    p += 1
                     mx1, my1, a1, b1, c1, o1, x01, x11, y01, y11 = _geometry(geo, j1)
                     alpha1 = min(a_max, o1 * _gauss(pxv - mx1, pyv - my1, half * a1, b1, half * c1, kt))
                     in1 = (pxv > x01) & (pxv < x11) & (pyv > y01) & (pyv < y11)  # the footprint box
@@ -374,12 +376,12 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
     cap = _longest(busy, counts)
     none = np.empty((1, 1), kc.dtype)  # no channels
     nocolp = np.empty((1, 0), kc.dtype)
-    kx, ky = _block_lanes(nbx)
     for w in nb.prange(workers):
         geo = np.empty((cap, 16), kc.dtype)
         box = np.empty((cap, 4), np.int32)
         gid = np.empty(cap, np.int32)
-        bits = np.empty(((cap + 63) // 64, kx.shape[0]), np.uint64)
+        blist = np.empty((nbx * nbx, cap), np.int32)
+        bcount = np.zeros(nbx * nbx, np.int64)
         pxc = _lanes(kc)
         pyc = _lanes(kc)
         T = _lanes(kc)
@@ -390,6 +392,7 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
             s, n = starts[t], counts[t]
             packed = n_pairs = 0
             base = offsets[k] if fill else 0  # where this tile's pairs go (read once: other workers write offsets)
+            bcount[:] = 0
             for blk in range(nbx * nbx):
                 bx = x_lo + 4 * (blk % nbx)
                 by = y_lo + 4 * (blk // nbx)
@@ -397,12 +400,13 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
                     continue
                 _start_block(bx, by, x_hi, y_hi, pxc, pyc, T, one)
                 pxv, pyv, tv = simd.load(pxc, 0), simd.load(pyc, 0), simd.load(T, 0)
-                chunk, left = -1, np.uint64(0)
+                p = 0
                 while True:
-                    jj, chunk, left, packed = _next_entry(blk, chunk, left, packed, lists, s, n, rec, none, geo, box,
-                                                          gid, nocolp, x_lo, y_lo, nbx, kx, ky, bits)
+                    jj, packed = _next_entry(blk, p, packed, lists, s, n, rec, none, geo, box, gid, nocolp, x_lo,
+                                             y_lo, nbx, blist, bcount)
                     if jj < 0:
                         break
+                    p += 1
                     mx, my, a, b, c, o, x0, x1, y0, y1 = _geometry(geo, jj)
                     alpha = min(a_max, o * _gauss(pxv - mx, pyv - my, half * a, b, half * c, kt))  # as the forward
                     inside = (pxv > x0) & (pxv < x1) & (pyv > y0) & (pyv < y1)  # the footprint box

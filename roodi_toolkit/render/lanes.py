@@ -312,64 +312,39 @@ def _pack_colours(lists, s, lo, hi, colors, rec, colp):  # pragma: no cover - co
                 colp[jj, ch] = colors[g, ch] if ch < C else 0.0
 
 
-@nb.njit(cache=True, nogil=True)
-def _block_lanes(nbx):  # pragma: no cover - compiled
-    """Return (the column, the row) [G * 16] int32 of each of a tile's ``nbx * nbx`` 4x4 blocks in row-major order,
-    16 to a group (:func:`_pack_blocks`' lanes), and a large value past the last block (no box reaches it)."""
-    groups = (nbx * nbx + LANES - 1) // LANES
-    kx = np.full(groups * LANES, 1 << 20, np.int32)
-    ky = np.full(groups * LANES, 1 << 20, np.int32)
-    for k in range(nbx * nbx):
-        kx[k] = k % nbx
-        ky[k] = k // nbx
-    return kx, ky
-
-
 @nb.njit(inline="always")
-def _pack_blocks(lo, hi, box, x_lo, y_lo, nbx, kx, ky, bits):  # pragma: no cover - compiled
-    """Mark entries ``lo:hi`` of the packed run (``lo`` a multiple of 64, ``hi - lo`` at most 64: one chunk ``c =
-    lo // 64``) in the tile's 4x4 blocks that their footprint box touches: bit ``jj - lo`` of ``bits[c, k]``
-    (block ``k`` at column ``k % nbx`` and row ``k // nbx`` of the tile at ``x_lo``, ``y_lo``) for each touched block
-    ``k``. A block then walks only its own entries, in run order, by the set bits of its words (about one entry in
-    five touches a given block at 500k Gaussians, 800x800). Each entry tests 16 blocks at once (the lanes
-    ``kx``, ``ky`` of :func:`_block_lanes`) and adds its bit to their words with a select: no branch. Appending each
-    entry to the lists of its blocks was two loops of one or two turns over the box's block rows and columns, whose
-    mispredicted ends took a fifth of the compositing forward."""
-    c = lo >> 6
+def _pack_blocks(lo, hi, box, x_lo, y_lo, nbx, blist, bcount):  # pragma: no cover - compiled
+    """Append entries ``lo:hi`` of the packed run to the lists of the tile's 4x4 blocks (``blist[k, :bcount[k]]``,
+    block ``k`` at column ``k % nbx`` and row ``k // nbx`` of the tile at ``x_lo``, ``y_lo``) that their footprint box
+    touches: a block then walks only its own entries, in run order, instead of testing every entry's box (about one
+    entry in five touches a given block at 500k Gaussians, 800x800)."""
     last = nbx - 1
-    none = simd.splat(np.uint64(0))
-    for g in range(0, bits.shape[1], LANES):
-        simd.store(bits[c], g, none)
     for jj in range(lo, hi):
-        cx0 = np.int32(max(0, (box[jj, 0] - x_lo) >> 2))
-        cx1 = np.int32(min(last, (box[jj, 1] - x_lo) >> 2))
-        cy0 = np.int32(max(0, (box[jj, 2] - y_lo) >> 2))
-        cy1 = np.int32(min(last, (box[jj, 3] - y_lo) >> 2))
-        bit = simd.splat(np.uint64(1) << np.uint64(jj - lo))
-        for g in range((cy0 * nbx) & -LANES, cy1 * nbx + cx1 + 1, LANES):  # the groups of the box's block rows
-            xs, ys = simd.load(kx, g), simd.load(ky, g)
-            touched = (xs >= cx0) & (xs <= cx1) & (ys >= cy0) & (ys <= cy1)
-            simd.store(bits[c], g, simd.load(bits[c], g) + simd.select(touched, bit, none))
+        cx0 = max(0, (box[jj, 0] - x_lo) >> 2)
+        cx1 = min(last, (box[jj, 1] - x_lo) >> 2)
+        cy0 = max(0, (box[jj, 2] - y_lo) >> 2)
+        cy1 = min(last, (box[jj, 3] - y_lo) >> 2)
+        for cy in range(cy0, cy1 + 1):
+            for cx in range(cx0, cx1 + 1):
+                k = cy * nbx + cx
+                blist[k, bcount[k]] = jj
+                bcount[k] += 1
 
 
 @nb.njit(inline="always")
-def _next_entry(blk, c, word, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo, y_lo, nbx, kx, ky,
-                bits):  # pragma: no cover - compiled
-    """Return (the run index of block ``blk``'s next entry, or -1 past the run's end; the block's chunk ``c`` and
-    what is left of its word ``word`` there, the next call's arguments (-1 and 0 at a block's start); how much of
-    the run is copied): a block walking front to back copies the next 64 entries of the run (:func:`_pack`, their
-    channels when ``colp`` has columns, and :func:`_pack_blocks`) when it has walked all of its own so far."""
-    while word == 0:
-        c += 1
-        if c * 64 >= n:
-            return -1, c, word, packed
-        if c * 64 >= packed:
-            lo = packed
-            packed = _pack(lists, s, lo, min(n, lo + 64), rec, geo, box, gid)
-            _pack_colours(lists, s, lo, packed, colors, rec, colp)
-            _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, kx, ky, bits)
-        word = bits[c, blk]
-    return c * 64 + np.int64(_lowest_bit(word)), c, word & (word - np.uint64(1)), packed
+def _next_entry(blk, p, packed, lists, s, n, rec, colors, geo, box, gid, colp, x_lo, y_lo, nbx, blist,
+                bcount):  # pragma: no cover - compiled
+    """Return (the run index of block ``blk``'s ``p``-th entry, or -1 past the run's end; how much of the run is
+    copied): a block walking front to back copies the next 64 entries of the run (:func:`_pack`, their channels
+    when ``colp`` has columns, and :func:`_pack_blocks`) when it has walked all of its own so far."""
+    while p == bcount[blk]:
+        if packed == n:
+            return -1, packed
+        lo = packed
+        packed = _pack(lists, s, lo, min(n, lo + 64), rec, geo, box, gid)
+        _pack_colours(lists, s, lo, packed, colors, rec, colp)
+        _pack_blocks(lo, packed, box, x_lo, y_lo, nbx, blist, bcount)
+    return blist[blk, p], packed
 
 
 @intrinsic
