@@ -429,16 +429,17 @@ def composite_pairs(lists, starts, counts, busy, rec, width, height, tile, worke
 
 
 @nb.njit(inline="always")
-def _add_pair(out, lists, pair_values, j, lo, hi):  # pragma: no cover - compiled
-    """Add pair ``j``'s values into its Gaussian's row of ``out`` where the Gaussian is in ``[lo, hi)``."""
+def _add_pair(out, lists, pair_values, j):  # pragma: no cover - compiled
+    """Add pair ``j``'s values into its Gaussian's row of ``out``."""
     g = lists[j]
-    if lo <= g < hi:
-        for k in range(pair_values.shape[1]):
-            out[g, k] += pair_values[j, k]
+    for k in range(pair_values.shape[1]):
+        out[g, k] += pair_values[j, k]
 
 
 REDUCE_PREFETCH_BYTES = 4 << 20
 """Per-Gaussian sums larger than this are prefetched by :func:`reduce_pairs` (more than the two cores' L2 caches)."""
+REDUCE_STRETCH = 4096
+"""Pairs a worker of :func:`reduce_pairs` sorts out at a time (16 KB of ids)."""
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -447,7 +448,12 @@ def reduce_pairs(lists, pair_values, out, workers):  # pragma: no cover - compil
     ``lists[j]``), added in pair order whatever the number of workers (each owns a range of Gaussians and zeroes its
     rows first: a serial memset before). ``out`` comes from the caller (numpy asks Linux for huge pages for large
     arrays, numba's own allocations fault 4 KB at a time: a quarter of a 650k-Gaussian features step was those faults,
-    with the records')."""
+    with the records').
+
+    With several workers, each reads the pairs ``REDUCE_STRETCH`` at a time, writes the ids of those whose Gaussian is
+    its own into a list without a branch (every id written, the count advanced by 0 or 1), then adds them: the test
+    of each pair's Gaussian as a branch, which the CPU could not predict (the pairs' Gaussians are in no order), had
+    made two workers slower than one (100k Gaussians, 141k pairs of six values: 0.85 ms against 0.63)."""
     n, K = out.shape
     span = (n + workers - 1) // workers
     m = lists.shape[0]
@@ -458,13 +464,24 @@ def reduce_pairs(lists, pair_values, out, workers):  # pragma: no cover - compil
         lo = min(n, w * span)
         hi = min(n, lo + span)
         out[lo:hi] = 0
-        if far:
+        if workers == 1 and far:  # every pair
             for j in range(m):
                 if j + PREFETCH < m:
-                    ahead = lists[j + PREFETCH]
-                    if lo <= ahead < hi:
-                        _prefetch(out, np.int64(ahead) * K)
-                _add_pair(out, lists, pair_values, j, lo, hi)
-        else:
+                    _prefetch(out, np.int64(lists[j + PREFETCH]) * K)
+                _add_pair(out, lists, pair_values, j)
+            continue
+        if workers == 1:
             for j in range(m):
-                _add_pair(out, lists, pair_values, j, lo, hi)
+                _add_pair(out, lists, pair_values, j)
+            continue
+        mine = np.empty(REDUCE_STRETCH, np.int32)
+        for first in range(0, m, REDUCE_STRETCH):
+            count = 0
+            for j in range(first, min(m, first + REDUCE_STRETCH)):
+                g = lists[j]
+                mine[count] = j
+                count += np.int64(g >= lo) & np.int64(g < hi)
+            for p in range(count):
+                if far and p + PREFETCH < count:
+                    _prefetch(out, np.int64(lists[mine[p + PREFETCH]]) * K)
+                _add_pair(out, lists, pair_values, mine[p])
