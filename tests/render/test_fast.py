@@ -178,7 +178,7 @@ def test_same_image_bit_for_bit_whatever_the_tile_size():
     tiles of any size (4x4 blocks cut at a tile's and the image's edges) give the same image and walk decisions."""
     scene = random_scene(n=400, seed=8, width=45, height=31, dtype=torch.float32)
     ref = call(rasterize_fast, scene, tile_size=16)
-    for tile_size in (1, 3, 4, 7, 13, 20, 32, 64):  # 20, 32: 25 and 64 blocks, groups of 16 across rows
+    for tile_size in (1, 3, 4, 7, 13, 20, 32, 64):  # 20, 32: tiles of 25 and 64 blocks
         out = call(rasterize_fast, scene, tile_size=tile_size)
         for name in ("rgb", "alpha", "depth", "features"):
             assert torch.equal(getattr(out, name), getattr(ref, name)), (tile_size, name)
