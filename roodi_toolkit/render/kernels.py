@@ -454,7 +454,7 @@ def reduce_pairs(lists, pair_values, out, workers):  # pragma: no cover - compil
     its own into a list without a branch (every id written, the count advanced by 0 or 1), then adds them: the test
     of each pair's Gaussian as a branch, which the CPU could not predict (the pairs' Gaussians are in no order), had
     made two workers slower than one (100k Gaussians, 141k pairs of six values: 0.85 ms against 0.63). Two workers now
-    take 0.78-0.95 ms there against 0.95-1.15 before, and 3.9-6.5 ms against 12.0-12.9 for 1.2M pairs of 500k
+    take 0.78-0.95 ms there against 0.95-1.15 before, and 3.9-6.5 ms against 12.0-12.9 for 1.2M random pairs of 500k
     Gaussians (``benchmarks/RESULTS.md``, "Three leads that did not give")."""
     n, K = out.shape
     span = (n + workers - 1) // workers
