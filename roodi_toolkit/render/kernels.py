@@ -98,8 +98,8 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
 
     Each block walks the entries of the tile's run whose footprint box touches it, in run order, with its 16 pixels'
     state (transmittance, walked count, largest weight, channel sums) in vectors (:mod:`.simd`); every Gaussian is
-    evaluated on all 16 pixels without branches, and counts only at those inside its
-    footprint box (as if only the box's pixels were visited; pixels outside the tile or image start stopped). A
+    evaluated on all 16 pixels without branches, and counts only at those inside its footprint box (as if only the
+    box's pixels were visited; pixels outside the tile or image start stopped). A
     stopped pixel keeps its transmittance negated. The tile's Gaussians are copied next to each other, 64 at a time,
     as the first block that has walked all its entries so far needs more, and each copied entry is appended to the
     lists of the blocks it touches; the other blocks read them in order.
@@ -119,16 +119,11 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
         box = np.empty((cap, 4), np.int32)
         gid = np.empty(cap, np.int32)
         colp = np.empty((cap if NC > 4 else 1, NC), kc.dtype)  # four channels: in the records (geo)
-        acc = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))
-        acc0 = _lanes(kc)  # rgb + depth out of the walk's vectors
-        acc1 = _lanes(kc)
-        acc2 = _lanes(kc)
-        acc3 = _lanes(kc)
+        acc = nb.carray(_stack_empty(groups, kc.dtype), (NC, LANES))  # the block's channel sums
         pxc = _lanes(kc)
         pyc = _lanes(kc)
         T = _lanes(kc)
         W = _lanes(kc)
-        best = _lanes(kc)
         L = _lanes(gid)
         bid = _lanes(gid)
         blist = np.empty((nbx * nbx, cap), np.int32)
@@ -185,19 +180,16 @@ def composite_forward(lists, starts, counts, busy, rec, colors, groups, width, h
                         break
                 simd.store(T, 0, tv)
                 simd.store(L, 0, lv)
-                simd.store(best, 0, bestv)
                 simd.store(bid, 0, bidv)
-                if NC == 4:
-                    simd.store(acc0, 0, acc0v)
-                    simd.store(acc1, 0, acc1v)
-                    simd.store(acc2, 0, acc2v)
-                    simd.store(acc3, 0, acc3v)
+                if NC == 4:  # rgb + depth out of the walk's vectors
+                    simd.store(acc[0], 0, acc0v)
+                    simd.store(acc[1], 0, acc1v)
+                    simd.store(acc[2], 0, acc2v)
+                    simd.store(acc[3], 0, acc3v)
                 for q in range(LANES):
                     px = bx + (q & 3)
                     py = by + (q >> 2)
                     if px <= x_hi and py <= y_hi:
-                        if NC == 4:
-                            acc[0, q], acc[1, q], acc[2, q], acc[3, q] = acc0[q], acc1[q], acc2[q], acc3[q]
                         for ch in range(C):
                             out[py, px, ch] = acc[ch, q]
                         t_final[py, px] = abs(T[q])
@@ -451,11 +443,13 @@ def reduce_pairs(lists, pair_values, out, workers):  # pragma: no cover - compil
     with the records').
 
     With several workers, each reads the pairs ``REDUCE_STRETCH`` at a time, writes the ids of those whose Gaussian is
-    its own into a list without a branch (every id written, the count advanced by 0 or 1), then adds them: the test
-    of each pair's Gaussian as a branch, which the CPU could not predict (the pairs' Gaussians are in no order), had
-    made two workers slower than one (100k Gaussians, 141k pairs of six values: 0.85 ms against 0.63). Two workers now
-    take 0.78-0.95 ms there against 0.95-1.15 before, and 3.9-6.5 ms against 12.0-12.9 for 1.2M random pairs of 500k
-    Gaussians (``benchmarks/RESULTS.md``, "Three leads that did not give")."""
+    its own into a list without a branch (every id written, the count advanced by 0 or 1), then adds them. Each
+    pair's Gaussian tested with a branch had made two workers slower than one where the Gaussians are listed in an
+    order unrelated to the screen, as in people's files (100k Gaussians, 141k random pairs of six values: 0.85 ms
+    against 0.63); now 0.78-0.95 ms there against 0.95-1.15 before, 3.9-6.5 ms against 12.0-12.9 for 1.2M random pairs
+    of 500k Gaussians, and in frames of the benchmark scene shuffled 0.55-0.58 ms against 0.90-0.98 (100k, 256x256).
+    The benchmark scene itself lists its Gaussians object by object: the branch was predicted there, and nothing
+    changed (``benchmarks/RESULTS.md``, "Three leads that did not give")."""
     n, K = out.shape
     span = (n + workers - 1) // workers
     m = lists.shape[0]
