@@ -21,7 +21,6 @@ Run: ``python benchmarks/bench_jit_routes.py 100000 256 --threads 1`` (and 50000
 
 # (no ``from __future__ import annotations``: Taichi and warp read their kernels' annotations as types)
 import argparse
-import math
 import os
 import statistics
 import sys
@@ -37,19 +36,13 @@ ALPHA_MIN, ALPHA_MAX, T_MIN = 1.0 / 255.0, 0.99, 1e-4
 def inputs(n: int, size: int):
     """The renderer's projected, binned view of ``scene_cloud(n)`` at ``size`` x ``size``: (bins, records, channels,
     view)."""
-    import torch
-
     sys.path.insert(0, str(HERE))
-    from scene import scene_cloud
+    from scene import bench_camera, cloud_arrays
 
-    from roodi_toolkit.cameras import intrinsics_from_fov, look_at
     from roodi_toolkit.render import fast
 
-    scene = scene_cloud(n)
-    arrays = [scene[k].numpy() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh")]
-    w2c = torch.tensor(look_at([3.0, -3.0, 2.0], [0.0, 0.0, 0.3]), dtype=torch.float32)
-    K = torch.tensor(intrinsics_from_fov(math.radians(50.0), size, size), dtype=torch.float32)
-    view = fast.make_view(w2c, K, size, size)
+    arrays = cloud_arrays(n)
+    view = fast.make_view(*bench_camera(size), size, size)
     proj = fast.project(*arrays, 16, view)
     bins = fast.bin_gaussians(proj, view)
     channels = fast.channels_of(proj, None)

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import resource
 import statistics
@@ -78,9 +77,7 @@ def _setup(n: int, size: int):
     import torch
 
     sys.path.insert(0, str(HERE))
-    from scene import scene_cloud
-
-    from roodi_toolkit.cameras import intrinsics_from_fov, look_at
+    from scene import bench_camera, scene_cloud
 
     splat = os.environ.get("BENCH_SPLAT")
     if splat:  # a real splat (the --splat option), seen from its own scale's orbit
@@ -96,8 +93,7 @@ def _setup(n: int, size: int):
         w2c, K = t(cam.world_to_camera), t(cam.K)
     else:
         scene = scene_cloud(n)
-        w2c = torch.tensor(look_at([3.0, -3.0, 2.0], [0.0, 0.0, 0.3]), dtype=torch.float32)
-        K = torch.tensor(intrinsics_from_fov(math.radians(50.0), size, size), dtype=torch.float32)
+        w2c, K = bench_camera(size)
     params = {k: v.clone().requires_grad_() for k, v in scene.items()}
     return params, w2c, K
 

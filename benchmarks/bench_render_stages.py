@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import importlib
-import math
 import os
 import statistics
 import sys
@@ -146,17 +145,13 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     sys.path.insert(0, str(HERE))
-    from scene import scene_cloud
+    from scene import bench_camera, cloud_arrays
 
-    from roodi_toolkit.cameras import intrinsics_from_fov, look_at
     from roodi_toolkit.render import cores, fast, kernels, projection_kernels, tiles
 
     torch.set_num_threads(1)
-    scene = scene_cloud(args.n)
-    w2c = torch.tensor(look_at([3.0, -3.0, 2.0], [0.0, 0.0, 0.3]), dtype=torch.float32)
-    K = torch.tensor(intrinsics_from_fov(math.radians(50.0), args.size, args.size), dtype=torch.float32)
-    arrays = [scene[k].numpy() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh")]
-    view = fast.make_view(w2c, K, args.size, args.size, tile=args.tile_size)
+    arrays = cloud_arrays(args.n)
+    view = fast.make_view(*bench_camera(args.size), args.size, args.size, tile=args.tile_size)
     W = H = args.size
     workers = cores.set_workers()
     rng = np.random.default_rng(0)

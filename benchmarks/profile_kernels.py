@@ -21,7 +21,6 @@ import bisect
 import collections
 import ctypes
 import json
-import math
 import os
 import re
 import shutil
@@ -38,19 +37,14 @@ KERNELS = ("forward", "backward", "pairs", "project", "project_backward")
 def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
     """Compile and run ``kernel`` ``calls`` times after writing its body's code and symbols into ``folder``."""
     import numpy as np
-    import torch
 
     sys.path.insert(0, str(HERE))
-    from scene import scene_cloud
+    from scene import bench_camera, cloud_arrays
 
-    from roodi_toolkit.cameras import intrinsics_from_fov, look_at
     from roodi_toolkit.render import fast, kernels, projection_kernels
 
-    scene = scene_cloud(n)
-    arrays = [scene[k].numpy() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh")]
-    w2c = torch.tensor(look_at([3.0, -3.0, 2.0], [0.0, 0.0, 0.3]), dtype=torch.float32)
-    K = torch.tensor(intrinsics_from_fov(math.radians(50.0), size, size), dtype=torch.float32)
-    view = fast.make_view(w2c, K, size, size)
+    arrays = cloud_arrays(n)
+    view = fast.make_view(*bench_camera(size), size, size)
     proj = fast.project(*arrays, 16, view)
     bins = fast.bin_gaussians(proj, view)
     channels = fast.channels_of(proj, None)

@@ -70,3 +70,19 @@ def scene_cloud(n: int, seed: int = 0, dtype=torch.float32) -> dict[str, torch.T
     t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
     return {"means": t(means), "quats_wxyz": t(_frame_quats(normals, rng)), "log_scales": t(np.log(scales)),
             "opacity_logits": t(rng.normal(2.0, 1.0, n)), "sh": t(sh)}
+
+
+def bench_camera(size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The renderer benchmarks' camera on :func:`scene_cloud`: at (3, -3, 2) looking at (0, 0, 0.3), a 50 degree
+    horizontal field of view, ``size`` x ``size`` pixels. Returns (world-to-camera [4, 4], K [3, 3]), float32."""
+    from roodi_toolkit.cameras import intrinsics_from_fov, look_at
+
+    return (torch.tensor(look_at([3.0, -3.0, 2.0], [0.0, 0.0, 0.3]), dtype=torch.float32),
+            torch.tensor(intrinsics_from_fov(math.radians(50.0), size, size), dtype=torch.float32))
+
+
+def cloud_arrays(n: int) -> list[np.ndarray]:
+    """:func:`scene_cloud` ``(n)`` as the numpy arrays the compiled renderer's functions take: means, quaternions
+    (w, x, y, z), log-scales, opacity logits, SH coefficients [N, 16, 3]."""
+    scene = scene_cloud(n)
+    return [scene[k].numpy() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh")]
