@@ -37,15 +37,11 @@ def inputs(n: int, size: int):
     """The renderer's projected, binned view of ``scene_cloud(n)`` at ``size`` x ``size``: (bins, records, channels,
     view)."""
     sys.path.insert(0, str(HERE))
-    from scene import bench_camera, cloud_arrays
+    from scene import bench_view
 
     from roodi_toolkit.render import fast
 
-    arrays = cloud_arrays(n)
-    view = fast.make_view(*bench_camera(size), size, size)
-    proj = fast.project(*arrays, 16, view)
-    bins = fast.bin_gaussians(proj, view)
-    channels = fast.channels_of(proj, None)
+    _, view, proj, bins, channels = bench_view(n, size)
     return bins, fast.records(proj, channels), channels, view
 
 

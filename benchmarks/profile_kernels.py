@@ -39,15 +39,11 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
     import numpy as np
 
     sys.path.insert(0, str(HERE))
-    from scene import bench_camera, cloud_arrays
+    from scene import bench_view
 
     from roodi_toolkit.render import fast, kernels, projection_kernels
 
-    arrays = cloud_arrays(n)
-    view = fast.make_view(*bench_camera(size), size, size)
-    proj = fast.project(*arrays, 16, view)
-    bins = fast.bin_gaussians(proj, view)
-    channels = fast.channels_of(proj, None)
+    arrays, view, proj, bins, channels = bench_view(n, size)
     f32 = np.float32
     _, t_final, last, _, marks = fast.composite(bins, proj, channels, view, want_marks=True)
     grads = np.random.default_rng(0).standard_normal((n, 10)).astype(f32)

@@ -86,3 +86,14 @@ def cloud_arrays(n: int) -> list[np.ndarray]:
     (w, x, y, z), log-scales, opacity logits, SH coefficients [N, 16, 3]."""
     scene = scene_cloud(n)
     return [scene[k].numpy() for k in ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh")]
+
+
+def bench_view(n: int, size: int):
+    """:func:`cloud_arrays` ``(n)`` in :func:`bench_camera` ``(size)`` as the compiled renderer prepares it for the
+    compositing: (arrays, view, projected, bins, channels: rgb + depth)."""
+    from roodi_toolkit.render import fast
+
+    arrays = cloud_arrays(n)
+    view = fast.make_view(*bench_camera(size), size, size)
+    proj = fast.project(*arrays, 16, view)
+    return arrays, view, proj, fast.bin_gaussians(proj, view), fast.channels_of(proj, None)
