@@ -10,7 +10,8 @@ state is 16-lane vectors (``ti.Vector``; warp has no lane-wise comparison or sel
 renderer's alpha rule (``min(0.99, opacity exp(-sigma))``, blended
 where it reaches 1/255 inside the footprint box, a pixel stopped where its transmittance would fall under 1e-4);
 numba's kernel is the renderer's own (a 4x4 block of pixels as one vector). Each route's image is checked against
-numba's (largest difference printed), then the three are timed alternately, the median of ``--repeats`` rounds.
+numba's (largest difference printed), then the routes are timed in turn, the order reversed every other round,
+the median of ``--repeats`` rounds.
 
 Taichi and warp-lang are not dependencies of the toolkit: install them where this runs (``pip install taichi
 warp-lang``). Taichi's CPU thread count is fixed when it starts, so each thread count runs in a process of its own
