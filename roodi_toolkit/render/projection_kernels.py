@@ -22,8 +22,13 @@ import numpy as np
 from ..gaussians import SH_C0
 from ..sh import SH_C1, SH_C2, SH_C3
 from .lanes import _stack_empty
+from .vectors import _columns_into, _sh_grads, _sh_sums
 
 ALPHA_MIN = 1.0 / 255.0
+VECTORS_REVISION = 1
+"""Raised with every change to the :mod:`.vectors` intrinsics these kernels use (``_columns_into``, ``_sh_sums``,
+``_sh_grads``): numba's cache checks only this file's time stamp and size (as ``kernels.LANES_REVISION``)."""
+
 BLOCK = 1024
 """Gaussians per parallel work item (its scratch arrays are allocated once per block)."""
 GROUP = 16
@@ -275,15 +280,22 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
         end = min(n, (blk + 1) * BLOCK)
         for first in range(blk * BLOCK, end, GROUP):
             m = min(GROUP, end - first)
-            for l in range(m):
-                i = first + l
-                inp[QW, l], inp[QX, l] = np.float64(quats[i, 0]), np.float64(quats[i, 1])
-                inp[QY, l], inp[QZ, l] = np.float64(quats[i, 2]), np.float64(quats[i, 3])
-                inp[S0, l], inp[S1, l], inp[S2, l] = (np.float64(scales[i, 0]), np.float64(scales[i, 1]),
-                                                      np.float64(scales[i, 2]))
-                inp[MU0, l], inp[MU1, l], inp[MU2, l] = (np.float64(means[i, 0]), np.float64(means[i, 1]),
-                                                         np.float64(means[i, 2]))
-                inp[OPACITY, l], inp[R2, l] = np.float64(opacities[i]), r2s[i]
+            if m == GROUP:  # the rows read as vectors and parted by shuffles (a loop over them became gathers)
+                _columns_into(inp, QW, quats, first, 4)
+                _columns_into(inp, S0, scales, first, 3)
+                _columns_into(inp, MU0, means, first, 3)
+                for l in range(GROUP):
+                    inp[OPACITY, l], inp[R2, l] = np.float64(opacities[first + l]), r2s[first + l]
+            else:
+                for l in range(m):
+                    i = first + l
+                    inp[QW, l], inp[QX, l] = np.float64(quats[i, 0]), np.float64(quats[i, 1])
+                    inp[QY, l], inp[QZ, l] = np.float64(quats[i, 2]), np.float64(quats[i, 3])
+                    inp[S0, l], inp[S1, l], inp[S2, l] = (np.float64(scales[i, 0]), np.float64(scales[i, 1]),
+                                                          np.float64(scales[i, 2]))
+                    inp[MU0, l], inp[MU1, l], inp[MU2, l] = (np.float64(means[i, 0]), np.float64(means[i, 1]),
+                                                             np.float64(means[i, 2]))
+                    inp[OPACITY, l], inp[R2, l] = np.float64(opacities[i]), r2s[i]
             _geometry_group(inp, out, cam)
             if n_bases > 0:
                 _directions(inp, center, dirs)
@@ -304,12 +316,15 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
                 v0 = v1 = v2 = 0.0
                 if ntiles[i] > 0:
                     _sh_basis(basis, n_bases, dirs[0, l], dirs[1, l], dirs[2, l])
-                    v0 = v1 = v2 = 0.5
-                    for k in range(n_bases):  # the three channels together: one pass over the coefficients
-                        bk = basis[k]
-                        v0 += bk * sh[i, k, 0]
-                        v1 += bk * sh[i, k, 1]
-                        v2 += bk * sh[i, k, 2]
+                    # 0.5 + the bases' products, base after base (the channels as one vector's lanes)
+                    if n_bases == 16:
+                        v0, v1, v2 = _sh_sums(basis, sh, i, 16, 0.5)
+                    elif n_bases == 9:
+                        v0, v1, v2 = _sh_sums(basis, sh, i, 9, 0.5)
+                    elif n_bases == 4:
+                        v0, v1, v2 = _sh_sums(basis, sh, i, 4, 0.5)
+                    else:
+                        v0, v1, v2 = _sh_sums(basis, sh, i, 1, 0.5)
                 chan[i, 0] = max(v0, 0.0)
                 chan[i, 1] = max(v1, 0.0)
                 chan[i, 2] = max(v2, 0.0)
@@ -448,10 +463,16 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
         end = min(n, (blk + 1) * BLOCK)
         for first in range(blk * BLOCK, end, GROUP):
             m = min(GROUP, end - first)
-            for l in range(m):
-                i = first + l
-                inp[MU0, l], inp[MU1, l], inp[MU2, l] = (np.float64(means[i, 0]), np.float64(means[i, 1]),
-                                                         np.float64(means[i, 2]))
+            if m == GROUP:  # as the forward's: no gathers
+                _columns_into(inp, MU0, means, first, 3)
+                if geometry:
+                    _columns_into(inp, QW, quats, first, 4)
+                    _columns_into(inp, S0, scales, first, 3)
+            else:
+                for l in range(m):
+                    i = first + l
+                    inp[MU0, l], inp[MU1, l], inp[MU2, l] = (np.float64(means[i, 0]), np.float64(means[i, 1]),
+                                                             np.float64(means[i, 2]))
             if n_bases > 0:
                 _directions(inp, center, dirs)
             for l in range(m):
@@ -474,18 +495,15 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
                     g0 = np.float64(g_rgb[i, 0]) if (cut & 1) == 0 else 0.0
                     g1 = np.float64(g_rgb[i, 1]) if (cut & 2) == 0 else 0.0
                     g2 = np.float64(g_rgb[i, 2]) if (cut & 4) == 0 else 0.0
-                    gux = 0.0
-                    guy = 0.0
-                    guz = 0.0
-                    for k in range(n_bases):  # dL/d(coefficient) and, through the basis, dL/d(direction)
-                        bk = basis[k]
-                        g_sh[i, k, 0] = bk * g0
-                        g_sh[i, k, 1] = bk * g1
-                        g_sh[i, k, 2] = bk * g2
-                        wk = g0 * sh[i, k, 0] + g1 * sh[i, k, 1] + g2 * sh[i, k, 2]
-                        gux += wk * bgrad[0, k]
-                        guy += wk * bgrad[1, k]
-                        guz += wk * bgrad[2, k]
+                    # dL/d(coefficient) and, through the basis, dL/d(direction) (the channels as vector lanes)
+                    if n_bases == 16:
+                        gux, guy, guz = _sh_grads(basis, bgrad, sh, g_sh, i, 16, g0, g1, g2)
+                    elif n_bases == 9:
+                        gux, guy, guz = _sh_grads(basis, bgrad, sh, g_sh, i, 9, g0, g1, g2)
+                    elif n_bases == 4:
+                        gux, guy, guz = _sh_grads(basis, bgrad, sh, g_sh, i, 4, g0, g1, g2)
+                    else:
+                        gux, guy, guz = _sh_grads(basis, bgrad, sh, g_sh, i, 1, g0, g1, g2)
                     g_sh[i, n_bases:, :] = 0.0  # coefficients past the degree in use
                     if norm > 1e-12:  # d(d / |d|) = (I - u u^T) / |d|
                         dot = gux * ux + guy * uy + guz * uz
@@ -500,10 +518,11 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
                     g_means[i, 1] = gm1
                     g_means[i, 2] = gm2
                     continue
-                inp[QW, l], inp[QX, l] = np.float64(quats[i, 0]), np.float64(quats[i, 1])
-                inp[QY, l], inp[QZ, l] = np.float64(quats[i, 2]), np.float64(quats[i, 3])
-                inp[S0, l], inp[S1, l], inp[S2, l] = (np.float64(scales[i, 0]), np.float64(scales[i, 1]),
-                                                      np.float64(scales[i, 2]))
+                if m < GROUP:
+                    inp[QW, l], inp[QX, l] = np.float64(quats[i, 0]), np.float64(quats[i, 1])
+                    inp[QY, l], inp[QZ, l] = np.float64(quats[i, 2]), np.float64(quats[i, 3])
+                    inp[S0, l], inp[S1, l], inp[S2, l] = (np.float64(scales[i, 0]), np.float64(scales[i, 1]),
+                                                          np.float64(scales[i, 2]))
                 inp[OPACITY, l] = np.float64(opacities[i])
                 inp[GMX, l], inp[GMY, l] = np.float64(g_means2d[i, 0]), np.float64(g_means2d[i, 1])
                 inp[GA, l], inp[GB, l] = np.float64(g_conics[i, 0]), np.float64(g_conics[i, 1])

@@ -4,7 +4,10 @@ of SSE or NEON), on lanes held in stack arrays or as :class:`~.simd.Vec` values:
 lanes side by side in a fixed tree (:func:`_fold_rows`, :func:`_lane_sums_into`, :func:`_lane_dots`; as scalar code,
 16 loads and 15 operations a row) and a channel's update over the 16 lanes (:func:`_lanes_axpy`,
 :func:`_lanes_scale`; as a loop inside the channels' loop, LLVM ran it in its 4-lane remainder). Found by reading
-the assembly of the kernels (``benchmarks/profile_kernels.py``).
+the assembly of the kernels (``benchmarks/profile_kernels.py``). And, for the projection
+(:mod:`.projection_kernels`), 16 Gaussians' rows read as one vector and parted into columns (:func:`_columns_into`)
+and a Gaussian's SH colour and its gradients with the three channels as a vector's lanes (:func:`_sh_sums`,
+:func:`_sh_grads`).
 """
 
 from __future__ import annotations
@@ -240,3 +243,141 @@ def _lane_dots_into(typingctx, x, rows, count, dst, row):  # pragma: no cover - 
         return context.get_dummy_value()
 
     return types.none(x, rows, count, dst, row), codegen
+
+
+@intrinsic
+def _columns_into(typingctx, dst, row, src, first, count):  # pragma: no cover - compiled
+    """Write ``src[first + l, c]`` into ``dst[row + c, l]`` for the 16 rows ``l`` and the ``count`` (an integer
+    literal) columns ``c`` of the C-contiguous 2-D float array ``src`` whose rows are ``count`` long, converted to the
+    dtype of ``dst`` (a C-contiguous [K, 16] float stack array): the 16 rows as one vector load of ``16 count``
+    numbers, parted into columns by shuffles. A loop over the 16 rows became AVX-512 gathers, which this AMD CPU runs
+    as 16 loads one after the other (a tenth of the projection's samples). No bounds check."""
+    k = count.literal_value if isinstance(count, types.IntegerLiteral) else 0
+    if not (k and _is_rows(dst) and isinstance(src, types.Array) and src.ndim == 2 and src.layout == "C"
+            and isinstance(src.dtype, types.Float) and src.dtype.bitwidth <= dst.dtype.bitwidth
+            and isinstance(row, types.Integer) and isinstance(first, types.Integer)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        sty, dty = context.get_value_type(src.dtype), context.get_value_type(dst.dtype)
+        start = builder.mul(context.cast(builder, args[3], signature.args[3], types.intp), ir.Constant(i64, k))
+        sdata = context.make_array(signature.args[2])(context, builder, args[2]).data
+        ptr = builder.bitcast(builder.gep(sdata, [start]), ir.VectorType(sty, LANES * k).as_pointer())
+        block = builder.load(ptr, align=src.dtype.bitwidth // 8)
+        ddata = context.make_array(signature.args[0])(context, builder, args[0]).data
+        base = builder.mul(context.cast(builder, args[1], signature.args[1], types.intp), ir.Constant(i64, LANES))
+        for c in range(k):
+            col = _shuffle(builder, block, block, [c + k * q for q in range(LANES)])
+            if dty != sty:
+                col = builder.fpext(col, ir.VectorType(dty, LANES))
+            at = builder.gep(ddata, [builder.add(base, ir.Constant(i64, c * LANES))])
+            builder.store(col, builder.bitcast(at, col.type.as_pointer()), align=dst.dtype.bitwidth // 8)
+        return context.get_dummy_value()
+
+    return types.none(dst, row, src, first, count), codegen
+
+
+@intrinsic
+def _sh_sums(typingctx, basis, sh, i, count, start):  # pragma: no cover - compiled
+    """The three channels' sums ``start + basis[0] sh[i, 0, c] + ... + basis[count - 1] sh[i, count - 1, c]``
+    (``count`` an integer literal; ``sh`` a C-contiguous [N, K, 3] float array, K >= ``count``; ``basis`` a 1-D
+    float stack array of the sums' dtype) as a tuple of three, each added base after base in that order with a
+    product and a sum, as the scalar loop does (the same bits): the Gaussian's ``3 count`` coefficients are one
+    vector load, converted to the basis' dtype at once, and the three channels are the lanes of one vector, so a base
+    costs a shuffle, a product and a sum where the scalar loop spent three loads, conversions, products and sums."""
+    k = count.literal_value if isinstance(count, types.IntegerLiteral) else 0
+    if not (k and _is_lanes(basis) and isinstance(sh, types.Array) and sh.ndim == 3 and sh.layout == "C"
+            and isinstance(sh.dtype, types.Float) and sh.dtype.bitwidth <= basis.dtype.bitwidth
+            and isinstance(i, types.Integer) and start == basis.dtype):
+        return None
+    ret = types.UniTuple(basis.dtype, 3)
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        sty, dty = context.get_value_type(sh.dtype), context.get_value_type(basis.dtype)
+        arr = context.make_array(signature.args[1])(context, builder, args[1])
+        row = builder.mul(context.cast(builder, args[2], signature.args[2], types.intp),
+                          builder.extract_value(arr.strides, 0))
+        ptr = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()), [row])
+        coeffs = builder.load(builder.bitcast(ptr, ir.VectorType(sty, 3 * k).as_pointer()),
+                              align=sh.dtype.bitwidth // 8)
+        if dty != sty:
+            coeffs = builder.fpext(coeffs, ir.VectorType(dty, 3 * k))
+        bdata = context.make_array(signature.args[0])(context, builder, args[0]).data
+        vty = ir.VectorType(dty, 4)
+        sums = _splat4(builder, args[4], vty)
+        for b in range(k):
+            bk = builder.load(builder.gep(bdata, [ir.Constant(i64, b)]))
+            part = _shuffle(builder, coeffs, coeffs, [3 * b, 3 * b + 1, 3 * b + 2, 3 * b])
+            sums = builder.fadd(sums, builder.fmul(_splat4(builder, bk, vty), part))
+        return context.make_tuple(builder, ret, [builder.extract_element(sums, ir.Constant(ir.IntType(32), c))
+                                                 for c in range(3)])
+
+    return ret(basis, sh, i, count, start), codegen
+
+
+@intrinsic
+def _sh_grads(typingctx, basis, bgrad, sh, g_sh, i, count, g0, g1, g2):  # pragma: no cover - compiled
+    """The SH backward of one Gaussian for ``count`` bases (an integer literal): writes ``g_sh[i, b, c] = basis[b]
+    g_c`` and returns the sums over the bases, in order, of ``w_b bgrad[r, b]`` for the rows ``r`` of ``bgrad`` [3, 16]
+    (the bases' derivatives along x, y, z), ``w_b = (g0 sh[i, b, 0] + g1 sh[i, b, 1]) + g2 sh[i, b, 2]``: the scalar
+    loop's operations in its order (the same bits), on vectors whose lanes are the three channels, the row of
+    coefficients one vector load and the row of gradients one vector store (``sh`` and ``g_sh`` C-contiguous [N, K,
+    3] of one float dtype, K >= ``count``; ``basis``, ``bgrad`` and the ``g`` of the sums' dtype)."""
+    k = count.literal_value if isinstance(count, types.IntegerLiteral) else 0
+    if not (k and _is_lanes(basis) and _is_rows(bgrad) and bgrad.dtype == basis.dtype
+            and isinstance(sh, types.Array) and sh.ndim == 3 and sh.layout == "C" and isinstance(sh.dtype, types.Float)
+            and g_sh == sh and sh.dtype.bitwidth <= basis.dtype.bitwidth and isinstance(i, types.Integer)
+            and g0 == g1 == g2 == basis.dtype):
+        return None
+    ret = types.UniTuple(basis.dtype, 3)
+
+    def codegen(context, builder, signature, args):
+        i64, i32 = ir.IntType(64), ir.IntType(32)
+        sty, dty = context.get_value_type(sh.dtype), context.get_value_type(basis.dtype)
+        index = context.cast(builder, args[4], signature.args[4], types.intp)
+
+        def row_ptr(at):
+            arr = context.make_array(signature.args[at])(context, builder, args[at])
+            ptr = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()),
+                              [builder.mul(index, builder.extract_value(arr.strides, 0))])
+            return builder.bitcast(ptr, ir.VectorType(sty, 3 * k).as_pointer())
+
+        coeffs = builder.load(row_ptr(2), align=sh.dtype.bitwidth // 8)
+        if dty != sty:
+            coeffs = builder.fpext(coeffs, ir.VectorType(dty, 3 * k))
+        bdata = context.make_array(signature.args[0])(context, builder, args[0]).data
+        gdata = context.make_array(signature.args[1])(context, builder, args[1]).data
+        vty = ir.VectorType(dty, 4)
+        g4 = ir.Constant(vty, ir.Undefined)
+        for lane, value in enumerate((args[6], args[7], args[8], args[6])):
+            g4 = builder.insert_element(g4, value, ir.Constant(i32, lane))
+        sums = ir.Constant(vty, [0.0] * 4)
+        grads = ir.Constant(ir.VectorType(dty, 3 * k), ir.Undefined)
+        for b in range(k):
+            part = builder.fmul(g4, _shuffle(builder, coeffs, coeffs, [3 * b, 3 * b + 1, 3 * b + 2, 3 * b]))
+            w = builder.fadd(builder.fadd(builder.extract_element(part, ir.Constant(i32, 0)),
+                                          builder.extract_element(part, ir.Constant(i32, 1))),
+                             builder.extract_element(part, ir.Constant(i32, 2)))
+            column = ir.Constant(vty, ir.Undefined)
+            for r in range(4):
+                value = builder.load(builder.gep(gdata, [ir.Constant(i64, (r % 3) * LANES + b)]))
+                column = builder.insert_element(column, value, ir.Constant(i32, r))
+            sums = builder.fadd(sums, builder.fmul(_splat4(builder, w, vty), column))
+            own = builder.fmul(_splat4(builder, builder.load(builder.gep(bdata, [ir.Constant(i64, b)])), vty), g4)
+            for c in range(3):
+                grads = builder.insert_element(grads, builder.extract_element(own, ir.Constant(i32, c)),
+                                               ir.Constant(i32, 3 * b + c))
+        if dty != sty:
+            grads = builder.fptrunc(grads, ir.VectorType(sty, 3 * k))
+        builder.store(grads, row_ptr(3), align=sh.dtype.bitwidth // 8)
+        return context.make_tuple(builder, ret, [builder.extract_element(sums, ir.Constant(i32, c)) for c in range(3)])
+
+    return ret(basis, bgrad, sh, g_sh, i, count, g0, g1, g2), codegen
+
+
+def _splat4(builder, value, vty):
+    """An LLVM vector of type ``vty`` (4 lanes) holding ``value`` in every lane."""
+    vec = builder.insert_element(ir.Constant(vty, ir.Undefined), value, ir.Constant(ir.IntType(32), 0))
+    return _shuffle(builder, vec, vec, [0, 0, 0, 0])
