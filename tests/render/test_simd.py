@@ -13,7 +13,7 @@ from numba.core.errors import TypingError
 
 from roodi_toolkit.render import simd
 from roodi_toolkit.render.lanes import _constant_tuple, _constants, _fma, _gauss, _pick, _stack_empty
-from roodi_toolkit.render.vectors import _lane_dots_into, _lane_sums_into
+from roodi_toolkit.render.vectors import _columns_into, _lane_dots_into, _lane_sums_into, _sh_grads, _sh_sums
 
 DTYPES = [np.float32, np.float64]
 
@@ -164,3 +164,84 @@ def test_sums_of_vector_rows_equal_those_of_stack_rows(dtype):
         gv, gs, cv, cs = geom.copy(), geom.copy(), chan.copy(), chan.copy()
         run(rows, w, gv, gs, cv, cs)
         assert np.array_equal(gv, gs) and np.array_equal(cv, cs) and not np.array_equal(gv, geom)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_columns_of_sixteen_rows(dtype):
+    """The projection's group buffer filled from 16 rows of an [N, k] array by one load and shuffles: row ``row + c``
+    of the buffer is column ``c`` of the rows ``first``..``first + 15``, widened to float64, and no other row moves."""
+
+    @nb.njit
+    def run(src3, src4, first, dst):
+        _columns_into(dst, 1, src3, first, 3)
+        _columns_into(dst, 5, src4, first, 4)
+
+    rng = np.random.default_rng(4)
+    src3 = rng.standard_normal((40, 3)).astype(dtype)
+    src4 = rng.standard_normal((40, 4)).astype(dtype)
+    dst = np.full((12, 16), 7.0)
+    run(src3, src4, 21, dst)
+    want = np.full((12, 16), 7.0)
+    want[1:4] = src3[21:37].T
+    want[5:9] = src4[21:37].T
+    assert np.array_equal(dst, want)
+
+
+@nb.njit
+def _sh_scalar(basis, sh, i, n, g0, g1, g2, g_sh):  # the loops the SH helpers stand for
+    v0 = v1 = v2 = 0.5
+    gux = guy = guz = 0.0
+    bgrad = basis[16:].reshape(3, 16)
+    for k in range(n):
+        bk = basis[k]
+        v0 += bk * sh[i, k, 0]
+        v1 += bk * sh[i, k, 1]
+        v2 += bk * sh[i, k, 2]
+        g_sh[i, k, 0] = bk * g0
+        g_sh[i, k, 1] = bk * g1
+        g_sh[i, k, 2] = bk * g2
+        wk = g0 * sh[i, k, 0] + g1 * sh[i, k, 1] + g2 * sh[i, k, 2]
+        gux += wk * bgrad[0, k]
+        guy += wk * bgrad[1, k]
+        guz += wk * bgrad[2, k]
+    return v0, v1, v2, gux, guy, guz
+
+
+@nb.njit
+def _sh_vector(values, sh, i, n, g0, g1, g2, g_sh):
+    basis = nb.carray(_stack_empty(16, values), (16,))
+    bgrad = nb.carray(_stack_empty(48, values), (3, 16))
+    basis[:] = values[:16]
+    bgrad[:, :] = values[16:].reshape(3, 16)
+    if n == 16:
+        v = _sh_sums(basis, sh, i, 16, 0.5)
+        u = _sh_grads(basis, bgrad, sh, g_sh, i, 16, g0, g1, g2)
+    elif n == 9:
+        v = _sh_sums(basis, sh, i, 9, 0.5)
+        u = _sh_grads(basis, bgrad, sh, g_sh, i, 9, g0, g1, g2)
+    elif n == 4:
+        v = _sh_sums(basis, sh, i, 4, 0.5)
+        u = _sh_grads(basis, bgrad, sh, g_sh, i, 4, g0, g1, g2)
+    else:
+        v = _sh_sums(basis, sh, i, 1, 0.5)
+        u = _sh_grads(basis, bgrad, sh, g_sh, i, 1, g0, g1, g2)
+    return v[0], v[1], v[2], u[0], u[1], u[2]
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("n", [1, 4, 9, 16])
+def test_sh_channels_as_lanes_equal_the_scalar_loops_bit_for_bit(dtype, n):
+    """A Gaussian's SH colour, its coefficients' gradients and the direction's sums with the three channels as a
+    vector's lanes are those of the scalar loops, bit for bit, for every degree (of 16 coefficients a row); the
+    gradients' row past the degree is left alone."""
+    rng = np.random.default_rng(5 + n)
+    for _ in range(4):
+        values = rng.standard_normal(64) * 10.0 ** rng.uniform(-2, 2, 64)
+        sh = (rng.standard_normal((6, 16, 3)) * 10.0 ** rng.uniform(-3, 1, (6, 16, 3))).astype(dtype)
+        g = rng.standard_normal(3)
+        g_scalar = np.full(sh.shape, 9.0, dtype)
+        g_vector = g_scalar.copy()
+        want = _sh_scalar(values, sh, 4, n, g[0], g[1], g[2], g_scalar)
+        got = _sh_vector(values, sh, 4, n, g[0], g[1], g[2], g_vector)
+        assert got == want
+        assert np.array_equal(g_vector, g_scalar) and (g_vector[4, n:] == 9.0).all()
