@@ -22,12 +22,12 @@ import numpy as np
 from ..gaussians import SH_C0
 from ..sh import SH_C1, SH_C2, SH_C3
 from .lanes import _stack_empty
-from .vectors import _columns_into, _sh_grads, _sh_sums
+from .vectors import _columns_into, _sh_sums, _sh_weights
 
 ALPHA_MIN = 1.0 / 255.0
-VECTORS_REVISION = 1
+VECTORS_REVISION = 2
 """Raised with every change to the :mod:`.vectors` intrinsics these kernels use (``_columns_into``, ``_sh_sums``,
-``_sh_grads``): numba's cache checks only this file's time stamp and size (as ``kernels.LANES_REVISION``)."""
+``_sh_weights``): numba's cache checks only this file's time stamp and size (as ``kernels.LANES_REVISION``)."""
 
 BLOCK = 1024
 """Gaussians per parallel work item (its scratch arrays are allocated once per block)."""
@@ -91,30 +91,52 @@ def _sh_basis(out, n_bases, x, y, z):  # pragma: no cover - compiled
 
 
 @nb.njit(inline="always")
-def _sh_basis_grad(out, n_bases, x, y, z):  # pragma: no cover - compiled
-    """Write the partial derivatives of the first ``n_bases`` basis values w.r.t. the direction's components into
-    ``out`` [3, 16] (rows d/dx, d/dy, d/dz; inlined, as :func:`_sh_basis`)."""
-    out[0, 0], out[1, 0], out[2, 0] = 0.0, 0.0, 0.0
+def _sh_direction_grad(w, n_bases, x, y, z):  # pragma: no cover - compiled
+    """The sums over the first ``n_bases`` bases of ``w[k]`` times the basis' partial derivatives along the unit
+    direction's x, y and z (``w``: :func:`~.vectors._sh_weights`), base after base: only the derivatives that are not
+    0 (a third of the 48 are), each by the expression and in the order of a loop over a table of all 48, whose
+    products by 0 left the sums as they were (inlined; the table was 48 stores and 48 loads a Gaussian)."""
+    gx = 0.0
+    gy = 0.0
+    gz = 0.0
     if n_bases > 1:
-        out[0, 1], out[1, 1], out[2, 1] = 0.0, -SH_C1, 0.0
-        out[0, 2], out[1, 2], out[2, 2] = 0.0, 0.0, SH_C1
-        out[0, 3], out[1, 3], out[2, 3] = -SH_C1, 0.0, 0.0
+        gy += w[1] * -SH_C1
+        gz += w[2] * SH_C1
+        gx += w[3] * -SH_C1
     xx, yy, zz = x * x, y * y, z * z
     if n_bases > 4:
-        out[0, 4], out[1, 4], out[2, 4] = C20 * y, C20 * x, 0.0
-        out[0, 5], out[1, 5], out[2, 5] = 0.0, C21 * z, C21 * y
-        out[0, 6], out[1, 6], out[2, 6] = -2.0 * C22 * x, -2.0 * C22 * y, 4.0 * C22 * z
-        out[0, 7], out[1, 7], out[2, 7] = C23 * z, 0.0, C23 * x
-        out[0, 8], out[1, 8], out[2, 8] = 2.0 * C24 * x, -2.0 * C24 * y, 0.0
+        gx += w[4] * (C20 * y)
+        gy += w[4] * (C20 * x)
+        gy += w[5] * (C21 * z)
+        gz += w[5] * (C21 * y)
+        gx += w[6] * (-2.0 * C22 * x)
+        gy += w[6] * (-2.0 * C22 * y)
+        gz += w[6] * (4.0 * C22 * z)
+        gx += w[7] * (C23 * z)
+        gz += w[7] * (C23 * x)
+        gx += w[8] * (2.0 * C24 * x)
+        gy += w[8] * (-2.0 * C24 * y)
     if n_bases > 9:
-        out[0, 9], out[1, 9], out[2, 9] = C30 * 6.0 * x * y, C30 * (3.0 * xx - 3.0 * yy), 0.0
-        out[0, 10], out[1, 10], out[2, 10] = C31 * y * z, C31 * x * z, C31 * x * y
-        out[0, 11], out[1, 11], out[2, 11] = -2.0 * C32 * x * y, C32 * (4.0 * zz - xx - 3.0 * yy), 8.0 * C32 * y * z
-        out[0, 12], out[1, 12] = -6.0 * C33 * x * z, -6.0 * C33 * y * z
-        out[2, 12] = C33 * (6.0 * zz - 3.0 * xx - 3.0 * yy)
-        out[0, 13], out[1, 13], out[2, 13] = C34 * (4.0 * zz - 3.0 * xx - yy), -2.0 * C34 * x * y, 8.0 * C34 * x * z
-        out[0, 14], out[1, 14], out[2, 14] = 2.0 * C35 * x * z, -2.0 * C35 * y * z, C35 * (xx - yy)
-        out[0, 15], out[1, 15], out[2, 15] = C36 * (3.0 * xx - 3.0 * yy), -6.0 * C36 * x * y, 0.0
+        gx += w[9] * (C30 * 6.0 * x * y)
+        gy += w[9] * (C30 * (3.0 * xx - 3.0 * yy))
+        gx += w[10] * (C31 * y * z)
+        gy += w[10] * (C31 * x * z)
+        gz += w[10] * (C31 * x * y)
+        gx += w[11] * (-2.0 * C32 * x * y)
+        gy += w[11] * (C32 * (4.0 * zz - xx - 3.0 * yy))
+        gz += w[11] * (8.0 * C32 * y * z)
+        gx += w[12] * (-6.0 * C33 * x * z)
+        gy += w[12] * (-6.0 * C33 * y * z)
+        gz += w[12] * (C33 * (6.0 * zz - 3.0 * xx - 3.0 * yy))
+        gx += w[13] * (C34 * (4.0 * zz - 3.0 * xx - yy))
+        gy += w[13] * (-2.0 * C34 * x * y)
+        gz += w[13] * (8.0 * C34 * x * z)
+        gx += w[14] * (2.0 * C35 * x * z)
+        gy += w[14] * (-2.0 * C35 * y * z)
+        gz += w[14] * (C35 * (xx - yy))
+        gx += w[15] * (C36 * (3.0 * xx - 3.0 * yy))
+        gy += w[15] * (-6.0 * C36 * x * y)
+    return gx, gy, gz
 
 
 @nb.njit(cache=True, nogil=True)
@@ -455,7 +477,6 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
     cam = _camera(view, intr, width, height, near, far, eps2d, 1)  # (the tile size: the forward's alone)
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         basis = nb.carray(_stack_empty(16, view), (16,))
-        bgrad = nb.carray(_stack_empty(48, view), (3, 16))
         inp = nb.carray(_stack_empty(352, view), (22, GROUP))  # sizes: integer literals, 22 and 11 rows of GROUP
         out = nb.carray(_stack_empty(176, view), (11, GROUP))
         dirs = nb.carray(_stack_empty(80, view), (5, GROUP))  # as the forward's
@@ -490,20 +511,20 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
                 if n_bases > 0:
                     ux, uy, uz, inv, norm = dirs[0, l], dirs[1, l], dirs[2, l], dirs[3, l], dirs[4, l]
                     _sh_basis(basis, n_bases, ux, uy, uz)
-                    _sh_basis_grad(bgrad, n_bases, ux, uy, uz)
                     cut = clamped[i]  # the channels whose value the forward clamped at 0 pass no gradient
                     g0 = np.float64(g_rgb[i, 0]) if (cut & 1) == 0 else 0.0
                     g1 = np.float64(g_rgb[i, 1]) if (cut & 2) == 0 else 0.0
                     g2 = np.float64(g_rgb[i, 2]) if (cut & 4) == 0 else 0.0
-                    # dL/d(coefficient) and, through the basis, dL/d(direction) (the channels as vector lanes)
+                    # dL/d(coefficient) (on vectors of the bases) and, through the basis, dL/d(direction)
                     if n_bases == 16:
-                        gux, guy, guz = _sh_grads(basis, bgrad, sh, g_sh, i, 16, g0, g1, g2)
+                        wts = _sh_weights(basis, sh, g_sh, i, 16, g0, g1, g2)
                     elif n_bases == 9:
-                        gux, guy, guz = _sh_grads(basis, bgrad, sh, g_sh, i, 9, g0, g1, g2)
+                        wts = _sh_weights(basis, sh, g_sh, i, 9, g0, g1, g2)
                     elif n_bases == 4:
-                        gux, guy, guz = _sh_grads(basis, bgrad, sh, g_sh, i, 4, g0, g1, g2)
+                        wts = _sh_weights(basis, sh, g_sh, i, 4, g0, g1, g2)
                     else:
-                        gux, guy, guz = _sh_grads(basis, bgrad, sh, g_sh, i, 1, g0, g1, g2)
+                        wts = _sh_weights(basis, sh, g_sh, i, 1, g0, g1, g2)
+                    gux, guy, guz = _sh_direction_grad(wts, n_bases, ux, uy, uz)
                     g_sh[i, n_bases:, :] = 0.0  # coefficients past the degree in use
                     if norm > 1e-12:  # d(d / |d|) = (I - u u^T) / |d|
                         dot = gux * ux + guy * uy + guz * uz

@@ -7,7 +7,7 @@ lanes side by side in a fixed tree (:func:`_fold_rows`, :func:`_lane_sums_into`,
 the assembly of the kernels (``benchmarks/profile_kernels.py``). And, for the projection
 (:mod:`.projection_kernels`), 16 Gaussians' rows read as one vector and parted into columns (:func:`_columns_into`)
 and a Gaussian's SH colour and its gradients with the three channels as a vector's lanes (:func:`_sh_sums`,
-:func:`_sh_grads`).
+:func:`_sh_weights`).
 """
 
 from __future__ import annotations
@@ -318,25 +318,25 @@ def _sh_sums(typingctx, basis, sh, i, count, start):  # pragma: no cover - compi
 
 
 @intrinsic
-def _sh_grads(typingctx, basis, bgrad, sh, g_sh, i, count, g0, g1, g2):  # pragma: no cover - compiled
-    """The SH backward of one Gaussian for ``count`` bases (an integer literal): writes ``g_sh[i, b, c] = basis[b]
-    g_c`` and returns the sums over the bases, in order, of ``w_b bgrad[r, b]`` for the rows ``r`` of ``bgrad`` [3, 16]
-    (the bases' derivatives along x, y, z), ``w_b = (g0 sh[i, b, 0] + g1 sh[i, b, 1]) + g2 sh[i, b, 2]``: the scalar
-    loop's operations in its order (the same bits), on vectors whose lanes are the three channels, the row of
-    coefficients one vector load and the row of gradients one vector store (``sh`` and ``g_sh`` C-contiguous [N, K,
-    3] of one float dtype, K >= ``count``; ``basis``, ``bgrad`` and the ``g`` of the sums' dtype)."""
+def _sh_weights(typingctx, basis, sh, g_sh, i, count, g0, g1, g2):  # pragma: no cover - compiled
+    """The SH backward's products of one Gaussian for ``count`` bases (an integer literal): writes ``g_sh[i, b, c] =
+    basis[b] g_c`` and returns the 16 weights ``w_b = (g0 sh[i, b, 0] + g1 sh[i, b, 1]) + g2 sh[i, b, 2]`` (0 past
+    ``count``), whose sum with the bases' derivatives is the direction's gradient: the scalar loop's operations (the
+    same bits) on vectors of the ``count`` bases, the row of coefficients one vector load parted into its three
+    channels by shuffles, the row of gradients put together by shuffles and stored as one vector (``sh`` and ``g_sh``
+    C-contiguous [N, K, 3] of one float dtype, K >= ``count``; ``basis`` a 1-D stack array and the ``g`` of the
+    products' dtype; the bases are read one by one, as they were stored)."""
     k = count.literal_value if isinstance(count, types.IntegerLiteral) else 0
-    if not (k and _is_lanes(basis) and _is_rows(bgrad) and bgrad.dtype == basis.dtype
-            and isinstance(sh, types.Array) and sh.ndim == 3 and sh.layout == "C" and isinstance(sh.dtype, types.Float)
-            and g_sh == sh and sh.dtype.bitwidth <= basis.dtype.bitwidth and isinstance(i, types.Integer)
-            and g0 == g1 == g2 == basis.dtype):
+    if not (k and _is_lanes(basis) and isinstance(sh, types.Array) and sh.ndim == 3 and sh.layout == "C"
+            and isinstance(sh.dtype, types.Float) and g_sh == sh and sh.dtype.bitwidth <= basis.dtype.bitwidth
+            and isinstance(i, types.Integer) and g0 == g1 == g2 == basis.dtype):
         return None
-    ret = types.UniTuple(basis.dtype, 3)
+    ret = types.UniTuple(basis.dtype, LANES)
 
     def codegen(context, builder, signature, args):
-        i64, i32 = ir.IntType(64), ir.IntType(32)
+        i32 = ir.IntType(32)
         sty, dty = context.get_value_type(sh.dtype), context.get_value_type(basis.dtype)
-        index = context.cast(builder, args[4], signature.args[4], types.intp)
+        index = context.cast(builder, args[3], signature.args[3], types.intp)
 
         def row_ptr(at):
             arr = context.make_array(signature.args[at])(context, builder, args[at])
@@ -344,37 +344,39 @@ def _sh_grads(typingctx, basis, bgrad, sh, g_sh, i, count, g0, g1, g2):  # pragm
                               [builder.mul(index, builder.extract_value(arr.strides, 0))])
             return builder.bitcast(ptr, ir.VectorType(sty, 3 * k).as_pointer())
 
-        coeffs = builder.load(row_ptr(2), align=sh.dtype.bitwidth // 8)
-        if dty != sty:
-            coeffs = builder.fpext(coeffs, ir.VectorType(dty, 3 * k))
+        coeffs = builder.load(row_ptr(1), align=sh.dtype.bitwidth // 8)
+        wide = ir.VectorType(dty, k)
+        chans = []
+        for c in range(3):
+            part = _shuffle(builder, coeffs, coeffs, [c + 3 * b for b in range(k)])
+            chans.append(builder.fpext(part, wide) if dty != sty else part)
+        gs = [_splat_n(builder, args[5 + c], k) for c in range(3)]
+        w = builder.fadd(builder.fadd(builder.fmul(gs[0], chans[0]), builder.fmul(gs[1], chans[1])),
+                         builder.fmul(gs[2], chans[2]))
         bdata = context.make_array(signature.args[0])(context, builder, args[0]).data
-        gdata = context.make_array(signature.args[1])(context, builder, args[1]).data
-        vty = ir.VectorType(dty, 4)
-        g4 = ir.Constant(vty, ir.Undefined)
-        for lane, value in enumerate((args[6], args[7], args[8], args[6])):
-            g4 = builder.insert_element(g4, value, ir.Constant(i32, lane))
-        sums = ir.Constant(vty, [0.0] * 4)
-        grads = ir.Constant(ir.VectorType(dty, 3 * k), ir.Undefined)
+        bv = ir.Constant(wide, ir.Undefined)
         for b in range(k):
-            part = builder.fmul(g4, _shuffle(builder, coeffs, coeffs, [3 * b, 3 * b + 1, 3 * b + 2, 3 * b]))
-            w = builder.fadd(builder.fadd(builder.extract_element(part, ir.Constant(i32, 0)),
-                                          builder.extract_element(part, ir.Constant(i32, 1))),
-                             builder.extract_element(part, ir.Constant(i32, 2)))
-            column = ir.Constant(vty, ir.Undefined)
-            for r in range(4):
-                value = builder.load(builder.gep(gdata, [ir.Constant(i64, (r % 3) * LANES + b)]))
-                column = builder.insert_element(column, value, ir.Constant(i32, r))
-            sums = builder.fadd(sums, builder.fmul(_splat4(builder, w, vty), column))
-            own = builder.fmul(_splat4(builder, builder.load(builder.gep(bdata, [ir.Constant(i64, b)])), vty), g4)
-            for c in range(3):
-                grads = builder.insert_element(grads, builder.extract_element(own, ir.Constant(i32, c)),
-                                               ir.Constant(i32, 3 * b + c))
+            bv = builder.insert_element(bv, builder.load(builder.gep(bdata, [ir.Constant(ir.IntType(64), b)])),
+                                        ir.Constant(i32, b))
+        own = [builder.fmul(bv, gs[c]) for c in range(3)]
         if dty != sty:
-            grads = builder.fptrunc(grads, ir.VectorType(sty, 3 * k))
-        builder.store(grads, row_ptr(3), align=sh.dtype.bitwidth // 8)
-        return context.make_tuple(builder, ret, [builder.extract_element(sums, ir.Constant(i32, c)) for c in range(3)])
+            own = [builder.fptrunc(v, ir.VectorType(sty, k)) for v in own]
+        pair = _shuffle(builder, own[0], own[1], list(range(2 * k)))
+        third = _shuffle(builder, own[2], own[2], list(range(k)) * 2)
+        grads = _shuffle(builder, pair, third, [c * k + b for b in range(k) for c in range(3)])
+        builder.store(grads, row_ptr(2), align=sh.dtype.bitwidth // 8)
+        zero = ir.Constant(dty, 0.0)
+        return context.make_tuple(builder, ret, [builder.extract_element(w, ir.Constant(i32, b)) if b < k else zero
+                                                 for b in range(LANES)])
 
-    return ret(basis, bgrad, sh, g_sh, i, count, g0, g1, g2), codegen
+    return ret(basis, sh, g_sh, i, count, g0, g1, g2), codegen
+
+
+def _splat_n(builder, value, n):
+    """An LLVM vector of ``n`` copies of the scalar ``value``."""
+    vec = builder.insert_element(ir.Constant(ir.VectorType(value.type, n), ir.Undefined), value,
+                                 ir.Constant(ir.IntType(32), 0))
+    return _shuffle(builder, vec, vec, [0] * n)
 
 
 def _splat4(builder, value, vty):

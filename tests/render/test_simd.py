@@ -13,7 +13,7 @@ from numba.core.errors import TypingError
 
 from roodi_toolkit.render import simd
 from roodi_toolkit.render.lanes import _constant_tuple, _constants, _fma, _gauss, _pick, _stack_empty
-from roodi_toolkit.render.vectors import _columns_into, _lane_dots_into, _lane_sums_into, _sh_grads, _sh_sums
+from roodi_toolkit.render.vectors import _columns_into, _lane_dots_into, _lane_sums_into, _sh_sums, _sh_weights
 
 DTYPES = [np.float32, np.float64]
 
@@ -190,8 +190,7 @@ def test_columns_of_sixteen_rows(dtype):
 @nb.njit
 def _sh_scalar(basis, sh, i, n, g0, g1, g2, g_sh):  # the loops the SH helpers stand for
     v0 = v1 = v2 = 0.5
-    gux = guy = guz = 0.0
-    bgrad = basis[16:].reshape(3, 16)
+    w = np.zeros(16)
     for k in range(n):
         bk = basis[k]
         v0 += bk * sh[i, k, 0]
@@ -200,48 +199,72 @@ def _sh_scalar(basis, sh, i, n, g0, g1, g2, g_sh):  # the loops the SH helpers s
         g_sh[i, k, 0] = bk * g0
         g_sh[i, k, 1] = bk * g1
         g_sh[i, k, 2] = bk * g2
-        wk = g0 * sh[i, k, 0] + g1 * sh[i, k, 1] + g2 * sh[i, k, 2]
-        gux += wk * bgrad[0, k]
-        guy += wk * bgrad[1, k]
-        guz += wk * bgrad[2, k]
-    return v0, v1, v2, gux, guy, guz
+        w[k] = g0 * sh[i, k, 0] + g1 * sh[i, k, 1] + g2 * sh[i, k, 2]
+    return (v0, v1, v2), w
 
 
 @nb.njit
 def _sh_vector(values, sh, i, n, g0, g1, g2, g_sh):
     basis = nb.carray(_stack_empty(16, values), (16,))
-    bgrad = nb.carray(_stack_empty(48, values), (3, 16))
-    basis[:] = values[:16]
-    bgrad[:, :] = values[16:].reshape(3, 16)
+    basis[:] = values
     if n == 16:
         v = _sh_sums(basis, sh, i, 16, 0.5)
-        u = _sh_grads(basis, bgrad, sh, g_sh, i, 16, g0, g1, g2)
+        w = _sh_weights(basis, sh, g_sh, i, 16, g0, g1, g2)
     elif n == 9:
         v = _sh_sums(basis, sh, i, 9, 0.5)
-        u = _sh_grads(basis, bgrad, sh, g_sh, i, 9, g0, g1, g2)
+        w = _sh_weights(basis, sh, g_sh, i, 9, g0, g1, g2)
     elif n == 4:
         v = _sh_sums(basis, sh, i, 4, 0.5)
-        u = _sh_grads(basis, bgrad, sh, g_sh, i, 4, g0, g1, g2)
+        w = _sh_weights(basis, sh, g_sh, i, 4, g0, g1, g2)
     else:
         v = _sh_sums(basis, sh, i, 1, 0.5)
-        u = _sh_grads(basis, bgrad, sh, g_sh, i, 1, g0, g1, g2)
-    return v[0], v[1], v[2], u[0], u[1], u[2]
+        w = _sh_weights(basis, sh, g_sh, i, 1, g0, g1, g2)
+    out = np.empty(16)
+    for k in range(16):
+        out[k] = w[k]
+    return v, out
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("n", [1, 4, 9, 16])
 def test_sh_channels_as_lanes_equal_the_scalar_loops_bit_for_bit(dtype, n):
-    """A Gaussian's SH colour, its coefficients' gradients and the direction's sums with the three channels as a
-    vector's lanes are those of the scalar loops, bit for bit, for every degree (of 16 coefficients a row); the
-    gradients' row past the degree is left alone."""
+    """A Gaussian's SH colour, its coefficients' gradients and the weights of the direction's gradient, on vectors,
+    are those of the scalar loops, bit for bit, for every degree (of 16 coefficients a row); the gradients' row past
+    the degree is left alone and the weights past it are 0."""
     rng = np.random.default_rng(5 + n)
     for _ in range(4):
-        values = rng.standard_normal(64) * 10.0 ** rng.uniform(-2, 2, 64)
+        values = rng.standard_normal(16) * 10.0 ** rng.uniform(-2, 2, 16)
         sh = (rng.standard_normal((6, 16, 3)) * 10.0 ** rng.uniform(-3, 1, (6, 16, 3))).astype(dtype)
         g = rng.standard_normal(3)
         g_scalar = np.full(sh.shape, 9.0, dtype)
         g_vector = g_scalar.copy()
         want = _sh_scalar(values, sh, 4, n, g[0], g[1], g[2], g_scalar)
         got = _sh_vector(values, sh, 4, n, g[0], g[1], g[2], g_vector)
-        assert got == want
+        assert got[0] == want[0] and np.array_equal(got[1], want[1])
         assert np.array_equal(g_vector, g_scalar) and (g_vector[4, n:] == 9.0).all()
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_sh_direction_gradient_is_that_of_the_bases(degree):
+    """The direction's gradient from the weights of the bases (written out term by term) is autograd's gradient of
+    the weighted sum of the SH bases (``roodi_toolkit.sh.sh_bases``) at unit directions."""
+    import torch
+
+    from roodi_toolkit.render.projection_kernels import _sh_direction_grad
+    from roodi_toolkit.sh import sh_bases
+
+    @nb.njit
+    def grad(w, n, d):
+        return _sh_direction_grad((w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7], w[8], w[9], w[10], w[11],
+                                   w[12], w[13], w[14], w[15]), n, d[0], d[1], d[2])
+
+    rng = np.random.default_rng(11 + degree)
+    n = (degree + 1) ** 2
+    for _ in range(5):
+        d = rng.standard_normal(3)
+        d /= np.linalg.norm(d)
+        w = np.zeros(16)
+        w[:n] = rng.standard_normal(n)
+        dirs = torch.tensor(d[None], requires_grad=True)
+        ((sh_bases(degree, dirs)[0] * torch.from_numpy(w[:n])).sum() + 0.0 * dirs.sum()).backward()  # SH 0: constant
+        assert np.allclose(grad(w, n, d), dirs.grad[0].numpy(), rtol=1e-12, atol=1e-12)
