@@ -190,6 +190,13 @@ def _screen_column(cam, a0, a1, xc, yc, r0, r1, r2, s):  # pragma: no cover - co
     return a0 * (m0 - xc * m2), a1 * (m1 - yc * m2)
 
 
+@nb.njit(inline="always")
+def _check_rows(means, quats, scales):  # pragma: no cover - compiled
+    """Raise unless the rows are as :func:`~.vectors._columns_into` reads them: 3, 4 and 3 numbers a Gaussian."""
+    if means.shape[1] != 3 or quats.shape[1] != 4 or scales.shape[1] != 3:
+        raise ValueError("the projection needs means [N, 3], quaternions [N, 4] and scales [N, 3]")
+
+
 # rows of the per-pass buffers of :func:`project_forward`: what it reads of each Gaussian, what it computes
 QW, QX, QY, QZ, S0, S1, S2, MU0, MU1, MU2, OPACITY, R2 = range(12)
 DEPTH, MX, MY, CA, CB, CC, X0, X1, Y0, Y1, HX, HY, NTILES = range(13)
@@ -292,6 +299,7 @@ def project_forward(means, quats, scales, opacities, r2s, sh, n_bases, view, cen
     written out; each drawn one's colour then reads its SH coefficients.
     """
     n = means.shape[0]
+    _check_rows(means, quats, scales)
     cam = _camera(view, intr, width, height, near, far, eps2d, tile)
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         basis = nb.carray(_stack_empty(16, view), (16,))
@@ -474,6 +482,7 @@ def project_backward(means, quats, scales, opacities, sh, n_bases, view, center,
     are worked out in turn, then ``GROUP`` Gaussians' projection gradients together (:func:`_backward_group`).
     """
     n = means.shape[0]
+    _check_rows(means, quats, scales)
     cam = _camera(view, intr, width, height, near, far, eps2d, 1)  # (the tile size: the forward's alone)
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         basis = nb.carray(_stack_empty(16, view), (16,))

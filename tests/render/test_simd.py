@@ -187,6 +187,22 @@ def test_columns_of_sixteen_rows(dtype):
     assert np.array_equal(dst, want)
 
 
+def test_the_projection_refuses_rows_it_would_misread():
+    """The projection reads 16 rows of means, quaternions and scales as one vector each: arrays whose rows are not
+    3, 4 and 3 long are refused, not misread."""
+    from roodi_toolkit.render import fast
+
+    view = fast.make_view(np.eye(4), np.array([[64.0, 0, 32], [0, 64, 32], [0, 0, 1]]), 64, 64)
+    n = 40
+    means = np.zeros((n, 3), np.float32)
+    means[:, 2] = 2.0
+    quats = np.tile(np.float32([1, 0, 0, 0]), (n, 1))
+    args = (np.full((n, 3), -3.0, np.float32), np.zeros(n, np.float32), np.ones((n, 1, 3), np.float32), 0, view)
+    assert fast.project(means, quats, *args).ntiles.sum() > 0
+    with pytest.raises(ValueError, match="quaternions"):
+        fast.project(means, np.ascontiguousarray(quats[:, :3]), *args)
+
+
 @nb.njit
 def _sh_scalar(basis, sh, i, n, g0, g1, g2, g_sh):  # the loops the SH helpers stand for
     v0 = v1 = v2 = 0.5
