@@ -11,7 +11,8 @@ numpy arrays to native code on all cores (``prange``) and caches what it compile
 figures of what was tried.
 
 Cost of one view: O(N) per-Gaussian work (projection, SH, footprints; ``parallel``), a sort of the drawn Gaussians by
-depth (O(N), a compiled radix sort of the depths' bits), a counting sort into 16x16 tiles (O(pairs), each worker a
+depth (O(N), a compiled radix sort of the depths' bits), a counting sort into 32x32 tiles (16x16 for features alone;
+O(pairs), each worker a
 stretch of the depth order), and compositing in 4x4 pixel blocks (``parallel`` over tiles): each block evaluates on
 its 16 pixels at once the Gaussians of its tile's run whose box touches it, up to where its pixels stop
 (``docs/rendering.md``, "The 4x4 blocks: what they gave and what they cost"). Memory: a few arrays of N and of (tile,
@@ -35,10 +36,18 @@ from .cores import set_workers
 from .projection import EPS2D, camera_tensors, check_inputs
 from .rasterizer import RasterOutput, _split_output
 
-TILE_SIZE = 16
-"""Tile edge in pixels (as gsplat and 3DGS). The compositing works on 4x4 blocks, each walking the entries of its
-tile's run that touch it: smaller tiles hold more (tile, Gaussian) pairs (binning work and the backward's per-pair
-gradients: 4-pixel tiles have 3.4x the pairs of 16-pixel ones at 500k Gaussians, 800x800)."""
+TILE_SIZE = 32
+"""Tile edge in pixels of a rendering. The compositing works on 4x4 blocks, each walking the entries of its tile's
+run that touch it, so the image is the same for any tile size; smaller tiles hold more (tile, Gaussian) pairs
+(binning, the runs' copies, the backward's per-pair gradients: 4-pixel tiles have 3.4x the pairs of 16-pixel ones at
+500k Gaussians, 800x800), larger ones longer runs for each worker to hold. 32 pixels (gsplat and 3DGS use 16): a
+real 653k-Gaussian splat's forward and backward 1.09-1.10x at 800 and 1000 px on one thread, 1.16x on two, its
+forward 1.03x (0.996-1.007x at 400 px); the benchmark scene 1.03-1.11x (``docs/rendering.md``)."""
+
+FEATURE_TILE_SIZE = 16
+"""Tile edge in pixels of a rendering of features alone (:func:`rasterize_features`: distillation, the click
+segmenter), where 32-pixel tiles measured 0.98-1.00x of 16-pixel ones on the same splat (16 channels: the walks'
+channel sums outweigh the pairs' work)."""
 
 
 @dataclass
@@ -389,7 +398,7 @@ def rasterize_features(
     near: float = 0.01,
     far: float = 1e10,
     eps2d: float = EPS2D,
-    tile_size: int = TILE_SIZE,
+    tile_size: int = FEATURE_TILE_SIZE,
 ) -> tuple[Tensor, Tensor]:
     """Return the composited features ``[H, W, F]`` and alpha ``[H, W, 1]`` of one view, differentiable: what
     :func:`rasterize_fast` returns as ``features`` and ``alpha``, without evaluating colours or depth (object
