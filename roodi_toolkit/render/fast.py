@@ -41,13 +41,13 @@ TILE_SIZE = 32
 run that touch it, so the image is the same for any tile size; smaller tiles hold more (tile, Gaussian) pairs
 (binning, the runs' copies, the backward's per-pair gradients: 4-pixel tiles have 3.4x the pairs of 16-pixel ones at
 500k Gaussians, 800x800), larger ones longer runs for each worker to hold. 32 pixels (gsplat and 3DGS use 16): a
-real 653k-Gaussian splat's forward and backward 1.09-1.10x at 800 and 1000 px on one thread, 1.16x on two, its
-forward 1.03x (0.996-1.007x at 400 px); the benchmark scene 1.03-1.11x (``docs/rendering.md``)."""
+real 653k-Gaussian splat's forward and backward 1.06-1.10x at 800 and 1000 px, its forward 1.03-1.05x (0.99x and
+1.02x at 400 px); the benchmark scene 1.04-1.24x (``benchmarks/bench_tiles.py``, ``docs/rendering.md``)."""
 
 FEATURE_TILE_SIZE = 16
 """Tile edge in pixels of a rendering of features alone (:func:`rasterize_features`: distillation, the click
-segmenter), where 32-pixel tiles measured 0.98-1.00x of 16-pixel ones on the same splat (16 channels: the walks'
-channel sums outweigh the pairs' work)."""
+segmenter), where 32-pixel tiles measured 0.95-0.98x of 16-pixel ones at 400 px, distillation's working size, on
+the same splat (0.95-1.08x at 800-1000 px: 16 channels, whose sums in the walks outweigh the pairs' work)."""
 
 
 @dataclass
