@@ -123,7 +123,9 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
     """Return the Gaussians projected into ``view`` with their colours and footprints (compiled, no autograd);
     ``channels`` has ``n_features`` columns after rgb and depth for :func:`channels_of` to fill."""
     n, dtype = means.shape[0], means.dtype
-    sh = colors if n_bases > 0 else np.ascontiguousarray(colors, dtype).reshape(n, 1, 3)  # RGB: copied by the kernel
+    # the kernel reads rows as vectors: C order (no copy where they are already)
+    means, quats = np.ascontiguousarray(means), np.ascontiguousarray(quats)
+    sh = np.ascontiguousarray(colors) if n_bases > 0 else np.ascontiguousarray(colors, dtype).reshape(n, 1, 3)
     scales, opacities, r2 = projection_kernels.activations(log_scales, opacity_logits)
     out = Projected(np.empty((n, 2), dtype), np.empty((n, 3), dtype), np.empty(n, dtype),
                     np.empty((n, 4 + n_features), dtype), opacities,

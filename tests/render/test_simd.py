@@ -189,7 +189,7 @@ def test_columns_of_sixteen_rows(dtype):
 
 def test_the_projection_refuses_rows_it_would_misread():
     """The projection reads 16 rows of means, quaternions and scales as one vector each: arrays whose rows are not
-    3, 4 and 3 long are refused, not misread."""
+    3, 4 and 3 long are refused, not misread, and strided ones are read like contiguous ones."""
     from roodi_toolkit.render import fast
 
     view = fast.make_view(np.eye(4), np.array([[64.0, 0, 32], [0, 64, 32], [0, 0, 1]]), 64, 64)
@@ -198,7 +198,11 @@ def test_the_projection_refuses_rows_it_would_misread():
     means[:, 2] = 2.0
     quats = np.tile(np.float32([1, 0, 0, 0]), (n, 1))
     args = (np.full((n, 3), -3.0, np.float32), np.zeros(n, np.float32), np.ones((n, 1, 3), np.float32), 0, view)
-    assert fast.project(means, quats, *args).ntiles.sum() > 0
+    want = fast.project(means, quats, *args)
+    assert want.ntiles.sum() > 0
+    wide = np.zeros((n, 6), np.float32)
+    wide[:, ::2] = means  # a strided view is copied into C order, not refused
+    assert np.array_equal(fast.project(wide[:, ::2], quats, *args).means2d, want.means2d)
     with pytest.raises(ValueError, match="quaternions"):
         fast.project(means, np.ascontiguousarray(quats[:, :3]), *args)
 
