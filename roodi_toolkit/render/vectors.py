@@ -305,12 +305,11 @@ def _sh_sums(typingctx, basis, sh, i, count, start):  # pragma: no cover - compi
         if dty != sty:
             coeffs = builder.fpext(coeffs, ir.VectorType(dty, 3 * k))
         bdata = context.make_array(signature.args[0])(context, builder, args[0]).data
-        vty = ir.VectorType(dty, 4)
-        sums = _splat4(builder, args[4], vty)
+        sums = _splat_n(builder, args[4], 4)
         for b in range(k):
             bk = builder.load(builder.gep(bdata, [ir.Constant(i64, b)]))
             part = _shuffle(builder, coeffs, coeffs, [3 * b, 3 * b + 1, 3 * b + 2, 3 * b])
-            sums = builder.fadd(sums, builder.fmul(_splat4(builder, bk, vty), part))
+            sums = builder.fadd(sums, builder.fmul(_splat_n(builder, bk, 4), part))
         return context.make_tuple(builder, ret, [builder.extract_element(sums, ir.Constant(ir.IntType(32), c))
                                                  for c in range(3)])
 
@@ -377,9 +376,3 @@ def _splat_n(builder, value, n):
     vec = builder.insert_element(ir.Constant(ir.VectorType(value.type, n), ir.Undefined), value,
                                  ir.Constant(ir.IntType(32), 0))
     return _shuffle(builder, vec, vec, [0] * n)
-
-
-def _splat4(builder, value, vty):
-    """An LLVM vector of type ``vty`` (4 lanes) holding ``value`` in every lane."""
-    vec = builder.insert_element(ir.Constant(vty, ir.Undefined), value, ir.Constant(ir.IntType(32), 0))
-    return _shuffle(builder, vec, vec, [0, 0, 0, 0])
