@@ -33,7 +33,7 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=15, help="rounds (default 15)")
     args = ap.parse_args()
     os.environ["ROODI_THREADS"] = str(args.threads)
-    from scene import bench_view
+    from scene import bench_view, projection_grads
 
     from roodi_toolkit.render import projection_kernels as pk
     from roodi_toolkit.render.cores import set_workers
@@ -43,9 +43,7 @@ def main() -> int:
     n, f32 = args.n, np.float32
     scales, opacities, r2 = pk.activations(arrays[2], arrays[3])
     cam = (view.view, view.center, view.intr, args.size, args.size, view.near, view.far, view.eps2d)
-    grads = np.random.default_rng(0).standard_normal((n, 10)).astype(f32)
-    g_in = [np.ascontiguousarray(grads[:, a:b]) for a, b in ((0, 2), (2, 5), (6, 9))]
-    g_in = (g_in[0], g_in[1], np.ascontiguousarray(grads[:, 5]), g_in[2], np.ascontiguousarray(grads[:, 9]))
+    g_in = projection_grads(n)
     drawn = int((proj.ntiles > 0).sum())
 
     def case_of(degree: int):

@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--channels", type=int, default=4, help="4: rgb + depth; else that many features alone")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--tile-size", type=int, default=16)
+    ap.add_argument("--tile-size", type=int, default=None, help="tile edge in pixels (default: the renderer's)")
     ap.add_argument("--against", type=Path, default=None, help="another checkout whose kernels run beside these")
     ap.add_argument("--processes", type=int, default=0, help="with --against: this many processes, median ratios")
     args = ap.parse_args(argv)
@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     arrays = cloud_arrays(args.n)
-    view = fast.make_view(*bench_camera(args.size), args.size, args.size, tile=args.tile_size)
+    view = fast.make_view(*bench_camera(args.size), args.size, args.size, tile=args.tile_size or fast.TILE_SIZE)
     W = H = args.size
     workers = cores.set_workers()
     rng = np.random.default_rng(0)

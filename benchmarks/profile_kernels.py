@@ -39,14 +39,13 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
     import numpy as np
 
     sys.path.insert(0, str(HERE))
-    from scene import bench_view
+    from scene import bench_view, projection_grads
 
     from roodi_toolkit.render import fast, kernels, projection_kernels
 
     arrays, view, proj, bins, channels = bench_view(n, size)
     f32 = np.float32
     _, t_final, last, _, marks = fast.composite(bins, proj, channels, view, want_marks=True)
-    grads = np.random.default_rng(0).standard_normal((n, 10)).astype(f32)
     g_out = [np.zeros((n, 3), f32), np.zeros((n, 4), f32), np.zeros((n, 3), f32), np.zeros(n, f32),
              np.zeros(arrays[4].shape, f32)]
     m = len(bins.lists)
@@ -62,9 +61,7 @@ def child(kernel: str, n: int, size: int, folder: Path, calls: int) -> None:
         "project": (projection_kernels.project_forward, lambda: fast.project(*arrays, 16, view)),
         "project_backward": (projection_kernels.project_backward, lambda: projection_kernels.project_backward(
             arrays[0], arrays[1], proj.scales, proj.opacities, arrays[4], 16, *cam, proj.ntiles, proj.clamped,
-            np.ascontiguousarray(grads[:, :2]), np.ascontiguousarray(grads[:, 2:5]),
-            np.ascontiguousarray(grads[:, 5]), np.ascontiguousarray(grads[:, 6:9]), np.ascontiguousarray(grads[:, 9]),
-            *g_out, True)),
+            *projection_grads(n), *g_out, True)),
     }
     dispatcher, call = calls_of[kernel]
     call()

@@ -97,3 +97,10 @@ def bench_view(n: int, size: int):
     view = fast.make_view(*bench_camera(size), size, size)
     proj = fast.project(*arrays, 16, view)
     return arrays, view, proj, fast.bin_gaussians(proj, view), fast.channels_of(proj, None)
+
+
+def projection_grads(n: int) -> tuple[np.ndarray, ...]:
+    """Random gradients of the projection's outputs for ``n`` Gaussians, as ``projection_kernels.project_backward``
+    takes them (float32, C order): means2d [N, 2], conics [N, 3], opacities [N], rgb [N, 3], depths [N]."""
+    grads = np.random.default_rng(0).standard_normal((n, 10)).astype(np.float32)
+    return tuple(np.ascontiguousarray(grads[:, cols]) for cols in (slice(0, 2), slice(2, 5), 5, slice(6, 9), 9))

@@ -25,7 +25,7 @@ from .lanes import _stack_empty
 from .vectors import _columns_into, _sh_sums, _sh_weights
 
 ALPHA_MIN = 1.0 / 255.0
-VECTORS_REVISION = 3
+VECTORS_REVISION = 4
 """Raised with every change to the :mod:`.vectors` intrinsics these kernels use (``_columns_into``, ``_sh_sums``,
 ``_sh_weights``): numba's cache checks only this file's time stamp and size (as ``kernels.LANES_REVISION``)."""
 

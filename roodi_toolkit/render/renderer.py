@@ -104,6 +104,9 @@ class NumbaRenderer(Renderer):
     def __init__(self, *, tile_size: Optional[int] = None) -> None:
         self.tile_size = tile_size  # None: each call's own (``fast.TILE_SIZE``, features alone ``FEATURE_TILE_SIZE``)
 
+    def _tile(self, default: int) -> int:
+        return default if self.tile_size is None else self.tile_size
+
     def render(self, params: GaussianParams, camera: Camera, *, background: Optional[Sequence[float]] = None,
                sh_degree: Optional[int] = None) -> RenderOutput:
         dtype = params.dtype
@@ -112,7 +115,7 @@ class NumbaRenderer(Renderer):
             params.means, params.quats_wxyz, params.log_scales, params.opacity_logits, params.colors,
             camera.world_to_camera, camera.K, camera.width, camera.height, near=camera.near, far=camera.far,
             features=params.features, background=bg, sh_degree=sh_degree,
-            tile_size=self.tile_size or _fast.TILE_SIZE)
+            tile_size=self._tile(_fast.TILE_SIZE))
 
     def render_features(self, params: GaussianParams, features: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
         """Return the composited ``features`` ``[N, F]`` ``[H, W, F]`` and the alpha ``[H, W, 1]`` of ``params`` in
@@ -120,7 +123,7 @@ class NumbaRenderer(Renderer):
         return _fast.rasterize_features(
             params.means, params.quats_wxyz, params.log_scales, params.opacity_logits, features,
             camera.world_to_camera, camera.K, camera.width, camera.height, near=camera.near, far=camera.far,
-            tile_size=self.tile_size or _fast.FEATURE_TILE_SIZE)
+            tile_size=self._tile(_fast.FEATURE_TILE_SIZE))
 
     def compositing_weights(self, params: GaussianParams, camera: Camera, *,
                             max_elements: Optional[int] = None) -> Tensor:
@@ -130,7 +133,7 @@ class NumbaRenderer(Renderer):
         features and their gradients (what distillation and the click segmenter do). ``max_elements`` is accepted
         for the interface and not needed: the kernels hold no more than the result."""
         view = _fast.make_view(camera.world_to_camera, camera.K, camera.width, camera.height, near=camera.near,
-                               far=camera.far, tile=self.tile_size or _fast.TILE_SIZE)
+                               far=camera.far, tile=self._tile(_fast.TILE_SIZE))
         arrays = [t.detach().contiguous().numpy() for t in (params.means, params.quats_wxyz, params.log_scales,
                                                               params.opacity_logits)]
         proj = _fast.project(*arrays, np.zeros((len(params), 3), arrays[0].dtype), 0, view)

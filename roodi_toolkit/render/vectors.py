@@ -278,6 +278,15 @@ def _columns_into(typingctx, dst, row, src, first, count):  # pragma: no cover -
     return types.none(dst, row, src, first, count), codegen
 
 
+def _row_vector(context, builder, arrty, array, index, count):
+    """A pointer to the first ``count`` elements of row ``index`` (intp) of the array ``array`` (its first stride), as
+    one LLVM vector of its dtype."""
+    arr = context.make_array(arrty)(context, builder, array)
+    ptr = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()),
+                      [builder.mul(index, builder.extract_value(arr.strides, 0))])
+    return builder.bitcast(ptr, ir.VectorType(context.get_value_type(arrty.dtype), count).as_pointer())
+
+
 @intrinsic
 def _sh_sums(typingctx, basis, sh, i, count, start):  # pragma: no cover - compiled
     """The three channels' sums ``start + basis[0] sh[i, 0, c] + ... + basis[count - 1] sh[i, count - 1, c]``
@@ -296,11 +305,8 @@ def _sh_sums(typingctx, basis, sh, i, count, start):  # pragma: no cover - compi
     def codegen(context, builder, signature, args):
         i64 = ir.IntType(64)
         sty, dty = context.get_value_type(sh.dtype), context.get_value_type(basis.dtype)
-        arr = context.make_array(signature.args[1])(context, builder, args[1])
-        row = builder.mul(context.cast(builder, args[2], signature.args[2], types.intp),
-                          builder.extract_value(arr.strides, 0))
-        ptr = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()), [row])
-        coeffs = builder.load(builder.bitcast(ptr, ir.VectorType(sty, 3 * k).as_pointer()),
+        index = context.cast(builder, args[2], signature.args[2], types.intp)
+        coeffs = builder.load(_row_vector(context, builder, signature.args[1], args[1], index, 3 * k),
                               align=sh.dtype.bitwidth // 8)
         if dty != sty:
             coeffs = builder.fpext(coeffs, ir.VectorType(dty, 3 * k))
@@ -338,10 +344,7 @@ def _sh_weights(typingctx, basis, sh, g_sh, i, count, g0, g1, g2):  # pragma: no
         index = context.cast(builder, args[3], signature.args[3], types.intp)
 
         def row_ptr(at):
-            arr = context.make_array(signature.args[at])(context, builder, args[at])
-            ptr = builder.gep(builder.bitcast(arr.data, ir.IntType(8).as_pointer()),
-                              [builder.mul(index, builder.extract_value(arr.strides, 0))])
-            return builder.bitcast(ptr, ir.VectorType(sty, 3 * k).as_pointer())
+            return _row_vector(context, builder, signature.args[at], args[at], index, 3 * k)
 
         coeffs = builder.load(row_ptr(1), align=sh.dtype.bitwidth // 8)
         wide = ir.VectorType(dty, k)
