@@ -64,6 +64,24 @@ def layer() -> str:
     return numba.threading_layer()
 
 
+def uncompiled(*dispatchers) -> list[str]:
+    """Return the names of ``dispatchers`` (``@njit(cache=True)`` functions) that their next call compiles: nothing
+    compiled for them in this process, and nothing in numba's cache on disk for their source as it stands (first use
+    on a machine, or after an upgrade; a render's kernels then compile for about 40 s, once). Reads numba's cache
+    index through numba's internals: where those have moved, returns [] (tells nothing rather than guess)."""
+    names = []
+    for dispatcher in dispatchers:
+        if dispatcher.overloads:
+            continue
+        try:
+            index = dispatcher._cache._cache_file._load_index()
+        except Exception:  # not a cached function, or numba's internals moved
+            return []
+        if not index:
+            names.append(dispatcher.__name__)
+    return names
+
+
 def fork_safe() -> bool:
     """Whether a process forked from this one can run the kernels: not once they have started on GNU OpenMP."""
     try:

@@ -32,7 +32,7 @@ from torch import Tensor
 
 from ..errors import ConfigError
 from . import kernels, lanes, projection_kernels, tiles
-from .cores import set_workers
+from .cores import set_workers, uncompiled
 from .projection import EPS2D, camera_tensors, check_inputs
 from .rasterizer import RasterOutput, _split_output
 
@@ -48,6 +48,26 @@ FEATURE_TILE_SIZE = 16
 """Tile edge in pixels of a rendering of features alone (:func:`rasterize_features`: distillation, the click
 segmenter), where 32-pixel tiles measured 0.95-0.98x of 16-pixel ones at 400 px, distillation's working size, on
 the same splat (0.95-1.08x at 800-1000 px: 16 channels, whose sums in the walks outweigh the pairs' work)."""
+
+
+_FIRST_COMPILE: list = []
+"""The callable :func:`tell_first_compile` registered, until it has been called or found nothing to tell."""
+
+
+def tell_first_compile(notice) -> None:
+    """Have ``notice(line)`` called once, before the first render of this process, where that render compiles the
+    kernels for this machine (first use, or after an upgrade: about 40 s for a render and its gradients, 20 s for a
+    render alone, on a 2-core machine; numba keeps them in its cache after), with a line saying so. None: nobody (the
+    default: the library prints nothing; the command line registers a line on stderr)."""
+    _FIRST_COMPILE[:] = [] if notice is None else [notice]
+
+
+def _tell_if_compiling() -> None:
+    if _FIRST_COMPILE and uncompiled(projection_kernels.project_forward, tiles.depth_order, tiles.bin_tiles,
+                                     lanes.fill_records, kernels.composite_forward):
+        _FIRST_COMPILE.pop()("compiling the renderer's kernels for this machine: about half a minute to a minute on "
+                             "first use, once (numba keeps them)")
+    _FIRST_COMPILE.clear()
 
 
 @dataclass
@@ -122,6 +142,7 @@ def project(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray, opacit
             colors: np.ndarray, n_bases: int, view: View, n_features: int = 0) -> Projected:
     """Return the Gaussians projected into ``view`` with their colours and footprints (compiled, no autograd);
     ``channels`` has ``n_features`` columns after rgb and depth for :func:`channels_of` to fill."""
+    _tell_if_compiling()
     n, dtype = means.shape[0], means.dtype
     # the kernel reads rows as vectors: C order (no copy where they are already)
     means, quats = np.ascontiguousarray(means), np.ascontiguousarray(quats)
