@@ -63,11 +63,14 @@ def tell_first_compile(notice) -> None:
 
 
 def _tell_if_compiling() -> None:
-    if _FIRST_COMPILE and uncompiled(projection_kernels.project_forward, tiles.depth_order, tiles.bin_tiles,
-                                     lanes.fill_records, kernels.composite_forward):
-        _FIRST_COMPILE.pop()("compiling the renderer's kernels for this machine: about half a minute to a minute on "
-                             "first use, once (numba keeps them)")
-    _FIRST_COMPILE.clear()
+    try:
+        notice = _FIRST_COMPILE.pop()  # (atomic: renders on several threads tell it once)
+    except IndexError:
+        return
+    if uncompiled(projection_kernels.project_forward, tiles.depth_order, tiles.bin_tiles, lanes.fill_records,
+                  kernels.composite_forward):
+        notice("compiling the renderer's kernels for this machine: about half a minute to a minute on first use, "
+               "once (numba keeps them)")
 
 
 @dataclass
