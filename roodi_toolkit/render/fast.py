@@ -24,7 +24,7 @@ pair order, so the gradients do not depend on the number of threads either.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 import torch
@@ -50,11 +50,11 @@ segmenter), where 32-pixel tiles measured 0.95-0.98x of 16-pixel ones at 400 px,
 the same splat (0.95-1.08x at 800-1000 px: 16 channels, whose sums in the walks outweigh the pairs' work)."""
 
 
-_FIRST_COMPILE: list = []
+_FIRST_COMPILE: list[Callable[[str], None]] = []
 """The callable :func:`tell_first_compile` registered, until it has been called or found nothing to tell."""
 
 
-def tell_first_compile(notice) -> None:
+def tell_first_compile(notice: Optional[Callable[[str], None]]) -> None:
     """Have ``notice(line)`` called once, before the first render of this process, where that render compiles the
     kernels for this machine (first use, or after an upgrade: about 40 s for a render and its gradients, 20 s for a
     render alone, on a 2-core machine; numba keeps them in its cache after), with a line saying so. None: nobody (the
