@@ -238,17 +238,24 @@ def test_killed_at_the_final_step_completes_it(sig: int, code: int, command: str
     assert world.unchanged()
 
 
-@pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
-def test_a_real_process_killed_while_converting(sig: int, code: int, tmp_path: Path) -> None:
-    """A separate process, signalled while it works: it exits with the signal's code (or finished first), and leaves
-    either the complete output or none, never a hidden partial file."""
-    from roodi_toolkit.io.splat import read_cloud, write_cloud
+@pytest.fixture(scope="module")
+def big_ply(tmp_path_factory) -> Path:
+    """A 400k-Gaussian PLY (99 MB), written once for the signals' cases: they only read it."""
+    from roodi_toolkit.io.splat import write_cloud
     from tests.conftest import make_cloud
 
-    src = write_cloud(make_cloud(400_000, sh_degree=3, seed=1), tmp_path / "big.ply")
+    return write_cloud(make_cloud(400_000, sh_degree=3, seed=1), tmp_path_factory.mktemp("big") / "big.ply")
+
+
+@pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
+def test_a_real_process_killed_while_converting(sig: int, code: int, tmp_path: Path, big_ply: Path) -> None:
+    """A separate process, signalled while it works: it exits with the signal's code (or finished first), and leaves
+    either the complete output or none, never a hidden partial file."""
+    from roodi_toolkit.io.splat import read_cloud
+
     out = tmp_path / "big.spz"
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
-    proc = subprocess.Popen([sys.executable, "-m", "roodi_toolkit.cli.main", "convert", str(src), str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "roodi_toolkit.cli.main", "convert", str(big_ply), str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tmp_path)
     deadline = time.time() + 60
     while time.time() < deadline and not any(p.name.startswith(".big.spz") for p in tmp_path.iterdir()):
