@@ -6,7 +6,7 @@ A progress factory is any callable ``factory(total=int, desc=str)`` returning an
 
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Optional, Protocol
 
 
 class ProgressBar(Protocol):
@@ -51,3 +51,23 @@ class NullProgress:
 def null_progress(total: int | None = None, desc: str = "", **kwargs: Any) -> NullProgress:
     """Return a bar that reports nothing; the default progress factory of every library function."""
     return NullProgress(total=total, desc=desc, **kwargs)
+
+
+_FIRST_COMPILE: list[Callable[[str], None]] = []
+"""The callable :func:`tell_first_compile` registered, until a render takes it (:func:`take_first_compile`)."""
+
+
+def tell_first_compile(notice: Optional[Callable[[str], None]]) -> None:
+    """Have ``notice(line)`` called once, before the first render of this process, where that render compiles the
+    built-in renderer's kernels for this machine (first use, or after an upgrade: about 40 s for a render and its
+    gradients, 20 s for a render alone, on a 2-core machine; numba keeps them in its cache after), with a line saying
+    so. None: nobody (the default: the library prints nothing; the command line registers a line on stderr)."""
+    _FIRST_COMPILE[:] = [] if notice is None else [notice]
+
+
+def take_first_compile() -> Optional[Callable[[str], None]]:
+    """Return the notice :func:`tell_first_compile` registered and forget it (once: atomic across threads), or None."""
+    try:
+        return _FIRST_COMPILE.pop()
+    except IndexError:
+        return None

@@ -21,9 +21,18 @@ def progress_factory(quiet: bool = False) -> Callable[..., Any]:
     """Return a tqdm progress factory writing to stderr (a no-op one when quiet)."""
     if quiet:
         return null_progress
-    from tqdm import tqdm  # lazy: -q runs (batch workers, scripts) never draw a bar
+    return functools.partial(_tqdm(), file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5)
 
-    return functools.partial(tqdm, file=sys.stderr, leave=False, dynamic_ncols=True, mininterval=0.5)
+
+def _tqdm() -> Any:
+    from tqdm import tqdm  # lazy: -q runs (batch workers, scripts) never draw a bar nor write above one
+
+    return tqdm
+
+
+def say_above_bars(line: str) -> None:
+    """Write ``line`` on stderr above a progress bar being drawn, rather than into it."""
+    _tqdm().write(line, file=sys.stderr)
 
 
 def _quiet(ctx: click.Context, param: click.Parameter, value: bool) -> bool:

@@ -44,9 +44,10 @@ from typing import Any, Iterator, Sequence
 import click
 
 from roodi_toolkit._version import __version__
-from roodi_toolkit.cli.common import set_torch_threads, threads_setting
+from roodi_toolkit.cli.common import say_above_bars, set_torch_threads, threads_setting
 from roodi_toolkit.errors import InputWarning, RoodiError, missing_library_problem, os_error_problem
 from roodi_toolkit.io.files import output_group
+from roodi_toolkit.progress import tell_first_compile
 from roodi_toolkit.signals import deferrable
 
 # name -> "module:attribute" of a click.Command. One line per command.
@@ -290,6 +291,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not debug:
         warnings.simplefilter("ignore", RuntimeWarning)
     restore_warnings = _show_input_warnings()
+    tell_first_compile(None if quiet else say_above_bars)  # the first render's compile (half a minute) said
     try:
         _torch_threads(args)
         with _output_scope(args):
@@ -336,6 +338,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                    "traceback and please report it)", err=True)
         return 1
     finally:
+        tell_first_compile(None)
         restore_warnings()
         numbers.__exit__(None, None, None)
         _forget_claims()

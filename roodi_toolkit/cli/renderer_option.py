@@ -4,32 +4,19 @@ commands that render import this."""
 
 from __future__ import annotations
 
-import sys
 from typing import Any, Callable
 
 import click
-from tqdm import tqdm
 
-from roodi_toolkit.render import fast
-from roodi_toolkit.render.renderer import NumbaRenderer, get_renderer
+from roodi_toolkit.render.renderer import get_renderer
 
 from .common import parse_key_values
 
 
 def _load_renderer(ctx: click.Context, param: click.Parameter, value: str) -> Any:
     """Return the renderer registered as ``value``, built with the ``--renderer-option`` values: a missing or
-    unavailable plugin, or an option it does not take, fails before any work. The built-in renderer says on stderr
-    when its first render compiles its kernels (a first use's half minute), unless ``-q``."""
-    renderer = get_renderer(value, **ctx.meta.get("renderer_options", {}))
-    quiet = isinstance(ctx.obj, dict) and ctx.obj.get("quiet")
-    if isinstance(renderer, NumbaRenderer) and not quiet:
-        fast.tell_first_compile(_tell)
-    return renderer
-
-
-def _tell(line: str) -> None:
-    """``line`` on stderr, above a progress bar being drawn rather than into it."""
-    tqdm.write(line, file=sys.stderr)
+    unavailable plugin, or an option it does not take, fails before any work."""
+    return get_renderer(value, **ctx.meta.get("renderer_options", {}))
 
 
 def _keep_renderer_options(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> None:

@@ -24,13 +24,14 @@ pair order, so the gradients do not depend on the number of threads either.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Optional
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from ..errors import ConfigError
+from ..progress import take_first_compile
 from . import kernels, lanes, projection_kernels, tiles
 from .cores import set_workers, uncompiled
 from .projection import EPS2D, camera_tensors, check_inputs
@@ -50,25 +51,13 @@ segmenter), where 32-pixel tiles measured 0.95-0.98x of 16-pixel ones at 400 px,
 the same splat (0.95-1.08x at 800-1000 px: 16 channels, whose sums in the walks outweigh the pairs' work)."""
 
 
-_FIRST_COMPILE: list[Callable[[str], None]] = []
-"""The callable :func:`tell_first_compile` registered, until it has been called or found nothing to tell."""
-
-
-def tell_first_compile(notice: Optional[Callable[[str], None]]) -> None:
-    """Have ``notice(line)`` called once, before the first render of this process, where that render compiles the
-    kernels for this machine (first use, or after an upgrade: about 40 s for a render and its gradients, 20 s for a
-    render alone, on a 2-core machine; numba keeps them in its cache after), with a line saying so. None: nobody (the
-    default: the library prints nothing; the command line registers a line on stderr)."""
-    _FIRST_COMPILE[:] = [] if notice is None else [notice]
-
-
 def _tell_if_compiling() -> None:
-    try:
-        notice = _FIRST_COMPILE.pop()  # (atomic: renders on several threads tell it once)
-    except IndexError:
-        return
-    if uncompiled(projection_kernels.project_forward, tiles.depth_order, tiles.bin_tiles, lanes.fill_records,
-                  kernels.composite_forward):
+    """Call the notice the command line registered (:func:`~roodi_toolkit.progress.tell_first_compile`), once, where
+    this render compiles the kernels."""
+    notice = take_first_compile()
+    kernels_first = (projection_kernels.project_forward, tiles.depth_order, tiles.bin_tiles, lanes.fill_records,
+                     kernels.composite_forward)
+    if notice is not None and uncompiled(*kernels_first):
         notice("compiling the renderer's kernels for this machine: about half a minute to a minute on first use, "
                "once (numba keeps them)")
 

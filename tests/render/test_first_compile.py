@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 
+from roodi_toolkit import progress
 from roodi_toolkit.io.ply import write_ply
 from roodi_toolkit.render import cores, fast
 
@@ -64,17 +65,20 @@ def test_the_notice_is_told_once_and_only_when_compiling(monkeypatch):
     args = (means, quats, np.zeros((4, 3), np.float32), np.zeros(4, np.float32), np.zeros((4, 3), np.float32), 0,
             fast.make_view(np.eye(4), np.array([[10.0, 0, 4], [0, 10.0, 4], [0, 0, 1]]), 8, 8))
     monkeypatch.setattr(fast, "uncompiled", lambda *d: ["composite_forward"])
-    fast.tell_first_compile(told.append)
+    progress.tell_first_compile(told.append)
     fast.project(*args)
     fast.project(*args)
     assert len(told) == 1 and "compiling the renderer's kernels" in told[0]
     monkeypatch.setattr(fast, "uncompiled", lambda *d: [])
-    fast.tell_first_compile(told.append)
-    fast.project(*args)
-    fast.tell_first_compile(None)
+    progress.tell_first_compile(told.append)
+    fast.project(*args)  # nothing compiled: nothing told, and the notice dropped
     monkeypatch.setattr(fast, "uncompiled", lambda *d: ["composite_forward"])
     fast.project(*args)
-    assert len(told) == 1  # nothing compiled: nothing told, and the notice dropped; None tells nobody
+    assert len(told) == 1
+    progress.tell_first_compile(told.append)
+    progress.tell_first_compile(None)  # None tells nobody
+    fast.project(*args)
+    assert len(told) == 1
 
 
 def test_the_command_line_says_so_on_stderr_unless_quiet(tmp_path, run_cli, monkeypatch):
@@ -88,4 +92,4 @@ def test_the_command_line_says_so_on_stderr_unless_quiet(tmp_path, run_cli, monk
     assert res.exit_code == 0 and "compiling" not in res.stderr
     res = run_cli("render", ply, tmp_path / "c", "--orbit", "1", "--size", "16x16", "--renderer", "torch")
     assert res.exit_code == 0 and "compiling" not in res.stderr
-    fast.tell_first_compile(None)
+    assert progress.take_first_compile() is None  # a command's notice ends with it
