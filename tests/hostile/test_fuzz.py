@@ -341,7 +341,7 @@ def _run_cases(reader: str, n: int, tmp: Path, seed: int = 0) -> Counter:
                 if reader == "gsplat_cfg":
                     return gsplat.gsplat_settings(gsplat.read_gsplat_config(folder), path)
                 return om.read_dataparser_transforms(path)
-            return what, read, path
+            return what, read, folder
     else:
         name, data = _cloud_seeds(tmp)[reader]
 
