@@ -44,9 +44,13 @@ class CliResult:
 
 
 @pytest.fixture
-def run_cli(capsys):
-    """Run ``roodi-toolkit ARGS`` in-process through main() and capture its exit code and output."""
+def run_cli(capsys, monkeypatch):
+    """Run ``roodi-toolkit ARGS`` in-process through main() and capture its exit code and output. The line a first
+    render says when it compiles the kernels is left out (what the tests read on stderr must not depend on whether
+    numba's cache was warm: ``tests/render/test_first_compile.py`` checks that line)."""
     from roodi_toolkit.cli.main import main
+
+    monkeypatch.setattr("roodi_toolkit.render.fast.uncompiled", lambda *dispatchers: [])
 
     def run(*args: str) -> CliResult:
         capsys.readouterr()
