@@ -55,9 +55,8 @@ def _tell_if_compiling() -> None:
     """Call the notice the command line registered (:func:`~roodi_toolkit.progress.tell_first_compile`), once, where
     this render compiles the kernels."""
     notice = take_first_compile()
-    kernels_first = (projection_kernels.project_forward, tiles.depth_order, tiles.bin_tiles, lanes.fill_records,
-                     kernels.composite_forward)
-    if notice is not None and uncompiled(*kernels_first):
+    if notice is not None and uncompiled(projection_kernels.project_forward, tiles.depth_order, tiles.bin_tiles,
+                                         lanes.fill_records, kernels.composite_forward):
         notice("compiling the renderer's kernels for this machine: about half a minute to a minute on first use, "
                "once (numba keeps them)")
 

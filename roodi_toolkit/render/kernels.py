@@ -52,7 +52,7 @@ from .lanes import (LANES, PREFETCH, _constant_tuple, _constants, _fma, _gauss, 
 from .lanes import channel_groups  # noqa: F401 (the callers' argument for the compositing kernels)
 from .vectors import _lane_dots, _lane_dots_into, _lane_sums_into, _lanes_axpy, _lanes_scale
 
-LANES_REVISION = 26
+LANES_REVISION = 27
 """Raised with every change to :mod:`.lanes` or :mod:`.vectors`: numba's cache (``cache=True``) checks only the time
 stamp and size of the file that defines a kernel, and the block helpers are compiled into these kernels, so a change
 to lanes.py, vectors.py or simd.py alone would leave a checkout that compiled them before with stale kernels (5: the
@@ -64,7 +64,8 @@ module; 17: their loads and stores shared; 18: selects, not branches; 19: sums a
 20: the rows' loads shared; 21: the records filled by a kernel of their own, for the caller; 22: the walks' state
 as vectors, :mod:`.simd`, which this covers too; 23: whole records copied as vectors; 24: the blocks' entries
 as bits of 64-entry words; 25: back to the lists; 26: the projection's columns and SH sums, whose kernels
-:mod:`.projection_kernels` raises its own ``VECTORS_REVISION`` for)."""
+:mod:`.projection_kernels` raises its own ``VECTORS_REVISION`` for; 27: one splat helper for the lanes'
+broadcasts)."""
 
 
 @nb.njit(inline="always")

@@ -65,9 +65,7 @@ def _store_halves(context, builder, arrty, array, halves):
 
 def _broadcast(builder, value):
     """An LLVM vector of 8 copies of the scalar ``value``."""
-    vec = builder.insert_element(ir.Constant(ir.VectorType(value.type, LANES // 2), None), value,
-                                 ir.Constant(ir.IntType(32), 0))
-    return _shuffle(builder, vec, vec, [0] * (LANES // 2))
+    return _splat_n(builder, value, LANES // 2)
 
 
 @intrinsic
